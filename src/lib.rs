@@ -1,0 +1,34 @@
+//! marionette: drive servo rigs from motion capture.
+//!
+//! Layers, each depending only on those above it in this list:
+//!
+//! * [`math`] — axes, the 12 Euler orders, quaternion distance (help note eq. 27–28).
+//! * [`skeleton`] — fixed-capacity bones, channel layout, limits.
+//! * [`asf`] — the ASF reader, text to skeleton, without allocation.
+//! * [`fk`] — forward kinematics, eq. (1)–(5), into caller buffers.
+//!
+//! These four are the `no_std` core (build with `--no-default-features`); they use `glam` with
+//! `libm` and `heapless`, never the standard library or the heap.
+//!
+//! With the default `std` feature, the edge:
+//!
+//! * `motion` — a clip of frames (values as files hold them) and its frame vectors.
+//! * `formats` — file loading with `file:line:column` errors, AMC read/write, ASF write,
+//!   BVH import/export.
+//! * `cli` — the `marionette` command.
+#![cfg_attr(not(feature = "std"), no_std)]
+#![deny(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod asf;
+pub mod fk;
+pub mod math;
+pub mod skeleton;
+
+#[cfg(feature = "std")]
+/// The command line.
+pub mod cli;
+#[cfg(feature = "std")]
+pub mod formats;
+#[cfg(feature = "std")]
+pub mod motion;

@@ -1,0 +1,485 @@
+//! Rotation maths shared by every layer: axes, the 12 Euler orders, and the quaternion
+//! distance of the help note, eq. (27)–(28).
+//!
+//! Convention: an [`EulerOrder`] names the axes in the order the rotations are *applied*
+//! (first = innermost). `EulerOrder::XYZ` with angles `[a, b, c]` is `Rz(c)·Ry(b)·Rx(a)`, the
+//! ASF `axis … XYZ` convention (help note eq. 3). Angles are radians.
+
+use glam::{DMat3, DQuat, DVec3, Mat3, Quat, Vec3};
+
+/// A principal axis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Axis {
+    /// The x axis.
+    X,
+    /// The y axis (up in ASF/AMC and BVH).
+    Y,
+    /// The z axis.
+    Z,
+}
+
+impl Axis {
+    /// 0, 1 or 2.
+    #[inline]
+    #[must_use]
+    pub const fn index(self) -> usize {
+        match self {
+            Axis::X => 0,
+            Axis::Y => 1,
+            Axis::Z => 2,
+        }
+    }
+
+    /// The unit vector along this axis.
+    #[inline]
+    #[must_use]
+    pub fn unit(self) -> Vec3 {
+        match self {
+            Axis::X => Vec3::X,
+            Axis::Y => Vec3::Y,
+            Axis::Z => Vec3::Z,
+        }
+    }
+
+    /// The rotation by `angle` radians about this axis.
+    #[inline]
+    #[must_use]
+    pub fn rotation(self, angle: f32) -> Mat3 {
+        match self {
+            Axis::X => Mat3::from_rotation_x(angle),
+            Axis::Y => Mat3::from_rotation_y(angle),
+            Axis::Z => Mat3::from_rotation_z(angle),
+        }
+    }
+
+    /// The rotation by `angle` radians about this axis, in f64.
+    #[inline]
+    #[must_use]
+    pub fn rotation_f64(self, angle: f64) -> DMat3 {
+        match self {
+            Axis::X => DMat3::from_rotation_x(angle),
+            Axis::Y => DMat3::from_rotation_y(angle),
+            Axis::Z => DMat3::from_rotation_z(angle),
+        }
+    }
+}
+
+/// One of the 12 Euler orders: six Tait–Bryan (three distinct axes) and six proper Euler
+/// orders (first axis repeated). The letters are the axes in the order they are applied.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[allow(missing_docs)]
+pub enum EulerOrder {
+    XYZ,
+    XZY,
+    YXZ,
+    YZX,
+    ZXY,
+    ZYX,
+    XYX,
+    XZX,
+    YXY,
+    YZY,
+    ZXZ,
+    ZYZ,
+}
+
+impl EulerOrder {
+    /// All 12 orders.
+    pub const ALL: [EulerOrder; 12] = [
+        EulerOrder::XYZ,
+        EulerOrder::XZY,
+        EulerOrder::YXZ,
+        EulerOrder::YZX,
+        EulerOrder::ZXY,
+        EulerOrder::ZYX,
+        EulerOrder::XYX,
+        EulerOrder::XZX,
+        EulerOrder::YXY,
+        EulerOrder::YZY,
+        EulerOrder::ZXZ,
+        EulerOrder::ZYZ,
+    ];
+
+    /// The axes in application order.
+    #[must_use]
+    pub const fn axes(self) -> [Axis; 3] {
+        use Axis::*;
+        match self {
+            EulerOrder::XYZ => [X, Y, Z],
+            EulerOrder::XZY => [X, Z, Y],
+            EulerOrder::YXZ => [Y, X, Z],
+            EulerOrder::YZX => [Y, Z, X],
+            EulerOrder::ZXY => [Z, X, Y],
+            EulerOrder::ZYX => [Z, Y, X],
+            EulerOrder::XYX => [X, Y, X],
+            EulerOrder::XZX => [X, Z, X],
+            EulerOrder::YXY => [Y, X, Y],
+            EulerOrder::YZY => [Y, Z, Y],
+            EulerOrder::ZXZ => [Z, X, Z],
+            EulerOrder::ZYZ => [Z, Y, Z],
+        }
+    }
+
+    /// The order whose axes are these, if any (three distinct axes, or first == last).
+    #[must_use]
+    pub fn from_axes(axes: [Axis; 3]) -> Option<EulerOrder> {
+        EulerOrder::ALL.into_iter().find(|o| o.axes() == axes)
+    }
+
+    /// Parses `XYZ`, `zyx`, … (case-insensitive).
+    #[must_use]
+    pub fn parse(text: &str) -> Option<EulerOrder> {
+        let b = text.as_bytes();
+        if b.len() != 3 {
+            return None;
+        }
+        let mut axes = [Axis::X; 3];
+        for (slot, c) in axes.iter_mut().zip(b) {
+            *slot = match c.to_ascii_uppercase() {
+                b'X' => Axis::X,
+                b'Y' => Axis::Y,
+                b'Z' => Axis::Z,
+                _ => return None,
+            };
+        }
+        EulerOrder::from_axes(axes)
+    }
+
+    /// The order's name, e.g. `"XYZ"`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            EulerOrder::XYZ => "XYZ",
+            EulerOrder::XZY => "XZY",
+            EulerOrder::YXZ => "YXZ",
+            EulerOrder::YZX => "YZX",
+            EulerOrder::ZXY => "ZXY",
+            EulerOrder::ZYX => "ZYX",
+            EulerOrder::XYX => "XYX",
+            EulerOrder::XZX => "XZX",
+            EulerOrder::YXY => "YXY",
+            EulerOrder::YZY => "YZY",
+            EulerOrder::ZXZ => "ZXZ",
+            EulerOrder::ZYZ => "ZYZ",
+        }
+    }
+
+    /// True for the six proper Euler orders (first axis repeated).
+    #[must_use]
+    pub const fn is_proper(self) -> bool {
+        let a = self.axes();
+        a[0].index() == a[2].index()
+    }
+
+    /// The rotation `R3(c)·R2(b)·R1(a)` for angles `[a, b, c]` in radians.
+    #[must_use]
+    pub fn to_mat3(self, angles: [f32; 3]) -> Mat3 {
+        let [i, j, k] = self.axes();
+        k.rotation(angles[2]) * j.rotation(angles[1]) * i.rotation(angles[0])
+    }
+
+    /// The rotation `R3(c)·R2(b)·R1(a)` as a quaternion.
+    #[must_use]
+    pub fn to_quat(self, angles: [f32; 3]) -> Quat {
+        let [i, j, k] = self.axes();
+        Quat::from_axis_angle(k.unit(), angles[2])
+            * Quat::from_axis_angle(j.unit(), angles[1])
+            * Quat::from_axis_angle(i.unit(), angles[0])
+    }
+
+    /// The rotation `R3(c)·R2(b)·R1(a)` in f64.
+    #[must_use]
+    pub fn to_mat3_f64(self, angles: [f64; 3]) -> DMat3 {
+        let [i, j, k] = self.axes();
+        k.rotation_f64(angles[2]) * j.rotation_f64(angles[1]) * i.rotation_f64(angles[0])
+    }
+
+    /// Angles `[a, b, c]` (radians) with `self.to_mat3(angles) == m`, for a rotation matrix `m`.
+    ///
+    /// The middle angle is in `[-π/2, π/2]` (Tait–Bryan) or `[0, π]` (proper Euler); at gimbal
+    /// lock the first angle is set to 0.
+    #[must_use]
+    pub fn from_mat3(self, m: &Mat3) -> [f32; 3] {
+        let r = |i: usize, j: usize| m.col(j)[i];
+        let [a, b, c] = self.extract(&r, 1.0e-6f32, libm::atan2f, libm::asinf, libm::acosf);
+        [a, b, c]
+    }
+
+    /// Angles of a quaternion (see [`EulerOrder::from_mat3`]).
+    #[must_use]
+    pub fn from_quat(self, q: Quat) -> [f32; 3] {
+        self.from_mat3(&Mat3::from_quat(q.normalize()))
+    }
+
+    /// Angles `[a, b, c]` (radians) with `self.to_mat3_f64(angles) == m`, in f64.
+    #[must_use]
+    pub fn from_mat3_f64(self, m: &DMat3) -> [f64; 3] {
+        let r = |i: usize, j: usize| m.col(j)[i];
+        self.extract(&r, 1.0e-12f64, libm::atan2, libm::asin, libm::acos)
+    }
+
+    /// Angles of an f64 quaternion.
+    #[must_use]
+    pub fn from_quat_f64(self, q: DQuat) -> [f64; 3] {
+        self.from_mat3_f64(&DMat3::from_quat(q.normalize()))
+    }
+
+    /// The extraction shared by f32 and f64. `r(i, j)` is the element in row i, column j.
+    ///
+    /// Tait–Bryan `Rk(c)Rj(b)Ri(a)` with parity `s` (+1 for cyclic i→j→k):
+    /// `R[k][i] = −s·sin b`, `a = atan2(s·R[k][j], R[k][k])`, `c = atan2(s·R[j][i], R[i][i])`.
+    /// Proper `Ri(c)Rj(b)Ri(a)` with third axis m and parity s of (i, j, m):
+    /// `R[i][i] = cos b`, `a = atan2(R[i][j], s·R[i][m])`, `c = atan2(R[j][i], −s·R[m][i])`.
+    fn extract<T: Real>(
+        self,
+        r: &dyn Fn(usize, usize) -> T,
+        eps: T,
+        atan2: fn(T, T) -> T,
+        asin: fn(T) -> T,
+        acos: fn(T) -> T,
+    ) -> [T; 3] {
+        let [ai, aj, ak] = self.axes();
+        let (i, j) = (ai.index(), aj.index());
+        let one = T::ONE;
+        if !self.is_proper() {
+            let k = ak.index();
+            let s = if (j + 3 - i) % 3 == 1 { one } else { -one };
+            let sb = -(s * r(k, i));
+            if sb.abs_r() < one - eps {
+                let a = atan2(s * r(k, j), r(k, k));
+                let b = asin(sb);
+                let c = atan2(s * r(j, i), r(i, i));
+                [a, b, c]
+            } else {
+                // Gimbal lock: a = 0, so R = Rk(c)·Rj(b); c from R·Rj(b)ᵀ = Rk(c).
+                let b = asin(sb.clamp_r(-one, one));
+                let c = single_axis_angle(r, aj, b, ak, atan2);
+                [T::ZERO, b, c]
+            }
+        } else {
+            let m = 3 - i - j;
+            let s = if (j + 3 - i) % 3 == 1 { one } else { -one };
+            let cb = r(i, i).clamp_r(-one, one);
+            let b = acos(cb);
+            if cb.abs_r() < one - eps {
+                let a = atan2(r(i, j), s * r(i, m));
+                let c = atan2(r(j, i), -(s * r(m, i)));
+                [a, b, c]
+            } else {
+                let c = single_axis_angle(r, aj, b, ai, atan2);
+                [T::ZERO, b, c]
+            }
+        }
+    }
+}
+
+/// The angle `c` of `M = R·Rj(b)ᵀ`, assumed to be a rotation about `k` (gimbal-lock case).
+fn single_axis_angle<T: Real>(
+    r: &dyn Fn(usize, usize) -> T,
+    j: Axis,
+    b: T,
+    k: Axis,
+    atan2: fn(T, T) -> T,
+) -> T {
+    // Rj(b)ᵀ columns: element (p, q) of Rj(-b).
+    let rj_t = |p: usize, q: usize| T::axis_rotation_element(j.index(), -b, p, q);
+    let mm = |p: usize, q: usize| {
+        let mut acc = T::ZERO;
+        for n in 0..3 {
+            acc = acc + r(p, n) * rj_t(n, q);
+        }
+        acc
+    };
+    let n1 = (k.index() + 1) % 3;
+    let n2 = (k.index() + 2) % 3;
+    atan2(mm(n2, n1), mm(n1, n1))
+}
+
+/// The few scalar operations the Euler extraction needs, for f32 and f64.
+trait Real:
+    Copy
+    + PartialOrd
+    + core::ops::Add<Output = Self>
+    + core::ops::Sub<Output = Self>
+    + core::ops::Mul<Output = Self>
+    + core::ops::Neg<Output = Self>
+{
+    const ONE: Self;
+    const ZERO: Self;
+    fn abs_r(self) -> Self;
+    fn clamp_r(self, lo: Self, hi: Self) -> Self;
+    /// Element (p, q) of the rotation by `angle` about axis `axis`.
+    fn axis_rotation_element(axis: usize, angle: Self, p: usize, q: usize) -> Self;
+}
+
+macro_rules! impl_real {
+    ($t:ty, $sin:path, $cos:path) => {
+        impl Real for $t {
+            const ONE: Self = 1.0;
+            const ZERO: Self = 0.0;
+            fn abs_r(self) -> Self {
+                if self < 0.0 {
+                    -self
+                } else {
+                    self
+                }
+            }
+            fn clamp_r(self, lo: Self, hi: Self) -> Self {
+                if self < lo {
+                    lo
+                } else if self > hi {
+                    hi
+                } else {
+                    self
+                }
+            }
+            fn axis_rotation_element(axis: usize, angle: Self, p: usize, q: usize) -> Self {
+                let (s, c) = ($sin(angle), $cos(angle));
+                let n1 = (axis + 1) % 3;
+                let n2 = (axis + 2) % 3;
+                match (p, q) {
+                    _ if p == axis && q == axis => 1.0,
+                    _ if p == axis || q == axis => 0.0,
+                    _ if p == q => c,
+                    _ if p == n2 && q == n1 => s,
+                    _ => -s,
+                }
+            }
+        }
+    };
+}
+impl_real!(f32, libm::sinf, libm::cosf);
+impl_real!(f64, libm::sin, libm::cos);
+
+/// The geodesic distance of eq. (27)–(28): `‖log(q1⁻¹·q2)‖`, taking the shorter of `q` and
+/// `−q`; half the rotation angle between the two, in `[0, π/2]`.
+#[inline]
+#[must_use]
+pub fn quat_distance(q1: Quat, q2: Quat) -> f32 {
+    let d = q1.conjugate() * q2;
+    let v = Vec3::new(d.x, d.y, d.z).length();
+    libm::atan2f(v, libm::fabsf(d.w))
+}
+
+/// [`quat_distance`] in f64.
+#[inline]
+#[must_use]
+pub fn quat_distance_f64(q1: DQuat, q2: DQuat) -> f64 {
+    let d = q1.conjugate() * q2;
+    let v = DVec3::new(d.x, d.y, d.z).length();
+    libm::atan2(v, libm::fabs(d.w))
+}
+
+/// Degrees to radians.
+#[inline]
+#[must_use]
+pub fn deg_to_rad(d: f32) -> f32 {
+    d * (core::f32::consts::PI / 180.0)
+}
+
+/// Radians to degrees.
+#[inline]
+#[must_use]
+pub fn rad_to_deg(r: f32) -> f32 {
+    r * (180.0 / core::f32::consts::PI)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn angles_f64(seed: &mut u64) -> [f64; 3] {
+        let mut next = || {
+            *seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((*seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        [
+            next() * core::f64::consts::PI,
+            next() * 1.5,
+            next() * core::f64::consts::PI,
+        ]
+    }
+
+    #[test]
+    fn parse_and_name_round_trip() {
+        for o in EulerOrder::ALL {
+            assert_eq!(EulerOrder::parse(o.name()), Some(o));
+            assert_eq!(EulerOrder::parse(&o.name().to_lowercase()), Some(o));
+        }
+        assert_eq!(EulerOrder::parse("XXY"), None);
+        assert_eq!(EulerOrder::parse("XY"), None);
+    }
+
+    #[test]
+    fn xyz_is_rz_ry_rx() {
+        let m = EulerOrder::XYZ.to_mat3_f64([0.3, -0.2, 1.1]);
+        let want = DMat3::from_rotation_z(1.1) * DMat3::from_rotation_y(-0.2) * DMat3::from_rotation_x(0.3);
+        assert!(m.abs_diff_eq(want, 1e-15));
+    }
+
+    #[test]
+    fn euler_matrix_round_trip_all_orders_f64() {
+        let mut seed = 7;
+        for o in EulerOrder::ALL {
+            for _ in 0..2000 {
+                let mut a = angles_f64(&mut seed);
+                if o.is_proper() {
+                    a[1] = a[1].abs() * 2.0; // (0, 3) within [0, π]
+                }
+                let m = o.to_mat3_f64(a);
+                let back = o.from_mat3_f64(&m);
+                let m2 = o.to_mat3_f64(back);
+                assert!(m.abs_diff_eq(m2, 1e-12), "{o:?} {a:?} -> {back:?}");
+                for (x, y) in a.iter().zip(back) {
+                    assert!((x - y).abs() < 1e-9, "{o:?} {a:?} -> {back:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn euler_gimbal_lock_all_orders() {
+        for o in EulerOrder::ALL {
+            let mids: &[f64] = if o.is_proper() {
+                &[0.0, core::f64::consts::PI]
+            } else {
+                &[core::f64::consts::FRAC_PI_2, -core::f64::consts::FRAC_PI_2]
+            };
+            for &b in mids {
+                let m = o.to_mat3_f64([0.4, b, -0.7]);
+                let back = o.from_mat3_f64(&m);
+                assert!(m.abs_diff_eq(o.to_mat3_f64(back), 1e-9), "{o:?} b={b} -> {back:?}");
+                let mf = o.to_mat3([0.4, b as f32, -0.7]);
+                let backf = o.from_mat3(&mf);
+                assert!(mf.abs_diff_eq(o.to_mat3(backf), 1e-5), "{o:?} f32 b={b}");
+            }
+        }
+    }
+
+    #[test]
+    fn euler_quat_agrees_with_matrix() {
+        let mut seed = 11;
+        for o in EulerOrder::ALL {
+            for _ in 0..200 {
+                let a = angles_f64(&mut seed).map(|x| x as f32);
+                let q = o.to_quat(a);
+                assert!(Mat3::from_quat(q).abs_diff_eq(o.to_mat3(a), 1e-5));
+                let back = o.from_quat(q);
+                assert!(o.to_quat(back).dot(q).abs() > 1.0 - 1e-6);
+            }
+        }
+    }
+
+    #[test]
+    fn quat_distance_short_arc_and_symmetry() {
+        let a = Quat::from_rotation_y(0.4);
+        let b = Quat::from_rotation_y(1.0);
+        assert!((quat_distance(a, b) - 0.3).abs() < 1e-6);
+        assert!((quat_distance(a, -b) - 0.3).abs() < 1e-6);
+        assert_eq!(quat_distance(b, b), 0.0);
+        let far = Quat::from_rotation_x(3.0);
+        assert!((quat_distance(Quat::IDENTITY, far) - 1.5).abs() < 1e-6);
+    }
+}

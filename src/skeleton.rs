@@ -1,0 +1,507 @@
+//! The skeleton: fixed-capacity bones addressed by index, parents before children, and the
+//! channel layout of a frame vector.
+//!
+//! Bone 0 is the root. Its channels come first in a frame vector, in the ASF `:root order`;
+//! every other bone follows in skeleton order with its channels in its `dof` order. Rotation
+//! channels are radians inside the library (files hold degrees), translations are file units.
+
+use crate::math::{Axis, EulerOrder};
+use glam::{Mat3, Vec3};
+
+/// Most bones a skeleton holds, the root included.
+pub const MAX_BONES: usize = 64;
+/// Most channels one bone has: `rx ry rz tx ty tz l`.
+pub const MAX_BONE_DOFS: usize = 7;
+/// Most channels in a frame vector.
+pub const MAX_CHANNELS: usize = MAX_BONES * MAX_BONE_DOFS;
+/// Longest bone name, in bytes.
+pub const MAX_NAME_LEN: usize = 48;
+
+/// A bone name.
+pub type BoneName = heapless::String<MAX_NAME_LEN>;
+
+/// One degree of freedom (channel) of a bone.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Dof {
+    /// Rotation about the bone's local x axis.
+    Rx,
+    /// Rotation about the bone's local y axis.
+    Ry,
+    /// Rotation about the bone's local z axis.
+    Rz,
+    /// Translation along x (the root: global x).
+    Tx,
+    /// Translation along y.
+    Ty,
+    /// Translation along z.
+    Tz,
+    /// Change of the bone's length.
+    L,
+}
+
+impl Dof {
+    /// Parses `rx`, `TX`, `l`, … (case-insensitive).
+    #[must_use]
+    pub fn parse(text: &str) -> Option<Dof> {
+        Some(match text.as_bytes() {
+            [r, x] if r.eq_ignore_ascii_case(&b'r') || r.eq_ignore_ascii_case(&b't') => {
+                let t = r.eq_ignore_ascii_case(&b't');
+                match (t, x.to_ascii_lowercase()) {
+                    (false, b'x') => Dof::Rx,
+                    (false, b'y') => Dof::Ry,
+                    (false, b'z') => Dof::Rz,
+                    (true, b'x') => Dof::Tx,
+                    (true, b'y') => Dof::Ty,
+                    (true, b'z') => Dof::Tz,
+                    _ => return None,
+                }
+            }
+            [l] if l.eq_ignore_ascii_case(&b'l') => Dof::L,
+            _ => return None,
+        })
+    }
+
+    /// The lower-case ASF name (`rx`, …, `l`).
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Dof::Rx => "rx",
+            Dof::Ry => "ry",
+            Dof::Rz => "rz",
+            Dof::Tx => "tx",
+            Dof::Ty => "ty",
+            Dof::Tz => "tz",
+            Dof::L => "l",
+        }
+    }
+
+    /// True for `rx`, `ry`, `rz`.
+    #[must_use]
+    pub const fn is_rotation(self) -> bool {
+        matches!(self, Dof::Rx | Dof::Ry | Dof::Rz)
+    }
+
+    /// The axis of a rotation or translation channel (`None` for `l`).
+    #[must_use]
+    pub const fn axis(self) -> Option<Axis> {
+        match self {
+            Dof::Rx | Dof::Tx => Some(Axis::X),
+            Dof::Ry | Dof::Ty => Some(Axis::Y),
+            Dof::Rz | Dof::Tz => Some(Axis::Z),
+            Dof::L => None,
+        }
+    }
+}
+
+/// The legal range of one channel: radians for rotations, file units otherwise. Either end
+/// may be infinite.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Limit {
+    /// Lower bound.
+    pub min: f32,
+    /// Upper bound.
+    pub max: f32,
+}
+
+impl Limit {
+    /// No limit.
+    pub const UNLIMITED: Limit = Limit {
+        min: f32::NEG_INFINITY,
+        max: f32::INFINITY,
+    };
+
+    /// True when `min ≤ value ≤ max`.
+    #[must_use]
+    pub fn contains(&self, value: f32) -> bool {
+        self.min <= value && value <= self.max
+    }
+
+    /// The value moved inside the range.
+    #[must_use]
+    pub fn clamp(&self, value: f32) -> f32 {
+        value.max(self.min).min(self.max)
+    }
+}
+
+/// The length and angle units of a skeleton's files (ASF `:units`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Units {
+    /// ASF `mass`.
+    pub mass: f32,
+    /// ASF `length`: one file unit is `1 / length` inch (CMU: 0.45).
+    pub length: f32,
+    /// True when the ASF angles (axis, limits, root orientation) are in degrees.
+    pub degrees: bool,
+}
+
+impl Default for Units {
+    fn default() -> Self {
+        Units {
+            mass: 1.0,
+            length: 1.0,
+            degrees: true,
+        }
+    }
+}
+
+impl Units {
+    /// Metres per file unit: `(1 / length) · 0.0254`.
+    #[must_use]
+    pub fn meters_per_unit(&self) -> f32 {
+        0.0254 / self.length
+    }
+}
+
+/// The description of one bone, as a file states it, before it joins a [`Skeleton`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoneSpec {
+    /// Name, unique within the skeleton.
+    pub name: BoneName,
+    /// The ASF `id` (kept for writing; not used otherwise).
+    pub id: u32,
+    /// Direction from the bone's start to its tip at rest, in global coordinates. Unit length
+    /// or zero.
+    pub direction: Vec3,
+    /// Length in file units.
+    pub length: f32,
+    /// The ASF `axis` angles, radians: the orientation of the bone's local frame at rest.
+    pub axis: [f32; 3],
+    /// The Euler order of `axis`.
+    pub axis_order: EulerOrder,
+    /// Channels in file order; rotations are applied in this order (first = innermost).
+    pub dofs: heapless::Vec<Dof, MAX_BONE_DOFS>,
+    /// One limit per channel.
+    pub limits: heapless::Vec<Limit, MAX_BONE_DOFS>,
+}
+
+impl BoneSpec {
+    /// A bone with no channels and no limits.
+    #[must_use]
+    pub fn new(name: BoneName, direction: Vec3, length: f32) -> BoneSpec {
+        BoneSpec {
+            name,
+            id: 0,
+            direction,
+            length,
+            axis: [0.0; 3],
+            axis_order: EulerOrder::XYZ,
+            dofs: heapless::Vec::new(),
+            limits: heapless::Vec::new(),
+        }
+    }
+}
+
+/// A bone inside a [`Skeleton`]: its spec plus what the skeleton derives from it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Bone {
+    spec: BoneSpec,
+    parent: Option<usize>,
+    first_channel: usize,
+    /// `C`: the local frame at rest (the `axis` rotation), help note eq. (3).
+    axis_rotation: Mat3,
+    /// The direction in the bone's local frame, eq. (5): `Cᵀ · direction`.
+    local_direction: Vec3,
+}
+
+impl Bone {
+    /// The bone's name.
+    #[must_use]
+    pub fn name(&self) -> &str {
+        &self.spec.name
+    }
+    /// The file's description of the bone.
+    #[must_use]
+    pub fn spec(&self) -> &BoneSpec {
+        &self.spec
+    }
+    /// The parent's index (`None` for the root).
+    #[must_use]
+    pub fn parent(&self) -> Option<usize> {
+        self.parent
+    }
+    /// The channels, in frame order.
+    #[must_use]
+    pub fn dofs(&self) -> &[Dof] {
+        &self.spec.dofs
+    }
+    /// The limits, one per channel.
+    #[must_use]
+    pub fn limits(&self) -> &[Limit] {
+        &self.spec.limits
+    }
+    /// Index of the bone's first channel in a frame vector.
+    #[must_use]
+    pub fn first_channel(&self) -> usize {
+        self.first_channel
+    }
+    /// The range of the bone's channels in a frame vector.
+    #[must_use]
+    pub fn channels(&self) -> core::ops::Range<usize> {
+        self.first_channel..self.first_channel + self.spec.dofs.len()
+    }
+    /// Length in file units.
+    #[must_use]
+    pub fn length(&self) -> f32 {
+        self.spec.length
+    }
+    /// Unit direction at rest, global (zero for the root or a zero-length bone).
+    #[must_use]
+    pub fn direction(&self) -> Vec3 {
+        self.spec.direction
+    }
+    /// `C`, the rest orientation of the bone's local frame.
+    #[must_use]
+    pub fn axis_rotation(&self) -> Mat3 {
+        self.axis_rotation
+    }
+    /// The rest direction in the local frame (eq. 5).
+    #[must_use]
+    pub fn local_direction(&self) -> Vec3 {
+        self.local_direction
+    }
+}
+
+/// Why a set of bones does not make a skeleton. Indices refer to the `bones` slice given to
+/// [`Skeleton::new`]; `usize::MAX` means the root.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SkeletonError {
+    /// More than [`MAX_BONES`] bones (root included).
+    TooManyBones,
+    /// Two bones share a name, or a bone is called `root`.
+    DuplicateName(usize),
+    /// A bone is not reached from the root: no parent given, or part of a cycle.
+    Detached(usize),
+    /// A parent index is out of range or names the bone itself.
+    BadParent(usize),
+    /// A bone's direction is not finite, or zero while its length is not.
+    BadDirection(usize),
+    /// A length is negative or not finite.
+    BadLength(usize),
+    /// Channels and limits differ in number, a channel is repeated, or a limit is
+    /// inverted or NaN.
+    BadChannels(usize),
+}
+
+/// The root's description: ASF `:root`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RootSpec {
+    /// Channel order (`order TX TY TZ RX RY RZ`); rotations applied in this order.
+    pub order: heapless::Vec<Dof, 6>,
+    /// Euler order of `orientation`.
+    pub axis_order: EulerOrder,
+    /// Rest position added to the translation channels.
+    pub position: Vec3,
+    /// Rest orientation, radians; rotates the whole skeleton.
+    pub orientation: [f32; 3],
+}
+
+impl Default for RootSpec {
+    fn default() -> Self {
+        let mut order = heapless::Vec::new();
+        for d in [Dof::Tx, Dof::Ty, Dof::Tz, Dof::Rx, Dof::Ry, Dof::Rz] {
+            let _ = order.push(d);
+        }
+        RootSpec {
+            order,
+            axis_order: EulerOrder::XYZ,
+            position: Vec3::ZERO,
+            orientation: [0.0; 3],
+        }
+    }
+}
+
+/// A validated skeleton: bone 0 is the root and every parent comes before its children.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Skeleton {
+    bones: heapless::Vec<Bone, MAX_BONES>,
+    root: RootSpec,
+    units: Units,
+    channel_count: usize,
+}
+
+impl Skeleton {
+    /// Builds a skeleton from a root, bones in any order, and each bone's parent (an index into
+    /// `bones`, or `None` for the root). Bones are reordered depth first from the root, children
+    /// in the order given.
+    ///
+    /// # Errors
+    /// [`SkeletonError`] names the offending bone.
+    pub fn new(
+        root: RootSpec,
+        units: Units,
+        bones: &[BoneSpec],
+        parents: &[Option<usize>],
+    ) -> Result<Skeleton, SkeletonError> {
+        if bones.len() + 1 > MAX_BONES || parents.len() != bones.len() {
+            return Err(SkeletonError::TooManyBones);
+        }
+        for (i, b) in bones.iter().enumerate() {
+            if b.name.as_str().eq_ignore_ascii_case("root")
+                || bones[..i].iter().any(|o| o.name == b.name)
+            {
+                return Err(SkeletonError::DuplicateName(i));
+            }
+            if !b.length.is_finite() || b.length < 0.0 {
+                return Err(SkeletonError::BadLength(i));
+            }
+            let d = b.direction;
+            if !d.is_finite() || (d == Vec3::ZERO && b.length != 0.0) {
+                return Err(SkeletonError::BadDirection(i));
+            }
+            if b.dofs.len() != b.limits.len()
+                || b.limits.iter().any(|l| l.min.is_nan() || l.max.is_nan() || l.min > l.max)
+                || b.dofs.iter().enumerate().any(|(k, d)| b.dofs[..k].contains(d))
+                || b.axis.iter().any(|a| !a.is_finite())
+            {
+                return Err(SkeletonError::BadChannels(i));
+            }
+            if let Some(p) = parents[i] {
+                if p >= bones.len() || p == i {
+                    return Err(SkeletonError::BadParent(i));
+                }
+            }
+        }
+        if root.order.iter().enumerate().any(|(k, d)| *d == Dof::L || root.order[..k].contains(d))
+            || !root.position.is_finite()
+            || root.orientation.iter().any(|a| !a.is_finite())
+        {
+            return Err(SkeletonError::BadChannels(usize::MAX));
+        }
+
+        // Depth-first order from the root; `order[k]` is the input index of skeleton bone k+1.
+        let mut order: heapless::Vec<usize, MAX_BONES> = heapless::Vec::new();
+        let mut stack: heapless::Vec<(Option<usize>, usize), MAX_BONES> = heapless::Vec::new();
+        // Each stack entry: (parent, next child position to scan from).
+        let _ = stack.push((None, 0));
+        while let Some(top) = stack.last_mut() {
+            let (parent, from) = *top;
+            match (from..bones.len()).find(|&c| parents[c] == parent) {
+                Some(child) => {
+                    top.1 = child + 1;
+                    if order.push(child).is_err() || stack.push((Some(child), 0)).is_err() {
+                        return Err(SkeletonError::TooManyBones);
+                    }
+                }
+                None => {
+                    stack.pop();
+                }
+            }
+        }
+        if order.len() != bones.len() {
+            let missing = (0..bones.len()).find(|i| !order.contains(i)).unwrap_or(0);
+            return Err(SkeletonError::Detached(missing));
+        }
+
+        let mut out: heapless::Vec<Bone, MAX_BONES> = heapless::Vec::new();
+        let mut root_spec = BoneSpec::new(BoneName::try_from("root").unwrap_or_default(), Vec3::ZERO, 0.0);
+        root_spec.axis = root.orientation;
+        root_spec.axis_order = root.axis_order;
+        for d in &root.order {
+            let _ = root_spec.dofs.push(*d);
+            let _ = root_spec.limits.push(Limit::UNLIMITED);
+        }
+        let root_rot = root.axis_order.to_mat3(root.orientation);
+        let mut channel = root.order.len();
+        let _ = out.push(Bone {
+            spec: root_spec,
+            parent: None,
+            first_channel: 0,
+            axis_rotation: root_rot,
+            local_direction: Vec3::ZERO,
+        });
+        for &input in &order {
+            let spec = bones[input].clone();
+            let parent = match parents[input] {
+                None => 0,
+                Some(p) => 1 + order.iter().position(|&o| o == p).unwrap_or(0),
+            };
+            let c = spec.axis_order.to_mat3(spec.axis);
+            let local_direction = c.transpose() * spec.direction;
+            let n = spec.dofs.len();
+            let _ = out.push(Bone {
+                spec,
+                parent: Some(parent),
+                first_channel: channel,
+                axis_rotation: c,
+                local_direction,
+            });
+            channel += n;
+        }
+        Ok(Skeleton {
+            bones: out,
+            root,
+            units,
+            channel_count: channel,
+        })
+    }
+
+    /// All bones, root first, parents before children.
+    #[must_use]
+    pub fn bones(&self) -> &[Bone] {
+        &self.bones
+    }
+
+    /// Number of bones, the root included.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.bones.len()
+    }
+
+    /// Never true: a skeleton always has its root.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.bones.is_empty()
+    }
+
+    /// The bone with this name (`root` for the root).
+    #[must_use]
+    pub fn find(&self, name: &str) -> Option<usize> {
+        self.bones.iter().position(|b| b.name() == name)
+    }
+
+    /// Children of bone `i`, in order.
+    pub fn children(&self, i: usize) -> impl Iterator<Item = usize> + '_ {
+        self.bones
+            .iter()
+            .enumerate()
+            .filter(move |(_, b)| b.parent == Some(i))
+            .map(|(k, _)| k)
+    }
+
+    /// The root section.
+    #[must_use]
+    pub fn root(&self) -> &RootSpec {
+        &self.root
+    }
+
+    /// The file units.
+    #[must_use]
+    pub fn units(&self) -> Units {
+        self.units
+    }
+
+    /// Length of a frame vector.
+    #[must_use]
+    pub fn channel_count(&self) -> usize {
+        self.channel_count
+    }
+
+    /// The bones other than the root, as specs, with their parents as indices into that same
+    /// list; what [`Skeleton::new`] takes back.
+    pub fn specs(&self) -> impl Iterator<Item = (&BoneSpec, Option<usize>)> + '_ {
+        self.bones[1..].iter().map(|b| {
+            let p = b.parent.and_then(|p| p.checked_sub(1));
+            (&b.spec, p)
+        })
+    }
+
+    /// The bone and DOF that own channel `c`.
+    #[must_use]
+    pub fn channel_owner(&self, c: usize) -> Option<(usize, Dof)> {
+        self.bones
+            .iter()
+            .enumerate()
+            .find(|(_, b)| b.channels().contains(&c))
+            .map(|(i, b)| (i, b.dofs()[c - b.first_channel]))
+    }
+}
