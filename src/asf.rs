@@ -60,6 +60,8 @@ pub enum AsfErrorKind<'a> {
     Missing {
         /// The field.
         field: &'static str,
+        /// The bone's name, when the block has one.
+        bone: &'a str,
     },
     /// A bone's fields contradict each other (e.g. fewer limits than DOFs).
     Invalid(&'static str),
@@ -86,7 +88,8 @@ impl fmt::Display for AsfErrorKind<'_> {
                 f,
                 "bone '{n}' is not connected to the root (missing from :hierarchy or part of a cycle)"
             ),
-            AsfErrorKind::Missing { field } => write!(f, "bone block has no '{field}'"),
+            AsfErrorKind::Missing { field, bone } if bone.is_empty() => write!(f, "bone block has no '{field}'"),
+            AsfErrorKind::Missing { field, bone } => write!(f, "bone '{bone}' has no '{field}'"),
             AsfErrorKind::Invalid(what) => write!(f, "{what}"),
             AsfErrorKind::TooMany { what, max } => write!(f, "too many {what} (at most {max})"),
         }
@@ -266,10 +269,15 @@ fn next_token<'a>(toks: &mut Tokens<'a>, what: &'static str) -> Result<Token<'a>
     toks.next().ok_or_else(|| expected(end, what))
 }
 
+/// Largest magnitude accepted for a number; anything larger is taken as a corrupt file (and
+/// would overflow f32 positions).
+pub const MAX_MAGNITUDE: f32 = 1.0e9;
+
 fn number<'a>(toks: &mut Tokens<'a>, what: &'static str) -> Result<f32, AsfError<'a>> {
     let t = next_token(toks, what)?;
     match t.text.parse::<f32>() {
-        Ok(v) if v.is_finite() => Ok(v),
+        Ok(v) if v.abs() <= MAX_MAGNITUDE => Ok(v),
+        Ok(_) => Err(expected(t, "a number between -1e9 and 1e9")),
         _ => Err(expected(t, what)),
     }
 }
@@ -292,8 +300,8 @@ fn end_of_line<'a>(toks: &mut Tokens<'a>) -> Result<(), AsfError<'a>> {
 /// A limit bound: a finite number or ±inf.
 fn bound<'a>(t: Token<'a>) -> Result<f32, AsfError<'a>> {
     match t.text.parse::<f32>() {
-        Ok(v) if !v.is_nan() => Ok(v),
-        _ => Err(expected(t, "a limit (number or inf)")),
+        Ok(v) if v.is_infinite() || v.abs() <= MAX_MAGNITUDE => Ok(v),
+        _ => Err(expected(t, "a limit (number between -1e9 and 1e9, or inf)")),
     }
 }
 
@@ -468,7 +476,7 @@ fn parse_units<'a>(toks: &mut Tokens<'a>, units: &mut Units) -> Result<(), AsfEr
 fn positive<'a>(toks: &mut Tokens<'a>, what: &'static str) -> Result<f32, AsfError<'a>> {
     let t = next_token(toks, what)?;
     match t.text.parse::<f32>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) if v > 0.0 && v <= MAX_MAGNITUDE => Ok(v),
         _ => Err(expected(t, what)),
     }
 }
@@ -551,8 +559,8 @@ fn parse_bone<'a>(begin_line: Line<'a>, lines: &mut Lines<'a>) -> Result<RawBone
             "length" => {
                 let t = next_token(&mut toks, "a bone length")?;
                 match t.text.parse::<f32>() {
-                    Ok(v) if v.is_finite() && v >= 0.0 => length = Some(v),
-                    _ => return Err(expected(t, "a finite, non-negative bone length")),
+                    Ok(v) if (0.0..=MAX_MAGNITUDE).contains(&v) => length = Some(v),
+                    _ => return Err(expected(t, "a bone length from 0 to 1e9")),
                 }
             }
             "axis" => {
@@ -589,13 +597,13 @@ fn parse_bone<'a>(begin_line: Line<'a>, lines: &mut Lines<'a>) -> Result<RawBone
         end_of_line(&mut toks)?;
     }
     let Some(name_tok) = name else {
-        return Err(err(begin, AsfErrorKind::Missing { field: "name" }));
+        return Err(err(begin, AsfErrorKind::Missing { field: "name", bone: "" }));
     };
     let Some(direction) = direction else {
-        return Err(err(begin, AsfErrorKind::Missing { field: "direction" }));
+        return Err(err(begin, AsfErrorKind::Missing { field: "direction", bone: name_tok.text }));
     };
     let Some(length) = length else {
-        return Err(err(begin, AsfErrorKind::Missing { field: "length" }));
+        return Err(err(begin, AsfErrorKind::Missing { field: "length", bone: name_tok.text }));
     };
     if limits_at.is_none() {
         for _ in 0..dofs.len() {
