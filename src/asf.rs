@@ -8,8 +8,7 @@
 
 use crate::math::EulerOrder;
 use crate::skeleton::{
-    BoneName, BoneSpec, Dof, Limit, RootSpec, Skeleton, SkeletonError, Units, MAX_BONES,
-    MAX_BONE_DOFS,
+    BoneName, BoneSpec, Dof, Limit, RootSpec, Skeleton, SkeletonError, Units, MAX_BONES, MAX_BONE_DOFS,
 };
 use core::fmt;
 use glam::Vec3;
@@ -77,7 +76,7 @@ pub enum AsfErrorKind<'a> {
 impl fmt::Display for AsfErrorKind<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            AsfErrorKind::Expected { expected, found } if found.is_empty() => {
+            AsfErrorKind::Expected { expected, found: "" } => {
                 write!(f, "expected {expected}, found end of line")
             }
             AsfErrorKind::Expected { expected, found } => write!(f, "expected {expected}, found '{found}'"),
@@ -88,7 +87,9 @@ impl fmt::Display for AsfErrorKind<'_> {
                 f,
                 "bone '{n}' is not connected to the root (missing from :hierarchy or part of a cycle)"
             ),
-            AsfErrorKind::Missing { field, bone } if bone.is_empty() => write!(f, "bone block has no '{field}'"),
+            AsfErrorKind::Missing { field, bone: "" } => {
+                write!(f, "bone block has no '{field}'")
+            }
             AsfErrorKind::Missing { field, bone } => write!(f, "bone '{bone}' has no '{field}'"),
             AsfErrorKind::Invalid(what) => write!(f, "{what}"),
             AsfErrorKind::TooMany { what, max } => write!(f, "too many {what} (at most {max})"),
@@ -378,7 +379,10 @@ pub fn parse_asf(text: &str) -> Result<Asf<'_>, AsfError<'_>> {
                         return Err(err(bone.begin, AsfErrorKind::DuplicateBone(bone.name)));
                     }
                     if bone.name.eq_ignore_ascii_case("root") {
-                        return Err(err(bone.begin, AsfErrorKind::Invalid("a bone may not be called 'root'")));
+                        return Err(err(
+                            bone.begin,
+                            AsfErrorKind::Invalid("a bone may not be called 'root'"),
+                        ));
                     }
                     let begin = bone.begin;
                     if bones.push(bone).is_err() {
@@ -401,15 +405,29 @@ pub fn parse_asf(text: &str) -> Result<Asf<'_>, AsfError<'_>> {
                     lines.next();
                 }
             }
-            _ => return Err(expected(kw, "an ASF section (:version, :name, :units, :documentation, :root, :bonedata, :hierarchy)")),
+            _ => {
+                return Err(expected(
+                    kw,
+                    "an ASF section (:version, :name, :units, :documentation, :root, :bonedata, :hierarchy)",
+                ))
+            }
         }
     }
     if !seen_any {
-        return Err(expected(lines.end_of_file(), "an ASF skeleton (the file is empty)"));
+        return Err(expected(
+            lines.end_of_file(),
+            "an ASF skeleton (the file is empty)",
+        ));
     }
 
     // Angles are converted once every section, :units included, has been read.
-    let to_rad = |v: f32| if units.degrees { crate::math::deg_to_rad(v) } else { v };
+    let to_rad = |v: f32| {
+        if units.degrees {
+            crate::math::deg_to_rad(v)
+        } else {
+            v
+        }
+    };
     root.orientation = raw_orientation.map(to_rad);
     let mut specs: heapless::Vec<BoneSpec, { MAX_BONES - 1 }> = heapless::Vec::new();
     let mut parents: heapless::Vec<Option<usize>, { MAX_BONES - 1 }> = heapless::Vec::new();
@@ -432,18 +450,32 @@ pub fn parse_asf(text: &str) -> Result<Asf<'_>, AsfError<'_>> {
     }
     let skeleton = Skeleton::new(root, units, &specs, &parents).map_err(|e| {
         let (i, kind) = match e {
-            SkeletonError::TooManyBones => (0, AsfErrorKind::TooMany { what: "bones", max: MAX_BONES - 1 }),
+            SkeletonError::TooManyBones => (
+                0,
+                AsfErrorKind::TooMany {
+                    what: "bones",
+                    max: MAX_BONES - 1,
+                },
+            ),
             SkeletonError::DuplicateName(i) => (i, AsfErrorKind::DuplicateBone(bones[i].name)),
             SkeletonError::Detached(i) => (i, AsfErrorKind::Detached(bones[i].name)),
             SkeletonError::BadParent(i) => (i, AsfErrorKind::Invalid("bad parent")),
-            SkeletonError::BadDirection(i) => (i, AsfErrorKind::Invalid("direction is zero but length is not")),
-            SkeletonError::BadLength(i) => (i, AsfErrorKind::Invalid("length must be finite and not negative")),
+            SkeletonError::BadDirection(i) => {
+                (i, AsfErrorKind::Invalid("direction is zero but length is not"))
+            }
+            SkeletonError::BadLength(i) => {
+                (i, AsfErrorKind::Invalid("length must be finite and not negative"))
+            }
             SkeletonError::BadChannels(i) => (
                 i,
                 AsfErrorKind::Invalid("channels repeat, or a limit has min > max"),
             ),
         };
-        let at = bones.get(i).map(|b| b.begin).unwrap_or(Token { text: "", line: 1, column: 1 });
+        let at = bones.get(i).map(|b| b.begin).unwrap_or(Token {
+            text: "",
+            line: 1,
+            column: 1,
+        });
         err(at, kind)
     })?;
     Ok(Asf {
@@ -502,7 +534,8 @@ fn parse_root_line<'a>(
         }
         "axis" => {
             let t = next_token(&mut toks, "an Euler order such as XYZ")?;
-            root.axis_order = EulerOrder::parse(t.text).ok_or_else(|| expected(t, "an Euler order such as XYZ"))?;
+            root.axis_order =
+                EulerOrder::parse(t.text).ok_or_else(|| expected(t, "an Euler order such as XYZ"))?;
         }
         "position" => root.position = Vec3::from(vec3(&mut toks)?),
         "orientation" => *raw_orientation = vec3(&mut toks)?,
@@ -540,7 +573,10 @@ fn parse_bone<'a>(begin_line: Line<'a>, lines: &mut Lines<'a>) -> Result<RawBone
             }
             "id" => {
                 let t = next_token(&mut toks, "a bone id")?;
-                id = t.text.parse().map_err(|_| expected(t, "a whole-number bone id"))?;
+                id = t
+                    .text
+                    .parse()
+                    .map_err(|_| expected(t, "a whole-number bone id"))?;
             }
             "name" => {
                 let t = next_token(&mut toks, "a bone name")?;
@@ -566,7 +602,8 @@ fn parse_bone<'a>(begin_line: Line<'a>, lines: &mut Lines<'a>) -> Result<RawBone
             "axis" => {
                 axis = vec3(&mut toks)?;
                 let t = next_token(&mut toks, "an Euler order such as XYZ")?;
-                axis_order = EulerOrder::parse(t.text).ok_or_else(|| expected(t, "an Euler order such as XYZ"))?;
+                axis_order =
+                    EulerOrder::parse(t.text).ok_or_else(|| expected(t, "an Euler order such as XYZ"))?;
             }
             "dof" => {
                 dofs.clear();
@@ -597,13 +634,31 @@ fn parse_bone<'a>(begin_line: Line<'a>, lines: &mut Lines<'a>) -> Result<RawBone
         end_of_line(&mut toks)?;
     }
     let Some(name_tok) = name else {
-        return Err(err(begin, AsfErrorKind::Missing { field: "name", bone: "" }));
+        return Err(err(
+            begin,
+            AsfErrorKind::Missing {
+                field: "name",
+                bone: "",
+            },
+        ));
     };
     let Some(direction) = direction else {
-        return Err(err(begin, AsfErrorKind::Missing { field: "direction", bone: name_tok.text }));
+        return Err(err(
+            begin,
+            AsfErrorKind::Missing {
+                field: "direction",
+                bone: name_tok.text,
+            },
+        ));
     };
     let Some(length) = length else {
-        return Err(err(begin, AsfErrorKind::Missing { field: "length", bone: name_tok.text }));
+        return Err(err(
+            begin,
+            AsfErrorKind::Missing {
+                field: "length",
+                bone: name_tok.text,
+            },
+        ));
     };
     if limits_at.is_none() {
         for _ in 0..dofs.len() {
@@ -621,12 +676,19 @@ fn parse_bone<'a>(begin_line: Line<'a>, lines: &mut Lines<'a>) -> Result<RawBone
     } else if length == 0.0 {
         Vec3::ZERO
     } else {
-        return Err(err(begin, AsfErrorKind::Invalid("direction is zero but length is not")));
+        return Err(err(
+            begin,
+            AsfErrorKind::Invalid("direction is zero but length is not"),
+        ));
     };
     if !direction.is_finite() {
         return Err(err(begin, AsfErrorKind::Invalid("direction is not finite")));
     }
-    let mut spec = BoneSpec::new(BoneName::try_from(name_tok.text).unwrap_or_default(), direction, length);
+    let mut spec = BoneSpec::new(
+        BoneName::try_from(name_tok.text).unwrap_or_default(),
+        direction,
+        length,
+    );
     spec.id = id;
     spec.axis_order = axis_order;
     spec.dofs = dofs;
@@ -656,10 +718,19 @@ fn parse_limits<'a>(
                     return Err(expected(close, "')'"));
                 }
                 if lo > hi {
-                    return Err(err(open, AsfErrorKind::Invalid("limit minimum is above its maximum")));
+                    return Err(err(
+                        open,
+                        AsfErrorKind::Invalid("limit minimum is above its maximum"),
+                    ));
                 }
                 if limits.push(Limit { min: lo, max: hi }).is_err() {
-                    return Err(err(open, AsfErrorKind::TooMany { what: "limits", max: MAX_BONE_DOFS }));
+                    return Err(err(
+                        open,
+                        AsfErrorKind::TooMany {
+                            what: "limits",
+                            max: MAX_BONE_DOFS,
+                        },
+                    ));
                 }
             }
             Some(t) => return Err(expected(t, "'(' starting a limit pair")),

@@ -159,11 +159,15 @@ fn extension(p: &Path) -> String {
 
 fn info(path: &Path, amc_path: Option<&Path>, fps: f64, unit: BvhUnit) -> Result<(), CliError> {
     if !(fps.is_finite() && fps > 0.0) {
-        return Err(CliError::Usage(format!("--fps must be a positive number, got {fps}")));
+        return Err(CliError::Usage(format!(
+            "--fps must be a positive number, got {fps}"
+        )));
     }
     let (file, motion) = if extension(path) == "bvh" {
         if amc_path.is_some() {
-            return Err(CliError::Usage("a BVH file holds its own motion: give no AMC".into()));
+            return Err(CliError::Usage(
+                "a BVH file holds its own motion: give no AMC".into(),
+            ));
         }
         let (a, m) = bvh::load(path, unit.inches())?;
         (a, Some((path.to_path_buf(), m)))
@@ -181,15 +185,31 @@ fn info(path: &Path, amc_path: Option<&Path>, fps: f64, unit: BvhUnit) -> Result
     };
     let out = io::stdout();
     let mut w = BufWriter::new(out.lock());
-    write_info(&mut w, path, &file, motion.as_ref().map(|(p, m)| (p.as_path(), m)))?;
+    write_info(
+        &mut w,
+        path,
+        &file,
+        motion.as_ref().map(|(p, m)| (p.as_path(), m)),
+    )?;
     w.flush()?;
     Ok(())
 }
 
-fn write_info(w: &mut impl Write, path: &Path, file: &AsfFile, motion: Option<(&Path, &Motion)>) -> io::Result<()> {
+fn write_info(
+    w: &mut impl Write,
+    path: &Path,
+    file: &AsfFile,
+    motion: Option<(&Path, &Motion)>,
+) -> io::Result<()> {
     let s = &file.skeleton;
     let u = s.units();
-    writeln!(w, "skeleton  {}  (name '{}', version '{}')", path.display(), file.name, file.version)?;
+    writeln!(
+        w,
+        "skeleton  {}  (name '{}', version '{}')",
+        path.display(),
+        file.name,
+        file.version
+    )?;
     writeln!(
         w,
         "units     length {} (1 unit = {:.4} in = {:.6} m), angle {}, mass {}",
@@ -246,7 +266,11 @@ fn write_info(w: &mut impl Write, path: &Path, file: &AsfFile, motion: Option<(&
             .map(|(d, l)| {
                 let f = |v: f32| {
                     if v.is_infinite() {
-                        if v > 0.0 { "inf".into() } else { "-inf".into() }
+                        if v > 0.0 {
+                            "inf".into()
+                        } else {
+                            "-inf".into()
+                        }
                     } else if d.is_rotation() {
                         format!("{:.1}", f64::from(v).to_degrees())
                     } else {
@@ -264,7 +288,11 @@ fn write_info(w: &mut impl Write, path: &Path, file: &AsfFile, motion: Option<(&
             parent,
             b.length(),
             b.spec().axis_order.name(),
-            if dofs.is_empty() { "-".into() } else { dofs.join(" ") },
+            if dofs.is_empty() {
+                "-".into()
+            } else {
+                dofs.join(" ")
+            },
             limits.join(" ")
         )?;
     }
@@ -294,8 +322,16 @@ fn frame_range(spec: Option<&str>, motion: &Motion) -> Result<(usize, usize), Cl
     let bad = || CliError::Usage(format!("--frames must look like A..B, A.. or ..B, got '{spec}'"));
     let (a, b) = spec.split_once("..").ok_or_else(bad)?;
     let b = b.strip_prefix('=').unwrap_or(b);
-    let a: i64 = if a.trim().is_empty() { first } else { a.trim().parse().map_err(|_| bad())? };
-    let b: i64 = if b.trim().is_empty() { last } else { b.trim().parse().map_err(|_| bad())? };
+    let a: i64 = if a.trim().is_empty() {
+        first
+    } else {
+        a.trim().parse().map_err(|_| bad())?
+    };
+    let b: i64 = if b.trim().is_empty() {
+        last
+    } else {
+        b.trim().parse().map_err(|_| bad())?
+    };
     if a > b || a < first || b > last {
         return Err(CliError::Usage(format!(
             "--frames {a}..{b} is not inside the clip's frames {first}..{last}"
@@ -324,7 +360,12 @@ fn fk(
     match format {
         Format::Csv => writeln!(w, "frame,bone,x,y,z")?,
         Format::Json => {
-            write!(w, "{{\"units\":\"{}\",\"frame_rate\":{},\"bones\":[", if meters { "m" } else { "file" }, motion.frame_rate)?;
+            write!(
+                w,
+                "{{\"units\":\"{}\",\"frame_rate\":{},\"bones\":[",
+                if meters { "m" } else { "file" },
+                motion.frame_rate
+            )?;
             for (i, b) in s.bones().iter().enumerate() {
                 let sep = if i == 0 { "" } else { "," };
                 write!(w, "{sep}{}", serde_json::to_string(b.name()).unwrap_or_default())?;
@@ -389,7 +430,10 @@ fn convert(
             let asf_path = match asf_in {
                 Some(p) => p.to_path_buf(),
                 None => find_asf(input).ok_or_else(|| {
-                    CliError::Usage(format!("{}: an AMC file needs its skeleton: pass --asf <FILE>", input.display()))
+                    CliError::Usage(format!(
+                        "{}: an AMC file needs its skeleton: pass --asf <FILE>",
+                        input.display()
+                    ))
                 })?,
             };
             let a = asf::load(&asf_path)?;

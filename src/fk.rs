@@ -57,9 +57,15 @@ pub struct ShortFrame {
 
 impl core::fmt::Display for ShortFrame {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        write!(f, "frame has {} channels, skeleton needs {}", self.given, self.needed)
+        write!(
+            f,
+            "frame has {} channels, skeleton needs {}",
+            self.given, self.needed
+        )
     }
 }
+
+impl core::error::Error for ShortFrame {}
 
 /// The rotation of a bone's channels, `M = R(last)·…·R(first)`, and its translation and
 /// length channels.

@@ -450,7 +450,10 @@ mod tests {
             for &b in mids {
                 let m = o.to_mat3_f64([0.4, b, -0.7]);
                 let back = o.from_mat3_f64(&m);
-                assert!(m.abs_diff_eq(o.to_mat3_f64(back), 1e-9), "{o:?} b={b} -> {back:?}");
+                assert!(
+                    m.abs_diff_eq(o.to_mat3_f64(back), 1e-9),
+                    "{o:?} b={b} -> {back:?}"
+                );
                 let mf = o.to_mat3([0.4, b as f32, -0.7]);
                 let backf = o.from_mat3(&mf);
                 assert!(mf.abs_diff_eq(o.to_mat3(backf), 1e-5), "{o:?} f32 b={b}");

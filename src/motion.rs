@@ -41,11 +41,7 @@ impl Motion {
     /// Number of frames.
     #[must_use]
     pub fn len(&self) -> usize {
-        if self.channels == 0 {
-            0
-        } else {
-            self.data.len() / self.channels
-        }
+        self.data.len().checked_div(self.channels).unwrap_or(0)
     }
 
     /// True when there are no frames.

@@ -282,6 +282,24 @@ pub enum SkeletonError {
     BadChannels(usize),
 }
 
+impl core::fmt::Display for SkeletonError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            SkeletonError::TooManyBones => write!(f, "more than {MAX_BONES} bones"),
+            SkeletonError::DuplicateName(i) => write!(f, "bone {i}: name used twice (or 'root')"),
+            SkeletonError::Detached(i) => write!(f, "bone {i}: not connected to the root"),
+            SkeletonError::BadParent(i) => write!(f, "bone {i}: parent out of range or itself"),
+            SkeletonError::BadDirection(i) => {
+                write!(f, "bone {i}: direction not finite, or zero with a length")
+            }
+            SkeletonError::BadLength(i) => write!(f, "bone {i}: length negative or not finite"),
+            SkeletonError::BadChannels(i) => write!(f, "bone {i}: channels repeat or limits inverted"),
+        }
+    }
+}
+
+impl core::error::Error for SkeletonError {}
+
 /// The root's description: ASF `:root`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RootSpec {
@@ -336,9 +354,7 @@ impl Skeleton {
             return Err(SkeletonError::TooManyBones);
         }
         for (i, b) in bones.iter().enumerate() {
-            if b.name.as_str().eq_ignore_ascii_case("root")
-                || bones[..i].iter().any(|o| o.name == b.name)
-            {
+            if b.name.as_str().eq_ignore_ascii_case("root") || bones[..i].iter().any(|o| o.name == b.name) {
                 return Err(SkeletonError::DuplicateName(i));
             }
             if !b.length.is_finite() || b.length < 0.0 {
@@ -349,7 +365,9 @@ impl Skeleton {
                 return Err(SkeletonError::BadDirection(i));
             }
             if b.dofs.len() != b.limits.len()
-                || b.limits.iter().any(|l| l.min.is_nan() || l.max.is_nan() || l.min > l.max)
+                || b.limits
+                    .iter()
+                    .any(|l| l.min.is_nan() || l.max.is_nan() || l.min > l.max)
                 || b.dofs.iter().enumerate().any(|(k, d)| b.dofs[..k].contains(d))
                 || b.axis.iter().any(|a| !a.is_finite())
             {
@@ -361,7 +379,11 @@ impl Skeleton {
                 }
             }
         }
-        if root.order.iter().enumerate().any(|(k, d)| *d == Dof::L || root.order[..k].contains(d))
+        if root
+            .order
+            .iter()
+            .enumerate()
+            .any(|(k, d)| *d == Dof::L || root.order[..k].contains(d))
             || !root.position.is_finite()
             || root.orientation.iter().any(|a| !a.is_finite())
         {

@@ -62,7 +62,12 @@ fn fk_of_whole_clips_allocates_nothing() {
             checksum += pose.tip[s.len() - 1].y;
         }
         let during = allocations() - before;
-        assert_eq!(during, 0, "{m}: {during} allocations over {} frames", motion.len());
+        assert_eq!(
+            during,
+            0,
+            "{m}: {during} allocations over {} frames",
+            motion.len()
+        );
         assert!(std::hint::black_box(checksum).is_finite());
     }
 }

@@ -110,11 +110,7 @@ fn read_asf(text: &str) -> RefSkeleton {
             continue;
         }
         match section {
-            "root" => {
-                if parts[0] == "order" {
-                    assert_eq!(parts[1..].join(" "), "TX TY TZ RX RY RZ");
-                }
-            }
+            "root" if parts[0] == "order" => assert_eq!(parts[1..].join(" "), "TX TY TZ RX RY RZ"),
             "bones" => match parts[0] {
                 "begin" => cur = Some((String::new(), RefBone::default())),
                 "name" => cur.as_mut().unwrap().0 = parts[1].to_string(),
@@ -129,7 +125,8 @@ fn read_asf(text: &str) -> RefSkeleton {
                     cur.as_mut().unwrap().1.axis = [v[0], v[1], v[2]];
                 }
                 "dof" => {
-                    cur.as_mut().unwrap().1.dofs = parts[1..].iter().map(|d| d.chars().nth(1).unwrap()).collect()
+                    cur.as_mut().unwrap().1.dofs =
+                        parts[1..].iter().map(|d| d.chars().nth(1).unwrap()).collect()
                 }
                 "end" => {
                     let (n, b) = cur.take().unwrap();
@@ -163,7 +160,10 @@ fn read_amc(text: &str) -> Vec<HashMap<String, Vec<f64>>> {
             frames.push(HashMap::new());
             continue;
         }
-        frames.last_mut().unwrap().insert(parts[0].to_string(), nums(&parts[1..]));
+        frames
+            .last_mut()
+            .unwrap()
+            .insert(parts[0].to_string(), nums(&parts[1..]));
     }
     frames
 }
@@ -188,7 +188,9 @@ fn reference_fk(s: &RefSkeleton, frame: &HashMap<String, Vec<f64>>) -> HashMap<S
     while !pending.is_empty() {
         pending.retain(|name| {
             let b = &s.bones[name];
-            let Some(parent_g) = global.get(&b.parent).copied() else { return true };
+            let Some(parent_g) = global.get(&b.parent).copied() else {
+                return true;
+            };
             let c = axis_matrix(b.axis);
             let (parent_c, offset) = if b.parent == "root" {
                 (ident(), [0.0; 3])
@@ -207,7 +209,10 @@ fn reference_fk(s: &RefSkeleton, frame: &HashMap<String, Vec<f64>>) -> HashMap<S
             }
             let g = mul(&mul(&mul(&parent_g, &trans(offset)), &r_asf), &r_amc); // eq. (1)
             let local_dir = apply(&transpose(&c), b.dir);
-            let tip = apply(&g, [local_dir[0] * b.len, local_dir[1] * b.len, local_dir[2] * b.len]); // eq. (2)
+            let tip = apply(
+                &g,
+                [local_dir[0] * b.len, local_dir[1] * b.len, local_dir[2] * b.len],
+            ); // eq. (2)
             global.insert(name.clone(), g);
             tips.insert(name.clone(), tip);
             false
@@ -250,7 +255,11 @@ fn check_clip(asf: &str, amc: &str) -> (usize, f64) {
         }
         rows += 1;
     }
-    assert_eq!(rows, frames.len() * (skel.order.len() + 1), "one row per frame and bone");
+    assert_eq!(
+        rows,
+        frames.len() * (skel.order.len() + 1),
+        "one row per frame and bone"
+    );
     (rows, worst)
 }
 

@@ -161,7 +161,11 @@ fn third_party_bvh_agrees_with_amc_to_a_few_centimetres() {
         // The BVH has no hip-joint bones: its femurs hang from the root at an offset.
         let Some(j) = bs.find(b.name()) else { continue };
         let len = f64::from(b.length()) * cm;
-        assert!((f64::from(bs.bones()[j].length()) - len).abs() < 0.01, "{}", b.name());
+        assert!(
+            (f64::from(bs.bones()[j].length()) - len).abs() < 0.01,
+            "{}",
+            b.name()
+        );
     }
     let mut per_frame = Vec::new();
     for f in 0..motion.len() {
@@ -190,7 +194,10 @@ fn bvh_import_keeps_channel_values_and_reverses_rotation_order() {
     let (file, m) = bvh::parse(text, 1.0).unwrap();
     let s = &file.skeleton;
     assert_eq!(m.frame_rate, 100.0);
-    assert_eq!(&s.root().order[..], &[Dof::Tx, Dof::Ty, Dof::Tz, Dof::Ry, Dof::Rx, Dof::Rz]);
+    assert_eq!(
+        &s.root().order[..],
+        &[Dof::Tx, Dof::Ty, Dof::Tz, Dof::Ry, Dof::Rx, Dof::Rz]
+    );
     let arm = &s.bones()[s.find("Arm").unwrap()];
     assert_eq!(arm.dofs(), &[Dof::Ry, Dof::Rx, Dof::Rz]);
     assert_eq!(&m.frame(0)[..6], &[1.0, 2.0, 3.0, 30.0, 20.0, 10.0]);
@@ -200,10 +207,16 @@ fn bvh_import_keeps_channel_values_and_reverses_rotation_order() {
     let r = |o: EulerOrder, a: [f64; 3]| o.to_mat3_f64(a.map(f64::to_radians));
     let root = r(EulerOrder::YXZ, [30.0, 20.0, 10.0]);
     let joint = root * r(EulerOrder::YXZ, [60.0, 50.0, 40.0]);
-    let want = glam::DVec3::new(1.0, 2.0, 3.0) + root * glam::DVec3::X + joint * glam::DVec3::new(0.0, 2.0, 0.0);
+    let want =
+        glam::DVec3::new(1.0, 2.0, 3.0) + root * glam::DVec3::X + joint * glam::DVec3::new(0.0, 2.0, 0.0);
     let p = tips(s, &m, 0);
-    let connector = s.find("root_to_Arm").expect("nonzero offset from the root becomes a connector");
-    assert!((p.tip[connector].as_dvec3() - (glam::DVec3::new(1.0, 2.0, 3.0) + root * glam::DVec3::X)).length() < 1e-5);
+    let connector = s
+        .find("root_to_Arm")
+        .expect("nonzero offset from the root becomes a connector");
+    assert!(
+        (p.tip[connector].as_dvec3() - (glam::DVec3::new(1.0, 2.0, 3.0) + root * glam::DVec3::X)).length()
+            < 1e-5
+    );
     assert!((p.tip[s.find("Arm").unwrap()].as_dvec3() - want).length() < 1e-5);
 }
 
@@ -230,26 +243,77 @@ fn asf_reads_crlf_limits_over_lines_and_inf() {
 #[test]
 fn asf_errors_name_line_column_and_what_was_expected() {
     let cases: &[(&str, &str, &str)] = &[
-        ("    root a\r\n", "    root a\r\n    b a\r\n", "36:7: bone 'a' is given a second parent"),
-        ("    a b\r\n", "    a zz\r\n", "36:7: unknown bone 'zz' in :hierarchy"),
-        ("    a b\r\n", "    a b\r\n    b a\r\n", "37:7: bone 'a' is given a second parent"),
-        ("    root a\r\n    a b\r\n", "    a b\r\n    b a\r\n", "is not connected to the root"),
-        ("    name b\r\n", "    name a\r\n", "26:10: bone 'a' is defined twice"),
-        ("    length 1.5e0\r\n", "    length abc\r\n", "28:12: expected a bone length from 0 to 1e9, found 'abc'"),
-        ("    length 1.5e0\r\n", "    length 1e40\r\n", "28:12: expected a bone length from 0 to 1e9, found '1e40'"),
+        (
+            "    root a\r\n",
+            "    root a\r\n    b a\r\n",
+            "36:7: bone 'a' is given a second parent",
+        ),
+        (
+            "    a b\r\n",
+            "    a zz\r\n",
+            "36:7: unknown bone 'zz' in :hierarchy",
+        ),
+        (
+            "    a b\r\n",
+            "    a b\r\n    b a\r\n",
+            "37:7: bone 'a' is given a second parent",
+        ),
+        (
+            "    root a\r\n    a b\r\n",
+            "    a b\r\n    b a\r\n",
+            "is not connected to the root",
+        ),
+        (
+            "    name b\r\n",
+            "    name a\r\n",
+            "26:10: bone 'a' is defined twice",
+        ),
+        (
+            "    length 1.5e0\r\n",
+            "    length abc\r\n",
+            "28:12: expected a bone length from 0 to 1e9, found 'abc'",
+        ),
+        (
+            "    length 1.5e0\r\n",
+            "    length 1e40\r\n",
+            "28:12: expected a bone length from 0 to 1e9, found '1e40'",
+        ),
         ("    length 1.5e0\r\n", "", "24:3: bone 'b' has no 'length'"),
-        ("    limits (0.0 170.0)\r\n", "    limits (0.0 170.0) (1 2)\r\n", "the number of limits differs"),
-        ("    limits (0.0 170.0)\r\n", "    limits (0.0 NaN)\r\n", "31:17: expected a limit (number between -1e9 and 1e9, or inf), found 'NaN'"),
-        ("    axis 0 0 90 XYZ\r\n", "    axis 0 0 90 XYQ\r\n", "29:17: expected an Euler order such as XYZ, found 'XYQ'"),
-        ("    dof rx\r\n", "    dof rx qq\r\n", "30:12: expected a DOF (rx ry rz tx ty tz l), each once, found 'qq'"),
-        ("  angle deg\r\n", "  angle grad\r\n", "6:9: expected deg or rad, found 'grad'"),
+        (
+            "    limits (0.0 170.0)\r\n",
+            "    limits (0.0 170.0) (1 2)\r\n",
+            "the number of limits differs",
+        ),
+        (
+            "    limits (0.0 170.0)\r\n",
+            "    limits (0.0 NaN)\r\n",
+            "31:17: expected a limit (number between -1e9 and 1e9, or inf), found 'NaN'",
+        ),
+        (
+            "    axis 0 0 90 XYZ\r\n",
+            "    axis 0 0 90 XYQ\r\n",
+            "29:17: expected an Euler order such as XYZ, found 'XYQ'",
+        ),
+        (
+            "    dof rx\r\n",
+            "    dof rx qq\r\n",
+            "30:12: expected a DOF (rx ry rz tx ty tz l), each once, found 'qq'",
+        ),
+        (
+            "  angle deg\r\n",
+            "  angle grad\r\n",
+            "6:9: expected deg or rad, found 'grad'",
+        ),
         (":name mini\r\n", ":nmae mini\r\n", "2:1: expected an ASF section"),
     ];
     for (from, to, want) in cases {
         assert!(MINI.contains(from), "{from}");
         let text = MINI.replacen(from, to, 1);
         let got = parse_err(&text);
-        assert!(got.contains(want), "replacing {from:?} by {to:?}: got '{got}', want '{want}'");
+        assert!(
+            got.contains(want),
+            "replacing {from:?} by {to:?}: got '{got}', want '{want}'"
+        );
     }
     assert!(parse_err("").contains("the file is empty"));
 }
@@ -267,7 +331,12 @@ fn asf_honours_axis_orders_units_and_root_section() {
             1,
         );
         let s = asf::parse(&text).unwrap().skeleton;
-        assert!(s.bones()[2].axis_rotation().abs_diff_eq(base.bones()[2].axis_rotation(), 1e-5), "{order:?}");
+        assert!(
+            s.bones()[2]
+                .axis_rotation()
+                .abs_diff_eq(base.bones()[2].axis_rotation(), 1e-5),
+            "{order:?}"
+        );
     }
     let rad = MINI
         .replacen("angle deg", "angle rad", 1)
@@ -283,9 +352,11 @@ fn asf_honours_axis_orders_units_and_root_section() {
         }
     }
     // The root's position offset and channel order.
-    let moved = MINI
-        .replacen("position 0 0 0", "position 1 2 3", 1)
-        .replacen("order TX TY TZ RX RY RZ", "order RZ TX TY TZ", 1);
+    let moved = MINI.replacen("position 0 0 0", "position 1 2 3", 1).replacen(
+        "order TX TY TZ RX RY RZ",
+        "order RZ TX TY TZ",
+        1,
+    );
     let s = asf::parse(&moved).unwrap().skeleton;
     assert_eq!(&s.root().order[..], &[Dof::Rz, Dof::Tx, Dof::Ty, Dof::Tz]);
     let m = amc::parse(&s, "1\nroot 90 10 0 0\n").unwrap();
@@ -308,27 +379,69 @@ fn amc_errors_name_file_line_and_what_was_expected() {
     let broken: String = real
         .lines()
         .enumerate()
-        .map(|(i, l)| if i == line { "lfemur -28.6707 -0.503906\r".to_string() } else { l.to_string() })
+        .map(|(i, l)| {
+            if i == line {
+                "lfemur -28.6707 -0.503906\r".to_string()
+            } else {
+                l.to_string()
+            }
+        })
         .collect::<Vec<_>>()
         .join("\n");
     let e = amc_err(&broken);
-    assert_eq!(e, format!("16_15.amc:{}:1: bone 'lfemur' has 3 DOFs but 2 values", line + 1));
-    assert_eq!(amc_err("1\nroot 0 0 0 0 0 x\n"), "16_15.amc:2:16: expected a number, found 'x'");
-    assert_eq!(amc_err("1\nroot 0 0 0 0 0 NaN\n"), "16_15.amc:2:16: expected a value between -1e9 and 1e9, found 'NaN'");
-    assert_eq!(amc_err("1\nroot 0 0 0 0 0 1e300\n"), "16_15.amc:2:16: expected a value between -1e9 and 1e9, found '1e300'");
-    assert_eq!(amc_err("1\nnose 0\n"), "16_15.amc:2:1: unknown bone 'nose' (not in the skeleton)");
-    assert_eq!(amc_err("1\nltibia 1\nltibia 2\n"), "16_15.amc:3:1: bone 'ltibia' appears twice in frame 1");
-    assert_eq!(amc_err("1\n3\n"), "16_15.amc:2:1: expected frame 2, found frame 3");
-    assert_eq!(amc_err("ltibia 1\n"), "16_15.amc:1:1: expected a frame number, found 'ltibia'");
-    assert_eq!(amc_err(":DEGREES\n"), "16_15.amc: expected at least one frame, found none");
-    assert_eq!(amc_err(":FOO\n"), "16_15.amc:1:1: expected :FULLY-SPECIFIED, :DEGREES or :RADIANS, found ':FOO'");
+    assert_eq!(
+        e,
+        format!("16_15.amc:{}:1: bone 'lfemur' has 3 DOFs but 2 values", line + 1)
+    );
+    assert_eq!(
+        amc_err("1\nroot 0 0 0 0 0 x\n"),
+        "16_15.amc:2:16: expected a number, found 'x'"
+    );
+    assert_eq!(
+        amc_err("1\nroot 0 0 0 0 0 NaN\n"),
+        "16_15.amc:2:16: expected a value between -1e9 and 1e9, found 'NaN'"
+    );
+    assert_eq!(
+        amc_err("1\nroot 0 0 0 0 0 1e300\n"),
+        "16_15.amc:2:16: expected a value between -1e9 and 1e9, found '1e300'"
+    );
+    assert_eq!(
+        amc_err("1\nnose 0\n"),
+        "16_15.amc:2:1: unknown bone 'nose' (not in the skeleton)"
+    );
+    assert_eq!(
+        amc_err("1\nltibia 1\nltibia 2\n"),
+        "16_15.amc:3:1: bone 'ltibia' appears twice in frame 1"
+    );
+    assert_eq!(
+        amc_err("1\n3\n"),
+        "16_15.amc:2:1: expected frame 2, found frame 3"
+    );
+    assert_eq!(
+        amc_err("ltibia 1\n"),
+        "16_15.amc:1:1: expected a frame number, found 'ltibia'"
+    );
+    assert_eq!(
+        amc_err(":DEGREES\n"),
+        "16_15.amc: expected at least one frame, found none"
+    );
+    assert_eq!(
+        amc_err(":FOO\n"),
+        "16_15.amc:1:1: expected :FULLY-SPECIFIED, :DEGREES or :RADIANS, found ':FOO'"
+    );
 }
 
 #[test]
 fn bvh_errors_name_line_and_what_was_expected() {
     let e = |t: &str| bvh::parse(t, 1.0).unwrap_err().to_string();
-    assert_eq!(e("HIERARCHY\nROOT a\n{\nOFFSET 0 0\n}\n"), "5:1: expected a number, found '}'");
-    assert_eq!(e("HIERARCHY\nROOT a\n{\nCHANNELS 1 Wrotation\n}\n"), "4:12: expected a channel (Xposition … Zrotation), found 'Wrotation'");
+    assert_eq!(
+        e("HIERARCHY\nROOT a\n{\nOFFSET 0 0\n}\n"),
+        "5:1: expected a number, found '}'"
+    );
+    assert_eq!(
+        e("HIERARCHY\nROOT a\n{\nCHANNELS 1 Wrotation\n}\n"),
+        "4:12: expected a channel (Xposition … Zrotation), found 'Wrotation'"
+    );
     assert_eq!(
         e("HIERARCHY\nROOT a\n{\nCHANNELS 1 Xrotation\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1\n"),
         "9:0: expected 2 frames (Frames:), found 1"
@@ -337,5 +450,8 @@ fn bvh_errors_name_line_and_what_was_expected() {
         e("HIERARCHY\nROOT a\n{\nCHANNELS 1 Xrotation\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 2\n"),
         "9:3: expected 1 values on a frame line, found more"
     );
-    assert!(e("HIERARCHY\nROOT a\n{\nJOINT b\n{\nCHANNELS 3 Xposition Yposition Zposition\n}\n}\n").contains("only the root may"));
+    assert!(
+        e("HIERARCHY\nROOT a\n{\nJOINT b\n{\nCHANNELS 3 Xposition Yposition Zposition\n}\n}\n")
+            .contains("only the root may")
+    );
 }

@@ -16,9 +16,46 @@ use proptest::sample::Index;
 use std::sync::OnceLock;
 
 const SPECIAL: &[&str] = &[
-    "NaN", "nan", "inf", "-inf", "1e39", "-1e308", "1e-320", "3.4e38", "99999999999999999999", "-0", "", "(", ")",
-    "((", "root", "lfemur", "lhumerus", "zz", "end", "begin", ":bonedata", ":hierarchy", ":root", "#", "0x10",
-    "1,5", "1e", "XYQ", "rx", "l", "tx", "ZYX", "{", "}", "JOINT", "End", "CHANNELS", "6", "1000000", "-1",
+    "NaN",
+    "nan",
+    "inf",
+    "-inf",
+    "1e39",
+    "-1e308",
+    "1e-320",
+    "3.4e38",
+    "99999999999999999999",
+    "-0",
+    "",
+    "(",
+    ")",
+    "((",
+    "root",
+    "lfemur",
+    "lhumerus",
+    "zz",
+    "end",
+    "begin",
+    ":bonedata",
+    ":hierarchy",
+    ":root",
+    "#",
+    "0x10",
+    "1,5",
+    "1e",
+    "XYQ",
+    "rx",
+    "l",
+    "tx",
+    "ZYX",
+    "{",
+    "}",
+    "JOINT",
+    "End",
+    "CHANNELS",
+    "6",
+    "1000000",
+    "-1",
 ];
 
 #[derive(Clone, Debug)]
@@ -38,9 +75,11 @@ fn mutation() -> impl Strategy<Value = Mutation> {
         any::<Index>().prop_map(Mutation::DeleteLine),
         (any::<Index>(), 1usize..12).prop_map(|(i, n)| Mutation::DuplicateLines(i, n)),
         (any::<Index>(), any::<Index>()).prop_map(|(a, b)| Mutation::SwapLines(a, b)),
-        (any::<Index>(), any::<Index>(), any::<Index>()).prop_map(|(l, t, s)| Mutation::ReplaceToken(l, t, s)),
+        (any::<Index>(), any::<Index>(), any::<Index>())
+            .prop_map(|(l, t, s)| Mutation::ReplaceToken(l, t, s)),
         (any::<Index>(), any::<Index>()).prop_map(|(l, s)| Mutation::InsertLine(l, s)),
-        (any::<Index>(), proptest::collection::vec(any::<u8>(), 1..8)).prop_map(|(i, b)| Mutation::Garbage(i, b)),
+        (any::<Index>(), proptest::collection::vec(any::<u8>(), 1..8))
+            .prop_map(|(i, b)| Mutation::Garbage(i, b)),
     ]
 }
 
@@ -133,12 +172,18 @@ fn assert_fk_finite(s: &Skeleton, m: Option<&Motion>) {
     let mut c = [0.0f32; MAX_CHANNELS];
     let mut p = Pose::new();
     forward_kinematics(s, &c, &mut p).unwrap();
-    assert!(p.tip[..s.len()].iter().all(|v| v.is_finite()), "rest pose not finite");
+    assert!(
+        p.tip[..s.len()].iter().all(|v| v.is_finite()),
+        "rest pose not finite"
+    );
     if let Some(m) = m {
         for i in 0..m.len() {
             m.channels_into(s, i, &mut c);
             forward_kinematics(s, &c, &mut p).unwrap();
-            assert!(p.tip[..s.len()].iter().all(|v| v.is_finite()), "frame {i} not finite");
+            assert!(
+                p.tip[..s.len()].iter().all(|v| v.is_finite()),
+                "frame {i} not finite"
+            );
         }
     }
 }
@@ -169,7 +214,12 @@ fn fixtures() -> &'static (String, Skeleton, String, String) {
         let bvh_full = common::read("16_15.bvh");
         let header_end = bvh_full.find("Frame Time").unwrap();
         let mut bvh_text = bvh_full[..header_end].replace("Frames:\t471", "Frames:\t20");
-        bvh_text.push_str(&bvh_full[header_end..].split_inclusive('\n').take(21).collect::<String>());
+        bvh_text.push_str(
+            &bvh_full[header_end..]
+                .split_inclusive('\n')
+                .take(21)
+                .collect::<String>(),
+        );
         (asf_text, s, amc_text, bvh_text)
     })
 }

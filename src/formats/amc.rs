@@ -29,7 +29,11 @@ pub fn parse(skeleton: &Skeleton, text: &str) -> Result<Motion, TextError> {
         }
         if let Some(kw) = first.strip_prefix(':') {
             if in_frames {
-                return Err(TextError::new(n, col, format!("expected a frame number or a bone line, found ':{kw}' after the first frame")));
+                return Err(TextError::new(
+                    n,
+                    col,
+                    format!("expected a frame number or a bone line, found ':{kw}' after the first frame"),
+                ));
             }
             match kw.to_ascii_uppercase().as_str() {
                 "FULLY-SPECIFIED" => {}
@@ -54,13 +58,21 @@ pub fn parse(skeleton: &Skeleton, text: &str) -> Result<Motion, TextError> {
                 .map_err(|_| TextError::new(n, col, format!("expected a frame number, found '{first}'")))?;
             if let Some(want) = expected_frame {
                 if number != want {
-                    return Err(TextError::new(n, col, format!("expected frame {want}, found frame {number}")));
+                    return Err(TextError::new(
+                        n,
+                        col,
+                        format!("expected frame {want}, found frame {number}"),
+                    ));
                 }
             } else {
                 motion.first_frame = number;
             }
             if let Some((c, t)) = toks.next() {
-                return Err(TextError::new(n, c, format!("expected end of line after the frame number, found '{t}'")));
+                return Err(TextError::new(
+                    n,
+                    c,
+                    format!("expected end of line after the frame number, found '{t}'"),
+                ));
             }
             expected_frame = Some(number + 1);
             in_frames = true;
@@ -69,13 +81,28 @@ pub fn parse(skeleton: &Skeleton, text: &str) -> Result<Motion, TextError> {
             continue;
         }
         if !in_frames {
-            return Err(TextError::new(n, col, format!("expected a frame number, found '{first}'")));
+            return Err(TextError::new(
+                n,
+                col,
+                format!("expected a frame number, found '{first}'"),
+            ));
         }
         let Some(bone_index) = skeleton.find(first) else {
-            return Err(TextError::new(n, col, format!("unknown bone '{first}' (not in the skeleton)")));
+            return Err(TextError::new(
+                n,
+                col,
+                format!("unknown bone '{first}' (not in the skeleton)"),
+            ));
         };
         if seen & (1u64 << bone_index) != 0 {
-            return Err(TextError::new(n, col, format!("bone '{first}' appears twice in frame {}", expected_frame.unwrap_or(0) - 1)));
+            return Err(TextError::new(
+                n,
+                col,
+                format!(
+                    "bone '{first}' appears twice in frame {}",
+                    expected_frame.unwrap_or(0) - 1
+                ),
+            ));
         }
         seen |= 1u64 << bone_index;
         let bone = &skeleton.bones()[bone_index];
@@ -93,11 +120,19 @@ pub fn parse(skeleton: &Skeleton, text: &str) -> Result<Motion, TextError> {
             let v: f64 = match t.parse::<f64>() {
                 Ok(v) if v.is_finite() && v.abs() <= MAX_VALUE => v,
                 Ok(_) => {
-                    return Err(TextError::new(n, c, format!("expected a value between -1e9 and 1e9, found '{t}'")))
+                    return Err(TextError::new(
+                        n,
+                        c,
+                        format!("expected a value between -1e9 and 1e9, found '{t}'"),
+                    ))
                 }
                 Err(_) => return Err(TextError::new(n, c, format!("expected a number, found '{t}'"))),
             };
-            frame[bone.first_channel() + k] = if dof.is_rotation() && !degrees { v.to_degrees() } else { v };
+            frame[bone.first_channel() + k] = if dof.is_rotation() && !degrees {
+                v.to_degrees()
+            } else {
+                v
+            };
         }
     }
     if motion.is_empty() {

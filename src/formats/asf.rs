@@ -73,8 +73,24 @@ pub fn write(asf: &AsfFile, mut w: impl Write) -> io::Result<()> {
         }
     };
     writeln!(w, "# ASF skeleton written by marionette")?;
-    writeln!(w, ":version {}", if asf.version.is_empty() { "1.10" } else { &asf.version })?;
-    writeln!(w, ":name {}", if asf.name.is_empty() { "marionette" } else { &asf.name })?;
+    writeln!(
+        w,
+        ":version {}",
+        if asf.version.is_empty() {
+            "1.10"
+        } else {
+            &asf.version
+        }
+    )?;
+    writeln!(
+        w,
+        ":name {}",
+        if asf.name.is_empty() {
+            "marionette"
+        } else {
+            &asf.name
+        }
+    )?;
     writeln!(w, ":units")?;
     writeln!(w, "  mass {}", u.mass)?;
     writeln!(w, "  length {}", u.length)?;
@@ -91,7 +107,11 @@ pub fn write(asf: &AsfFile, mut w: impl Write) -> io::Result<()> {
     let order: Vec<&str> = root.order.iter().map(|d| dof_upper(*d)).collect();
     writeln!(w, "  order {}", order.join(" "))?;
     writeln!(w, "  axis {}", root.axis_order.name())?;
-    writeln!(w, "  position {} {} {}", root.position.x, root.position.y, root.position.z)?;
+    writeln!(
+        w,
+        "  position {} {} {}",
+        root.position.x, root.position.y, root.position.z
+    )?;
     let o = root.orientation;
     writeln!(w, "  orientation {} {} {}", angle(o[0]), angle(o[1]), angle(o[2]))?;
     writeln!(w, ":bonedata")?;
@@ -118,7 +138,11 @@ pub fn write(asf: &AsfFile, mut w: impl Write) -> io::Result<()> {
             for (k, (l, dof)) in spec.limits.iter().zip(&spec.dofs).enumerate() {
                 let bound = |v: f32| {
                     if v.is_infinite() {
-                        if v > 0.0 { "inf".to_string() } else { "-inf".to_string() }
+                        if v > 0.0 {
+                            "inf".to_string()
+                        } else {
+                            "-inf".to_string()
+                        }
                     } else if dof.is_rotation() {
                         angle(v)
                     } else {

@@ -67,14 +67,22 @@ impl<'a> Cursor<'a> {
         if t.text.eq_ignore_ascii_case(word) {
             Ok(t)
         } else {
-            Err(TextError::new(t.line, t.column, format!("expected '{word}', found '{}'", t.text)))
+            Err(TextError::new(
+                t.line,
+                t.column,
+                format!("expected '{word}', found '{}'", t.text),
+            ))
         }
     }
     fn number(&mut self) -> Result<f64, TextError> {
         let t = self.next("a number")?;
         match t.text.parse::<f64>() {
             Ok(v) if v.is_finite() && v.abs() <= super::amc::MAX_VALUE => Ok(v),
-            _ => Err(TextError::new(t.line, t.column, format!("expected a number, found '{}'", t.text))),
+            _ => Err(TextError::new(
+                t.line,
+                t.column,
+                format!("expected a number, found '{}'", t.text),
+            )),
         }
     }
     fn vec3(&mut self) -> Result<[f64; 3], TextError> {
@@ -143,20 +151,29 @@ fn parse_hierarchy<'a>(cur: &mut Cursor<'a>) -> Result<Vec<Joint<'a>>, TextError
             ("CHANNELS", Ctx::Joint(j)) => {
                 let j = *j;
                 let n = cur.next("a channel count")?;
-                let count: usize = n
-                    .text
-                    .parse()
-                    .ok()
-                    .filter(|&c| c <= 6)
-                    .ok_or_else(|| TextError::new(n.line, n.column, format!("expected a channel count from 0 to 6, found '{}'", n.text)))?;
+                let count: usize = n.text.parse().ok().filter(|&c| c <= 6).ok_or_else(|| {
+                    TextError::new(
+                        n.line,
+                        n.column,
+                        format!("expected a channel count from 0 to 6, found '{}'", n.text),
+                    )
+                })?;
                 if !joints[j].channels.is_empty() {
-                    return Err(TextError::new(t.line, t.column, "expected one CHANNELS line per joint, found a second"));
+                    return Err(TextError::new(
+                        t.line,
+                        t.column,
+                        "expected one CHANNELS line per joint, found a second",
+                    ));
                 }
                 joints[j].first_value = values;
                 for _ in 0..count {
                     let c = channel(cur.next("a channel name")?)?;
                     if joints[j].channels.contains(&c) {
-                        return Err(TextError::new(n.line, n.column, "expected each channel once, found a repeat"));
+                        return Err(TextError::new(
+                            n.line,
+                            n.column,
+                            "expected each channel once, found a repeat",
+                        ));
                     }
                     joints[j].channels.push(c);
                 }
@@ -167,7 +184,11 @@ fn parse_hierarchy<'a>(cur: &mut Cursor<'a>) -> Result<Vec<Joint<'a>>, TextError
                 let name = cur.next("a joint name")?;
                 cur.expect("{")?;
                 if joints.len() >= MAX_BONES {
-                    return Err(TextError::new(name.line, name.column, format!("too many joints (at most {MAX_BONES})")));
+                    return Err(TextError::new(
+                        name.line,
+                        name.column,
+                        format!("too many joints (at most {MAX_BONES})"),
+                    ));
                 }
                 joints.push(Joint {
                     name: name.text,
@@ -186,7 +207,11 @@ fn parse_hierarchy<'a>(cur: &mut Cursor<'a>) -> Result<Vec<Joint<'a>>, TextError
                 cur.expect("Site")?;
                 cur.expect("{")?;
                 if joints[j].end_site.is_some() {
-                    return Err(TextError::new(t.line, t.column, "expected one End Site per joint, found a second"));
+                    return Err(TextError::new(
+                        t.line,
+                        t.column,
+                        "expected one End Site per joint, found a second",
+                    ));
                 }
                 joints[j].end_site = Some([0.0; 3]);
                 stack.push(Ctx::EndSite(j));
@@ -198,7 +223,10 @@ fn parse_hierarchy<'a>(cur: &mut Cursor<'a>) -> Result<Vec<Joint<'a>>, TextError
                 return Err(TextError::new(
                     t.line,
                     t.column,
-                    format!("expected OFFSET, CHANNELS, JOINT, End Site or '}}', found '{}'", t.text),
+                    format!(
+                        "expected OFFSET, CHANNELS, JOINT, End Site or '}}', found '{}'",
+                        t.text
+                    ),
                 ))
             }
         }
@@ -229,7 +257,11 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
         }
     }
     let last_line = toks.last().map_or(1, |t| t.line);
-    let mut cur = Cursor { toks, pos: 0, last_line };
+    let mut cur = Cursor {
+        toks,
+        pos: 0,
+        last_line,
+    };
     let joints = parse_hierarchy(&mut cur)?;
     let total_values: usize = joints.iter().map(|j| j.channels.len()).sum();
 
@@ -248,9 +280,22 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
     let mut maps: Vec<(String, ValueMap)> = Vec::new();
 
     let name_of = |s: &str, t: (u32, u32)| {
-        BoneName::try_from(s).map_err(|_| TextError::new(t.0, t.1, format!("joint name '{s}' is longer than {} bytes", crate::skeleton::MAX_NAME_LEN)))
+        BoneName::try_from(s).map_err(|_| {
+            TextError::new(
+                t.0,
+                t.1,
+                format!(
+                    "joint name '{s}' is longer than {} bytes",
+                    crate::skeleton::MAX_NAME_LEN
+                ),
+            )
+        })
     };
-    let children_of = |j: usize| -> Vec<usize> { (0..joints.len()).filter(|&k| joints[k].parent == Some(j)).collect() };
+    let children_of = |j: usize| -> Vec<usize> {
+        (0..joints.len())
+            .filter(|&k| joints[k].parent == Some(j))
+            .collect()
+    };
 
     // Root channels: rotation sub-sequence reversed in place.
     {
@@ -281,10 +326,21 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
         let at = (joint.line, joint.column);
         if j > 0 {
             if joint.channels.iter().any(|c| matches!(c, Channel::Position(_))) {
-                return Err(TextError::new(joint.line, joint.column, format!("joint '{}' has position channels: only the root may (no exact ASF mapping)", joint.name)));
+                return Err(TextError::new(
+                    joint.line,
+                    joint.column,
+                    format!(
+                        "joint '{}' has position channels: only the root may (no exact ASF mapping)",
+                        joint.name
+                    ),
+                ));
             }
             if joint.name.eq_ignore_ascii_case("root") {
-                return Err(TextError::new(joint.line, joint.column, "expected a joint name other than 'root' below the root"));
+                return Err(TextError::new(
+                    joint.line,
+                    joint.column,
+                    "expected a joint name other than 'root' below the root",
+                ));
             }
         }
         let kids = children_of(j);
@@ -299,7 +355,11 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
         if j > 0 {
             let v = DVec3::from(shared.unwrap_or([0.0; 3]));
             let len = v.length();
-            let dir = if len > 0.0 { (v / len).as_vec3() } else { Vec3::ZERO };
+            let dir = if len > 0.0 {
+                (v / len).as_vec3()
+            } else {
+                Vec3::ZERO
+            };
             let mut spec = BoneSpec::new(name_of(joint.name, at)?, dir, len as f32);
             let rots: Vec<Axis> = joint
                 .channels
@@ -369,7 +429,9 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
             j.map_or(0, |j| j.column),
             match e {
                 SkeletonError::DuplicateName(_) => format!("joint name '{name}' is used twice"),
-                SkeletonError::TooManyBones => format!("too many joints and connectors (at most {MAX_BONES} bones)"),
+                SkeletonError::TooManyBones => {
+                    format!("too many joints and connectors (at most {MAX_BONES} bones)")
+                }
                 _ => format!("joint '{name}' does not make a valid bone: {e:?}"),
             },
         )
@@ -379,16 +441,25 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
     cur.expect("MOTION")?;
     cur.expect("Frames:")?;
     let n_tok = cur.next("a frame count")?;
-    let frames: usize = n_tok
-        .text
-        .parse()
-        .map_err(|_| TextError::new(n_tok.line, n_tok.column, format!("expected a frame count, found '{}'", n_tok.text)))?;
+    let frames: usize = n_tok.text.parse().map_err(|_| {
+        TextError::new(
+            n_tok.line,
+            n_tok.column,
+            format!("expected a frame count, found '{}'", n_tok.text),
+        )
+    })?;
     cur.expect("Frame")?;
     cur.expect("Time:")?;
     let ft_tok = cur.next("the frame time in seconds")?;
     let frame_time: f64 = match ft_tok.text.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => v,
-        _ => return Err(TextError::new(ft_tok.line, ft_tok.column, format!("expected a positive frame time, found '{}'", ft_tok.text))),
+        _ => {
+            return Err(TextError::new(
+                ft_tok.line,
+                ft_tok.column,
+                format!("expected a positive frame time, found '{}'", ft_tok.text),
+            ))
+        }
     };
     let mut motion = Motion::new(skeleton.channel_count(), 1.0 / frame_time);
     motion.first_frame = 1;
@@ -407,16 +478,28 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
         while cur.pos < cur.toks.len() && cur.toks[cur.pos].line == line {
             let t = cur.toks[cur.pos];
             if k >= total_values {
-                return Err(TextError::new(t.line, t.column, format!("expected {total_values} values on a frame line, found more")));
+                return Err(TextError::new(
+                    t.line,
+                    t.column,
+                    format!("expected {total_values} values on a frame line, found more"),
+                ));
             }
             row[k] = cur.number()?;
             k += 1;
         }
         if k != total_values {
-            return Err(TextError::new(line, 0, format!("expected {total_values} values on a frame line, found {k}")));
+            return Err(TextError::new(
+                line,
+                0,
+                format!("expected {total_values} values on a frame line, found {k}"),
+            ));
         }
         if read == frames {
-            return Err(TextError::new(line, 1, format!("expected {frames} frames (Frames:), found more")));
+            return Err(TextError::new(
+                line,
+                1,
+                format!("expected {frames} frames (Frames:), found more"),
+            ));
         }
         let frame = motion.push_rest_frame();
         for (b, m) in skeleton.bones().iter().zip(&bone_maps) {
@@ -427,7 +510,11 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
         read += 1;
     }
     if read != frames {
-        return Err(TextError::new(last_line, 0, format!("expected {frames} frames (Frames:), found {read}")));
+        return Err(TextError::new(
+            last_line,
+            0,
+            format!("expected {frames} frames (Frames:), found {read}"),
+        ));
     }
     let asf = AsfFile {
         skeleton,
@@ -451,7 +538,9 @@ pub fn load(path: &Path, inches_per_unit: f64) -> Result<(AsfFile, Motion), File
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
     /// A bone has translation or length channels.
-    #[error("bone '{0}' has translation or length channels, which BVH joints below the root cannot hold exactly")]
+    #[error(
+        "bone '{0}' has translation or length channels, which BVH joints below the root cannot hold exactly"
+    )]
     Translation(String),
     /// Writing failed.
     #[error(transparent)]
@@ -480,13 +569,16 @@ pub fn write(skeleton: &Skeleton, motion: &Motion, mut w: impl Write) -> Result<
         }
     }
     let bones = skeleton.bones();
-    let rest = |i: usize| {
-        let v = DVec3::from(bones[i].direction().as_dvec3()) * f64::from(bones[i].length());
-        v
-    };
+    let rest = |i: usize| bones[i].direction().as_dvec3() * f64::from(bones[i].length());
     writeln!(w, "HIERARCHY")?;
     // Pre-order walk; the skeleton is already in pre-order with parents first.
-    fn walk(s: &Skeleton, i: usize, depth: usize, rest: &dyn Fn(usize) -> DVec3, w: &mut dyn Write) -> io::Result<()> {
+    fn walk(
+        s: &Skeleton,
+        i: usize,
+        depth: usize,
+        rest: &dyn Fn(usize) -> DVec3,
+        w: &mut dyn Write,
+    ) -> io::Result<()> {
         let pad = "  ".repeat(depth);
         let b = &s.bones()[i];
         if i == 0 {
@@ -499,9 +591,18 @@ pub fn write(skeleton: &Skeleton, motion: &Motion, mut w: impl Write) -> Result<
             None => DVec3::ZERO,
             Some(p) => rest(p),
         };
-        writeln!(w, "{pad}  OFFSET {} {} {}", exact(offset.x), exact(offset.y), exact(offset.z))?;
+        writeln!(
+            w,
+            "{pad}  OFFSET {} {} {}",
+            exact(offset.x),
+            exact(offset.y),
+            exact(offset.z)
+        )?;
         if i == 0 {
-            writeln!(w, "{pad}  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation")?;
+            writeln!(
+                w,
+                "{pad}  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation"
+            )?;
         } else {
             writeln!(w, "{pad}  CHANNELS 3 Zrotation Yrotation Xrotation")?;
         }
@@ -566,7 +667,7 @@ pub fn write(skeleton: &Skeleton, motion: &Motion, mut w: impl Write) -> Result<
 /// Writes a BVH file.
 ///
 /// # Errors
-/// See [`write`]; I/O errors name the file.
+/// See [`write()`]; I/O errors name the file.
 pub fn save(skeleton: &Skeleton, motion: &Motion, path: &Path) -> Result<(), FileError> {
     let f = std::fs::File::create(path).map_err(|e| FileError::io(path, e))?;
     let mut w = io::BufWriter::new(f);

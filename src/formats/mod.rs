@@ -111,7 +111,10 @@ pub fn text_from_bytes(bytes: Vec<u8>) -> Result<String, TextError> {
         let good = e.utf8_error().valid_up_to();
         let bytes = e.as_bytes();
         let line = bytes[..good].iter().filter(|&&b| b == b'\n').count() as u32 + 1;
-        let line_start = bytes[..good].iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
+        let line_start = bytes[..good]
+            .iter()
+            .rposition(|&b| b == b'\n')
+            .map_or(0, |p| p + 1);
         TextError::new(
             line,
             (good - line_start) as u32 + 1,

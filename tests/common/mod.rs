@@ -4,7 +4,9 @@
 use std::path::PathBuf;
 
 pub fn data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/cmu").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("data/cmu")
+        .join(name)
 }
 
 pub fn read(name: &str) -> String {

@@ -1,0 +1,177 @@
+//! The `marionette` command as a user runs it: output, exit codes, one-line errors.
+
+mod common;
+
+use std::io::Read;
+use std::process::{Output, Stdio};
+
+fn run(args: &[&str]) -> Output {
+    common::bin()
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8(o.stdout.clone()).unwrap()
+}
+
+fn one_line_error(o: &Output, contains: &str) {
+    assert!(!o.status.success(), "should fail");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "one line: {err}");
+    assert!(err.starts_with("marionette: error: "), "{err}");
+    assert!(err.contains(contains), "'{err}' should contain '{contains}'");
+}
+
+#[test]
+fn info_describes_skeleton_and_motion() {
+    let o = run(&["info", "data/cmu/16.asf", "data/cmu/16_15.amc"]);
+    assert!(o.status.success());
+    let s = stdout(&o);
+    assert!(s.contains("31 (root included), 62 DOFs"), "{s}");
+    assert!(s.contains("length 0.45"), "{s}");
+    assert!(s.contains("lfemur") && s.contains("rx[-160.0,20.0]"), "{s}");
+    assert!(s.contains("471 frames (1..471) at 120 Hz = 3.917 s"), "{s}");
+    let o = run(&["info", "data/cmu/01_01.bvh", "--bvh-unit", "cmu"]);
+    assert!(o.status.success());
+    assert!(stdout(&o).contains("2752 frames"), "{}", stdout(&o));
+}
+
+#[test]
+fn fk_every_frames_meters_and_json() {
+    let o = run(&[
+        "fk",
+        "data/cmu/16.asf",
+        "data/cmu/16_15.amc",
+        "--every",
+        "100",
+        "--frames",
+        "1..300",
+    ]);
+    assert!(o.status.success());
+    let s = stdout(&o);
+    let frames: std::collections::BTreeSet<&str> =
+        s.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
+    assert_eq!(frames.into_iter().collect::<Vec<_>>(), vec!["1", "101", "201"]);
+    assert_eq!(s.lines().count(), 1 + 3 * 31);
+    let root_units: Vec<f64> = s
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .skip(2)
+        .map(|v| v.parse().unwrap())
+        .collect();
+
+    let o = run(&[
+        "fk",
+        "data/cmu/16.asf",
+        "data/cmu/16_15.amc",
+        "--frames",
+        "1..1",
+        "--meters",
+        "--format",
+        "json",
+    ]);
+    assert!(o.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("valid JSON");
+    assert_eq!(v["units"], "m");
+    assert_eq!(v["bones"].as_array().unwrap().len(), 31);
+    assert_eq!(v["frames"][0]["frame"], 1);
+    let root_m = v["frames"][0]["tips"][0][1].as_f64().unwrap();
+    let want = root_units[1] / 0.45 * 0.0254;
+    assert!((root_m - want).abs() < 1e-5, "{root_m} vs {want}");
+}
+
+#[test]
+fn bad_input_gives_one_line_errors_and_nonzero_exit() {
+    one_line_error(&run(&["info", "data/cmu/nope.asf"]), "data/cmu/nope.asf");
+    one_line_error(
+        &run(&["info", "data/cmu/16_15.amc"]),
+        "data/cmu/16_15.amc:2:1: expected an ASF section",
+    );
+    one_line_error(
+        &run(&[
+            "fk",
+            "data/cmu/16.asf",
+            "data/cmu/16_15.amc",
+            "--frames",
+            "400..900",
+        ]),
+        "not inside the clip's frames 1..471",
+    );
+    one_line_error(
+        &run(&["fk", "data/cmu/16.asf", "data/cmu/16_15.amc", "--frames", "x"]),
+        "--frames must look like",
+    );
+    one_line_error(
+        &run(&["convert", "data/cmu/16.asf", "/tmp/x.txt"]),
+        "unknown output type",
+    );
+    let dir = tempdir();
+    let bad = dir.join("bad.amc");
+    std::fs::write(&bad, "1\nroot 0 0 0 0 0\n").unwrap();
+    one_line_error(
+        &run(&["fk", "data/cmu/16.asf", bad.to_str().unwrap()]),
+        "bad.amc:2:1: bone 'root' has 6 DOFs but 5 values",
+    );
+    // Usage errors come from clap, also with a non-zero exit.
+    assert!(!run(&["fk", "data/cmu/16.asf"]).status.success());
+    assert!(
+        !run(&["fk", "data/cmu/16.asf", "data/cmu/16_15.amc", "--every", "0"])
+            .status
+            .success()
+    );
+}
+
+fn tempdir() -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "marionette-cli-{}-{:?}",
+        std::process::id(),
+        std::thread::current().id()
+    ));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn convert_bvh_to_asf_amc_and_back() {
+    let d = tempdir();
+    let amc_out = d.join("walk.amc");
+    let o = run(&["convert", "data/cmu/16_15.bvh", amc_out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let asf_out = d.join("walk.asf");
+    assert!(asf_out.is_file(), "skeleton written beside the AMC");
+    let o = run(&["info", asf_out.to_str().unwrap(), amc_out.to_str().unwrap()]);
+    assert!(o.status.success());
+    assert!(stdout(&o).contains("471 frames"));
+    // And AMC (skeleton found from the CMU subject number) to BVH.
+    let bvh_out = d.join("walk.bvh");
+    let o = run(&["convert", "data/cmu/16_15.amc", bvh_out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(&["info", bvh_out.to_str().unwrap(), "--bvh-unit", "cmu"]);
+    assert!(o.status.success());
+    assert!(stdout(&o).contains("471 frames"));
+}
+
+#[test]
+fn closed_pipe_is_not_an_error() {
+    let mut child = common::bin()
+        .args(["fk", "data/cmu/01.asf", "data/cmu/01_01.amc"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = child.stdout.take().unwrap();
+    let mut first = [0u8; 64];
+    out.read_exact(&mut first).unwrap();
+    drop(out);
+    let status = child.wait().unwrap();
+    let mut err = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+    assert!(status.success(), "exit {status:?}, stderr {err}");
+    assert!(err.is_empty(), "{err}");
+}
