@@ -3,6 +3,11 @@
 use crate::fk::{forward_kinematics, Pose};
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf, bvh, FileError};
+use crate::motion::clip::{heading, transform};
+use crate::motion::connect::{blend, connect, loop_clip, ConnectParams, Direction, Method};
+use crate::motion::matching::{MatchParams, Metric};
+use crate::motion::plot::{draw, ConnectionPlot};
+use crate::motion::seam::seam_report;
 use crate::motion::{Motion, CMU_FRAME_RATE};
 use crate::skeleton::MAX_CHANNELS;
 use clap::{Parser, Subcommand, ValueEnum};
@@ -67,6 +72,125 @@ enum Command {
         #[arg(long, value_enum, default_value_t = BvhUnit::Cm)]
         bvh_unit: BvhUnit,
     },
+    /// Connect clip A to clip B through their best-matching windows (help note §III).
+    Connect {
+        /// Skeleton (.asf) of both clips.
+        asf: PathBuf,
+        /// First clip (.amc).
+        a: PathBuf,
+        /// Second clip (.amc).
+        b: PathBuf,
+        /// Interpolate between the end poses, or blend the overlapping windows.
+        #[arg(long, value_enum, default_value_t = MethodArg::Interp)]
+        method: MethodArg,
+        /// Forward: match A's end in B (A kept whole); backward: B's start in A.
+        #[arg(long = "match", value_enum, default_value_t = DirectionArg::Forward)]
+        direction: DirectionArg,
+        /// Matching window, frames.
+        #[arg(long, default_value_t = 30)]
+        window: usize,
+        /// Joint distance for matching.
+        #[arg(long, value_enum, default_value_t = MetricArg::Quat)]
+        metric: MetricArg,
+        /// Frames to insert (interp); default: enough to keep joint speeds within the inputs'.
+        #[arg(long)]
+        insert: Option<usize>,
+        /// Output clip (.amc).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Picture of the root paths and the matching curve (.svg or .png).
+        #[arg(long)]
+        plot: Option<PathBuf>,
+    },
+    /// Make a seamless cycle of a clip by connecting it to itself, repeated --cycles times.
+    Loop {
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Clip (.amc).
+        input: PathBuf,
+        /// Output clip (.amc).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Matching window, frames.
+        #[arg(long, default_value_t = 30)]
+        window: usize,
+        /// Joint distance for matching.
+        #[arg(long, value_enum, default_value_t = MetricArg::Quat)]
+        metric: MetricArg,
+        /// How many cycles to write, the root carried on from one to the next.
+        #[arg(long, default_value_t = 2)]
+        cycles: usize,
+        /// Picture of the root path and the matching curve (.svg or .png).
+        #[arg(long)]
+        plot: Option<PathBuf>,
+    },
+    /// Turn a clip about its first frame's root to a facing angle and move it (eq. 6–10).
+    Transform {
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Clip (.amc).
+        input: PathBuf,
+        /// Facing of the first frame, degrees (0: +z, 90: +x).
+        #[arg(long, allow_hyphen_values = true)]
+        facing: f64,
+        /// New start position of the root on the ground, `X,Z` (file units).
+        #[arg(long, allow_hyphen_values = true)]
+        start: Option<String>,
+        /// Output clip (.amc).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Blend two clips frame by frame with a constant weight (0: A, 1: B).
+    Blend {
+        /// Skeleton (.asf) of both clips.
+        asf: PathBuf,
+        /// First clip (.amc).
+        a: PathBuf,
+        /// Second clip (.amc).
+        b: PathBuf,
+        /// Weight of B, 0 to 1.
+        #[arg(long)]
+        weight: f64,
+        /// Output clip (.amc).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum MethodArg {
+    /// Insert interpolated frames between the end poses.
+    Interp,
+    /// Blend the overlapping matched windows.
+    Blend,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum DirectionArg {
+    /// Match A's end in B; A is kept whole.
+    Forward,
+    /// Match B's start in A; B is kept whole.
+    Backward,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum MetricArg {
+    /// Euler angles.
+    Euler,
+    /// Quaternion log distance.
+    Quat,
+    /// Normalised joint positions.
+    Position,
+}
+
+impl MetricArg {
+    fn metric(self) -> Metric {
+        match self {
+            MetricArg::Euler => Metric::Euler,
+            MetricArg::Quat => Metric::Quat,
+            MetricArg::Position => Metric::Position,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -143,6 +267,62 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
             asf_out,
             bvh_unit,
         } => convert(&input, &output, asf.as_deref(), asf_out.as_deref(), bvh_unit),
+        Command::Connect {
+            asf,
+            a,
+            b,
+            method,
+            direction,
+            window,
+            metric,
+            insert,
+            output,
+            plot,
+        } => {
+            let params = ConnectParams {
+                method: match method {
+                    MethodArg::Interp => Method::Interpolate,
+                    MethodArg::Blend => Method::Blend,
+                },
+                direction: match direction {
+                    DirectionArg::Forward => Direction::Forward,
+                    DirectionArg::Backward => Direction::Backward,
+                },
+                matching: MatchParams::new(window, metric.metric()),
+                insert,
+            };
+            connect_cmd(&asf, &a, &b, &params, &output, plot.as_deref())
+        }
+        Command::Loop {
+            asf,
+            input,
+            output,
+            window,
+            metric,
+            cycles,
+            plot,
+        } => loop_cmd(
+            &asf,
+            &input,
+            &MatchParams::new(window, metric.metric()),
+            cycles,
+            &output,
+            plot.as_deref(),
+        ),
+        Command::Transform {
+            asf,
+            input,
+            facing,
+            start,
+            output,
+        } => transform_cmd(&asf, &input, facing, start.as_deref(), &output),
+        Command::Blend {
+            asf,
+            a,
+            b,
+            weight,
+            output,
+        } => blend_cmd(&asf, &a, &b, weight, &output),
     };
     match result {
         // A closed pipe (`marionette fk … | head`) is not a failure.
@@ -481,4 +661,244 @@ fn save_asf(file: &AsfFile, path: &Path) -> Result<(), FileError> {
     asf::write(file, &mut w)
         .and_then(|()| w.flush())
         .map_err(|e| FileError::io(path, e))
+}
+
+fn load_clip(asf_path: &Path, amc_paths: &[&Path]) -> Result<(AsfFile, Vec<Motion>), CliError> {
+    let file = asf::load(asf_path)?;
+    let motions = amc_paths
+        .iter()
+        .map(|p| amc::load(&file.skeleton, p))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((file, motions))
+}
+
+fn save_clip(file: &AsfFile, motion: &Motion, output: &Path) -> Result<(), CliError> {
+    if extension(output) != "amc" {
+        return Err(CliError::Usage(format!(
+            "{}: the output must be an .amc file",
+            output.display()
+        )));
+    }
+    amc::save(&file.skeleton, motion, output)?;
+    Ok(())
+}
+
+fn stem(p: &Path) -> String {
+    p.file_stem()
+        .map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().to_string())
+}
+
+fn connect_cmd(
+    asf_path: &Path,
+    a_path: &Path,
+    b_path: &Path,
+    params: &ConnectParams,
+    output: &Path,
+    plot: Option<&Path>,
+) -> Result<(), CliError> {
+    let (file, clips) = load_clip(asf_path, &[a_path, b_path])?;
+    let (s, a, b) = (&file.skeleton, &clips[0], &clips[1]);
+    let c = connect(s, a, b, params).map_err(|e| CliError::Usage(e.to_string()))?;
+    let mut out = c.motion.clone();
+    out.first_frame = 1;
+    save_clip(&file, &out, output)?;
+    let (searched, kept_whole) = match params.direction {
+        Direction::Forward => ("B", "A"),
+        Direction::Backward => ("A", "B"),
+    };
+    let mut w = io::stdout().lock();
+    writeln!(
+        w,
+        "matched   {:?} matching, window {} frames, metric {:?}: best window of {searched} starts at its frame {} (distance {:.4}); {kept_whole} kept whole",
+        params.direction,
+        params.matching.window,
+        params.matching.metric,
+        c.matching.best + 1,
+        c.matching.best_distance
+    )?;
+    let how = match params.method {
+        Method::Interpolate => "interpolated",
+        Method::Blend => "blended",
+    };
+    writeln!(
+        w,
+        "result    {} frames: A {}..{}, {} {how}, B {}..{}",
+        out.len(),
+        c.a_kept.start + 1,
+        c.a_kept.end,
+        c.seam.len(),
+        c.b_kept.start + 1,
+        c.b_kept.end
+    )?;
+    write_seam(&mut w, &seam_report(s, &[a, b], &out, c.seam.clone()))?;
+    writeln!(w, "wrote     {}", output.display())?;
+    if let Some(p) = plot {
+        draw(
+            s,
+            &ConnectionPlot {
+                title: format!(
+                    "connect {} → {} ({how}, {:?} matching)",
+                    stem(a_path),
+                    stem(b_path),
+                    params.direction
+                ),
+                inputs: vec![("A", a), ("B", b)],
+                result: &out,
+                seam: c.seam.clone(),
+                distances: &c.matching.distances,
+                distance_axis: format!("start frame of the window in {searched} (0-based)"),
+                best: c.matching.best,
+            },
+            p,
+        )
+        .map_err(CliError::Usage)?;
+        writeln!(w, "drew      {}", p.display())?;
+    }
+    Ok(())
+}
+
+fn write_seam(w: &mut impl Write, r: &crate::motion::seam::SeamReport) -> io::Result<()> {
+    writeln!(
+        w,
+        "seam      joint change ≤ {:.2}°/frame (inputs' p99 {:.2}°), root ≤ {:.4} units/frame (p99 {:.4}), facing ≤ {:.2}°/frame (p99 {:.2}°)",
+        r.rotation.to_degrees(),
+        r.input_rotation_p99.to_degrees(),
+        r.root,
+        r.input_root_p99,
+        r.facing.to_degrees(),
+        r.input_facing_p99.to_degrees()
+    )
+}
+
+fn loop_cmd(
+    asf_path: &Path,
+    input: &Path,
+    matching: &MatchParams,
+    cycles: usize,
+    output: &Path,
+    plot: Option<&Path>,
+) -> Result<(), CliError> {
+    if cycles == 0 {
+        return Err(CliError::Usage("--cycles must be at least 1".into()));
+    }
+    let (file, clips) = load_clip(asf_path, &[input])?;
+    let (s, a) = (&file.skeleton, &clips[0]);
+    let l = loop_clip(s, a, matching, cycles).map_err(|e| CliError::Usage(e.to_string()))?;
+    save_clip(&file, &l.motion, output)?;
+    let mut w = io::stdout().lock();
+    writeln!(
+        w,
+        "matched   the last {} frames against the clip: best window starts at frame {} (distance {:.4})",
+        matching.window,
+        l.start + 1,
+        l.matching.best_distance
+    )?;
+    writeln!(
+        w,
+        "cycle     frames {}..{} with the end blended back, {} frames = {:.3} s; {} cycles = {} frames",
+        l.start + matching.window + 1,
+        a.len(),
+        l.period,
+        l.period as f64 / a.frame_rate,
+        cycles,
+        l.motion.len()
+    )?;
+    // The wrap from one cycle into the next.
+    let wrap = if cycles > 1 {
+        l.period..l.period
+    } else {
+        l.seam.clone()
+    };
+    write_seam(&mut w, &seam_report(s, &[a], &l.motion, wrap.clone()))?;
+    writeln!(w, "wrote     {}", output.display())?;
+    if let Some(p) = plot {
+        draw(
+            s,
+            &ConnectionPlot {
+                title: format!("loop {} ({} cycles)", stem(input), cycles),
+                inputs: vec![("clip", a)],
+                result: &l.motion,
+                seam: l.seam.clone(),
+                distances: &l.matching.distances,
+                distance_axis: "start frame of the window (0-based)".into(),
+                best: l.matching.best,
+            },
+            p,
+        )
+        .map_err(CliError::Usage)?;
+        writeln!(w, "drew      {}", p.display())?;
+    }
+    Ok(())
+}
+
+fn transform_cmd(
+    asf_path: &Path,
+    input: &Path,
+    facing: f64,
+    start: Option<&str>,
+    output: &Path,
+) -> Result<(), CliError> {
+    if !facing.is_finite() {
+        return Err(CliError::Usage("--facing must be a number of degrees".into()));
+    }
+    let start = match start {
+        None => None,
+        Some(t) => {
+            let bad = || CliError::Usage(format!("--start must look like X,Z, got '{t}'"));
+            let (x, z) = t.split_once(',').ok_or_else(bad)?;
+            let x: f64 = x.trim().parse().map_err(|_| bad())?;
+            let z: f64 = z.trim().parse().map_err(|_| bad())?;
+            if !(x.is_finite() && z.is_finite()) {
+                return Err(bad());
+            }
+            Some((x, z))
+        }
+    };
+    let (file, clips) = load_clip(asf_path, &[input])?;
+    let s = &file.skeleton;
+    let out = transform(s, &clips[0], facing.to_radians(), start);
+    save_clip(&file, &out, output)?;
+    let (f0, p0) = heading(s, &clips[0], 0);
+    let (f1, p1) = heading(s, &out, 0);
+    let mut w = io::stdout().lock();
+    writeln!(
+        w,
+        "first frame: facing {:.3}° → {:.3}°, root ({:.4}, {:.4}, {:.4}) → ({:.4}, {:.4}, {:.4})",
+        f0.to_degrees(),
+        f1.to_degrees(),
+        p0.x,
+        p0.y,
+        p0.z,
+        p1.x,
+        p1.y,
+        p1.z
+    )?;
+    writeln!(w, "wrote {} ({} frames)", output.display(), out.len())?;
+    Ok(())
+}
+
+fn blend_cmd(
+    asf_path: &Path,
+    a_path: &Path,
+    b_path: &Path,
+    weight: f64,
+    output: &Path,
+) -> Result<(), CliError> {
+    if !(0.0..=1.0).contains(&weight) {
+        return Err(CliError::Usage(format!(
+            "--weight must be between 0 and 1, got {weight}"
+        )));
+    }
+    let (file, clips) = load_clip(asf_path, &[a_path, b_path])?;
+    let out = blend(&file.skeleton, &clips[0], &clips[1], weight);
+    save_clip(&file, &out, output)?;
+    writeln!(
+        io::stdout().lock(),
+        "wrote {} ({} frames, {:.0}% A + {:.0}% B)",
+        output.display(),
+        out.len(),
+        (1.0 - weight) * 100.0,
+        weight * 100.0
+    )?;
+    Ok(())
 }

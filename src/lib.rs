@@ -6,6 +6,8 @@
 //! * [`skeleton`] — fixed-capacity bones, channel layout, limits.
 //! * [`asf`] — the ASF reader, text to skeleton, without allocation.
 //! * [`fk`] — forward kinematics, eq. (1)–(5), into caller buffers.
+//! * [`interp`] — per-frame editing maths in f64: facing (eq. 6–7), SLERP (eq. 12), ease
+//!   weights (eq. 13), frame interpolation.
 //!
 //! These four are the `no_std` core (build with `--no-default-features`); they use `glam` with
 //! `libm` and `heapless`, never the standard library or the heap.
@@ -22,6 +24,7 @@
 
 pub mod asf;
 pub mod fk;
+pub mod interp;
 pub mod math;
 pub mod skeleton;
 

@@ -175,3 +175,168 @@ fn closed_pipe_is_not_an_error() {
     assert!(status.success(), "exit {status:?}, stderr {err}");
     assert!(err.is_empty(), "{err}");
 }
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    tempdir().join(name)
+}
+
+fn frames_of(amc_path: &std::path::Path) -> usize {
+    let skel = marionette::formats::asf::load(&common::data("16.asf"))
+        .unwrap()
+        .skeleton;
+    marionette::formats::amc::load(&skel, amc_path).unwrap().len()
+}
+
+#[test]
+fn connect_writes_a_readable_clip_and_both_picture_kinds() {
+    let out = tmp("connect.amc");
+    let svg = tmp("connect.svg");
+    let o = run(&[
+        "connect",
+        "data/cmu/16.asf",
+        "data/cmu/16_15.amc",
+        "data/cmu/01_01.amc",
+        "--method",
+        "blend",
+        "--match",
+        "backward",
+        "--metric",
+        "euler",
+        "--window",
+        "20",
+        "-o",
+        out.to_str().unwrap(),
+        "--plot",
+        svg.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = stdout(&o);
+    assert!(
+        s.contains("Backward matching, window 20 frames, metric Euler"),
+        "{s}"
+    );
+    assert!(s.contains("seam      joint change"), "{s}");
+    assert!(frames_of(&out) > 100);
+    let svg_text = std::fs::read_to_string(&svg).unwrap();
+    assert!(svg_text.starts_with("<svg") && svg_text.contains("matching window distance"));
+
+    let png = tmp("connect.png");
+    let o = run(&[
+        "connect",
+        "data/cmu/16.asf",
+        "data/cmu/16_15.amc",
+        "data/cmu/16_15.amc",
+        "--insert",
+        "5",
+        "-o",
+        out.to_str().unwrap(),
+        "--plot",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout(&o).contains("5 interpolated"), "{}", stdout(&o));
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+}
+
+#[test]
+fn loop_transform_and_blend_commands() {
+    let out = tmp("loop.amc");
+    let o = run(&[
+        "loop",
+        "data/cmu/16.asf",
+        "data/cmu/16_15.amc",
+        "--cycles",
+        "3",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout(&o).contains("3 cycles"), "{}", stdout(&o));
+    assert!(frames_of(&out) > 300);
+
+    let moved = tmp("moved.amc");
+    let o = run(&[
+        "transform",
+        "data/cmu/16.asf",
+        "data/cmu/16_15.amc",
+        "--facing",
+        "-90",
+        "--start",
+        "-5,2.5",
+        "-o",
+        moved.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout(&o).contains("→ -90.000°"), "{}", stdout(&o));
+    assert!(stdout(&o).contains("(-5.0000,"), "{}", stdout(&o));
+    assert_eq!(frames_of(&moved), 471);
+
+    let mix = tmp("mix.amc");
+    let o = run(&[
+        "blend",
+        "data/cmu/16.asf",
+        "data/cmu/16_15.amc",
+        "data/cmu/01_01.amc",
+        "--weight",
+        "0.25",
+        "-o",
+        mix.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(frames_of(&mix), 471);
+
+    one_line_error(
+        &run(&[
+            "blend",
+            "data/cmu/16.asf",
+            "data/cmu/16_15.amc",
+            "data/cmu/01_01.amc",
+            "--weight",
+            "2",
+            "-o",
+            mix.to_str().unwrap(),
+        ]),
+        "--weight must be between 0 and 1",
+    );
+    one_line_error(
+        &run(&[
+            "connect",
+            "data/cmu/16.asf",
+            "data/cmu/16_15.amc",
+            "data/cmu/01_01.amc",
+            "--window",
+            "5000",
+            "-o",
+            mix.to_str().unwrap(),
+        ]),
+        "window of 5000 frames does not fit",
+    );
+    one_line_error(
+        &run(&[
+            "transform",
+            "data/cmu/16.asf",
+            "data/cmu/16_15.amc",
+            "--facing",
+            "10",
+            "--start",
+            "1",
+            "-o",
+            mix.to_str().unwrap(),
+        ]),
+        "--start must look like X,Z",
+    );
+    one_line_error(
+        &run(&[
+            "connect",
+            "data/cmu/16.asf",
+            "data/cmu/16_15.amc",
+            "data/cmu/01_01.amc",
+            "-o",
+            mix.to_str().unwrap(),
+            "--plot",
+            "/tmp/x.gif",
+        ]),
+        "must be .svg or .png",
+    );
+}

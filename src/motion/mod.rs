@@ -1,8 +1,21 @@
-//! A motion clip: frames of one skeleton's channels.
+//! Motion clips and their editing (help note §III).
 //!
-//! Values are kept as files hold them — rotations in degrees, translations in file units —
-//! in f64, so that reading and writing a clip loses nothing. [`Motion::channels_into`] turns a
-//! frame into the core's frame vector (radians, f32) without allocating.
+//! A [`Motion`] keeps values as files hold them — rotations in degrees, translations in file
+//! units — in f64, so that reading and writing a clip loses nothing; [`Motion::channels_into`]
+//! turns a frame into the core's frame vector (radians, f32) without allocating.
+//!
+//! * [`clip`] — cut, reverse, append, resample, and the transformation of eq. (6)–(10).
+//! * [`matching`] — window distance matching, eq. (11), forward and backward.
+//! * [`connect`] — connection by interpolation (eq. 12, 14) or blending (eq. 13, 15), loops,
+//!   and frame-by-frame blends.
+//! * [`seam`] — per-frame rotation and root changes, to judge a transition.
+//! * [`plot`] — the picture of a connection.
+
+pub mod clip;
+pub mod connect;
+pub mod matching;
+pub mod plot;
+pub mod seam;
 
 use crate::skeleton::Skeleton;
 
@@ -76,6 +89,20 @@ impl Motion {
     #[must_use]
     pub fn frame(&self, i: usize) -> &[f64] {
         &self.data[i * self.channels..(i + 1) * self.channels]
+    }
+
+    /// Frames `range` as a new clip (frame numbers continue from the first one kept).
+    ///
+    /// # Panics
+    /// When the range is out of bounds.
+    #[must_use]
+    pub fn slice(&self, range: std::ops::Range<usize>) -> Motion {
+        Motion {
+            channels: self.channels,
+            data: self.data[range.start * self.channels..range.end * self.channels].to_vec(),
+            first_frame: self.first_frame + range.start as i64,
+            frame_rate: self.frame_rate,
+        }
     }
 
     /// Frame `i`, mutable.

@@ -1,0 +1,345 @@
+//! Connecting clips (help note §III): by interpolation (fig. 3, eq. 12, 14) or by blending
+//! (fig. 4, eq. 13, 15), after forward or backward matching (eq. 11); loops (a clip connected
+//! to itself); and frame-by-frame blends of two clips.
+
+use super::clip::{heading, move_to, GroundMove};
+use super::matching::{backward_match, forward_match, MatchError, MatchParams, MatchResult};
+use super::seam::{quantile, steps};
+use super::Motion;
+use crate::interp::{
+    channel_rotation, ease_weight, interpolate_frames, root_rotation, rotation_angle, wrap_near,
+};
+use crate::skeleton::Skeleton;
+use glam::DVec3;
+use std::ops::Range;
+
+/// How the transition is made.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Insert SLERP-interpolated frames between the two end poses (fig. 3).
+    Interpolate,
+    /// Ease-in/ease-out blend of the overlapping matched windows (fig. 4).
+    Blend,
+}
+
+/// Which clip is kept whole.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Direction {
+    /// Match the end of A in B; A is kept whole.
+    Forward,
+    /// Match the start of B in A; B is kept whole.
+    Backward,
+}
+
+/// Connection parameters.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConnectParams {
+    /// Interpolation or blending.
+    pub method: Method,
+    /// Forward or backward matching.
+    pub direction: Direction,
+    /// Matching window and metric.
+    pub matching: MatchParams,
+    /// Frames to insert when interpolating (`None`: as many as keep every joint's change per
+    /// frame within the inputs' 99th percentile).
+    pub insert: Option<usize>,
+}
+
+/// A connected clip and how it was made.
+#[derive(Clone, Debug)]
+pub struct Connection {
+    /// The result.
+    pub motion: Motion,
+    /// The matching's distance curve (over B's windows when forward, A's when backward).
+    pub matching: MatchResult,
+    /// Output frames made by the transition (interpolated or blended).
+    pub seam: Range<usize>,
+    /// Frames of A kept at the start of the output.
+    pub a_kept: Range<usize>,
+    /// Frames of B kept after the seam.
+    pub b_kept: Range<usize>,
+    /// The move applied to B.
+    pub b_move: GroundMove,
+}
+
+/// Why a connection cannot be made.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ConnectError {
+    /// Matching failed.
+    #[error(transparent)]
+    Match(#[from] MatchError),
+    /// Too little of a clip remains around the match.
+    #[error("{0}")]
+    TooShort(String),
+}
+
+fn too_short(what: &str) -> ConnectError {
+    ConnectError::TooShort(what.to_string())
+}
+
+/// Linear extrapolation of facing and position, eq. (14): `x[N−1] + k·(x[N−1] − x[N−2])`.
+fn extrapolate(skeleton: &Skeleton, a: &Motion, last: usize, k: f64) -> (f64, DVec3) {
+    let (f1, t1) = heading(skeleton, a, last);
+    let (f0, t0) = heading(skeleton, a, last.saturating_sub(1));
+    let df = wrap_near(f1, f0) - f0;
+    (f1 + k * df, t1 + (t1 - t0) * k)
+}
+
+/// Window starts in B allowed by forward matching: at least one frame of B after the window
+/// and, when B is A itself, no window overlapping A's own end window (the trivial match).
+fn forward_starts(a: &Motion, b: &Motion, n: usize) -> Range<usize> {
+    let mut end = (b.len() + 1).saturating_sub(n + 1);
+    if a == b {
+        end = end.min((a.len() + 1).saturating_sub(2 * n));
+    }
+    0..end
+}
+
+/// Window starts in A allowed by backward matching: `before` frames of A before the window
+/// and, when B is A itself, no window overlapping A's own start window.
+fn backward_starts(a: &Motion, b: &Motion, n: usize, before: usize) -> Range<usize> {
+    let start = if a == b { before.max(n) } else { before };
+    start..(a.len() + 1).saturating_sub(n)
+}
+
+/// Frames to insert so that no joint turns more per frame than the inputs' 99th percentile.
+fn auto_insert(skeleton: &Skeleton, from: &[f64], to: &[f64], inputs: &[&Motion]) -> usize {
+    let p99 = inputs
+        .iter()
+        .map(|m| quantile(&steps(skeleton, m).rotation, 0.99))
+        .fold(0.0, f64::max)
+        .max(1e-3);
+    let mut worst = 0.0f64;
+    for (k, bone) in skeleton.bones().iter().enumerate() {
+        let (ra, rb) = if k == 0 {
+            (root_rotation(skeleton, from), root_rotation(skeleton, to))
+        } else {
+            (channel_rotation(bone, from), channel_rotation(bone, to))
+        };
+        worst = worst.max(rotation_angle(&ra, &rb));
+    }
+    ((worst / p99).ceil() as usize).saturating_sub(1)
+}
+
+/// Connects `a` and `b`.
+///
+/// # Errors
+/// [`ConnectError`] when the window does not fit or too little of a clip remains.
+pub fn connect(
+    skeleton: &Skeleton,
+    a: &Motion,
+    b: &Motion,
+    p: &ConnectParams,
+) -> Result<Connection, ConnectError> {
+    let n = p.matching.window;
+    if a.len() < 2 {
+        return Err(too_short("clip A needs at least 2 frames"));
+    }
+    match (p.method, p.direction) {
+        (Method::Interpolate, dir) => {
+            let (m, a_keep, b_keep) = match dir {
+                Direction::Forward => {
+                    // B's matched window is "pseudo-overlapped" with A's end: drop it and all
+                    // before it, so at least one frame of B must follow it.
+                    let m = forward_match(skeleton, a, b, &p.matching)?;
+                    let m = m.best_within(forward_starts(a, b, n)).ok_or_else(|| {
+                        too_short("no window of B leaves frames after it: use a smaller window")
+                    })?;
+                    let b_start = m.best + n;
+                    (m, 0..a.len(), b_start..b.len())
+                }
+                Direction::Backward => {
+                    // A is cut before the matched window; extrapolation needs 2 frames of it.
+                    let m = backward_match(skeleton, a, b, &p.matching)?;
+                    let m = m.best_within(backward_starts(a, b, n, 2)).ok_or_else(|| {
+                        too_short("no window of A leaves 2 frames before it: use a smaller window")
+                    })?;
+                    let best = m.best;
+                    (m, 0..best, 0..b.len())
+                }
+            };
+            let a_part = a.slice(a_keep.clone());
+            let b_part = b.slice(b_keep.clone());
+            let last = a_part.len() - 1;
+            // First pass with the requested or a provisional count, then the automatic count
+            // from the real end poses.
+            let mut ni = p.insert.unwrap_or(0);
+            let mut mv = GroundMove::IDENTITY;
+            for _ in 0..2 {
+                let (facing, pos) = extrapolate(skeleton, &a_part, last, (ni + 1) as f64);
+                let start = DVec3::new(pos.x, heading(skeleton, &b_part, 0).1.y, pos.z);
+                mv = move_to(skeleton, &b_part, 0, facing, start);
+                if p.insert.is_some() {
+                    break;
+                }
+                let b0 = mv.apply_to(skeleton, &b_part.slice(0..1));
+                ni = auto_insert(skeleton, a_part.frame(last), b0.frame(0), &[a, b]);
+            }
+            let b_moved = mv.apply_to(skeleton, &b_part);
+            let mut out = a_part.clone();
+            let mut buf = vec![0.0; skeleton.channel_count()];
+            for k in 1..=ni {
+                let u = k as f64 / (ni + 1) as f64;
+                interpolate_frames(skeleton, a_part.frame(last), b_moved.frame(0), u, &mut buf);
+                out.push_frame(&buf);
+            }
+            out.append(&b_moved);
+            Ok(Connection {
+                motion: out,
+                matching: m,
+                seam: a_part.len()..a_part.len() + ni,
+                a_kept: a_keep,
+                b_kept: b_keep,
+                b_move: mv,
+            })
+        }
+        (Method::Blend, dir) => {
+            let (m, a_start, b_start) = match dir {
+                Direction::Forward => {
+                    let m = forward_match(skeleton, a, b, &p.matching)?;
+                    let m = m.best_within(forward_starts(a, b, n)).ok_or_else(|| {
+                        too_short("no window of B leaves frames after it: use a smaller window")
+                    })?;
+                    let best = m.best;
+                    (m, a.len() - n, best)
+                }
+                Direction::Backward => {
+                    let m = backward_match(skeleton, a, b, &p.matching)?;
+                    let m = m.best_within(backward_starts(a, b, n, 1)).ok_or_else(|| {
+                        too_short("no window of A leaves a frame before it: use a smaller window")
+                    })?;
+                    let best = m.best;
+                    (m, best, 0)
+                }
+            };
+            // eq. (15): B's first overlapping frame takes the facing and place of A's.
+            let (facing, pos) = heading(skeleton, a, a_start);
+            let b_part = b.slice(b_start..b.len());
+            let start = DVec3::new(pos.x, heading(skeleton, &b_part, 0).1.y, pos.z);
+            let mv = move_to(skeleton, &b_part, 0, facing, start);
+            let b_moved = mv.apply_to(skeleton, &b_part);
+            let mut out = a.slice(0..a_start);
+            let mut buf = vec![0.0; skeleton.channel_count()];
+            for f in 0..n {
+                interpolate_frames(
+                    skeleton,
+                    a.frame(a_start + f),
+                    b_moved.frame(f),
+                    ease_weight(f, n),
+                    &mut buf,
+                );
+                out.push_frame(&buf);
+            }
+            out.append(&b_moved.slice(n..b_moved.len()));
+            Ok(Connection {
+                motion: out,
+                matching: m,
+                seam: a_start..a_start + n,
+                a_kept: 0..a_start,
+                b_kept: b_start + n..b.len(),
+                b_move: mv,
+            })
+        }
+    }
+}
+
+/// A seamless cycle of a clip, repeated `cycles` times with the root carried on.
+#[derive(Clone, Debug)]
+pub struct Loop {
+    /// The repeated cycle.
+    pub motion: Motion,
+    /// Frames in one cycle.
+    pub period: usize,
+    /// The matching of the clip's end against its own windows (cut to the legal starts).
+    pub matching: MatchResult,
+    /// Where the cycle starts in the input.
+    pub start: usize,
+    /// The blended frames at the end of each cycle (first cycle).
+    pub seam: Range<usize>,
+}
+
+/// Connects a clip to itself: the end window is matched against the clip's earlier windows
+/// (starts leaving a cycle of at least `2·N` frames), the end blended into the matched window
+/// (eq. 13, 15), and the cycle repeated with facing and position carried on.
+///
+/// # Errors
+/// [`ConnectError`] when the clip is shorter than four windows.
+pub fn loop_clip(
+    skeleton: &Skeleton,
+    a: &Motion,
+    matching: &MatchParams,
+    cycles: usize,
+) -> Result<Loop, ConnectError> {
+    let n = matching.window;
+    if n == 0 || a.len() < 4 * n {
+        return Err(too_short("a loop needs a clip of at least four matching windows"));
+    }
+    let full = forward_match(skeleton, a, a, matching)?;
+    // Starts j with a cycle (from j + N to the end window) of at least 2N frames.
+    let legal = a.len() - 4 * n + 1;
+    let distances = full.distances[..legal].to_vec();
+    let (best, best_distance) =
+        distances
+            .iter()
+            .copied()
+            .enumerate()
+            .fold(
+                (0, f64::INFINITY),
+                |(bi, bd), (i, d)| if d < bd { (i, d) } else { (bi, bd) },
+            );
+    let m = MatchResult {
+        distances,
+        best,
+        best_distance,
+    };
+    // One cycle: A[j+N .. len−N], then A's end window blended into the (moved) window A[j..j+N].
+    let a_start = a.len() - n;
+    let (facing, pos) = heading(skeleton, a, a_start);
+    let start = DVec3::new(pos.x, heading(skeleton, a, best).1.y, pos.z);
+    let mv = move_to(skeleton, a, best, facing, start);
+    let moved_window = mv.apply_to(skeleton, &a.slice(best..best + n));
+    let mut cycle = a.slice(best + n..a_start);
+    let mut buf = vec![0.0; skeleton.channel_count()];
+    for f in 0..n {
+        interpolate_frames(
+            skeleton,
+            a.frame(a_start + f),
+            moved_window.frame(f),
+            ease_weight(f, n),
+            &mut buf,
+        );
+        cycle.push_frame(&buf);
+    }
+    let period = cycle.len();
+    let seam = period - n..period;
+    // Cycle k is the first cycle moved k times: frame best+N of the input maps to the frame
+    // after the blend, i.e. `mv` applied once per cycle.
+    let mut out = cycle.clone();
+    let mut step = mv;
+    for _ in 1..cycles.max(1) {
+        out.append(&step.apply_to(skeleton, &cycle));
+        step = step.then(&mv);
+    }
+    out.first_frame = 1;
+    Ok(Loop {
+        motion: out,
+        period,
+        matching: m,
+        start: best,
+        seam,
+    })
+}
+
+/// Blends two clips frame by frame with a constant weight (0: A, 1: B) over the shorter
+/// length: root position linearly, rotations by SLERP (eq. 12).
+#[must_use]
+pub fn blend(skeleton: &Skeleton, a: &Motion, b: &Motion, weight: f64) -> Motion {
+    let mut out = Motion::new(skeleton.channel_count(), a.frame_rate);
+    out.first_frame = a.first_frame;
+    let mut buf = vec![0.0; skeleton.channel_count()];
+    for i in 0..a.len().min(b.len()) {
+        interpolate_frames(skeleton, a.frame(i), b.frame(i), weight, &mut buf);
+        out.push_frame(&buf);
+    }
+    out
+}

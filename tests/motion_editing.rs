@@ -1,0 +1,322 @@
+//! Motion editing on real captures: matching against brute force, seam quality, the
+//! transformation, interpolation identities, loops and resampling.
+
+mod common;
+
+use glam::{DMat3, DQuat, DVec3};
+use marionette::fk::{forward_kinematics, Pose};
+use marionette::formats::{amc, asf};
+use marionette::interp::{facing_angle, interpolate_frames, root_position, root_rotation, wrap_near};
+use marionette::motion::clip::transform;
+use marionette::motion::connect::{connect, loop_clip, ConnectParams, Direction, Method};
+use marionette::motion::matching::{backward_match, forward_match, MatchParams, Metric};
+use marionette::motion::seam::seam_report;
+use marionette::motion::Motion;
+use marionette::skeleton::{Skeleton, MAX_CHANNELS};
+use std::sync::OnceLock;
+
+struct Clips {
+    skeleton: Skeleton,
+    walk: Motion,
+    play: Motion,
+}
+
+/// Both clips read with the subject-16 skeleton (same bones and DOFs as subject 1).
+fn clips() -> &'static Clips {
+    static C: OnceLock<Clips> = OnceLock::new();
+    C.get_or_init(|| {
+        let skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
+        let walk = amc::load(&skeleton, &common::data("16_15.amc")).unwrap();
+        let play = amc::load(&skeleton, &common::data("01_01.amc")).unwrap();
+        Clips { skeleton, walk, play }
+    })
+}
+
+/// Eq. (11) computed the plain way: every window, every frame, every joint, from the raw
+/// channel values (own Euler → quaternion conversion, own position normalisation).
+fn brute_force(
+    s: &Skeleton,
+    reference: &Motion,
+    ref_start: usize,
+    cand: &Motion,
+    n: usize,
+    metric: Metric,
+) -> Vec<f64> {
+    let rest_height = {
+        let mut p = Pose::new();
+        forward_kinematics(s, &[0.0; MAX_CHANNELS], &mut p).unwrap();
+        let ys: Vec<f32> = p.tip[..s.len()].iter().map(|v| v.y).collect();
+        f64::from(ys.iter().cloned().fold(f32::MIN, f32::max) - ys.iter().cloned().fold(f32::MAX, f32::min))
+    };
+    let positions = |m: &Motion, i: usize| -> Vec<DVec3> {
+        let mut c = [0.0f32; MAX_CHANNELS];
+        let mut p = Pose::new();
+        m.channels_into(s, i, &mut c);
+        forward_kinematics(s, &c, &mut p).unwrap();
+        let f = m.frame(i);
+        let r = root_rotation(s, f);
+        let yaw = r.col(2).x.atan2(r.col(2).z);
+        let root = root_position(s, f);
+        (0..s.len())
+            .map(|b| DMat3::from_rotation_y(-yaw) * (p.tip[b].as_dvec3() - root) / rest_height)
+            .collect()
+    };
+    let quat = |f: &[f64], b: usize| -> DQuat {
+        let bone = &s.bones()[b];
+        let mut q = DQuat::IDENTITY;
+        for (d, c) in bone.dofs().iter().zip(bone.channels()) {
+            if let (true, Some(axis)) = (d.is_rotation(), d.axis()) {
+                q = DQuat::from_axis_angle(axis.unit().as_dvec3(), f[c].to_radians()) * q;
+            }
+        }
+        q
+    };
+    let mut out = Vec::new();
+    for j in 0..=cand.len() - n {
+        let mut total = 0.0;
+        for f in 0..n {
+            let (fa, fb) = (reference.frame(ref_start + f), cand.frame(j + f));
+            let (pa, pb) = if metric == Metric::Position {
+                (positions(reference, ref_start + f), positions(cand, j + f))
+            } else {
+                (Vec::new(), Vec::new())
+            };
+            for b in 1..s.len() {
+                let bone = &s.bones()[b];
+                if !bone.dofs().iter().any(|d| d.is_rotation()) {
+                    continue;
+                }
+                total += match metric {
+                    Metric::Euler => bone
+                        .channels()
+                        .map(|c| (fa[c] - fb[c]).to_radians().powi(2))
+                        .sum::<f64>()
+                        .sqrt(),
+                    Metric::Quat => {
+                        let d = quat(fa, b).conjugate() * quat(fb, b);
+                        DVec3::new(d.x, d.y, d.z).length().atan2(d.w.abs())
+                    }
+                    Metric::Position => (pa[b] - pb[b]).length(),
+                };
+            }
+        }
+        out.push(total);
+    }
+    out
+}
+
+#[test]
+fn matching_finds_the_global_minimum_for_every_metric() {
+    let c = clips();
+    let s = &c.skeleton;
+    // Every 4th frame of the playground clip keeps the brute force quick.
+    let play = {
+        let mut m = Motion::new(s.channel_count(), 30.0);
+        for i in (0..c.play.len()).step_by(4) {
+            m.push_frame(c.play.frame(i));
+        }
+        m
+    };
+    for metric in [Metric::Euler, Metric::Quat, Metric::Position] {
+        let n = 12;
+        let params = MatchParams::new(n, metric);
+        let fwd = forward_match(s, &c.walk, &play, &params).unwrap();
+        let want = brute_force(s, &c.walk, c.walk.len() - n, &play, n, metric);
+        assert_eq!(fwd.distances.len(), want.len());
+        for (g, w) in fwd.distances.iter().zip(&want) {
+            assert!((g - w).abs() <= 1e-6 * w.max(1.0), "{metric:?}: {g} vs {w}");
+        }
+        let brute_best = want
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1))
+            .unwrap()
+            .0;
+        assert_eq!(fwd.best, brute_best, "{metric:?} forward");
+        assert_eq!(
+            fwd.best_distance,
+            fwd.distances.iter().cloned().fold(f64::INFINITY, f64::min)
+        );
+
+        let bwd = backward_match(s, &play, &c.walk, &params).unwrap();
+        let want = brute_force(s, &c.walk, 0, &play, n, metric);
+        let brute_best = want
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1))
+            .unwrap()
+            .0;
+        assert_eq!(bwd.best, brute_best, "{metric:?} backward");
+    }
+}
+
+#[test]
+fn seams_on_real_captures_stay_within_the_inputs_speeds() {
+    let c = clips();
+    let s = &c.skeleton;
+    let cases: [(&str, &Motion, &Motion); 3] = [
+        ("walk→playground", &c.walk, &c.play),
+        ("playground→walk", &c.play, &c.walk),
+        ("walk→walk", &c.walk, &c.walk),
+    ];
+    for (name, a, b) in cases {
+        for method in [Method::Interpolate, Method::Blend] {
+            for direction in [Direction::Forward, Direction::Backward] {
+                let params = ConnectParams {
+                    method,
+                    direction,
+                    matching: MatchParams::new(30, Metric::Quat),
+                    insert: None,
+                };
+                let conn = connect(s, a, b, &params).unwrap();
+                let r = seam_report(s, &[a, b], &conn.motion, conn.seam.clone());
+                eprintln!(
+                    "{name:<16} {method:?}/{direction:?}: joint {:.2}°/frame (p99 {:.2}°), root {:.4} (p99 {:.4}), facing {:.2}° (p99 {:.2}°)",
+                    r.rotation.to_degrees(),
+                    r.input_rotation_p99.to_degrees(),
+                    r.root,
+                    r.input_root_p99,
+                    r.facing.to_degrees(),
+                    r.input_facing_p99.to_degrees()
+                );
+                assert!(r.within(1.5), "{name} {method:?} {direction:?}: {r:?}");
+                assert!(
+                    r.facing <= 1.5 * r.input_facing_p99,
+                    "{name} {method:?} {direction:?} facing: {r:?}"
+                );
+                // B really continues after the seam (no empty or trivial connection).
+                assert!(!conn.b_kept.is_empty());
+                assert!(conn.motion.len() > conn.seam.end);
+            }
+        }
+    }
+}
+
+fn facings(s: &Skeleton, m: &Motion) -> Vec<f64> {
+    (0..m.len())
+        .map(|i| facing_angle(&root_rotation(s, m.frame(i))))
+        .collect()
+}
+
+#[test]
+fn transformation_sets_facing_and_keeps_relative_headings() {
+    let c = clips();
+    let s = &c.skeleton;
+    for clip in [&c.walk, &c.play] {
+        let before = facings(s, clip);
+        for target_deg in [0.0f64, 37.5, 90.0, 180.0, -180.0, -135.0, 270.0] {
+            let target = target_deg.to_radians();
+            let out = transform(s, clip, target, Some((3.0, -7.0)));
+            let after = facings(s, &out);
+            for i in 0..clip.len() {
+                let want = target + (before[i] - before[0]);
+                let err = (wrap_near(after[i], want) - want).abs();
+                assert!(err < 1e-6, "frame {i} target {target_deg}: {err}");
+            }
+            let p = root_position(s, out.frame(0));
+            assert!((p.x - 3.0).abs() < 1e-9 && (p.z + 7.0).abs() < 1e-9);
+            assert!(
+                (p.y - root_position(s, clip.frame(0)).y).abs() < 1e-9,
+                "height kept"
+            );
+        }
+        // A full turn brings the clip back.
+        let turned = transform(s, clip, before[0] + std::f64::consts::TAU, None);
+        let mut worst = 0.0f64;
+        for (x, y) in clip.frames().zip(turned.frames()) {
+            for (a, b) in x.iter().zip(y) {
+                worst = worst.max((a - b).abs());
+            }
+        }
+        assert!(worst < 1e-9, "360° turn: {worst}");
+    }
+}
+
+#[test]
+fn interpolating_a_frame_with_itself_returns_it_exactly() {
+    let c = clips();
+    let s = &c.skeleton;
+    let mut out = vec![0.0; s.channel_count()];
+    for clip in [&c.walk, &c.play] {
+        for i in (0..clip.len()).step_by(7) {
+            for u in [0.0, 0.3, 0.5, 1.0] {
+                interpolate_frames(s, clip.frame(i), clip.frame(i), u, &mut out);
+                assert_eq!(out.as_slice(), clip.frame(i));
+            }
+        }
+    }
+}
+
+#[test]
+fn interpolation_takes_the_short_arc_and_hits_the_ends() {
+    let c = clips();
+    let s = &c.skeleton;
+    let (a, b) = (c.walk.frame(10), c.walk.frame(60));
+    let mut out = vec![0.0; s.channel_count()];
+    for (u, want) in [(0.0, a), (1.0, b)] {
+        interpolate_frames(s, a, b, u, &mut out);
+        for bone in s.bones() {
+            let q = |f: &[f64]| DQuat::from_mat3(&marionette::interp::channel_rotation(bone, f));
+            assert!(
+                q(&out).dot(q(want)).abs() > 1.0 - 1e-12,
+                "{} at u={u}",
+                bone.name()
+            );
+        }
+    }
+    // Halfway, each 3-DOF joint is halfway along the geodesic.
+    interpolate_frames(s, a, b, 0.5, &mut out);
+    for bone in s.bones().iter().filter(|b| b.dofs().len() == 3) {
+        let q = |f: &[f64]| DQuat::from_mat3(&marionette::interp::channel_rotation(bone, f));
+        let (qa, qb, qm) = (q(a), q(b), q(&out));
+        let half = marionette::math::quat_distance_f64(qa, qb);
+        assert!(
+            (marionette::math::quat_distance_f64(qa, qm) - half / 2.0).abs() < 1e-9,
+            "{}",
+            bone.name()
+        );
+    }
+}
+
+#[test]
+fn loop_wraps_seamlessly_and_carries_the_root_on() {
+    let c = clips();
+    let s = &c.skeleton;
+    let l = loop_clip(s, &c.walk, &MatchParams::new(30, Metric::Quat), 3).unwrap();
+    assert_eq!(l.motion.len(), 3 * l.period);
+    assert!(l.period >= 60);
+    for wrap in [l.period, 2 * l.period] {
+        let r = seam_report(s, &[&c.walk], &l.motion, wrap..wrap);
+        eprintln!(
+            "loop wrap at {wrap}: joint {:.2}°/frame (p99 {:.2}°), root {:.4} (p99 {:.4})",
+            r.rotation.to_degrees(),
+            r.input_rotation_p99.to_degrees(),
+            r.root,
+            r.input_root_p99
+        );
+        assert!(r.within(1.5), "{r:?}");
+    }
+    // The walk goes on: the third cycle ends farther from the start than the first.
+    let p0 = root_position(s, l.motion.frame(0));
+    let d1 = (root_position(s, l.motion.frame(l.period - 1)) - p0).length();
+    let d3 = (root_position(s, l.motion.frame(3 * l.period - 1)) - p0).length();
+    assert!(d3 > 2.5 * d1, "{d1} {d3}");
+}
+
+#[test]
+fn resampling_keeps_shared_frames_and_duration() {
+    let c = clips();
+    let s = &c.skeleton;
+    let half = c.walk.resampled(s, 60.0);
+    assert_eq!(half.len(), 236);
+    assert_eq!(half.frame_rate, 60.0);
+    for k in 0..half.len() {
+        assert_eq!(half.frame(k), c.walk.frame(2 * k));
+    }
+    let up = c.walk.resampled(s, 500.0);
+    assert!((up.duration() - c.walk.duration()).abs() < 1.0 / 500.0);
+    // 500 Hz frame 25 is 0.05 s = 120 Hz frame 6 exactly.
+    assert_eq!(up.frame(25), c.walk.frame(6));
+    let back = c.walk.reversed().reversed();
+    assert_eq!(back, c.walk);
+}
