@@ -217,6 +217,20 @@ pub fn rotation_angle(a: &DMat3, b: &DMat3) -> f64 {
     2.0 * crate::math::quat_distance_f64(DQuat::from_mat3(a), DQuat::from_mat3(b))
 }
 
+/// The largest geodesic rotation change between two frames over all joints: the root's
+/// global rotation and every bone's channel rotation (radians).
+#[must_use]
+pub fn largest_joint_change(skeleton: &Skeleton, a: &[f64], b: &[f64]) -> f64 {
+    let mut worst = rotation_angle(&root_rotation(skeleton, a), &root_rotation(skeleton, b));
+    for bone in &skeleton.bones()[1..] {
+        worst = worst.max(rotation_angle(
+            &channel_rotation(bone, a),
+            &channel_rotation(bone, b),
+        ));
+    }
+    worst
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

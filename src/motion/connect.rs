@@ -6,9 +6,7 @@ use super::clip::{heading, move_to, GroundMove};
 use super::matching::{backward_match, forward_match, MatchError, MatchParams, MatchResult};
 use super::seam::{quantile, steps};
 use super::Motion;
-use crate::interp::{
-    channel_rotation, ease_weight, interpolate_frames, root_rotation, rotation_angle, wrap_near,
-};
+use crate::interp::{ease_weight, interpolate_frames, largest_joint_change, wrap_near};
 use crate::skeleton::Skeleton;
 use glam::DVec3;
 use std::ops::Range;
@@ -109,15 +107,7 @@ fn auto_insert(skeleton: &Skeleton, from: &[f64], to: &[f64], inputs: &[&Motion]
         .map(|m| quantile(&steps(skeleton, m).rotation, 0.99))
         .fold(0.0, f64::max)
         .max(1e-3);
-    let mut worst = 0.0f64;
-    for (k, bone) in skeleton.bones().iter().enumerate() {
-        let (ra, rb) = if k == 0 {
-            (root_rotation(skeleton, from), root_rotation(skeleton, to))
-        } else {
-            (channel_rotation(bone, from), channel_rotation(bone, to))
-        };
-        worst = worst.max(rotation_angle(&ra, &rb));
-    }
+    let worst = largest_joint_change(skeleton, from, to);
     ((worst / p99).ceil() as usize).saturating_sub(1)
 }
 
@@ -219,17 +209,7 @@ pub fn connect(
             let mv = move_to(skeleton, &b_part, 0, facing, start);
             let b_moved = mv.apply_to(skeleton, &b_part);
             let mut out = a.slice(0..a_start);
-            let mut buf = vec![0.0; skeleton.channel_count()];
-            for f in 0..n {
-                interpolate_frames(
-                    skeleton,
-                    a.frame(a_start + f),
-                    b_moved.frame(f),
-                    ease_weight(f, n),
-                    &mut buf,
-                );
-                out.push_frame(&buf);
-            }
+            push_ease_blend(skeleton, &mut out, &a.slice(a_start..a_start + n), &b_moved);
             out.append(&b_moved.slice(n..b_moved.len()));
             Ok(Connection {
                 motion: out,
@@ -240,6 +220,17 @@ pub fn connect(
                 b_move: mv,
             })
         }
+    }
+}
+
+/// Appends to `out` the ease-in/ease-out blend (eq. 13) of `from` into `to`, frame by frame
+/// over `from`'s length: weight 0 on the first frame (all `from`), 1 on the last (all `to`).
+fn push_ease_blend(skeleton: &Skeleton, out: &mut Motion, from: &Motion, to: &Motion) {
+    let n = from.len();
+    let mut buf = vec![0.0; skeleton.channel_count()];
+    for f in 0..n {
+        interpolate_frames(skeleton, from.frame(f), to.frame(f), ease_weight(f, n), &mut buf);
+        out.push_frame(&buf);
     }
 }
 
@@ -277,21 +268,14 @@ pub fn loop_clip(
     let full = forward_match(skeleton, a, a, matching)?;
     // Starts j with a cycle (from j + N to the end window) of at least 2N frames.
     let legal = a.len() - 4 * n + 1;
-    let distances = full.distances[..legal].to_vec();
-    let (best, best_distance) =
-        distances
-            .iter()
-            .copied()
-            .enumerate()
-            .fold(
-                (0, f64::INFINITY),
-                |(bi, bd), (i, d)| if d < bd { (i, d) } else { (bi, bd) },
-            );
-    let m = MatchResult {
-        distances,
-        best,
-        best_distance,
+    let truncated = MatchResult {
+        distances: full.distances[..legal].to_vec(),
+        ..full
     };
+    let m = truncated
+        .best_within(0..legal)
+        .ok_or_else(|| too_short("a loop needs a clip of at least four matching windows"))?;
+    let best = m.best;
     // One cycle: A[j+N .. len−N], then A's end window blended into the (moved) window A[j..j+N].
     let a_start = a.len() - n;
     let (facing, pos) = heading(skeleton, a, a_start);
@@ -299,17 +283,7 @@ pub fn loop_clip(
     let mv = move_to(skeleton, a, best, facing, start);
     let moved_window = mv.apply_to(skeleton, &a.slice(best..best + n));
     let mut cycle = a.slice(best + n..a_start);
-    let mut buf = vec![0.0; skeleton.channel_count()];
-    for f in 0..n {
-        interpolate_frames(
-            skeleton,
-            a.frame(a_start + f),
-            moved_window.frame(f),
-            ease_weight(f, n),
-            &mut buf,
-        );
-        cycle.push_frame(&buf);
-    }
+    push_ease_blend(skeleton, &mut cycle, &a.slice(a_start..a.len()), &moved_window);
     let period = cycle.len();
     let seam = period - n..period;
     // Cycle k is the first cycle moved k times: frame best+N of the input maps to the frame

@@ -2,9 +2,7 @@
 //! angle, any bone, the root included), the root's displacement and its facing change.
 
 use super::Motion;
-use crate::interp::{
-    channel_rotation, facing_angle, root_position, root_rotation, rotation_angle, wrap_near,
-};
+use crate::interp::{facing_angle, largest_joint_change, root_position, root_rotation, wrap_near};
 use crate::skeleton::Skeleton;
 use std::ops::Range;
 
@@ -29,16 +27,7 @@ pub fn steps(skeleton: &Skeleton, motion: &Motion) -> Steps {
     };
     for i in 1..motion.len() {
         let (a, b) = (motion.frame(i - 1), motion.frame(i));
-        let mut worst = 0.0f64;
-        for (k, bone) in skeleton.bones().iter().enumerate() {
-            let (ra, rb) = if k == 0 {
-                (root_rotation(skeleton, a), root_rotation(skeleton, b))
-            } else {
-                (channel_rotation(bone, a), channel_rotation(bone, b))
-            };
-            worst = worst.max(rotation_angle(&ra, &rb));
-        }
-        s.rotation.push(worst);
+        s.rotation.push(largest_joint_change(skeleton, a, b));
         s.root
             .push((root_position(skeleton, b) - root_position(skeleton, a)).length());
         let (fa, fb) = (
