@@ -9,7 +9,9 @@
 //! * [`interp`] — per-frame editing maths in f64: facing (eq. 6–7), SLERP (eq. 12), ease
 //!   weights (eq. 13), frame interpolation.
 //!
-//! These four are the `no_std` core (build with `--no-default-features`); they use `glam` with
+//! * [`protocol`] — Dynamixel Protocol 2.0 packets: CRC-16, byte stuffing, encode/decode.
+//!
+//! These are the `no_std` core (build with `--no-default-features`); they use `glam` with
 //! `libm` and `heapless`, never the standard library or the heap.
 //!
 //! With the default `std` feature, the edge:
@@ -26,6 +28,7 @@ pub mod asf;
 pub mod fk;
 pub mod interp;
 pub mod math;
+pub mod protocol;
 pub mod skeleton;
 
 #[cfg(feature = "std")]
