@@ -166,8 +166,12 @@ pub fn stuffed_len(data: &[u8]) -> usize {
 /// [`CodecError::BadStuffing`] when `FF FF FD` is followed by anything but `FD` (or ends the
 /// data); [`CodecError::BufferFull`].
 pub fn unstuff(data: &[u8], out: &mut [u8]) -> Result<usize, CodecError> {
+    unstuff_after(PatternState::default(), data, out)
+}
+
+/// [`unstuff`] continuing a pattern already begun by the bytes before `data`.
+fn unstuff_after(mut state: PatternState, data: &[u8], out: &mut [u8]) -> Result<usize, CodecError> {
     let mut n = 0;
-    let mut state = PatternState::default();
     let mut i = 0;
     while i < data.len() {
         let b = data[i];
@@ -280,21 +284,7 @@ pub fn decode<'p>(bytes: &[u8], params_out: &'p mut [u8]) -> Result<(Packet<'p>,
     // Unstuff the instruction byte together with the parameters: the pattern may span them.
     let mut state = PatternState::default();
     let _ = state.feed(instruction);
-    let stuffed = &bytes[8..total - 2];
-    let mut n = 0;
-    let mut i = 0;
-    while i < stuffed.len() {
-        let b = stuffed[i];
-        *params_out.get_mut(n).ok_or(CodecError::BufferFull)? = b;
-        n += 1;
-        if state.feed(b) {
-            match stuffed.get(i + 1) {
-                Some(0xFD) => i += 1,
-                _ => return Err(CodecError::BadStuffing),
-            }
-        }
-        i += 1;
-    }
+    let n = unstuff_after(state, &bytes[8..total - 2], params_out)?;
     Ok((
         Packet {
             id: bytes[4],
