@@ -758,16 +758,7 @@ fn connect_cmd(
 }
 
 fn write_seam(w: &mut impl Write, r: &crate::motion::seam::SeamReport) -> io::Result<()> {
-    writeln!(
-        w,
-        "seam      joint change ≤ {:.2}°/frame (inputs' p99 {:.2}°), root ≤ {:.4} units/frame (p99 {:.4}), facing ≤ {:.2}°/frame (p99 {:.2}°)",
-        r.rotation.to_degrees(),
-        r.input_rotation_p99.to_degrees(),
-        r.root,
-        r.input_root_p99,
-        r.facing.to_degrees(),
-        r.input_facing_p99.to_degrees()
-    )
+    writeln!(w, "seam      {r}")
 }
 
 fn loop_cmd(

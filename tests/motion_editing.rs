@@ -170,15 +170,7 @@ fn seams_on_real_captures_stay_within_the_inputs_speeds() {
                 };
                 let conn = connect(s, a, b, &params).unwrap();
                 let r = seam_report(s, &[a, b], &conn.motion, conn.seam.clone());
-                eprintln!(
-                    "{name:<16} {method:?}/{direction:?}: joint {:.2}°/frame (p99 {:.2}°), root {:.4} (p99 {:.4}), facing {:.2}° (p99 {:.2}°)",
-                    r.rotation.to_degrees(),
-                    r.input_rotation_p99.to_degrees(),
-                    r.root,
-                    r.input_root_p99,
-                    r.facing.to_degrees(),
-                    r.input_facing_p99.to_degrees()
-                );
+                eprintln!("{name:<16} {method:?}/{direction:?}: {r}");
                 assert!(r.within(1.5), "{name} {method:?} {direction:?}: {r:?}");
                 assert!(
                     r.facing <= 1.5 * r.input_facing_p99,
@@ -287,13 +279,7 @@ fn loop_wraps_seamlessly_and_carries_the_root_on() {
     assert!(l.period >= 60);
     for wrap in [l.period, 2 * l.period] {
         let r = seam_report(s, &[&c.walk], &l.motion, wrap..wrap);
-        eprintln!(
-            "loop wrap at {wrap}: joint {:.2}°/frame (p99 {:.2}°), root {:.4} (p99 {:.4})",
-            r.rotation.to_degrees(),
-            r.input_rotation_p99.to_degrees(),
-            r.root,
-            r.input_root_p99
-        );
+        eprintln!("loop wrap at {wrap}: {r}");
         assert!(r.within(1.5), "{r:?}");
     }
     // The walk goes on: the third cycle ends farther from the start than the first.

@@ -83,6 +83,31 @@ fn extrapolate(skeleton: &Skeleton, a: &Motion, last: usize, k: f64) -> (f64, DV
     (f1 + k * df, t1 + (t1 - t0) * k)
 }
 
+/// Matches in the direction asked and keeps the best window among the starts that leave
+/// frames to connect: forward, at least one frame of B after the window; backward, `before`
+/// frames of A before it.
+fn best_match(
+    skeleton: &Skeleton,
+    a: &Motion,
+    b: &Motion,
+    p: &ConnectParams,
+    before: usize,
+) -> Result<MatchResult, ConnectError> {
+    let n = p.matching.window;
+    match p.direction {
+        Direction::Forward => forward_match(skeleton, a, b, &p.matching)?
+            .best_within(forward_starts(a, b, n))
+            .ok_or_else(|| too_short("no window of B leaves frames after it: use a smaller window")),
+        Direction::Backward => backward_match(skeleton, a, b, &p.matching)?
+            .best_within(backward_starts(a, b, n, before))
+            .ok_or_else(|| {
+                ConnectError::TooShort(format!(
+                    "no window of A leaves {before} frame(s) before it: use a smaller window"
+                ))
+            }),
+    }
+}
+
 /// Window starts in B allowed by forward matching: at least one frame of B after the window
 /// and, when B is A itself, no window overlapping A's own end window (the trivial match).
 fn forward_starts(a: &Motion, b: &Motion, n: usize) -> Range<usize> {
@@ -125,28 +150,15 @@ pub fn connect(
     if a.len() < 2 {
         return Err(too_short("clip A needs at least 2 frames"));
     }
-    match (p.method, p.direction) {
-        (Method::Interpolate, dir) => {
-            let (m, a_keep, b_keep) = match dir {
-                Direction::Forward => {
-                    // B's matched window is "pseudo-overlapped" with A's end: drop it and all
-                    // before it, so at least one frame of B must follow it.
-                    let m = forward_match(skeleton, a, b, &p.matching)?;
-                    let m = m.best_within(forward_starts(a, b, n)).ok_or_else(|| {
-                        too_short("no window of B leaves frames after it: use a smaller window")
-                    })?;
-                    let b_start = m.best + n;
-                    (m, 0..a.len(), b_start..b.len())
-                }
-                Direction::Backward => {
-                    // A is cut before the matched window; extrapolation needs 2 frames of it.
-                    let m = backward_match(skeleton, a, b, &p.matching)?;
-                    let m = m.best_within(backward_starts(a, b, n, 2)).ok_or_else(|| {
-                        too_short("no window of A leaves 2 frames before it: use a smaller window")
-                    })?;
-                    let best = m.best;
-                    (m, 0..best, 0..b.len())
-                }
+    match p.method {
+        Method::Interpolate => {
+            // Forward: B's matched window is "pseudo-overlapped" with A's end, so it and all
+            // before it are dropped. Backward: A is cut before the matched window, and the
+            // extrapolation of eq. (14) needs 2 of its frames.
+            let m = best_match(skeleton, a, b, p, 2)?;
+            let (a_keep, b_keep) = match p.direction {
+                Direction::Forward => (0..a.len(), m.best + n..b.len()),
+                Direction::Backward => (0..m.best, 0..b.len()),
             };
             let a_part = a.slice(a_keep.clone());
             let b_part = b.slice(b_keep.clone());
@@ -183,24 +195,11 @@ pub fn connect(
                 b_move: mv,
             })
         }
-        (Method::Blend, dir) => {
-            let (m, a_start, b_start) = match dir {
-                Direction::Forward => {
-                    let m = forward_match(skeleton, a, b, &p.matching)?;
-                    let m = m.best_within(forward_starts(a, b, n)).ok_or_else(|| {
-                        too_short("no window of B leaves frames after it: use a smaller window")
-                    })?;
-                    let best = m.best;
-                    (m, a.len() - n, best)
-                }
-                Direction::Backward => {
-                    let m = backward_match(skeleton, a, b, &p.matching)?;
-                    let m = m.best_within(backward_starts(a, b, n, 1)).ok_or_else(|| {
-                        too_short("no window of A leaves a frame before it: use a smaller window")
-                    })?;
-                    let best = m.best;
-                    (m, best, 0)
-                }
+        Method::Blend => {
+            let m = best_match(skeleton, a, b, p, 1)?;
+            let (a_start, b_start) = match p.direction {
+                Direction::Forward => (a.len() - n, m.best),
+                Direction::Backward => (m.best, 0),
             };
             // eq. (15): B's first overlapping frame takes the facing and place of A's.
             let (facing, pos) = heading(skeleton, a, a_start);

@@ -75,6 +75,21 @@ impl SeamReport {
     }
 }
 
+impl std::fmt::Display for SeamReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "joint change ≤ {:.2}°/frame (inputs' p99 {:.2}°), root ≤ {:.4} units/frame (p99 {:.4}), facing ≤ {:.2}°/frame (p99 {:.2}°)",
+            self.rotation.to_degrees(),
+            self.input_rotation_p99.to_degrees(),
+            self.root,
+            self.input_root_p99,
+            self.facing.to_degrees(),
+            self.input_facing_p99.to_degrees()
+        )
+    }
+}
+
 /// Measures the changes between consecutive output frames from the last frame before the
 /// seam to the first frame after it (`seam` is the range of transition frames; an empty
 /// range is a cut between two frames).
