@@ -9,7 +9,11 @@
 //! * [`interp`] — per-frame editing maths in f64: facing (eq. 6–7), SLERP (eq. 12), ease
 //!   weights (eq. 13), frame interpolation.
 //!
+//! * [`servo`] — X-series servo models and control-table addresses.
+//! * [`rig`] — joint sources and angle ↔ tick mapping, Euler re-decomposition.
+//! * [`command`] — the command stage: finite check, position, velocity and acceleration limits.
 //! * [`protocol`] — Dynamixel Protocol 2.0 packets: CRC-16, byte stuffing, encode/decode.
+//! * [`device`] — the device side of Protocol 2.0: a chain of virtual servos.
 //!
 //! These are the `no_std` core (build with `--no-default-features`); they use `glam` with
 //! `libm` and `heapless`, never the standard library or the heap.
@@ -25,10 +29,14 @@
 #![warn(missing_docs)]
 
 pub mod asf;
+pub mod command;
+pub mod device;
 pub mod fk;
 pub mod interp;
 pub mod math;
 pub mod protocol;
+pub mod rig;
+pub mod servo;
 pub mod skeleton;
 
 #[cfg(feature = "std")]
@@ -38,3 +46,9 @@ pub mod cli;
 pub mod formats;
 #[cfg(feature = "std")]
 pub mod motion;
+#[cfg(feature = "std")]
+pub mod profile;
+#[cfg(feature = "std")]
+pub mod budget;
+#[cfg(feature = "std")]
+pub mod bus;

@@ -1,0 +1,120 @@
+//! The bus budget: what one control cycle (a Sync Write of goal positions and a read of present
+//! values) costs on the wire, and the highest loop rate it allows.
+//!
+//! Packet sizes (Protocol 2.0, 10-byte frame + parameters, `d` data bytes per servo):
+//! Sync Write `14 + (1 + 4)·N`; Sync Read request `14 + N` and `N` replies of `11 + d`; Bulk
+//! Read request `10 + 5·N` and `N` replies of `11 + d`; Fast Sync Read request `14 + N` and one
+//! reply of `8 + (4 + d)·N`. Every byte is 10 bits on the line (start, 8 data, stop). Each
+//! replying servo waits its Return Delay Time (one wait for Fast Sync Read), and the host sees
+//! the reply only when the USB adapter's latency timer flushes it (once per read).
+
+use serde::Serialize;
+
+use crate::profile::{BusConfig, ReadMode};
+
+/// Bits per byte on the serial line.
+pub const BITS_PER_BYTE: u32 = 10;
+
+/// The cost of one cycle.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Budget {
+    /// Servos on the bus.
+    pub servos: usize,
+    /// Bit/s.
+    pub baud: u32,
+    /// Read pattern.
+    pub read_mode: ReadMode,
+    /// Data bytes read per servo.
+    pub read_bytes_per_servo: u32,
+    /// Bytes of the goal-position Sync Write.
+    pub write_bytes: u32,
+    /// Bytes of the read request.
+    pub read_request_bytes: u32,
+    /// Bytes of all replies.
+    pub read_reply_bytes: u32,
+    /// Total bytes per cycle.
+    pub bytes_per_cycle: u32,
+    /// Wire time of those bytes, µs.
+    pub wire_time_us: f64,
+    /// Return delays, µs.
+    pub return_delay_us: f64,
+    /// USB latency, µs.
+    pub usb_latency_us: f64,
+    /// Wire + return delay + USB latency, µs.
+    pub cycle_time_us: f64,
+    /// 1 / cycle time.
+    pub max_rate_hz: f64,
+    /// The asked rate, if any.
+    pub requested_rate_hz: Option<f64>,
+    /// Fraction of the asked period the bus needs (> 1: infeasible).
+    pub utilisation: Option<f64>,
+    /// Whether the asked rate fits.
+    pub feasible: Option<bool>,
+}
+
+/// Computes the budget of `servos` servos on `bus`, optionally against a loop rate.
+#[must_use]
+pub fn plan(bus: &BusConfig, servos: usize, rate_hz: Option<f64>) -> Budget {
+    let n = servos as u32;
+    let d = u32::from(bus.read_fields.block().1);
+    let write_bytes = 14 + 5 * n;
+    let (read_request_bytes, read_reply_bytes, delays) = match bus.read {
+        ReadMode::Sync => (14 + n, n * (11 + d), n),
+        ReadMode::Bulk => (10 + 5 * n, n * (11 + d), n),
+        ReadMode::FastSync => (14 + n, 8 + (4 + d) * n, 1),
+    };
+    let bytes_per_cycle = write_bytes + read_request_bytes + read_reply_bytes;
+    let wire_time_us = f64::from(bytes_per_cycle) * f64::from(BITS_PER_BYTE) * 1e6 / f64::from(bus.baud);
+    let return_delay_us = f64::from(delays) * f64::from(bus.return_delay_us);
+    let usb_latency_us = f64::from(bus.usb_latency_us);
+    let cycle_time_us = wire_time_us + return_delay_us + usb_latency_us;
+    let max_rate_hz = 1e6 / cycle_time_us;
+    let utilisation = rate_hz.map(|r| cycle_time_us * r / 1e6);
+    Budget {
+        servos,
+        baud: bus.baud,
+        read_mode: bus.read,
+        read_bytes_per_servo: d,
+        write_bytes,
+        read_request_bytes,
+        read_reply_bytes,
+        bytes_per_cycle,
+        wire_time_us,
+        return_delay_us,
+        usb_latency_us,
+        cycle_time_us,
+        max_rate_hz,
+        requested_rate_hz: rate_hz,
+        utilisation,
+        feasible: utilisation.map(|u| u <= 1.0),
+    }
+}
+
+impl std::fmt::Display for Budget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mode = match self.read_mode {
+            ReadMode::Sync => "Sync Read",
+            ReadMode::Bulk => "Bulk Read",
+            ReadMode::FastSync => "Fast Sync Read",
+        };
+        writeln!(f, "{} servos at {} bit/s, {mode} of {} bytes each", self.servos, self.baud, self.read_bytes_per_servo)?;
+        writeln!(f, "  sync write      {:>6} B", self.write_bytes)?;
+        writeln!(f, "  read request    {:>6} B", self.read_request_bytes)?;
+        writeln!(f, "  read replies    {:>6} B", self.read_reply_bytes)?;
+        writeln!(f, "  per cycle       {:>6} B  {:>9.1} µs on the wire", self.bytes_per_cycle, self.wire_time_us)?;
+        writeln!(f, "  return delays            {:>9.1} µs", self.return_delay_us)?;
+        writeln!(f, "  USB latency              {:>9.1} µs", self.usb_latency_us)?;
+        writeln!(f, "  cycle                    {:>9.1} µs  → at most {:.1} Hz", self.cycle_time_us, self.max_rate_hz)?;
+        if let (Some(r), Some(u)) = (self.requested_rate_hz, self.utilisation) {
+            if u <= 1.0 {
+                writeln!(f, "  {r} Hz fits: the bus is busy {:.0} % of each period", u * 100.0)?;
+            } else {
+                writeln!(f, "  {r} Hz does NOT fit: a cycle needs {:.0} % of the period", u * 100.0)?;
+            }
+        }
+        if self.usb_latency_us > 1000.0 {
+            writeln!(f, "  warning: USB latency above 1 ms; set the adapter's latency_timer to 1")?;
+        }
+        Ok(())
+    }
+}

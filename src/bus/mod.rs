@@ -1,0 +1,389 @@
+//! Servo buses: the [`ServoBus`] trait, its implementations and the start-up sequence.
+//!
+//! * [`dxl::Dynamixel2Bus`] — a serial port (or a pseudo-terminal) through the `dynamixel2`
+//!   crate.
+//! * [`packet::PacketBus`] — the project's own host side over any byte [`packet::Transport`];
+//!   with [`virtual_chain::InProcess`] it drives a [`crate::device::Chain`] in virtual time.
+//! * [`virtual_chain::PtyChain`] — a chain served on a pseudo-terminal for real clients.
+//! * [`faults::FaultInjector`] — seeded corruption of the replies a chain sends.
+
+pub mod dxl;
+pub mod faults;
+pub mod packet;
+pub mod virtual_chain;
+
+use std::fmt;
+
+use crate::profile::Profile;
+use crate::servo::{self, addr, ServoModel};
+
+/// The kind of a bus error, for counting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum ErrorKind {
+    /// No (complete) reply in time.
+    Timeout,
+    /// A reply with a wrong CRC.
+    Crc,
+    /// A reply from another id than asked.
+    WrongId,
+    /// The servo answered with an error number.
+    Servo,
+    /// A reply that decodes but is malformed (length, stuffing, instruction, parameter count).
+    Malformed,
+    /// The port failed.
+    Io,
+}
+
+impl ErrorKind {
+    /// All kinds, in a fixed order.
+    pub const ALL: [ErrorKind; 6] =
+        [ErrorKind::Timeout, ErrorKind::Crc, ErrorKind::WrongId, ErrorKind::Servo, ErrorKind::Malformed, ErrorKind::Io];
+
+    /// Lower-case name.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            ErrorKind::Timeout => "timeout",
+            ErrorKind::Crc => "crc",
+            ErrorKind::WrongId => "wrong_id",
+            ErrorKind::Servo => "servo",
+            ErrorKind::Malformed => "malformed",
+            ErrorKind::Io => "io",
+        }
+    }
+}
+
+/// A failed bus transaction.
+#[derive(Debug, thiserror::Error)]
+pub enum BusError {
+    /// No reply in time.
+    #[error("servo {id}: no reply in time")]
+    Timeout {
+        /// The id asked.
+        id: u8,
+    },
+    /// A reply with a bad CRC.
+    #[error("servo {id}: reply with a bad CRC")]
+    Crc {
+        /// The id asked.
+        id: u8,
+    },
+    /// A reply from the wrong servo.
+    #[error("asked servo {expected}, servo {got} answered")]
+    WrongId {
+        /// The id asked.
+        expected: u8,
+        /// The id in the reply.
+        got: u8,
+    },
+    /// The servo reported an error.
+    #[error("servo {id}: {}", servo_error_text(*.error))]
+    Servo {
+        /// The servo.
+        id: u8,
+        /// Its error number (bit 7, the alert flag, removed).
+        error: u8,
+    },
+    /// A reply that does not fit the request.
+    #[error("servo {id}: malformed reply ({what})")]
+    Malformed {
+        /// The id asked.
+        id: u8,
+        /// What is wrong.
+        what: &'static str,
+    },
+    /// The port failed.
+    #[error("bus I/O: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+fn servo_error_text(e: u8) -> &'static str {
+    match e {
+        servo::status_error::RESULT_FAIL => "result fail",
+        servo::status_error::INSTRUCTION => "instruction error",
+        servo::status_error::CRC => "CRC error (in the instruction it received)",
+        servo::status_error::DATA_RANGE => "data range error",
+        servo::status_error::DATA_LENGTH => "data length error",
+        servo::status_error::DATA_LIMIT => "data limit error",
+        servo::status_error::ACCESS => "access error",
+        _ => "unknown error",
+    }
+}
+
+impl BusError {
+    /// Its kind.
+    #[must_use]
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            BusError::Timeout { .. } => ErrorKind::Timeout,
+            BusError::Crc { .. } => ErrorKind::Crc,
+            BusError::WrongId { .. } => ErrorKind::WrongId,
+            BusError::Servo { .. } => ErrorKind::Servo,
+            BusError::Malformed { .. } => ErrorKind::Malformed,
+            BusError::Io(_) => ErrorKind::Io,
+        }
+    }
+}
+
+/// A servo's answer to a ping.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PingInfo {
+    /// Its id.
+    pub id: u8,
+    /// Model number.
+    pub model_number: u16,
+    /// Firmware version.
+    pub firmware: u8,
+}
+
+impl PingInfo {
+    /// The known model, if any.
+    #[must_use]
+    pub fn model(&self) -> Option<&'static ServoModel> {
+        servo::model_by_number(self.model_number)
+    }
+}
+
+impl fmt::Display for PingInfo {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let model = self.model().map_or("unknown model", |m| m.name);
+        write!(f, "id {:>3}  model {:>5} ({model})  firmware {}", self.id, self.model_number, self.firmware)
+    }
+}
+
+/// A Protocol 2.0 bus of servos. Reads never return data from a reply that failed any check.
+pub trait ServoBus {
+    /// Pings one id.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn ping(&mut self, id: u8) -> Result<PingInfo, BusError>;
+
+    /// Broadcast ping: every servo that answers, in id order.
+    ///
+    /// # Errors
+    /// [`BusError`] when the bus fails (silence is not an error).
+    fn scan(&mut self) -> Result<Vec<PingInfo>, BusError>;
+
+    /// Reads `out.len()` bytes from `address` of one servo.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), BusError>;
+
+    /// Writes bytes at `address` of one servo.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn write(&mut self, id: u8, address: u16, data: &[u8]) -> Result<(), BusError>;
+
+    /// Sync Write: `data` holds `ids.len()` records of `len` bytes, in id order.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn sync_write(&mut self, address: u16, len: u16, ids: &[u8], data: &[u8]) -> Result<(), BusError>;
+
+    /// Sync Read of `len` bytes from each id into `out` (`ids.len()·len` bytes). Fails as a
+    /// whole — `out` must then not be used — if any servo's reply fails; the first error is
+    /// returned after all replies were collected.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn sync_read(&mut self, address: u16, len: u16, ids: &[u8], out: &mut [u8]) -> Result<(), BusError>;
+
+    /// Reboots one servo (RAM back to defaults, hardware errors cleared).
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn reboot(&mut self, id: u8) -> Result<(), BusError>;
+
+    /// Reads a little-endian value of 1, 2 or 4 bytes.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn read_value(&mut self, id: u8, address: u16, size: usize) -> Result<u32, BusError> {
+        let mut b = [0u8; 4];
+        self.read(id, address, &mut b[..size.min(4)])?;
+        Ok(u32::from_le_bytes(b))
+    }
+
+    /// Turns torque on or off.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn set_torque(&mut self, id: u8, on: bool) -> Result<(), BusError> {
+        self.write(id, addr::TORQUE_ENABLE, &[u8::from(on)])
+    }
+
+    /// Hardware Error Status.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn hardware_error(&mut self, id: u8) -> Result<u8, BusError> {
+        Ok(self.read_value(id, addr::HARDWARE_ERROR_STATUS, 1)? as u8)
+    }
+
+    /// Sync Write of goal positions (ticks), one per id.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn write_goals(&mut self, ids: &[u8], ticks: &[i32]) -> Result<(), BusError> {
+        let mut data = [0u8; 4 * crate::rig::MAX_SERVOS];
+        for (k, t) in ticks.iter().enumerate().take(ids.len().min(crate::rig::MAX_SERVOS)) {
+            data[4 * k..4 * k + 4].copy_from_slice(&t.to_le_bytes());
+        }
+        let n = ids.len().min(crate::rig::MAX_SERVOS);
+        self.sync_write(addr::GOAL_POSITION, 4, &ids[..n], &data[..4 * n])
+    }
+
+    /// Sync Read of present positions (ticks), one per id.
+    ///
+    /// # Errors
+    /// [`BusError`]; `out` is untouched then.
+    fn read_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), BusError> {
+        let n = ids.len().min(crate::rig::MAX_SERVOS).min(out.len());
+        let mut data = [0u8; 4 * crate::rig::MAX_SERVOS];
+        self.sync_read(addr::PRESENT_POSITION, 4, &ids[..n], &mut data[..4 * n])?;
+        for (k, o) in out.iter_mut().enumerate().take(n) {
+            *o = i32::from_le_bytes([data[4 * k], data[4 * k + 1], data[4 * k + 2], data[4 * k + 3]]);
+        }
+        Ok(())
+    }
+}
+
+/// A servo the profile names that is missing or of the wrong model.
+#[derive(Debug, thiserror::Error)]
+pub enum StartupError {
+    /// The bus failed.
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    /// A profiled id did not answer.
+    #[error("servo {id} (`{name}`) does not answer")]
+    Missing {
+        /// Id.
+        id: u8,
+        /// Profile name.
+        name: String,
+    },
+    /// A profiled id answered with another model.
+    #[error("servo {id} (`{name}`) is a model {found}, the profile says {want}")]
+    WrongModel {
+        /// Id.
+        id: u8,
+        /// Profile name.
+        name: String,
+        /// Model number found.
+        found: u16,
+        /// Model expected.
+        want: &'static str,
+    },
+    /// A servo rests outside its software limits: torque-on would make it jump.
+    #[error("servo {id} (`{name}`) rests at tick {tick}, outside its limits {lo}…{hi}; move it inside by hand")]
+    OutsideLimits {
+        /// Id.
+        id: u8,
+        /// Profile name.
+        name: String,
+        /// Present position.
+        tick: i32,
+        /// Lowest allowed tick.
+        lo: i32,
+        /// Highest allowed tick.
+        hi: i32,
+    },
+    /// A servo reports a hardware error.
+    #[error("servo {id} (`{name}`) reports hardware error status {status:#04x}; reboot it after fixing the cause")]
+    HardwareError {
+        /// Id.
+        id: u8,
+        /// Profile name.
+        name: String,
+        /// Hardware Error Status.
+        status: u8,
+    },
+}
+
+/// Brings a profiled rig up safely and returns the present positions (ticks):
+/// scan; check every profiled id answers with the right model and no hardware error; torque
+/// off (EEPROM is writable only then); Return Delay Time, Status Return Level 2, the position
+/// limits and the Bus Watchdog; read present positions and copy them into the goals; only then
+/// torque on — so no servo jumps.
+///
+/// # Errors
+/// [`StartupError`]; torque stays off on every servo.
+pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, StartupError> {
+    let found = bus.scan()?;
+    for s in &profile.servos {
+        match found.iter().find(|p| p.id == s.id) {
+            None => return Err(StartupError::Missing { id: s.id, name: s.name.clone() }),
+            Some(p) if p.model_number != s.model.model_number => {
+                return Err(StartupError::WrongModel {
+                    id: s.id,
+                    name: s.name.clone(),
+                    found: p.model_number,
+                    want: s.model.name,
+                })
+            }
+            Some(_) => {}
+        }
+    }
+    let rig_limits: Vec<(i32, i32)> = profile
+        .servos
+        .iter()
+        .map(|s| {
+            let m = s.map(crate::rig::JointSource::Joint(0));
+            (m.min_tick, m.max_tick)
+        })
+        .collect();
+    for (s, (lo, hi)) in profile.servos.iter().zip(&rig_limits) {
+        bus.set_torque(s.id, false)?;
+        let status = bus.hardware_error(s.id)?;
+        if status != 0 {
+            return Err(StartupError::HardwareError { id: s.id, name: s.name.clone(), status });
+        }
+        bus.write(s.id, addr::RETURN_DELAY_TIME, &[(profile.bus.return_delay_us / 2) as u8])?;
+        bus.write(s.id, addr::STATUS_RETURN_LEVEL, &[2])?;
+        bus.write(s.id, addr::MAX_POSITION_LIMIT, &hi.to_le_bytes())?;
+        bus.write(s.id, addr::MIN_POSITION_LIMIT, &lo.to_le_bytes())?;
+        // Clear an expired watchdog (writing 0), then arm it.
+        bus.write(s.id, addr::BUS_WATCHDOG, &[0])?;
+    }
+    let ids = profile.ids();
+    let mut present = vec![0i32; ids.len()];
+    bus.read_positions(&ids, &mut present)?;
+    for (s, (p, (lo, hi))) in profile.servos.iter().zip(present.iter().zip(&rig_limits)) {
+        if p < lo || p > hi {
+            return Err(StartupError::OutsideLimits { id: s.id, name: s.name.clone(), tick: *p, lo: *lo, hi: *hi });
+        }
+    }
+    bus.write_goals(&ids, &present)?;
+    for (s, p) in profile.servos.iter().zip(&present) {
+        // Read back: the goal must equal the present position before torque goes on.
+        let goal = bus.read_value(s.id, addr::GOAL_POSITION, 4)? as i32;
+        if goal != *p {
+            return Err(StartupError::Bus(BusError::Malformed { id: s.id, what: "goal read back differs from present" }));
+        }
+    }
+    let wd = (profile.bus.watchdog_ms / 20).min(127) as u8;
+    for s in &profile.servos {
+        bus.set_torque(s.id, true)?;
+        if wd > 0 {
+            bus.write(s.id, addr::BUS_WATCHDOG, &[wd])?;
+        }
+    }
+    Ok(present)
+}
+
+/// Torque off on every profiled servo (all are tried; the first error is returned).
+///
+/// # Errors
+/// [`BusError`].
+pub fn shut_down(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(), BusError> {
+    let mut first = None;
+    for s in &profile.servos {
+        if let Err(e) = bus.set_torque(s.id, false) {
+            first.get_or_insert(e);
+        }
+    }
+    first.map_or(Ok(()), Err)
+}

@@ -1,0 +1,255 @@
+//! The host side of Protocol 2.0 on the project's own codec, over any byte transport.
+//!
+//! Every reply is checked before its data is used: CRC, stuffing, length, instruction, id,
+//! error byte and parameter count. After a failed reply the line is drained until quiet, so a
+//! late or extra reply cannot be taken for the answer to the next instruction.
+
+use std::io;
+use std::time::Duration;
+
+use super::{BusError, PingInfo, ServoBus};
+use crate::device::{Received, Receiver, MAX_PACKET};
+use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
+
+/// A byte link to a bus.
+pub trait Transport {
+    /// Sends bytes, first dropping input that arrived before (stale replies).
+    ///
+    /// # Errors
+    /// I/O.
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()>;
+
+    /// Reads what arrives within `timeout`; `Ok(0)` when nothing did.
+    ///
+    /// # Errors
+    /// I/O.
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize>;
+
+    /// Time since some fixed start (wall clock, or the transport's virtual clock).
+    fn now(&self) -> Duration;
+
+    /// Line speed, bit/s.
+    fn baud(&self) -> u32;
+}
+
+/// Time `bytes` take on a line at `baud` (10 bits per byte).
+#[must_use]
+pub fn wire_time(bytes: usize, baud: u32) -> Duration {
+    Duration::from_nanos((bytes as u64 * 10 * 1_000_000_000).div_ceil(u64::from(baud.max(1))))
+}
+
+/// A [`ServoBus`] speaking Protocol 2.0 with [`crate::protocol`] over a [`Transport`].
+#[derive(Debug)]
+pub struct PacketBus<T> {
+    link: T,
+    rx: Receiver,
+    tx: [u8; MAX_PACKET],
+    params: [u8; MAX_PACKET],
+    margin: Duration,
+    quiet: Duration,
+}
+
+impl<T: Transport> PacketBus<T> {
+    /// A bus on `link`; a reply may come up to `margin` later than its wire time (return
+    /// delay, adapter latency).
+    pub fn new(link: T, margin: Duration) -> PacketBus<T> {
+        PacketBus {
+            link,
+            rx: Receiver::default(),
+            tx: [0; MAX_PACKET],
+            params: [0; MAX_PACKET],
+            margin,
+            quiet: margin,
+        }
+    }
+
+    /// The transport.
+    pub fn link(&self) -> &T {
+        &self.link
+    }
+
+    /// The transport, mutable.
+    pub fn link_mut(&mut self) -> &mut T {
+        &mut self.link
+    }
+
+    fn send(&mut self, id: u8, inst: u8, params: &[u8]) -> Result<(), BusError> {
+        let n = protocol::encode(id, inst, params, &mut self.tx)
+            .map_err(|_| BusError::Io(io::Error::new(io::ErrorKind::InvalidInput, "instruction too long")))?;
+        self.rx.clear();
+        self.link.send(&self.tx[..n])?;
+        Ok(())
+    }
+
+    /// Waits for one status packet from `id` with exactly `len` data bytes (any length when
+    /// `None`); returns the data length, the data in `self.params[1..]`.
+    fn status(&mut self, id: u8, len: Option<usize>) -> Result<usize, BusError> {
+        let expect = len.unwrap_or(3);
+        let timeout = wire_time(11 + expect, self.link.baud()) + self.margin;
+        let deadline = self.link.now() + timeout;
+        loop {
+            match self.rx.next_packet() {
+                Received::Packet(raw) => {
+                    let n = raw.len();
+                    let decoded = protocol::decode(raw, &mut self.params).map(|(p, _)| (p.id, p.instruction, p.params.len()));
+                    self.rx.consume(n);
+                    let (got, inst, plen) = decoded.map_err(|e| match e {
+                        CodecError::BadCrc { .. } => BusError::Crc { id },
+                        CodecError::BadStuffing => BusError::Malformed { id, what: "byte stuffing" },
+                        _ => BusError::Malformed { id, what: "packet" },
+                    })?;
+                    if inst != instruction::STATUS {
+                        // Our own instruction echoed on a half-duplex adapter.
+                        continue;
+                    }
+                    if got != id {
+                        return Err(BusError::WrongId { expected: id, got });
+                    }
+                    if plen == 0 {
+                        return Err(BusError::Malformed { id, what: "status without error byte" });
+                    }
+                    let error = self.params[0] & 0x7F;
+                    if error != 0 {
+                        return Err(BusError::Servo { id, error });
+                    }
+                    if len.is_some_and(|l| l != plen - 1) {
+                        return Err(BusError::Malformed { id, what: "parameter count" });
+                    }
+                    return Ok(plen - 1);
+                }
+                Received::Pending => {
+                    let now = self.link.now();
+                    if now >= deadline {
+                        return Err(BusError::Timeout { id });
+                    }
+                    let mut buf = [0u8; 512];
+                    let got = self.link.recv(&mut buf, deadline - now)?;
+                    self.rx.push(&buf[..got]);
+                }
+            }
+        }
+    }
+
+    /// After a failure: read until the line has been quiet for a while, and drop it all.
+    fn drain(&mut self) {
+        let mut buf = [0u8; 512];
+        while let Ok(n) = self.link.recv(&mut buf, self.quiet) {
+            if n == 0 {
+                break;
+            }
+        }
+        self.rx.clear();
+    }
+
+    fn transact(&mut self, id: u8, inst: u8, params: &[u8], len: Option<usize>) -> Result<usize, BusError> {
+        self.send(id, inst, params)?;
+        let r = self.status(id, len);
+        if r.is_err() {
+            self.drain();
+        }
+        r
+    }
+}
+
+impl<T: Transport> ServoBus for PacketBus<T> {
+    fn ping(&mut self, id: u8) -> Result<PingInfo, BusError> {
+        self.transact(id, instruction::PING, &[], Some(3))?;
+        let p = &self.params[1..4];
+        Ok(PingInfo { id, model_number: u16::from_le_bytes([p[0], p[1]]), firmware: p[2] })
+    }
+
+    fn scan(&mut self) -> Result<Vec<PingInfo>, BusError> {
+        self.send(BROADCAST_ID, instruction::PING, &[])?;
+        let mut found = Vec::new();
+        // Replies come in id order, each after its return delay; stop after a silence.
+        let timeout = wire_time(14, self.link.baud()) * 253 + self.margin;
+        let deadline = self.link.now() + timeout;
+        let mut buf = [0u8; 512];
+        loop {
+            match self.rx.next_packet() {
+                Received::Packet(raw) => {
+                    let n = raw.len();
+                    let d = protocol::decode(raw, &mut self.params).map(|(p, _)| (p.id, p.instruction, p.params.len()));
+                    self.rx.consume(n);
+                    if let Ok((id, instruction::STATUS, 4)) = d {
+                        let p = &self.params[1..4];
+                        if !found.iter().any(|f: &PingInfo| f.id == id) {
+                            found.push(PingInfo { id, model_number: u16::from_le_bytes([p[0], p[1]]), firmware: p[2] });
+                        }
+                    }
+                }
+                Received::Pending => {
+                    let now = self.link.now();
+                    if now >= deadline {
+                        break;
+                    }
+                    let got = self.link.recv(&mut buf, (deadline - now).min(self.quiet.max(Duration::from_millis(20))))?;
+                    if got == 0 && self.rx.pending() == 0 && !found.is_empty() {
+                        break;
+                    }
+                    self.rx.push(&buf[..got]);
+                }
+            }
+        }
+        found.sort_by_key(|f| f.id);
+        Ok(found)
+    }
+
+    fn read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), BusError> {
+        let n = out.len() as u16;
+        let a = address.to_le_bytes();
+        let l = n.to_le_bytes();
+        self.transact(id, instruction::READ, &[a[0], a[1], l[0], l[1]], Some(out.len()))?;
+        out.copy_from_slice(&self.params[1..=out.len()]);
+        Ok(())
+    }
+
+    fn write(&mut self, id: u8, address: u16, data: &[u8]) -> Result<(), BusError> {
+        let mut p = [0u8; MAX_PACKET];
+        let a = address.to_le_bytes();
+        p[..2].copy_from_slice(&a);
+        p[2..2 + data.len()].copy_from_slice(data);
+        if id == BROADCAST_ID {
+            return self.send(id, instruction::WRITE, &p[..2 + data.len()]);
+        }
+        self.transact(id, instruction::WRITE, &p[..2 + data.len()], Some(0)).map(|_| ())
+    }
+
+    fn sync_write(&mut self, address: u16, len: u16, ids: &[u8], data: &[u8]) -> Result<(), BusError> {
+        let len = usize::from(len);
+        let mut p = [0u8; MAX_PACKET];
+        p[..2].copy_from_slice(&address.to_le_bytes());
+        p[2..4].copy_from_slice(&(len as u16).to_le_bytes());
+        let mut at = 4;
+        for (k, &id) in ids.iter().enumerate() {
+            p[at] = id;
+            p[at + 1..at + 1 + len].copy_from_slice(&data[k * len..(k + 1) * len]);
+            at += 1 + len;
+        }
+        self.send(BROADCAST_ID, instruction::SYNC_WRITE, &p[..at])
+    }
+
+    fn sync_read(&mut self, address: u16, len: u16, ids: &[u8], out: &mut [u8]) -> Result<(), BusError> {
+        let mut p = [0u8; MAX_PACKET];
+        p[..2].copy_from_slice(&address.to_le_bytes());
+        p[2..4].copy_from_slice(&len.to_le_bytes());
+        p[4..4 + ids.len()].copy_from_slice(ids);
+        self.send(BROADCAST_ID, instruction::SYNC_READ, &p[..4 + ids.len()])?;
+        let len = usize::from(len);
+        // Collect into a scratch copy: `out` is written only when every reply passed.
+        let mut scratch = [0u8; MAX_PACKET];
+        for (k, &id) in ids.iter().enumerate() {
+            if let Err(e) = self.status(id, Some(len)) {
+                self.drain();
+                return Err(e);
+            }
+            scratch[k * len..(k + 1) * len].copy_from_slice(&self.params[1..=len]);
+        }
+        out[..ids.len() * len].copy_from_slice(&scratch[..ids.len() * len]);
+        Ok(())
+    }
+
+    fn reboot(&mut self, id: u8) -> Result<(), BusError> {
+        self.transact(id, instruction::REBOOT, &[], Some(0)).map(|_| ())
+    }
+}

@@ -1,0 +1,270 @@
+//! A virtual servo chain as a transport: in-process in virtual time, or served on a
+//! pseudo-terminal so that real clients (`dynamixel2`, or `marionette` itself) talk to it.
+
+use std::collections::VecDeque;
+use std::io::{self, Read, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use super::faults::FaultInjector;
+use super::packet::{wire_time, Transport};
+use crate::device::{Chain, Received, Receiver, Replies, VirtualServo, MAX_PACKET};
+use crate::profile::Profile;
+
+/// A chain with one servo per profiled id, each at `position` (or 2048).
+///
+/// # Panics
+/// Never: profiles hold at most [`crate::rig::MAX_SERVOS`] servos.
+#[must_use]
+pub fn chain_for(profile: &Profile, position: impl Fn(usize) -> i32) -> Chain {
+    let mut chain = Chain::new();
+    for (k, s) in profile.servos.iter().enumerate() {
+        let _ = chain.add(VirtualServo::new(s.id, s.model, position(k)));
+    }
+    chain
+}
+
+/// Runs one instruction through the chain and the injector: the byte chunks to send, each
+/// with its delay after the previous one.
+fn respond(
+    chain: &mut Chain,
+    packet: &[u8],
+    injector: Option<&mut FaultInjector>,
+    out: &mut [u8],
+    replies: &mut Replies,
+    mut emit: impl FnMut(Duration, &[u8]),
+) {
+    if chain.handle(packet, out, replies).is_err() {
+        return;
+    }
+    match injector {
+        None => {
+            for r in replies.iter() {
+                emit(Duration::from_micros(u64::from(r.delay_us)), &out[r.start..r.start + r.len]);
+            }
+        }
+        Some(inj) => {
+            let mut after = Vec::new();
+            let count = replies.len();
+            for (k, r) in replies.iter().enumerate() {
+                let hit = inj.apply(&out[r.start..r.start + r.len], k + 1 == count);
+                let delay = u64::from(r.delay_us) + u64::from(hit.extra_delay_us);
+                emit(Duration::from_micros(delay), &hit.bytes);
+                after.extend_from_slice(&hit.after_burst);
+            }
+            if !after.is_empty() {
+                emit(Duration::ZERO, &after);
+            }
+        }
+    }
+}
+
+/// The chain in-process, in virtual time: sending advances the clock by the wire time, replies
+/// arrive after their return delays and wire time, waiting advances the clock. No thread, no
+/// sleeping, deterministic. Step the servos with [`InProcess::advance`].
+#[derive(Debug)]
+pub struct InProcess {
+    chain: Chain,
+    baud: u32,
+    clock: Duration,
+    rx: Receiver,
+    pending: VecDeque<(Duration, u8)>,
+    out: Box<[u8; 8 * MAX_PACKET]>,
+    replies: Replies,
+    /// Optional fault injection.
+    pub injector: Option<FaultInjector>,
+}
+
+impl InProcess {
+    /// A transport to `chain` at `baud`.
+    #[must_use]
+    pub fn new(chain: Chain, baud: u32) -> InProcess {
+        InProcess {
+            chain,
+            baud,
+            clock: Duration::ZERO,
+            rx: Receiver::default(),
+            pending: VecDeque::with_capacity(16 * MAX_PACKET),
+            out: Box::new([0; 8 * MAX_PACKET]),
+            replies: Replies::new(),
+            injector: None,
+        }
+    }
+
+    /// The chain.
+    #[must_use]
+    pub fn chain(&self) -> &Chain {
+        &self.chain
+    }
+
+    /// The chain, mutable (to step it, raise errors, move horns).
+    pub fn chain_mut(&mut self) -> &mut Chain {
+        &mut self.chain
+    }
+
+    /// Lets `dt` of virtual time pass: the servos move, bytes in flight arrive.
+    pub fn advance(&mut self, dt: Duration) {
+        self.clock += dt;
+        self.chain.step(dt.as_secs_f64());
+    }
+}
+
+impl Transport for InProcess {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        // Input already arrived is flushed; bytes still in flight are not.
+        while self.pending.front().is_some_and(|(t, _)| *t <= self.clock) {
+            self.pending.pop_front();
+        }
+        self.clock += wire_time(bytes.len(), self.baud);
+        self.rx.push(bytes);
+        let mut at = self.clock.max(self.pending.back().map_or(Duration::ZERO, |(t, _)| *t));
+        while let Received::Packet(raw) = self.rx.next_packet() {
+            let n = raw.len();
+            let mut packet = [0u8; MAX_PACKET];
+            packet[..n].copy_from_slice(raw);
+            self.rx.consume(n);
+            let baud = self.baud;
+            let pending = &mut self.pending;
+            respond(&mut self.chain, &packet[..n], self.injector.as_mut(), &mut self.out[..], &mut self.replies, |delay, b| {
+                at += delay;
+                for &byte in b {
+                    at += wire_time(1, baud);
+                    pending.push_back((at, byte));
+                }
+            });
+        }
+        Ok(())
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        let deadline = self.clock + timeout;
+        let Some(&(first, _)) = self.pending.front() else {
+            self.clock = deadline;
+            return Ok(0);
+        };
+        if first > deadline {
+            self.clock = deadline;
+            return Ok(0);
+        }
+        self.clock = self.clock.max(first);
+        // Everything that has arrived by now (a reply's bytes come together).
+        let mut n = 0;
+        while n < buf.len() {
+            match self.pending.front() {
+                Some(&(t, b)) if t <= self.clock || (n > 0 && t <= self.clock + wire_time(64, self.baud)) => {
+                    self.clock = self.clock.max(t);
+                    buf[n] = b;
+                    n += 1;
+                    self.pending.pop_front();
+                }
+                _ => break,
+            }
+        }
+        Ok(n)
+    }
+
+    fn now(&self) -> Duration {
+        self.clock
+    }
+
+    fn baud(&self) -> u32 {
+        self.baud
+    }
+}
+
+/// A chain served on a pseudo-terminal by a thread, in real time: the servos move with the
+/// wall clock, replies wait their return delay. Clients open [`PtyChain::path`].
+pub struct PtyChain {
+    path: String,
+    chain: Arc<Mutex<Chain>>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+    _client_end: serialport::TTYPort,
+}
+
+impl std::fmt::Debug for PtyChain {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PtyChain").field("path", &self.path).finish_non_exhaustive()
+    }
+}
+
+impl PtyChain {
+    /// Serves `chain` on a new pseudo-terminal, with optional fault injection.
+    ///
+    /// # Errors
+    /// When no pseudo-terminal can be opened.
+    pub fn serve(chain: Chain, injector: Option<FaultInjector>) -> io::Result<PtyChain> {
+        let (mut device_end, client_end) = serialport::TTYPort::pair().map_err(io::Error::other)?;
+        let path = serialport::SerialPort::name(&client_end).ok_or_else(|| io::Error::other("pseudo-terminal without a name"))?;
+        serialport::SerialPort::set_timeout(&mut device_end, Duration::from_millis(1)).map_err(io::Error::other)?;
+        let chain = Arc::new(Mutex::new(chain));
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = {
+            let chain = Arc::clone(&chain);
+            let stop = Arc::clone(&stop);
+            std::thread::Builder::new()
+                .name("virtual-chain".into())
+                .spawn(move || serve_loop(&mut device_end, &chain, &stop, injector))?
+        };
+        Ok(PtyChain { path, chain, stop, thread: Some(thread), _client_end: client_end })
+    }
+
+    /// The device path clients open.
+    #[must_use]
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+
+    /// The chain (locked; keep the guard short).
+    ///
+    /// # Panics
+    /// If the serving thread panicked while holding the lock.
+    pub fn chain(&self) -> MutexGuard<'_, Chain> {
+        self.chain.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+impl Drop for PtyChain {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn serve_loop(port: &mut serialport::TTYPort, chain: &Mutex<Chain>, stop: &AtomicBool, mut injector: Option<FaultInjector>) {
+    let mut rx = Receiver::default();
+    let mut out = vec![0u8; 8 * MAX_PACKET];
+    let mut replies = Replies::new();
+    let mut buf = [0u8; 512];
+    let mut last = Instant::now();
+    while !stop.load(Ordering::Relaxed) {
+        match port.read(&mut buf) {
+            Ok(n) => rx.push(&buf[..n]),
+            Err(e) if e.kind() == io::ErrorKind::TimedOut || e.kind() == io::ErrorKind::Interrupted => {}
+            Err(_) => std::thread::sleep(Duration::from_millis(1)),
+        }
+        let now = Instant::now();
+        let mut chain = chain.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        chain.step((now - last).as_secs_f64());
+        last = now;
+        let mut sends: Vec<(Duration, Vec<u8>)> = Vec::new();
+        while let Received::Packet(raw) = rx.next_packet() {
+            let n = raw.len();
+            let packet = raw.to_vec();
+            rx.consume(n);
+            respond(&mut chain, &packet, injector.as_mut(), &mut out, &mut replies, |d, b| sends.push((d, b.to_vec())));
+        }
+        drop(chain);
+        for (delay, bytes) in sends {
+            if delay >= Duration::from_micros(50) {
+                std::thread::sleep(delay);
+            }
+            let _ = port.write_all(&bytes);
+        }
+        let _ = port.flush();
+    }
+}

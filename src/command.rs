@@ -1,0 +1,167 @@
+//! The command stage: the last gate between angles and the bus.
+//!
+//! Per tick it rejects a command holding any NaN or infinity (the whole command: a rig must
+//! not move half its joints), clamps to the software position limits, limits velocity and
+//! acceleration per servo (braking early enough to stop at the target), and remembers what it
+//! sent. Positions are kept in fractional ticks so slow motions are not lost to rounding.
+
+use crate::rig::{Rig, MAX_SERVOS};
+
+/// Why a command was refused. Nothing is sent; the last command stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CommandError {
+    /// The angle of servo index `servo` was NaN or infinite.
+    NotFinite {
+        /// Index of the servo in the rig.
+        servo: usize,
+    },
+    /// The command has a different number of servos than the rig.
+    WrongLength {
+        /// Servos in the command.
+        got: usize,
+        /// Servos in the rig.
+        want: usize,
+    },
+    /// The time step was not a positive finite number.
+    BadTimeStep,
+}
+
+impl core::fmt::Display for CommandError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            CommandError::NotFinite { servo } => write!(f, "servo #{servo}: angle is not a finite number"),
+            CommandError::WrongLength { got, want } => write!(f, "command has {got} servos, rig has {want}"),
+            CommandError::BadTimeStep => f.write_str("time step is not a positive finite number"),
+        }
+    }
+}
+
+impl core::error::Error for CommandError {}
+
+/// What the stage changed in one accepted command.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Limited {
+    /// Servos whose target lay outside their position limits.
+    pub clamped: usize,
+    /// Servos slowed by the velocity or acceleration limit.
+    pub rate_limited: usize,
+}
+
+/// The command stage of one rig.
+#[derive(Clone, Debug)]
+pub struct CommandStage {
+    position: [f64; MAX_SERVOS],
+    velocity: [f64; MAX_SERVOS],
+    ticks: [i32; MAX_SERVOS],
+    len: usize,
+    started: bool,
+}
+
+impl CommandStage {
+    /// A stage for `servos` servos with no command yet.
+    #[must_use]
+    pub fn new(servos: usize) -> CommandStage {
+        CommandStage {
+            position: [0.0; MAX_SERVOS],
+            velocity: [0.0; MAX_SERVOS],
+            ticks: [0; MAX_SERVOS],
+            len: servos.min(MAX_SERVOS),
+            started: false,
+        }
+    }
+
+    /// Starts from where the servos are (present positions, at rest), e.g. at torque-on, so the
+    /// first command moves from there within the limits.
+    pub fn start_from(&mut self, rig: &Rig, present: &[i32]) {
+        for (k, servo) in rig.servos.iter().enumerate().take(self.len) {
+            let p = present.get(k).copied().unwrap_or(servo.min_tick).clamp(servo.min_tick, servo.max_tick);
+            self.position[k] = f64::from(p);
+            self.velocity[k] = 0.0;
+            self.ticks[k] = p;
+        }
+        self.started = true;
+    }
+
+    /// The last command sent, in ticks (empty before the first).
+    #[must_use]
+    pub fn last(&self) -> &[i32] {
+        if self.started {
+            &self.ticks[..self.len]
+        } else {
+            &[]
+        }
+    }
+
+    /// Turns joint angles (radians) into the next goal positions, `dt` seconds after the
+    /// previous command. Before any start the first command is only clamped.
+    ///
+    /// # Errors
+    /// [`CommandError`]: the command is refused as a whole and the last one stands.
+    pub fn command(&mut self, rig: &Rig, angles: &[f64], dt: f64) -> Result<(&[i32], Limited), CommandError> {
+        if angles.len() != rig.len() || rig.len() != self.len {
+            return Err(CommandError::WrongLength { got: angles.len(), want: rig.len() });
+        }
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(CommandError::BadTimeStep);
+        }
+        if let Some(servo) = angles.iter().position(|a| !a.is_finite()) {
+            return Err(CommandError::NotFinite { servo });
+        }
+        let mut limited = Limited::default();
+        for (k, (servo, &angle)) in rig.servos.iter().zip(angles).enumerate() {
+            let (lo, hi) = (f64::from(servo.min_tick), f64::from(servo.max_tick));
+            let wanted = servo.angle_to_ticks_exact(angle);
+            let target = wanted.clamp(lo, hi);
+            if target != wanted {
+                limited.clamped += 1;
+            }
+            if !self.started {
+                self.position[k] = target;
+                self.velocity[k] = 0.0;
+                continue;
+            }
+            let (p, v) = step_towards(
+                self.position[k],
+                self.velocity[k],
+                target,
+                servo.max_velocity,
+                servo.max_acceleration,
+                dt,
+            );
+            if (p - target).abs() > 1e-9 {
+                limited.rate_limited += 1;
+            }
+            self.position[k] = p.clamp(lo, hi);
+            self.velocity[k] = v;
+        }
+        self.started = true;
+        for k in 0..self.len {
+            self.ticks[k] = libm::round(self.position[k]) as i32;
+        }
+        Ok((&self.ticks[..self.len], limited))
+    }
+}
+
+/// One step of a velocity- and acceleration-limited follower: the velocity that would reach
+/// `target` this step, bounded by `vmax`, by the speed from which `amax` can still stop at the
+/// target (`√(2·amax·d)`), and by `amax·dt` of change from the last velocity.
+#[must_use]
+pub fn step_towards(position: f64, velocity: f64, target: f64, vmax: f64, amax: f64, dt: f64) -> (f64, f64) {
+    let d = target - position;
+    let mut v = d / dt;
+    let vmax = if vmax > 0.0 { vmax } else { f64::INFINITY };
+    v = v.clamp(-vmax, vmax);
+    if amax > 0.0 && amax.is_finite() {
+        // Braking: from speed v we need v²/(2a) to stop; never go faster than that allows.
+        let brake = libm::sqrt(2.0 * amax * d.abs());
+        v = v.clamp(-brake.max(amax * dt), brake.max(amax * dt));
+        let dv = amax * dt;
+        v = v.clamp(velocity - dv, velocity + dv);
+    }
+    // Never step past the target.
+    let step = v * dt;
+    if (d >= 0.0 && step > d) || (d <= 0.0 && step < d) {
+        return (target, d / dt);
+    }
+    (position + step, v)
+}

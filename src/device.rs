@@ -1,0 +1,617 @@
+//! The device side of Protocol 2.0: a chain of virtual X-series servos.
+//!
+//! Each servo has a control table (the X-series layout of [`crate::servo::addr`]), position
+//! dynamics limited by its Profile Velocity and Profile Acceleration, a return delay time,
+//! hardware error bits, the Bus Watchdog, and reboot clearing RAM. [`Chain::handle`] answers one
+//! instruction packet with the status packets real servos would send, in order, each with the
+//! delay before it; [`Receiver`] cuts a byte stream into packets. Everything is fixed-size, so
+//! the chain also runs in the embedded build.
+
+use crate::command::step_towards;
+use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
+use crate::rig::MAX_SERVOS;
+use crate::servo::{addr, hardware_error, status_error, ServoModel, MAX_TICK, RPM2_PER_ACCELERATION_UNIT};
+use crate::servo::{RPM_PER_VELOCITY_UNIT, TICKS_PER_TURN};
+
+/// Bytes of control table each virtual servo keeps (addresses 0…255).
+pub const TABLE_LEN: usize = 256;
+/// Largest packet (stuffed) the chain accepts or sends.
+pub const MAX_PACKET: usize = 1024;
+/// Firmware version the virtual servos report.
+pub const FIRMWARE_VERSION: u8 = 48;
+
+/// Ticks/s per unit of Profile Velocity.
+const TICKS_PER_S_PER_VELOCITY_UNIT: f64 = RPM_PER_VELOCITY_UNIT / 60.0 * TICKS_PER_TURN as f64;
+/// Ticks/s² per unit of Profile Acceleration.
+const TICKS_PER_S2_PER_ACCELERATION_UNIT: f64 = RPM2_PER_ACCELERATION_UNIT / 3600.0 * TICKS_PER_TURN as f64;
+/// Acceleration when Profile Acceleration is 0 ("unlimited"): the motor's own, ~0.05 s to full speed.
+const DEFAULT_RAMP_S: f64 = 0.05;
+
+/// One virtual servo.
+#[derive(Clone, Debug)]
+pub struct VirtualServo {
+    table: [u8; TABLE_LEN],
+    model: &'static ServoModel,
+    position: f64,
+    velocity: f64,
+    since_packet: f64,
+    watchdog_expired: bool,
+    torque_jumps: u32,
+    write_count: u32,
+}
+
+impl VirtualServo {
+    /// A servo at rest at `position` ticks with factory defaults.
+    #[must_use]
+    pub fn new(id: u8, model: &'static ServoModel, position: i32) -> VirtualServo {
+        let mut s = VirtualServo {
+            table: [0; TABLE_LEN],
+            model,
+            position: f64::from(position),
+            velocity: 0.0,
+            since_packet: 0.0,
+            watchdog_expired: false,
+            torque_jumps: 0,
+            write_count: 0,
+        };
+        s.factory_defaults(id);
+        s
+    }
+
+    fn factory_defaults(&mut self, id: u8) {
+        self.table = [0; TABLE_LEN];
+        self.put(addr::MODEL_NUMBER, 2, u32::from(self.model.model_number));
+        self.put(addr::FIRMWARE_VERSION, 1, u32::from(FIRMWARE_VERSION));
+        self.put(addr::ID, 1, u32::from(id));
+        self.put(addr::BAUD_RATE, 1, 1);
+        self.put(addr::RETURN_DELAY_TIME, 1, 250);
+        self.put(addr::OPERATING_MODE, 1, 3);
+        let vlimit = libm::round(self.model.no_load_rpm / RPM_PER_VELOCITY_UNIT) as u32;
+        self.put(addr::VELOCITY_LIMIT, 4, vlimit);
+        self.put(addr::MAX_POSITION_LIMIT, 4, MAX_TICK as u32);
+        self.put(addr::MIN_POSITION_LIMIT, 4, 0);
+        self.put(
+            addr::SHUTDOWN,
+            1,
+            u32::from(hardware_error::OVERHEATING | hardware_error::ELECTRICAL_SHOCK | hardware_error::OVERLOAD),
+        );
+        self.clear_ram();
+    }
+
+    /// RAM at power-on: torque off, no errors, watchdog off, goal = present.
+    fn clear_ram(&mut self) {
+        for b in &mut self.table[usize::from(addr::TORQUE_ENABLE)..] {
+            *b = 0;
+        }
+        self.put(addr::STATUS_RETURN_LEVEL, 1, 2);
+        self.velocity = 0.0;
+        self.watchdog_expired = false;
+        self.since_packet = 0.0;
+        let p = self.present_tick();
+        self.put(addr::GOAL_POSITION, 4, p as u32);
+        self.refresh_present();
+    }
+
+    fn get(&self, a: u16, n: usize) -> u32 {
+        let a = usize::from(a);
+        self.table[a..a + n].iter().rev().fold(0, |acc, &b| (acc << 8) | u32::from(b))
+    }
+
+    fn put(&mut self, a: u16, n: usize, v: u32) {
+        let a = usize::from(a);
+        self.table[a..a + n].copy_from_slice(&v.to_le_bytes()[..n]);
+    }
+
+    /// Bus id.
+    #[must_use]
+    pub fn id(&self) -> u8 {
+        self.table[usize::from(addr::ID)]
+    }
+
+    /// The model.
+    #[must_use]
+    pub fn model(&self) -> &'static ServoModel {
+        self.model
+    }
+
+    /// Position in ticks (unrounded).
+    #[must_use]
+    pub fn position(&self) -> f64 {
+        self.position
+    }
+
+    /// Present Position as the servo reports it.
+    #[must_use]
+    pub fn present_tick(&self) -> i32 {
+        libm::round(self.position) as i32
+    }
+
+    /// Goal Position register.
+    #[must_use]
+    pub fn goal_tick(&self) -> i32 {
+        self.get(addr::GOAL_POSITION, 4) as i32
+    }
+
+    /// Torque Enable register.
+    #[must_use]
+    pub fn torque_on(&self) -> bool {
+        self.table[usize::from(addr::TORQUE_ENABLE)] != 0
+    }
+
+    /// True after the Bus Watchdog expired (until 0 is written to it).
+    #[must_use]
+    pub fn watchdog_expired(&self) -> bool {
+        self.watchdog_expired
+    }
+
+    /// Times torque was enabled while the goal was more than one tick from the present
+    /// position — a jump on a real rig.
+    #[must_use]
+    pub fn torque_jumps(&self) -> u32 {
+        self.torque_jumps
+    }
+
+    /// Accepted writes to Goal Position.
+    #[must_use]
+    pub fn goal_writes(&self) -> u32 {
+        self.write_count
+    }
+
+    /// Return Delay Time in microseconds.
+    #[must_use]
+    pub fn return_delay_us(&self) -> u32 {
+        2 * u32::from(self.table[usize::from(addr::RETURN_DELAY_TIME)])
+    }
+
+    /// Hardware Error Status register.
+    #[must_use]
+    pub fn hardware_error(&self) -> u8 {
+        self.table[usize::from(addr::HARDWARE_ERROR_STATUS)]
+    }
+
+    /// Raises hardware error bits (as overheating or overload would); the shutdown bits turn
+    /// torque off. Cleared only by a reboot.
+    pub fn raise_hardware_error(&mut self, bits: u8) {
+        let e = self.hardware_error() | bits;
+        self.table[usize::from(addr::HARDWARE_ERROR_STATUS)] = e;
+        if e & self.table[usize::from(addr::SHUTDOWN)] != 0 {
+            self.table[usize::from(addr::TORQUE_ENABLE)] = 0;
+        }
+    }
+
+    /// Sets the position directly (a hand moving the horn with torque off).
+    pub fn set_position(&mut self, ticks: f64) {
+        self.position = ticks;
+        self.refresh_present();
+    }
+
+    /// The status packet's error byte: the alert flag when a hardware error is present.
+    fn alert(&self) -> u8 {
+        if self.hardware_error() != 0 {
+            status_error::ALERT
+        } else {
+            0
+        }
+    }
+
+    fn refresh_present(&mut self) {
+        let p = self.present_tick();
+        self.put(addr::PRESENT_POSITION, 4, p as u32);
+        let v = libm::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32;
+        self.put(addr::PRESENT_VELOCITY, 4, v as u32);
+        self.put(addr::MOVING, 1, u32::from(self.velocity != 0.0));
+        self.put(addr::PRESENT_INPUT_VOLTAGE, 2, 120);
+        self.put(addr::PRESENT_TEMPERATURE, 1, 35);
+    }
+
+    /// Advances the servo `dt` seconds: watchdog, then motion towards the goal.
+    pub fn step(&mut self, dt: f64) {
+        let wd = self.table[usize::from(addr::BUS_WATCHDOG)];
+        self.since_packet += dt;
+        if self.torque_on() && !self.watchdog_expired && (1..=127).contains(&wd) && self.since_packet > f64::from(wd) * 0.020
+        {
+            // Expiry: stop where it is; the register reads −1 and goal writes fail.
+            self.watchdog_expired = true;
+            self.table[usize::from(addr::BUS_WATCHDOG)] = 0xFF;
+            let p = self.present_tick();
+            self.put(addr::GOAL_POSITION, 4, p as u32);
+            self.velocity = 0.0;
+        }
+        if self.torque_on() && !self.watchdog_expired {
+            let goal = f64::from(self.goal_tick());
+            let max_v = self.model.no_load_rpm / 60.0 * f64::from(TICKS_PER_TURN);
+            let pv = self.get(addr::PROFILE_VELOCITY, 4);
+            let v = if pv == 0 { max_v } else { (f64::from(pv) * TICKS_PER_S_PER_VELOCITY_UNIT).min(max_v) };
+            let pa = self.get(addr::PROFILE_ACCELERATION, 4);
+            let a = if pa == 0 { max_v / DEFAULT_RAMP_S } else { f64::from(pa) * TICKS_PER_S2_PER_ACCELERATION_UNIT };
+            let (p, vel) = step_towards(self.position, self.velocity, goal, v, a, dt);
+            self.position = p;
+            self.velocity = if p == goal { 0.0 } else { vel };
+        } else {
+            self.velocity = 0.0;
+        }
+        self.refresh_present();
+    }
+
+    /// Applies a write; returns the status error number (0 = done).
+    fn write(&mut self, a: u16, data: &[u8]) -> u8 {
+        let start = usize::from(a);
+        let end = start + data.len();
+        if data.is_empty() || end > TABLE_LEN {
+            return status_error::DATA_LENGTH;
+        }
+        for reg in start..end {
+            let writable = matches!(reg, 7..=13 | 20..=63 | 64..=69 | 76..=119);
+            if !writable {
+                return status_error::ACCESS;
+            }
+            if reg < usize::from(addr::TORQUE_ENABLE) && self.torque_on() {
+                return status_error::ACCESS;
+            }
+        }
+        let covers = |r: u16, n: usize| start <= usize::from(r) && usize::from(r) + n <= end;
+        let value = |r: u16, n: usize| {
+            let o = usize::from(r) - start;
+            data[o..o + n].iter().rev().fold(0u32, |acc, &b| (acc << 8) | u32::from(b))
+        };
+        if covers(addr::GOAL_POSITION, 4) {
+            if self.watchdog_expired {
+                return status_error::ACCESS;
+            }
+            let g = value(addr::GOAL_POSITION, 4) as i32;
+            let (lo, hi) = (self.get(addr::MIN_POSITION_LIMIT, 4) as i32, self.get(addr::MAX_POSITION_LIMIT, 4) as i32);
+            if g < lo || g > hi {
+                return status_error::DATA_LIMIT;
+            }
+        }
+        if covers(addr::BUS_WATCHDOG, 1) && value(addr::BUS_WATCHDOG, 1) > 127 {
+            return status_error::DATA_RANGE;
+        }
+        if covers(addr::RETURN_DELAY_TIME, 1) && value(addr::RETURN_DELAY_TIME, 1) > 254 {
+            return status_error::DATA_RANGE;
+        }
+        if covers(addr::TORQUE_ENABLE, 1) {
+            let on = value(addr::TORQUE_ENABLE, 1) != 0;
+            if on && self.hardware_error() & self.table[usize::from(addr::SHUTDOWN)] != 0 {
+                return status_error::RESULT_FAIL;
+            }
+        }
+        let was_on = self.torque_on();
+        self.table[start..end].copy_from_slice(data);
+        if covers(addr::BUS_WATCHDOG, 1) && data[usize::from(addr::BUS_WATCHDOG) - start] == 0 {
+            self.watchdog_expired = false;
+        }
+        if covers(addr::GOAL_POSITION, 4) {
+            self.write_count += 1;
+        }
+        if !was_on && self.torque_on() {
+            if (self.goal_tick() - self.present_tick()).abs() > 1 {
+                self.torque_jumps += 1;
+            }
+            self.velocity = 0.0;
+        }
+        0
+    }
+
+    fn read(&self, a: u16, n: usize) -> Option<&[u8]> {
+        let start = usize::from(a);
+        self.table.get(start..start.checked_add(n)?)
+    }
+}
+
+/// A status packet the chain sends: `len` bytes at `start` in the output buffer, sent
+/// `delay_us` after the previous one (or after the instruction).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reply {
+    /// The replying servo's id.
+    pub id: u8,
+    /// Offset in the output buffer.
+    pub start: usize,
+    /// Bytes.
+    pub len: usize,
+    /// Return delay before it, µs.
+    pub delay_us: u32,
+}
+
+/// The replies to one instruction.
+pub type Replies = heapless::Vec<Reply, MAX_SERVOS>;
+
+/// A chain of virtual servos on one bus.
+#[derive(Clone, Debug, Default)]
+pub struct Chain {
+    servos: heapless::Vec<VirtualServo, MAX_SERVOS>,
+    params: heapless::Vec<u8, MAX_PACKET>,
+    instructions: u64,
+}
+
+/// The chain is full ([`MAX_SERVOS`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChainFull;
+
+impl Chain {
+    /// An empty chain.
+    #[must_use]
+    pub fn new() -> Chain {
+        Chain::default()
+    }
+
+    /// Adds a servo.
+    ///
+    /// # Errors
+    /// [`ChainFull`] past [`MAX_SERVOS`] servos.
+    pub fn add(&mut self, servo: VirtualServo) -> Result<(), ChainFull> {
+        self.servos.push(servo).map_err(|_| ChainFull)
+    }
+
+    /// The servos.
+    #[must_use]
+    pub fn servos(&self) -> &[VirtualServo] {
+        &self.servos
+    }
+
+    /// The servo with this id (the first, should ids be duplicated).
+    #[must_use]
+    pub fn servo(&self, id: u8) -> Option<&VirtualServo> {
+        self.servos.iter().find(|s| s.id() == id)
+    }
+
+    /// The servo with this id, mutable.
+    pub fn servo_mut(&mut self, id: u8) -> Option<&mut VirtualServo> {
+        self.servos.iter_mut().find(|s| s.id() == id)
+    }
+
+    /// Valid instruction packets handled so far.
+    #[must_use]
+    pub fn instructions(&self) -> u64 {
+        self.instructions
+    }
+
+    /// Advances every servo `dt` seconds.
+    pub fn step(&mut self, dt: f64) {
+        for s in &mut self.servos {
+            s.step(dt);
+        }
+    }
+
+    /// Answers one instruction packet: writes the status packets into `out` and lists them in
+    /// `replies`. A packet that does not decode gets no answer (as on a real bus).
+    ///
+    /// # Errors
+    /// The packet's [`CodecError`]; nothing was executed.
+    pub fn handle(&mut self, packet: &[u8], out: &mut [u8], replies: &mut Replies) -> Result<(), CodecError> {
+        replies.clear();
+        let mut buf = [0u8; MAX_PACKET];
+        let (p, _) = protocol::decode(packet, &mut buf)?;
+        if p.instruction == instruction::STATUS {
+            return Ok(());
+        }
+        self.instructions += 1;
+        self.params.clear();
+        let _ = self.params.extend_from_slice(p.params);
+        let (id, inst) = (p.id, p.instruction);
+        let mut w = Writer { out, used: 0, replies };
+        let params = core::mem::take(&mut self.params);
+        self.execute(id, inst, &params, &mut w);
+        self.params = params;
+        Ok(())
+    }
+
+    fn execute(&mut self, id: u8, inst: u8, params: &[u8], w: &mut Writer<'_, '_>) {
+        // Any instruction meant for a servo resets its watchdog timer.
+        for s in &mut self.servos {
+            if id == BROADCAST_ID || s.id() == id {
+                s.since_packet = 0.0;
+            }
+        }
+        let broadcast = id == BROADCAST_ID;
+        match inst {
+            instruction::PING => {
+                for s in self.servos.iter().filter(|s| broadcast || s.id() == id) {
+                    let m = s.model.model_number.to_le_bytes();
+                    w.status(s, 0, &[m[0], m[1], FIRMWARE_VERSION]);
+                }
+            }
+            instruction::READ if !broadcast => {
+                let Some(s) = self.servos.iter().find(|s| s.id() == id) else { return };
+                if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
+                    return;
+                }
+                match (params.len() == 4).then(|| (le16(&params[0..]), usize::from(le16(&params[2..])))) {
+                    Some((a, n)) => match s.read(a, n) {
+                        Some(data) => w.status(s, 0, data),
+                        None => w.status(s, status_error::DATA_RANGE, &[]),
+                    },
+                    None => w.status(s, status_error::DATA_LENGTH, &[]),
+                }
+            }
+            instruction::WRITE => {
+                if params.len() < 3 {
+                    if let Some(s) = self.servos.iter().find(|s| s.id() == id) {
+                        w.status(s, status_error::DATA_LENGTH, &[]);
+                    }
+                    return;
+                }
+                let a = le16(params);
+                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                    let e = s.write(a, &params[2..]);
+                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
+                        w.status(s, e, &[]);
+                    }
+                }
+            }
+            instruction::REBOOT => {
+                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                    if !broadcast {
+                        w.status(s, 0, &[]);
+                    }
+                    s.table[usize::from(addr::HARDWARE_ERROR_STATUS)] = 0;
+                    s.clear_ram();
+                }
+            }
+            instruction::FACTORY_RESET => {
+                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                    let keep_id = params.first() == Some(&0x01) || params.first() == Some(&0x02);
+                    let sid = s.id();
+                    if !broadcast {
+                        w.status(s, 0, &[]);
+                    }
+                    s.factory_defaults(if keep_id { sid } else { 1 });
+                }
+            }
+            instruction::SYNC_WRITE if broadcast && params.len() >= 4 => {
+                let (a, n) = (le16(params), usize::from(le16(&params[2..])));
+                if n == 0 {
+                    return;
+                }
+                for chunk in params[4..].chunks_exact(1 + n) {
+                    for s in self.servos.iter_mut().filter(|s| s.id() == chunk[0]) {
+                        let _ = s.write(a, &chunk[1..]);
+                    }
+                }
+            }
+            instruction::SYNC_READ if broadcast && params.len() >= 4 => {
+                let (a, n) = (le16(params), usize::from(le16(&params[2..])));
+                for &sid in &params[4..] {
+                    for s in self.servos.iter().filter(|s| s.id() == sid) {
+                        if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
+                            continue;
+                        }
+                        match s.read(a, n) {
+                            Some(data) => w.status(s, 0, data),
+                            None => w.status(s, status_error::DATA_RANGE, &[]),
+                        }
+                    }
+                }
+            }
+            instruction::BULK_READ if broadcast => {
+                for item in params.chunks_exact(5) {
+                    let (sid, a, n) = (item[0], le16(&item[1..]), usize::from(le16(&item[3..])));
+                    for s in self.servos.iter().filter(|s| s.id() == sid) {
+                        match s.read(a, n) {
+                            Some(data) => w.status(s, 0, data),
+                            None => w.status(s, status_error::DATA_RANGE, &[]),
+                        }
+                    }
+                }
+            }
+            instruction::BULK_WRITE if broadcast => {
+                let mut rest = params;
+                while rest.len() >= 5 {
+                    let (sid, a, n) = (rest[0], le16(&rest[1..]), usize::from(le16(&rest[3..])));
+                    if rest.len() < 5 + n {
+                        break;
+                    }
+                    for s in self.servos.iter_mut().filter(|s| s.id() == sid) {
+                        let _ = s.write(a, &rest[5..5 + n]);
+                    }
+                    rest = &rest[5 + n..];
+                }
+            }
+            _ => {
+                if !broadcast {
+                    if let Some(s) = self.servos.iter().find(|s| s.id() == id) {
+                        w.status(s, status_error::INSTRUCTION, &[]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn le16(b: &[u8]) -> u16 {
+    u16::from_le_bytes([b[0], b[1]])
+}
+
+struct Writer<'o, 'r> {
+    out: &'o mut [u8],
+    used: usize,
+    replies: &'r mut Replies,
+}
+
+impl Writer<'_, '_> {
+    /// Appends a status packet from `s` (dropped silently when the buffer is full: the host
+    /// then sees a timeout, as with a real collision).
+    fn status(&mut self, s: &VirtualServo, error: u8, data: &[u8]) {
+        let mut params = [0u8; MAX_PACKET];
+        if data.len() + 1 > params.len() {
+            return;
+        }
+        params[0] = error | s.alert();
+        params[1..=data.len()].copy_from_slice(data);
+        if let Ok(n) = protocol::encode(s.id(), instruction::STATUS, &params[..=data.len()], &mut self.out[self.used..]) {
+            let reply = Reply { id: s.id(), start: self.used, len: n, delay_us: s.return_delay_us() };
+            if self.replies.push(reply).is_ok() {
+                self.used += n;
+            }
+        }
+    }
+}
+
+/// Cuts a byte stream into packets: skips garbage before a header, waits for the rest of a
+/// packet, drops packets that fail to decode.
+#[derive(Clone, Debug)]
+pub struct Receiver {
+    buf: [u8; MAX_PACKET],
+    len: usize,
+}
+
+impl Default for Receiver {
+    fn default() -> Self {
+        Receiver { buf: [0; MAX_PACKET], len: 0 }
+    }
+}
+
+/// What [`Receiver::next_packet`] found.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Received<'a> {
+    /// A whole packet (raw, still stuffed), CRC not yet checked.
+    Packet(&'a [u8]),
+    /// More bytes are needed.
+    Pending,
+}
+
+impl Receiver {
+    /// Appends bytes; on overflow the oldest bytes are dropped.
+    pub fn push(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            if self.len == self.buf.len() {
+                self.buf.copy_within(1.., 0);
+                self.len -= 1;
+            }
+            self.buf[self.len] = b;
+            self.len += 1;
+        }
+    }
+
+    /// Drops everything buffered.
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    /// Bytes buffered.
+    #[must_use]
+    pub fn pending(&self) -> usize {
+        self.len
+    }
+
+    /// The next complete packet. Call [`Receiver::consume`] with its length after use.
+    pub fn next_packet(&mut self) -> Received<'_> {
+        loop {
+            let skip = protocol::find_header(&self.buf[..self.len]);
+            self.consume(skip);
+            match protocol::packet_len(&self.buf[..self.len]) {
+                Ok(n) if n > MAX_PACKET => self.consume(1),
+                Ok(n) if n <= self.len => return Received::Packet(&self.buf[..n]),
+                Ok(_) | Err(CodecError::Incomplete) => return Received::Pending,
+                Err(_) => self.consume(1),
+            }
+        }
+    }
+
+    /// Removes `n` bytes from the front.
+    pub fn consume(&mut self, n: usize) {
+        let n = n.min(self.len);
+        self.buf.copy_within(n..self.len, 0);
+        self.len -= n;
+    }
+}

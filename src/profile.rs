@@ -1,0 +1,580 @@
+//! Rig profiles: TOML files describing a bus and its servos, validated on load with
+//! `file:line:column` errors.
+//!
+//! ```toml
+//! [rig]
+//! name = "CMU puppet"
+//!
+//! [bus]
+//! baud = 4_000_000          # bit/s, a Dynamixel rate every servo supports
+//! return_delay_us = 0       # Return Delay Time written at start-up (0…508, even)
+//! read = "sync"             # sync | bulk | fast-sync
+//! read_fields = ["position"] # position, velocity, current
+//! usb_latency_us = 1000     # the adapter's latency timer
+//! watchdog_ms = 100         # Bus Watchdog armed at start-up (20…2540, 0 = off)
+//!
+//! [[bone]]                  # optional: the rig's own axis order for a bone
+//! name = "lhumerus"
+//! order = "ZYX"
+//!
+//! [[servo]]
+//! id = 1
+//! name = "l_shoulder_z"
+//! model = "XL430-W250"
+//! bone = "lhumerus.rz"      # or: joint = "r_sho_pitch" for a robot joint
+//! direction = 1             # +1 or −1
+//! zero = 2048               # tick at joint angle 0
+//! gear = 1.0                # servo turns per joint turn
+//! min_deg = -90             # software limits (joint degrees)
+//! max_deg = 90
+//! max_velocity_dps = 360
+//! max_acceleration_dps2 = 3600
+//! ```
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use toml::Spanned;
+
+use crate::formats::{read_text, FileError, TextError};
+use crate::math::EulerOrder;
+use crate::rig::{JointSource, Rig, ServoMap, MAX_SERVOS};
+use crate::servo::{self, ServoModel, MAX_TICK};
+use crate::skeleton::{Dof, Skeleton};
+
+/// Baud rates a Dynamixel X servo can be set to.
+pub const DYNAMIXEL_BAUDS: [u32; 8] = [9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000];
+
+/// How present values are read each cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReadMode {
+    /// Sync Read (0x82): one request, one status packet per servo.
+    Sync,
+    /// Bulk Read (0x92): one request naming each servo's address, one status packet per servo.
+    Bulk,
+    /// Fast Sync Read (0x8A, X firmware ≥ 45): one request, one combined reply.
+    FastSync,
+}
+
+/// Which present values are read each cycle (one contiguous block of the control table).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct ReadFields {
+    /// Present Velocity (128, 4 B).
+    pub velocity: bool,
+    /// Present Current (126, 2 B).
+    pub current: bool,
+}
+
+impl ReadFields {
+    /// Start address and length of the block holding Present Position and the asked fields.
+    #[must_use]
+    pub fn block(self) -> (u16, u16) {
+        let end = servo::addr::PRESENT_POSITION + 4;
+        let start = if self.current {
+            servo::addr::PRESENT_CURRENT
+        } else if self.velocity {
+            servo::addr::PRESENT_VELOCITY
+        } else {
+            servo::addr::PRESENT_POSITION
+        };
+        (start, end - start)
+    }
+}
+
+/// The bus section.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BusConfig {
+    /// Bit/s.
+    pub baud: u32,
+    /// Return Delay Time to configure, µs.
+    pub return_delay_us: u32,
+    /// Read pattern.
+    pub read: ReadMode,
+    /// Fields read besides the position.
+    pub read_fields: ReadFields,
+    /// USB adapter latency timer, µs.
+    pub usb_latency_us: u32,
+    /// Bus Watchdog, ms (0 = off).
+    pub watchdog_ms: u32,
+}
+
+/// What drives a servo, as written in the profile.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Drive {
+    /// A bone's DOF, e.g. `lhumerus.rz`.
+    Bone {
+        /// Bone name.
+        bone: String,
+        /// DOF.
+        dof: Dof,
+    },
+    /// A named robot joint.
+    Joint(String),
+}
+
+/// One servo as the profile gives it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ServoSpec {
+    /// Bus id (0…252).
+    pub id: u8,
+    /// Name (unique in the profile).
+    pub name: String,
+    /// Model.
+    pub model: &'static ServoModel,
+    /// What drives it.
+    pub drive: Drive,
+    /// +1 or −1.
+    pub direction: f64,
+    /// Tick at joint angle 0.
+    pub zero: f64,
+    /// Servo turns per joint turn.
+    pub gear: f64,
+    /// Lowest joint angle, degrees.
+    pub min_deg: f64,
+    /// Highest joint angle, degrees.
+    pub max_deg: f64,
+    /// Most joint degrees per second.
+    pub max_velocity_dps: f64,
+    /// Most joint degrees per second².
+    pub max_acceleration_dps2: f64,
+    /// Line of its `[[servo]]` entry.
+    pub line: u32,
+}
+
+impl ServoSpec {
+    /// The core's view of this servo, with the source resolved by the caller.
+    #[must_use]
+    pub fn map(&self, source: JointSource) -> ServoMap {
+        let mut m = ServoMap {
+            id: self.id,
+            model: self.model,
+            source,
+            direction: self.direction,
+            zero_tick: self.zero,
+            gear: self.gear,
+            min_tick: 0,
+            max_tick: 0,
+            max_velocity: 0.0,
+            max_acceleration: 0.0,
+        };
+        let a = m.angle_to_ticks_exact(self.min_deg.to_radians());
+        let b = m.angle_to_ticks_exact(self.max_deg.to_radians());
+        m.min_tick = libm::ceil(a.min(b)) as i32;
+        m.max_tick = libm::floor(a.max(b)) as i32;
+        let per_rad = m.ticks_per_radian().abs();
+        m.max_velocity = self.max_velocity_dps.to_radians() * per_rad;
+        m.max_acceleration = self.max_acceleration_dps2.to_radians() * per_rad;
+        m
+    }
+}
+
+/// A loaded, validated profile.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Profile {
+    /// The file it came from.
+    pub path: PathBuf,
+    /// The rig's name.
+    pub name: String,
+    /// The bus.
+    pub bus: BusConfig,
+    /// Bones whose servos follow another axis order than the ASF DOFs: name, order, line.
+    pub bone_orders: Vec<(String, EulerOrder, u32)>,
+    /// The servos in file order.
+    pub servos: Vec<ServoSpec>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawProfile {
+    rig: RawRig,
+    bus: Spanned<RawBus>,
+    #[serde(default)]
+    bone: Vec<Spanned<RawBone>>,
+    #[serde(default)]
+    servo: Vec<Spanned<RawServo>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRig {
+    name: String,
+    #[serde(default)]
+    #[allow(dead_code)]
+    description: Option<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawBus {
+    baud: Spanned<i64>,
+    #[serde(default)]
+    protocol: Option<Spanned<f64>>,
+    #[serde(default)]
+    return_delay_us: Option<Spanned<i64>>,
+    #[serde(default)]
+    read: Option<Spanned<String>>,
+    #[serde(default)]
+    read_fields: Option<Spanned<Vec<String>>>,
+    #[serde(default)]
+    usb_latency_us: Option<Spanned<i64>>,
+    #[serde(default)]
+    watchdog_ms: Option<Spanned<i64>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawBone {
+    name: Spanned<String>,
+    order: Spanned<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawServo {
+    id: Spanned<i64>,
+    name: Spanned<String>,
+    model: Spanned<String>,
+    #[serde(default)]
+    bone: Option<Spanned<String>>,
+    #[serde(default)]
+    joint: Option<Spanned<String>>,
+    #[serde(default)]
+    direction: Option<Spanned<i64>>,
+    #[serde(default)]
+    zero: Option<Spanned<f64>>,
+    #[serde(default)]
+    gear: Option<Spanned<f64>>,
+    min_deg: Spanned<f64>,
+    max_deg: Spanned<f64>,
+    max_velocity_dps: Spanned<f64>,
+    max_acceleration_dps2: Spanned<f64>,
+}
+
+/// Line and column (1-based) of a byte offset.
+fn line_col(text: &str, offset: usize) -> (u32, u32) {
+    let offset = offset.min(text.len());
+    let before = &text.as_bytes()[..offset];
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let col = offset - before.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1) + 1;
+    (line as u32, col as u32)
+}
+
+struct Checker<'t> {
+    text: &'t str,
+}
+
+impl Checker<'_> {
+    fn at<T>(&self, s: &Spanned<T>, message: impl Into<String>) -> TextError {
+        let (l, c) = line_col(self.text, s.span().start);
+        TextError::new(l, c, message)
+    }
+
+    fn line<T>(&self, s: &Spanned<T>) -> u32 {
+        line_col(self.text, s.span().start).0
+    }
+}
+
+impl Profile {
+    /// Reads and validates a profile file.
+    ///
+    /// # Errors
+    /// [`FileError`]: unreadable file, TOML syntax, unknown or missing keys, or a value that
+    /// fails validation, with the line and what was expected.
+    pub fn load(path: &Path) -> Result<Profile, FileError> {
+        let text = read_text(path)?;
+        Profile::parse(&text, path).map_err(|e| FileError::parse(path, e))
+    }
+
+    /// Parses and validates profile text; `path` is recorded as its origin.
+    ///
+    /// # Errors
+    /// [`TextError`] with the line of the offending entry.
+    pub fn parse(text: &str, path: &Path) -> Result<Profile, TextError> {
+        let raw: RawProfile = toml::from_str(text).map_err(|e| {
+            let (l, c) = e.span().map_or((0, 0), |s| line_col(text, s.start));
+            TextError::new(l, c, e.message().trim().to_string())
+        })?;
+        let ck = Checker { text };
+        let bus = check_bus(&ck, &raw.bus)?;
+        let mut bone_orders = Vec::new();
+        for b in &raw.bone {
+            let order = EulerOrder::parse(b.get_ref().order.get_ref())
+                .ok_or_else(|| ck.at(&b.get_ref().order, "expected an Euler order such as \"XYZ\" or \"ZXZ\""))?;
+            let name = b.get_ref().name.get_ref().clone();
+            if bone_orders.iter().any(|(n, _, _): &(String, EulerOrder, u32)| *n == name) {
+                return Err(ck.at(&b.get_ref().name, format!("bone `{name}` is listed twice")));
+            }
+            bone_orders.push((name, order, ck.line(b)));
+        }
+        if raw.servo.is_empty() {
+            return Err(TextError::new(0, 0, "the profile has no [[servo]] entries"));
+        }
+        if raw.servo.len() > MAX_SERVOS {
+            return Err(ck.at(&raw.servo[MAX_SERVOS], format!("more than {MAX_SERVOS} servos")));
+        }
+        let mut servos: Vec<ServoSpec> = Vec::new();
+        let mut ids: HashMap<u8, u32> = HashMap::new();
+        let mut names: HashMap<String, u32> = HashMap::new();
+        let mut drives: HashMap<String, u32> = HashMap::new();
+        for s in &raw.servo {
+            let spec = check_servo(&ck, s)?;
+            if spec.model.max_baud < bus.baud {
+                return Err(ck.at(
+                    &s.get_ref().model,
+                    format!("{} runs at most {} bit/s, the bus is set to {}", spec.model.name, spec.model.max_baud, bus.baud),
+                ));
+            }
+            if let Some(first) = ids.insert(spec.id, spec.line) {
+                return Err(ck.at(&s.get_ref().id, format!("duplicate id {} (first used on line {first})", spec.id)));
+            }
+            if let Some(first) = names.insert(spec.name.clone(), spec.line) {
+                return Err(ck.at(&s.get_ref().name, format!("duplicate servo name `{}` (line {first})", spec.name)));
+            }
+            let key = match &spec.drive {
+                Drive::Bone { bone, dof } => format!("{bone}.{}", dof.name()),
+                Drive::Joint(j) => format!("joint {j}"),
+            };
+            if let Some(first) = drives.insert(key.clone(), spec.line) {
+                let at = s.get_ref().bone.as_ref().or(s.get_ref().joint.as_ref()).map_or(ck.line(s), |x| ck.line(x));
+                return Err(TextError::new(at, 0, format!("`{key}` already drives the servo on line {first}")));
+            }
+            servos.push(spec);
+        }
+        Ok(Profile { path: path.to_path_buf(), name: raw.rig.name, bus, bone_orders, servos })
+    }
+
+    /// Names of the robot joints the profile drives, in servo order (the layout of the joint
+    /// vector passed to [`Rig::joint_angles`]).
+    #[must_use]
+    pub fn joint_names(&self) -> Vec<&str> {
+        self.servos
+            .iter()
+            .filter_map(|s| match &s.drive {
+                Drive::Joint(j) => Some(j.as_str()),
+                Drive::Bone { .. } => None,
+            })
+            .collect()
+    }
+
+    /// Servo ids in bus order.
+    #[must_use]
+    pub fn ids(&self) -> Vec<u8> {
+        self.servos.iter().map(|s| s.id).collect()
+    }
+
+    /// Resolves bone DOFs against a skeleton and builds the core's rig.
+    ///
+    /// # Errors
+    /// [`FileError`] at the servo's line: an unknown bone, a DOF the bone lacks, a bone drive
+    /// without a skeleton, a `[[bone]]` entry naming an unknown bone.
+    pub fn rig(&self, skeleton: Option<&Skeleton>) -> Result<Rig, FileError> {
+        let err = |line: u32, msg: String| FileError::parse(&self.path, TextError::new(line, 0, msg));
+        for (name, _, line) in &self.bone_orders {
+            if let Some(sk) = skeleton {
+                if sk.find(name).is_none() {
+                    return Err(err(*line, format!("unknown bone `{name}` in [[bone]]")));
+                }
+            }
+        }
+        let joints = self.joint_names();
+        let mut rig = Rig::default();
+        for s in &self.servos {
+            let source = match &s.drive {
+                Drive::Joint(j) => JointSource::Joint(joints.iter().position(|n| n == j).unwrap_or(0)),
+                Drive::Bone { bone, dof } => {
+                    let Some(sk) = skeleton else {
+                        return Err(err(s.line, format!("servo `{}` follows bone `{bone}`: an ASF skeleton is needed", s.name)));
+                    };
+                    let Some(b) = sk.find(bone) else {
+                        let known: Vec<&str> = sk.bones().iter().map(|b| b.name()).collect();
+                        return Err(err(s.line, format!("unknown bone `{bone}`; the skeleton has: {}", known.join(" "))));
+                    };
+                    let bone_ref = &sk.bones()[b];
+                    let order = self.bone_orders.iter().find(|(n, _, _)| n == bone).map(|(_, o, _)| *o);
+                    match order {
+                        Some(order) => {
+                            let axis = dof.axis().filter(|_| dof.is_rotation());
+                            let slot = order.axes().iter().position(|a| Some(*a) == axis);
+                            let Some(slot) = slot.filter(|_| !order.is_proper()) else {
+                                return Err(err(
+                                    s.line,
+                                    format!("`{bone}.{}` is not one of the three axes of the rig order {}", dof.name(), order.name()),
+                                ));
+                            };
+                            JointSource::Redecomposed { bone: b, order, slot }
+                        }
+                        None => {
+                            let Some(k) = bone_ref.dofs().iter().position(|d| d == dof) else {
+                                let has: Vec<&str> = bone_ref.dofs().iter().map(|d| d.name()).collect();
+                                return Err(err(
+                                    s.line,
+                                    format!("bone `{bone}` has no DOF `{}`; it has: {}", dof.name(), has.join(" ")),
+                                ));
+                            };
+                            if !dof.is_rotation() {
+                                return Err(err(s.line, format!("`{bone}.{}` is not a rotation", dof.name())));
+                            }
+                            JointSource::Channel(bone_ref.first_channel() + k)
+                        }
+                    }
+                }
+            };
+            // Capacity was checked on load.
+            let _ = rig.servos.push(s.map(source));
+        }
+        Ok(rig)
+    }
+}
+
+fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextError> {
+    let b = raw.get_ref();
+    let baud = *b.baud.get_ref();
+    let Some(baud) = u32::try_from(baud).ok().filter(|v| DYNAMIXEL_BAUDS.contains(v)) else {
+        return Err(ck.at(&b.baud, format!("expected a Dynamixel baud rate, one of {DYNAMIXEL_BAUDS:?}, found {baud}")));
+    };
+    if let Some(p) = &b.protocol {
+        if *p.get_ref() != 2.0 {
+            return Err(ck.at(p, "only Dynamixel Protocol 2.0 is supported (protocol = 2.0)"));
+        }
+    }
+    let return_delay_us = match &b.return_delay_us {
+        None => 0,
+        Some(v) => {
+            let x = *v.get_ref();
+            if !(0..=508).contains(&x) || x % 2 != 0 {
+                return Err(ck.at(v, format!("expected an even number of µs in 0…508, found {x}")));
+            }
+            x as u32
+        }
+    };
+    let read = match b.read.as_ref().map(|r| (r, r.get_ref().as_str())) {
+        None | Some((_, "sync")) => ReadMode::Sync,
+        Some((_, "bulk")) => ReadMode::Bulk,
+        Some((_, "fast-sync")) => ReadMode::FastSync,
+        Some((r, other)) => return Err(ck.at(r, format!("expected read = \"sync\", \"bulk\" or \"fast-sync\", found \"{other}\""))),
+    };
+    let mut read_fields = ReadFields::default();
+    if let Some(fields) = &b.read_fields {
+        for f in fields.get_ref() {
+            match f.as_str() {
+                "position" => {}
+                "velocity" => read_fields.velocity = true,
+                "current" => read_fields.current = true,
+                other => {
+                    return Err(ck.at(fields, format!("expected read fields among position, velocity, current; found `{other}`")))
+                }
+            }
+        }
+    }
+    let usb_latency_us = match &b.usb_latency_us {
+        None => 1000,
+        Some(v) => u32::try_from(*v.get_ref())
+            .ok()
+            .filter(|x| *x <= 255_000)
+            .ok_or_else(|| ck.at(v, "expected a latency in µs, 0…255000"))?,
+    };
+    let watchdog_ms = match &b.watchdog_ms {
+        None => 100,
+        Some(v) => {
+            let x = *v.get_ref();
+            if x != 0 && !(20..=2540).contains(&x) {
+                return Err(ck.at(v, format!("expected 0 (off) or 20…2540 ms (20 ms steps), found {x}")));
+            }
+            x as u32
+        }
+    };
+    Ok(BusConfig { baud, return_delay_us, read, read_fields, usb_latency_us, watchdog_ms })
+}
+
+fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, TextError> {
+    let s = raw.get_ref();
+    let id = *s.id.get_ref();
+    let Some(id) = u8::try_from(id).ok().filter(|i| *i <= 252) else {
+        return Err(ck.at(&s.id, format!("expected an id in 0…252, found {id}")));
+    };
+    let name = s.name.get_ref().trim().to_string();
+    if name.is_empty() {
+        return Err(ck.at(&s.name, "expected a non-empty servo name"));
+    }
+    let model = servo::model_by_name(s.model.get_ref()).ok_or_else(|| {
+        let known: Vec<&str> = servo::MODELS.iter().map(|m| m.name).collect();
+        ck.at(&s.model, format!("unknown servo model `{}`; known: {}", s.model.get_ref(), known.join(", ")))
+    })?;
+    let drive = match (&s.bone, &s.joint) {
+        (Some(b), None) => {
+            let (bone, dof) = b
+                .get_ref()
+                .rsplit_once('.')
+                .and_then(|(bone, d)| Some((bone, Dof::parse(d)?)))
+                .filter(|(bone, d)| !bone.is_empty() && d.is_rotation())
+                .ok_or_else(|| ck.at(b, format!("expected `bone.rx|ry|rz` such as `lhumerus.rz`, found `{}`", b.get_ref())))?;
+            Drive::Bone { bone: bone.to_string(), dof }
+        }
+        (None, Some(j)) if !j.get_ref().trim().is_empty() => Drive::Joint(j.get_ref().trim().to_string()),
+        (Some(_), Some(j)) => return Err(ck.at(j, "give either `bone` or `joint`, not both")),
+        _ => return Err(ck.at(raw, format!("servo `{name}` needs `bone = \"<bone>.<dof>\"` or `joint = \"<name>\"`"))),
+    };
+    let direction = match &s.direction {
+        None => 1.0,
+        Some(d) if *d.get_ref() == 1 || *d.get_ref() == -1 => *d.get_ref() as f64,
+        Some(d) => return Err(ck.at(d, format!("expected direction 1 or -1, found {}", d.get_ref()))),
+    };
+    let zero = match &s.zero {
+        None => 2048.0,
+        Some(z) if (0.0..=f64::from(MAX_TICK)).contains(z.get_ref()) => *z.get_ref(),
+        Some(z) => return Err(ck.at(z, format!("expected a zero tick in 0…{MAX_TICK}, found {}", z.get_ref()))),
+    };
+    let gear = match &s.gear {
+        None => 1.0,
+        Some(g) if g.get_ref().is_finite() && *g.get_ref() > 0.0 && *g.get_ref() <= 100.0 => *g.get_ref(),
+        Some(g) => return Err(ck.at(g, format!("expected a gear ratio in (0, 100], found {}", g.get_ref()))),
+    };
+    let (lo, hi) = (*s.min_deg.get_ref(), *s.max_deg.get_ref());
+    if !lo.is_finite() {
+        return Err(ck.at(&s.min_deg, "expected a finite angle"));
+    }
+    if !hi.is_finite() || hi <= lo {
+        return Err(ck.at(&s.max_deg, format!("expected max_deg > min_deg ({lo}), found {hi}")));
+    }
+    for (v, what) in [(&s.max_velocity_dps, "velocity"), (&s.max_acceleration_dps2, "acceleration")] {
+        let x = *v.get_ref();
+        if !(x.is_finite() && x > 0.0) {
+            return Err(ck.at(v, format!("expected a positive max {what}, found {x}")));
+        }
+    }
+    let spec = ServoSpec {
+        id,
+        name,
+        model,
+        drive,
+        direction,
+        zero,
+        gear,
+        min_deg: lo,
+        max_deg: hi,
+        max_velocity_dps: *s.max_velocity_dps.get_ref(),
+        max_acceleration_dps2: *s.max_acceleration_dps2.get_ref(),
+        line: ck.line(raw),
+    };
+    // The software limits must map inside the servo's own range.
+    let probe = spec.map(JointSource::Joint(0));
+    for (v, deg) in [(&s.min_deg, lo), (&s.max_deg, hi)] {
+        let t = probe.angle_to_ticks_exact(deg.to_radians());
+        if !(0.0..=f64::from(MAX_TICK)).contains(&t) {
+            return Err(ck.at(
+                v,
+                format!("limit {deg}° maps to tick {t:.0}, outside the servo's range 0…{MAX_TICK} (zero {zero}, gear {gear})"),
+            ));
+        }
+    }
+    let top = model.max_speed_rad_s().to_degrees() / gear;
+    if spec.max_velocity_dps > top {
+        return Err(ck.at(
+            &s.max_velocity_dps,
+            format!("{} reaches at most {top:.0} joint °/s at gear {gear}, found {}", model.name, spec.max_velocity_dps),
+        ));
+    }
+    Ok(spec)
+}

@@ -1,0 +1,177 @@
+//! A rig: which joint angle drives which servo, and how angles become ticks.
+//!
+//! A servo is driven by one of three sources: a skeleton channel (an AMC DOF such as
+//! `lhumerus.rz`), one angle of a bone's local rotation re-decomposed into the rig's own Euler
+//! order (help note §II, the YXZ→XYZ conversion, for any pair of the 12 orders), or a named
+//! robot joint (an index into a joint-angle vector). Angles are radians throughout.
+
+use glam::DMat3;
+
+use crate::interp::euler_near;
+use crate::math::EulerOrder;
+use crate::servo::{ServoModel, TICKS_PER_TURN};
+use crate::skeleton::{Dof, Skeleton};
+
+/// Most servos in one rig.
+pub const MAX_SERVOS: usize = 64;
+
+/// What drives a servo.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum JointSource {
+    /// A skeleton channel (index into the frame vector).
+    Channel(usize),
+    /// Angle `slot` (0, 1 or 2) of bone `bone`'s local rotation written in `order`.
+    Redecomposed {
+        /// Bone index in the skeleton.
+        bone: usize,
+        /// The rig's axis order for this bone.
+        order: EulerOrder,
+        /// Which of the three angles.
+        slot: usize,
+    },
+    /// Index into a robot's joint-angle vector.
+    Joint(usize),
+}
+
+/// One servo of a rig, in the core's terms.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ServoMap {
+    /// Bus id.
+    pub id: u8,
+    /// The servo model.
+    pub model: &'static ServoModel,
+    /// What drives it.
+    pub source: JointSource,
+    /// +1 or −1: whether a positive joint angle turns the horn the positive way.
+    pub direction: f64,
+    /// The tick that stands for joint angle 0.
+    pub zero_tick: f64,
+    /// Servo turns per joint turn (belts, linkages).
+    pub gear: f64,
+    /// Lowest allowed tick (software limit, inside the servo's range).
+    pub min_tick: i32,
+    /// Highest allowed tick.
+    pub max_tick: i32,
+    /// Most ticks per second the command may move.
+    pub max_velocity: f64,
+    /// Most ticks per second² the command may accelerate.
+    pub max_acceleration: f64,
+}
+
+impl ServoMap {
+    /// Ticks per radian of joint angle, signed by the direction.
+    #[must_use]
+    pub fn ticks_per_radian(&self) -> f64 {
+        self.direction * self.gear * f64::from(TICKS_PER_TURN) / core::f64::consts::TAU
+    }
+
+    /// The exact (unrounded) tick for a joint angle.
+    #[must_use]
+    pub fn angle_to_ticks_exact(&self, angle: f64) -> f64 {
+        self.zero_tick + angle * self.ticks_per_radian()
+    }
+
+    /// The nearest whole tick for a joint angle (saturating at the i32 range; NaN gives 0 —
+    /// the command stage rejects non-finite angles before this is used on a bus).
+    #[must_use]
+    pub fn angle_to_ticks(&self, angle: f64) -> i32 {
+        libm::round(self.angle_to_ticks_exact(angle)) as i32
+    }
+
+    /// The joint angle of a tick.
+    #[must_use]
+    pub fn ticks_to_angle(&self, ticks: f64) -> f64 {
+        (ticks - self.zero_tick) / self.ticks_per_radian()
+    }
+}
+
+/// A rig's servos over a skeleton (or a robot's joint vector).
+#[derive(Clone, Debug, Default)]
+pub struct Rig {
+    /// The servos in bus order.
+    pub servos: heapless::Vec<ServoMap, MAX_SERVOS>,
+}
+
+impl Rig {
+    /// Number of servos.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.servos.len()
+    }
+
+    /// True when the rig has no servos.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.servos.is_empty()
+    }
+
+    /// Joint angles (radians) for every servo from a skeleton frame vector (rotations in
+    /// radians) and an optional robot joint vector.
+    ///
+    /// `angles` holds the previous angles on entry: re-decomposed angles are chosen next to
+    /// them (of the two Euler solutions and their 2π turns), so a stream stays continuous.
+    /// Sources that index past `channels` or `joints` give NaN, which the command stage
+    /// rejects.
+    pub fn joint_angles(&self, skeleton: &Skeleton, channels: &[f64], joints: &[f64], angles: &mut [f64]) {
+        // Servos on the same bone and order share one decomposition, computed when the first
+        // of them is met (while the others still hold their previous angles).
+        let mut solved: heapless::Vec<(usize, EulerOrder, [f64; 3]), MAX_SERVOS> = heapless::Vec::new();
+        for k in 0..self.servos.len().min(angles.len()) {
+            angles[k] = match self.servos[k].source {
+                JointSource::Channel(c) => channels.get(c).copied().unwrap_or(f64::NAN),
+                JointSource::Joint(j) => joints.get(j).copied().unwrap_or(f64::NAN),
+                JointSource::Redecomposed { bone, order, slot } => {
+                    if let Some((_, _, a)) = solved.iter().find(|(b, o, _)| *b == bone && *o == order) {
+                        a[slot]
+                    } else if let Some(m) = bone_rotation(skeleton, bone, channels) {
+                        let mut reference = [0.0; 3];
+                        for (servo, prev) in self.servos.iter().zip(angles.iter()).skip(k) {
+                            if let JointSource::Redecomposed { bone: b, order: o, slot: s } = servo.source {
+                                if b == bone && o == order && prev.is_finite() {
+                                    reference[s] = *prev;
+                                }
+                            }
+                        }
+                        let a = euler_near(order, &m, reference);
+                        // Capacity equals MAX_SERVOS, so this never fails.
+                        let _ = solved.push((bone, order, a));
+                        a[slot]
+                    } else {
+                        f64::NAN
+                    }
+                }
+            };
+        }
+    }
+}
+
+/// A bone's local rotation `M = R(last)·…·R(first)` from its rotation channels (radians), or
+/// `None` when the frame is too short.
+#[must_use]
+pub fn bone_rotation(skeleton: &Skeleton, bone: usize, channels: &[f64]) -> Option<DMat3> {
+    let b = skeleton.bones().get(bone)?;
+    let mut m = DMat3::IDENTITY;
+    for (d, c) in b.dofs().iter().zip(b.channels()) {
+        if let (true, Some(axis)) = (d.is_rotation(), d.axis()) {
+            m = axis.rotation_f64(*channels.get(c)?) * m;
+        }
+    }
+    Some(m)
+}
+
+/// Re-writes angles given in `from` order as angles in `to` order (the same rotation), the
+/// solution nearest `reference`. Help note §II's YXZ→XYZ conversion, for any two orders.
+#[must_use]
+pub fn redecompose(from: EulerOrder, angles: [f64; 3], to: EulerOrder, reference: [f64; 3]) -> [f64; 3] {
+    euler_near(to, &from.to_mat3_f64(angles), reference)
+}
+
+/// The bone's rotation DOFs as an Euler order, when it has all three.
+#[must_use]
+pub fn dof_order(dofs: &[Dof]) -> Option<EulerOrder> {
+    let mut axes = heapless::Vec::<_, 3>::new();
+    for d in dofs.iter().filter(|d| d.is_rotation()) {
+        axes.push(d.axis()?).ok()?;
+    }
+    EulerOrder::from_axes(axes.into_array().ok()?)
+}

@@ -1,0 +1,141 @@
+//! Dynamixel X-series servo models and their control table (ROBOTIS e-manual figures).
+//!
+//! All four supported models share the X-series control-table layout; they differ in model
+//! number, top baud rate and speed. Positions are 4096 ticks per turn, 0…4095 in position mode.
+
+/// Control-table addresses of the X series (`EEPROM` below 64, `RAM` from 64).
+pub mod addr {
+    /// Model number, 2 bytes (EEPROM, read-only).
+    pub const MODEL_NUMBER: u16 = 0;
+    /// Firmware version, 1 byte.
+    pub const FIRMWARE_VERSION: u16 = 6;
+    /// Id, 1 byte.
+    pub const ID: u16 = 7;
+    /// Baud rate index, 1 byte.
+    pub const BAUD_RATE: u16 = 8;
+    /// Return delay time, 1 byte, 2 µs units (default 250 = 500 µs).
+    pub const RETURN_DELAY_TIME: u16 = 9;
+    /// Operating mode, 1 byte (3 = position control).
+    pub const OPERATING_MODE: u16 = 11;
+    /// Velocity limit, 4 bytes, 0.229 rpm units.
+    pub const VELOCITY_LIMIT: u16 = 44;
+    /// Maximum position limit, 4 bytes.
+    pub const MAX_POSITION_LIMIT: u16 = 48;
+    /// Minimum position limit, 4 bytes.
+    pub const MIN_POSITION_LIMIT: u16 = 52;
+    /// Shutdown conditions, 1 byte (bits of the hardware error status).
+    pub const SHUTDOWN: u16 = 63;
+    /// Torque enable, 1 byte (RAM). EEPROM is locked while it is 1.
+    pub const TORQUE_ENABLE: u16 = 64;
+    /// Status return level, 1 byte (0 ping only, 1 ping + read, 2 all).
+    pub const STATUS_RETURN_LEVEL: u16 = 68;
+    /// Hardware error status, 1 byte.
+    pub const HARDWARE_ERROR_STATUS: u16 = 70;
+    /// Bus watchdog, 1 byte, 20 ms units (1…127; 0 off; reads −1 after expiry).
+    pub const BUS_WATCHDOG: u16 = 98;
+    /// Profile acceleration, 4 bytes, 214.577 rev/min² units.
+    pub const PROFILE_ACCELERATION: u16 = 108;
+    /// Profile velocity, 4 bytes, 0.229 rpm units (0 = unlimited).
+    pub const PROFILE_VELOCITY: u16 = 112;
+    /// Goal position, 4 bytes.
+    pub const GOAL_POSITION: u16 = 116;
+    /// Moving, 1 byte.
+    pub const MOVING: u16 = 122;
+    /// Present current, 2 bytes (signed).
+    pub const PRESENT_CURRENT: u16 = 126;
+    /// Present velocity, 4 bytes (signed), 0.229 rpm units.
+    pub const PRESENT_VELOCITY: u16 = 128;
+    /// Present position, 4 bytes (signed).
+    pub const PRESENT_POSITION: u16 = 132;
+    /// Present input voltage, 2 bytes, 0.1 V units.
+    pub const PRESENT_INPUT_VOLTAGE: u16 = 144;
+    /// Present temperature, 1 byte, °C.
+    pub const PRESENT_TEMPERATURE: u16 = 146;
+}
+
+/// Bits of the hardware error status (address 70).
+pub mod hardware_error {
+    /// Input voltage out of range.
+    pub const INPUT_VOLTAGE: u8 = 1 << 0;
+    /// Overheating.
+    pub const OVERHEATING: u8 = 1 << 2;
+    /// Motor encoder fault.
+    pub const ENCODER: u8 = 1 << 3;
+    /// Electrical shock / insufficient power.
+    pub const ELECTRICAL_SHOCK: u8 = 1 << 4;
+    /// Persistent overload.
+    pub const OVERLOAD: u8 = 1 << 5;
+}
+
+/// Error numbers of a status packet's error byte (bit 7 is the hardware-alert flag).
+pub mod status_error {
+    /// The instruction failed.
+    pub const RESULT_FAIL: u8 = 1;
+    /// Undefined instruction.
+    pub const INSTRUCTION: u8 = 2;
+    /// CRC mismatch in the instruction.
+    pub const CRC: u8 = 3;
+    /// Value out of range.
+    pub const DATA_RANGE: u8 = 4;
+    /// Wrong data length.
+    pub const DATA_LENGTH: u8 = 5;
+    /// Value beyond a limit.
+    pub const DATA_LIMIT: u8 = 6;
+    /// Write to a read-only or locked address (EEPROM with torque on, watchdog expired).
+    pub const ACCESS: u8 = 7;
+    /// The hardware-alert flag: read the hardware error status.
+    pub const ALERT: u8 = 0x80;
+}
+
+/// Ticks per output-shaft turn.
+pub const TICKS_PER_TURN: u32 = 4096;
+/// Highest position in position-control mode.
+pub const MAX_TICK: i32 = 4095;
+/// rpm per unit of velocity registers (Profile Velocity, Present Velocity, Velocity Limit).
+pub const RPM_PER_VELOCITY_UNIT: f64 = 0.229;
+/// rev/min² per unit of Profile Acceleration.
+pub const RPM2_PER_ACCELERATION_UNIT: f64 = 214.577;
+
+/// A supported servo model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ServoModel {
+    /// Catalogue name, e.g. `XM430-W350`.
+    pub name: &'static str,
+    /// Model number in the control table (address 0).
+    pub model_number: u16,
+    /// Highest baud rate, bit/s.
+    pub max_baud: u32,
+    /// No-load speed at the recommended voltage, rev/min.
+    pub no_load_rpm: f64,
+    /// Stall torque at the recommended voltage, N·m.
+    pub stall_torque_nm: f64,
+}
+
+impl ServoModel {
+    /// No-load speed in radians per second.
+    #[must_use]
+    pub fn max_speed_rad_s(&self) -> f64 {
+        self.no_load_rpm * core::f64::consts::TAU / 60.0
+    }
+}
+
+/// The models this release knows.
+pub const MODELS: [ServoModel; 4] = [
+    ServoModel { name: "XL330-M288", model_number: 1200, max_baud: 4_000_000, no_load_rpm: 103.0, stall_torque_nm: 0.52 },
+    ServoModel { name: "XL430-W250", model_number: 1060, max_baud: 4_500_000, no_load_rpm: 57.0, stall_torque_nm: 1.4 },
+    ServoModel { name: "XM430-W350", model_number: 1020, max_baud: 4_500_000, no_load_rpm: 46.0, stall_torque_nm: 4.1 },
+    ServoModel { name: "XH540-W270", model_number: 1110, max_baud: 4_500_000, no_load_rpm: 30.0, stall_torque_nm: 10.6 },
+];
+
+/// The model with this catalogue name (case-insensitive; a `-T`/`-R` suffix is ignored).
+#[must_use]
+pub fn model_by_name(name: &str) -> Option<&'static ServoModel> {
+    let base = name.strip_suffix("-T").or_else(|| name.strip_suffix("-R")).unwrap_or(name);
+    MODELS.iter().find(|m| m.name.eq_ignore_ascii_case(base))
+}
+
+/// The model with this model number.
+#[must_use]
+pub fn model_by_number(number: u16) -> Option<&'static ServoModel> {
+    MODELS.iter().find(|m| m.model_number == number)
+}
