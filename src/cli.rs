@@ -24,6 +24,39 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Check a rig profile (TOML) and list its servos; with --asf, its bones too.
+    Profile {
+        /// The profile, e.g. firmware-profile/cmu-puppet.toml.
+        profile: PathBuf,
+        /// The skeleton the profile's bones refer to.
+        #[arg(long)]
+        asf: Option<PathBuf>,
+    },
+    /// Bus time per control cycle for a profile, and the highest loop rate it allows.
+    Budget {
+        /// The profile.
+        profile: PathBuf,
+        /// A loop rate to check, Hz.
+        #[arg(long)]
+        rate: Option<f64>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// List serial adapters (USB VID/PID, U2D2/FTDI, latency timer).
+    Ports,
+    /// Ping every id on a bus: ids, models, firmware, hardware error status.
+    Scan {
+        /// Serial port, e.g. /dev/ttyUSB0.
+        #[arg(long, conflicts_with = "virtual")]
+        port: Option<String>,
+        /// Baud rate of --port.
+        #[arg(long, default_value_t = 57_600)]
+        baud: u32,
+        /// Scan a virtual chain built from this profile (served on a pseudo-terminal).
+        #[arg(long = "virtual", value_name = "PROFILE")]
+        r#virtual: Option<PathBuf>,
+    },
     /// Describe a skeleton (ASF or BVH) and, given one, a motion: bones, DOFs, limits, frames.
     Info {
         /// Skeleton: an .asf file, or a .bvh file (skeleton and motion).
@@ -246,6 +279,12 @@ pub enum CliError {
 /// [`CliError`], to be printed on one line.
 pub fn run(cli: Cli) -> Result<(), CliError> {
     let result = match cli.command {
+        Command::Profile { profile, asf } => crate::rig_cli::profile_cmd(&profile, asf.as_deref(), &mut io::stdout().lock()),
+        Command::Budget { profile, rate, json } => crate::rig_cli::budget_cmd(&profile, rate, json, &mut io::stdout().lock()),
+        Command::Ports => crate::rig_cli::ports_cmd(&mut io::stdout().lock()),
+        Command::Scan { port, baud, r#virtual } => {
+            crate::rig_cli::scan_cmd(port.as_deref(), baud, r#virtual.as_deref(), &mut io::stdout().lock())
+        }
         Command::Info {
             skeleton,
             amc,

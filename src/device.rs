@@ -38,6 +38,7 @@ pub struct VirtualServo {
     watchdog_expired: bool,
     torque_jumps: u32,
     write_count: u32,
+    velocity_report: Option<i32>,
 }
 
 impl VirtualServo {
@@ -53,6 +54,7 @@ impl VirtualServo {
             watchdog_expired: false,
             torque_jumps: 0,
             write_count: 0,
+            velocity_report: None,
         };
         s.factory_defaults(id);
         s
@@ -185,6 +187,13 @@ impl VirtualServo {
         self.refresh_present();
     }
 
+    /// Makes Present Velocity read `units` whatever the motion (`None`: the real value) — a
+    /// fixture for reply contents such as `FF FF FF FF` (−1).
+    pub fn force_present_velocity(&mut self, units: Option<i32>) {
+        self.velocity_report = units;
+        self.refresh_present();
+    }
+
     /// The status packet's error byte: the alert flag when a hardware error is present.
     fn alert(&self) -> u8 {
         if self.hardware_error() != 0 {
@@ -197,7 +206,7 @@ impl VirtualServo {
     fn refresh_present(&mut self) {
         let p = self.present_tick();
         self.put(addr::PRESENT_POSITION, 4, p as u32);
-        let v = libm::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32;
+        let v = self.velocity_report.unwrap_or(libm::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32);
         self.put(addr::PRESENT_VELOCITY, 4, v as u32);
         self.put(addr::MOVING, 1, u32::from(self.velocity != 0.0));
         self.put(addr::PRESENT_INPUT_VOLTAGE, 2, 120);

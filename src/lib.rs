@@ -52,3 +52,5 @@ pub mod profile;
 pub mod budget;
 #[cfg(feature = "std")]
 pub mod bus;
+#[cfg(feature = "std")]
+pub mod rig_cli;

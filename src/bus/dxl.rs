@@ -36,7 +36,7 @@ impl Dynamixel2Bus {
     /// The port cannot be opened or configured.
     pub fn open(path: &str, baud: u32) -> io::Result<Dynamixel2Bus> {
         let bus = dynamixel2::Bus::open_with_buffers(path, baud, vec![0; BUFFER], vec![0; BUFFER])?;
-        Ok(Dynamixel2Bus { bus, quiet: Duration::from_millis(5) })
+        Ok(Dynamixel2Bus { bus, quiet: Duration::from_millis(10) })
     }
 
     /// The underlying `dynamixel2` bus.

@@ -123,6 +123,8 @@ pub struct FaultInjector {
     kinds: Vec<Fault>,
     delay_us: u32,
     previous: Vec<u8>,
+    armed: Option<(Fault, usize)>,
+    reply_index: usize,
     /// Faults applied so far, by kind (index of [`Fault::ALL`]).
     pub counts: [u64; 8],
 }
@@ -132,7 +134,7 @@ impl FaultInjector {
     /// back `delay_us`.
     #[must_use]
     pub fn new(seed: u64, rate: f64, kinds: &[Fault], delay_us: u32) -> FaultInjector {
-        FaultInjector { rng: Rng::new(seed), rate, kinds: kinds.to_vec(), delay_us, previous: Vec::new(), counts: [0; 8] }
+        FaultInjector { rng: Rng::new(seed), rate, kinds: kinds.to_vec(), delay_us, previous: Vec::new(), armed: None, reply_index: 0, counts: [0; 8] }
     }
 
     /// Total faults applied.
@@ -141,14 +143,27 @@ impl FaultInjector {
         self.counts.iter().sum()
     }
 
+    /// Applies `fault` to reply number `at` (0-based) of the next burst, once, whatever the
+    /// rate: one known fault per transaction, for tests that check how each is reported.
+    pub fn arm(&mut self, fault: Fault, at: usize) {
+        self.armed = Some((fault, at));
+    }
+
     /// Decides the fate of one reply; `last` is true for the last reply of a burst.
     pub fn apply(&mut self, reply: &[u8], last: bool) -> Injected {
         let mut out = Injected { bytes: reply.to_vec(), ..Injected::default() };
         let stale = std::mem::replace(&mut self.previous, reply.to_vec());
-        if self.kinds.is_empty() || !self.rng.chance(self.rate) {
-            return out;
-        }
-        let mut fault = self.kinds[self.rng.below(self.kinds.len() as u64) as usize];
+        let index = self.reply_index;
+        self.reply_index = if last { 0 } else { index + 1 };
+        let mut fault = match self.armed {
+            Some((f, at)) if at == index || (last && at > index) => {
+                self.armed = None;
+                f
+            }
+            Some(_) => return out,
+            None if self.kinds.is_empty() || !self.rng.chance(self.rate) => return out,
+            None => self.kinds[self.rng.below(self.kinds.len() as u64) as usize],
+        };
         // Faults that only make sense at one place in a burst fall back to a plain drop.
         if (fault == Fault::DuplicateId && last) || (fault == Fault::Truncate && !last) {
             fault = Fault::Drop;

@@ -59,7 +59,7 @@ impl<T: Transport> PacketBus<T> {
             tx: [0; MAX_PACKET],
             params: [0; MAX_PACKET],
             margin,
-            quiet: margin,
+            quiet: 2 * margin,
         }
     }
 
@@ -236,6 +236,9 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         p[4..4 + ids.len()].copy_from_slice(ids);
         self.send(BROADCAST_ID, instruction::SYNC_READ, &p[..4 + ids.len()])?;
         let len = usize::from(len);
+        if ids.len() * len > MAX_PACKET || out.len() < ids.len() * len {
+            return Err(BusError::Io(io::Error::new(io::ErrorKind::InvalidInput, "sync read too large")));
+        }
         // Collect into a scratch copy: `out` is written only when every reply passed.
         let mut scratch = [0u8; MAX_PACKET];
         for (k, &id) in ids.iter().enumerate() {

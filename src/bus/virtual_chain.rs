@@ -179,6 +179,7 @@ impl Transport for InProcess {
 pub struct PtyChain {
     path: String,
     chain: Arc<Mutex<Chain>>,
+    injector: Arc<Mutex<Option<FaultInjector>>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
     _client_end: serialport::TTYPort,
@@ -200,21 +201,28 @@ impl PtyChain {
         let path = serialport::SerialPort::name(&client_end).ok_or_else(|| io::Error::other("pseudo-terminal without a name"))?;
         serialport::SerialPort::set_timeout(&mut device_end, Duration::from_millis(1)).map_err(io::Error::other)?;
         let chain = Arc::new(Mutex::new(chain));
+        let injector = Arc::new(Mutex::new(injector));
         let stop = Arc::new(AtomicBool::new(false));
         let thread = {
             let chain = Arc::clone(&chain);
+            let injector = Arc::clone(&injector);
             let stop = Arc::clone(&stop);
             std::thread::Builder::new()
                 .name("virtual-chain".into())
-                .spawn(move || serve_loop(&mut device_end, &chain, &stop, injector))?
+                .spawn(move || serve_loop(&mut device_end, &chain, &stop, &injector))?
         };
-        Ok(PtyChain { path, chain, stop, thread: Some(thread), _client_end: client_end })
+        Ok(PtyChain { path, chain, injector, stop, thread: Some(thread), _client_end: client_end })
     }
 
     /// The device path clients open.
     #[must_use]
     pub fn path(&self) -> &str {
         &self.path
+    }
+
+    /// The fault injector (locked; keep the guard short).
+    pub fn injector(&self) -> MutexGuard<'_, Option<FaultInjector>> {
+        self.injector.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// The chain (locked; keep the guard short).
@@ -235,7 +243,7 @@ impl Drop for PtyChain {
     }
 }
 
-fn serve_loop(port: &mut serialport::TTYPort, chain: &Mutex<Chain>, stop: &AtomicBool, mut injector: Option<FaultInjector>) {
+fn serve_loop(port: &mut serialport::TTYPort, chain: &Mutex<Chain>, stop: &AtomicBool, injector: &Mutex<Option<FaultInjector>>) {
     let mut rx = Receiver::default();
     let mut out = vec![0u8; 8 * MAX_PACKET];
     let mut replies = Replies::new();
@@ -252,12 +260,14 @@ fn serve_loop(port: &mut serialport::TTYPort, chain: &Mutex<Chain>, stop: &Atomi
         chain.step((now - last).as_secs_f64());
         last = now;
         let mut sends: Vec<(Duration, Vec<u8>)> = Vec::new();
+        let mut inj = injector.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         while let Received::Packet(raw) = rx.next_packet() {
             let n = raw.len();
             let packet = raw.to_vec();
             rx.consume(n);
-            respond(&mut chain, &packet, injector.as_mut(), &mut out, &mut replies, |d, b| sends.push((d, b.to_vec())));
+            respond(&mut chain, &packet, inj.as_mut(), &mut out, &mut replies, |d, b| sends.push((d, b.to_vec())));
         }
+        drop(inj);
         drop(chain);
         for (delay, bytes) in sends {
             if delay >= Duration::from_micros(50) {

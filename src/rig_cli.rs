@@ -1,0 +1,143 @@
+//! The rig and bus commands: `profile`, `budget`, `ports`, `scan`.
+
+use std::io::Write;
+use std::path::Path;
+
+use crate::budget::plan;
+use crate::bus::dxl::Dynamixel2Bus;
+use crate::bus::virtual_chain::{chain_for, PtyChain};
+use crate::bus::{PingInfo, ServoBus};
+use crate::cli::CliError;
+use crate::formats::asf;
+use crate::profile::{Drive, Profile};
+use crate::rig::JointSource;
+
+/// `marionette profile`: validate a profile (against a skeleton when given) and list it.
+pub fn profile_cmd(path: &Path, asf_path: Option<&Path>, out: &mut dyn Write) -> Result<(), CliError> {
+    let profile = Profile::load(path)?;
+    let skeleton = asf_path.map(asf::load).transpose()?;
+    let rig = profile.rig(skeleton.as_ref().map(|a| &a.skeleton))?;
+    let b = &profile.bus;
+    writeln!(out, "{} — {} servos", profile.name, profile.servos.len())?;
+    writeln!(
+        out,
+        "bus: {} bit/s, return delay {} µs, {:?} read, USB latency {} µs, watchdog {} ms",
+        b.baud, b.return_delay_us, b.read, b.usb_latency_us, b.watchdog_ms
+    )?;
+    writeln!(out, "{:>3}  {:<16} {:<11} {:<16} {:>4} {:>7} {:>7} {:>6} {:>8}", "id", "name", "model", "drive", "dir", "min", "max", "°/s", "source")?;
+    for (s, m) in profile.servos.iter().zip(&rig.servos) {
+        let drive = match &s.drive {
+            Drive::Bone { bone, dof } => format!("{bone}.{}", dof.name()),
+            Drive::Joint(j) => j.clone(),
+        };
+        let source = match m.source {
+            JointSource::Channel(c) => format!("ch {c}"),
+            JointSource::Joint(j) => format!("joint {j}"),
+            JointSource::Redecomposed { order, slot, .. } => format!("{}[{slot}]", order.name()),
+        };
+        writeln!(
+            out,
+            "{:>3}  {:<16} {:<11} {:<16} {:>4} {:>7} {:>7} {:>6} {:>8}",
+            s.id, s.name, s.model.name, drive, s.direction, m.min_tick, m.max_tick, s.max_velocity_dps, source
+        )?;
+    }
+    if skeleton.is_none() && profile.servos.iter().any(|s| matches!(s.drive, Drive::Bone { .. })) {
+        writeln!(out, "(bones not checked: give --asf to check them against a skeleton)")?;
+    }
+    Ok(())
+}
+
+/// `marionette budget`.
+pub fn budget_cmd(path: &Path, rate: Option<f64>, json: bool, out: &mut dyn Write) -> Result<(), CliError> {
+    let profile = Profile::load(path)?;
+    if let Some(r) = rate {
+        if !(r.is_finite() && r > 0.0) {
+            return Err(CliError::Usage(format!("--rate must be a positive number of Hz, got {r}")));
+        }
+    }
+    let budget = plan(&profile.bus, profile.servos.len(), rate);
+    if json {
+        let text = serde_json::to_string_pretty(&budget).map_err(|e| CliError::Usage(e.to_string()))?;
+        writeln!(out, "{text}")?;
+    } else {
+        write!(out, "{}: {budget}", profile.name)?;
+    }
+    Ok(())
+}
+
+/// USB vendor id of FTDI (the U2D2 and most Dynamixel adapters).
+const FTDI_VID: u16 = 0x0403;
+/// FT232H, the chip of the ROBOTIS U2D2.
+const U2D2_PID: u16 = 0x6014;
+
+/// The latency timer (ms) of a Linux USB serial port, if the kernel exposes it.
+#[must_use]
+pub fn latency_timer_ms(port: &str) -> Option<u32> {
+    let name = Path::new(port).file_name()?.to_str()?;
+    let text = std::fs::read_to_string(format!("/sys/bus/usb-serial/devices/{name}/latency_timer")).ok()?;
+    text.trim().parse().ok()
+}
+
+/// `marionette ports`.
+pub fn ports_cmd(out: &mut dyn Write) -> Result<(), CliError> {
+    let ports = serialport::available_ports().map_err(|e| CliError::Usage(format!("listing serial ports: {e}")))?;
+    if ports.is_empty() {
+        writeln!(out, "no serial ports found (try `marionette scan --virtual <PROFILE>` to run without hardware)")?;
+    }
+    for p in ports {
+        match p.port_type {
+            serialport::SerialPortType::UsbPort(u) => {
+                let mark = match (u.vid, u.pid) {
+                    (FTDI_VID, U2D2_PID) => "  [U2D2 / FTDI FT232H]",
+                    (FTDI_VID, _) => "  [FTDI]",
+                    _ => "",
+                };
+                let product = u.product.unwrap_or_default();
+                let maker = u.manufacturer.unwrap_or_default();
+                write!(out, "{}  USB {:04x}:{:04x} {maker} {product}{mark}", p.port_name, u.vid, u.pid)?;
+                match latency_timer_ms(&p.port_name) {
+                    Some(ms) if ms > 1 => writeln!(
+                        out,
+                        "\n  warning: latency timer {ms} ms caps the loop near {} Hz; \
+                         `echo 1 | sudo tee /sys/bus/usb-serial/devices/{}/latency_timer`",
+                        1000 / ms.max(1),
+                        Path::new(&p.port_name).file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned())
+                    )?,
+                    Some(ms) => writeln!(out, "  latency timer {ms} ms")?,
+                    None => writeln!(out)?,
+                }
+            }
+            serialport::SerialPortType::PciPort => writeln!(out, "{}  PCI", p.port_name)?,
+            serialport::SerialPortType::BluetoothPort => writeln!(out, "{}  Bluetooth", p.port_name)?,
+            serialport::SerialPortType::Unknown => writeln!(out, "{}", p.port_name)?,
+        }
+    }
+    Ok(())
+}
+
+/// `marionette scan`: over a port, or over a virtual chain for a profile served on a
+/// pseudo-terminal (so the same `dynamixel2` path is used).
+pub fn scan_cmd(port: Option<&str>, baud: u32, virtual_profile: Option<&Path>, out: &mut dyn Write) -> Result<(), CliError> {
+    let (_served, path, baud) = match (port, virtual_profile) {
+        (Some(p), None) => (None, p.to_string(), baud),
+        (None, Some(prof)) => {
+            let profile = Profile::load(prof)?;
+            let pty = PtyChain::serve(chain_for(&profile, |_| 2048), None).map_err(CliError::Output)?;
+            let path = pty.path().to_string();
+            (Some(pty), path, profile.bus.baud)
+        }
+        _ => return Err(CliError::Usage("give either --port <PATH> or --virtual <PROFILE>".into())),
+    };
+    let mut bus = Dynamixel2Bus::open(&path, baud).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+    let found = bus.scan().map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+    writeln!(out, "{path} at {baud} bit/s: {} servo(s)", found.len())?;
+    for p in &found {
+        write!(out, "{}", PingInfo { ..*p })?;
+        match bus.hardware_error(p.id) {
+            Ok(0) => writeln!(out, "  ok")?,
+            Ok(e) => writeln!(out, "  hardware error status {e:#04x}")?,
+            Err(e) => writeln!(out, "  ({e})")?,
+        }
+    }
+    Ok(())
+}
