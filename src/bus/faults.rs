@@ -125,6 +125,7 @@ pub struct FaultInjector {
     previous: Vec<u8>,
     armed: Option<(Fault, usize)>,
     reply_index: usize,
+    last_applied: Option<Fault>,
     /// Faults applied so far, by kind (index of [`Fault::ALL`]).
     pub counts: [u64; 8],
 }
@@ -134,7 +135,7 @@ impl FaultInjector {
     /// back `delay_us`.
     #[must_use]
     pub fn new(seed: u64, rate: f64, kinds: &[Fault], delay_us: u32) -> FaultInjector {
-        FaultInjector { rng: Rng::new(seed), rate, kinds: kinds.to_vec(), delay_us, previous: Vec::new(), armed: None, reply_index: 0, counts: [0; 8] }
+        FaultInjector { rng: Rng::new(seed), rate, kinds: kinds.to_vec(), delay_us, previous: Vec::new(), armed: None, reply_index: 0, last_applied: None, counts: [0; 8] }
     }
 
     /// Total faults applied.
@@ -147,6 +148,12 @@ impl FaultInjector {
     /// rate: one known fault per transaction, for tests that check how each is reported.
     pub fn arm(&mut self, fault: Fault, at: usize) {
         self.armed = Some((fault, at));
+    }
+
+    /// The fault applied most recently (after a fallback, e.g. a truncation in the middle of a
+    /// burst becomes a drop), cleared by reading it.
+    pub fn take_last(&mut self) -> Option<Fault> {
+        self.last_applied.take()
     }
 
     /// Decides the fate of one reply; `last` is true for the last reply of a burst.
@@ -204,6 +211,7 @@ impl FaultInjector {
             Fault::Delay => out.extra_delay_us = self.delay_us,
         }
         self.counts[Fault::ALL.iter().position(|f| *f == fault).unwrap_or(0)] += 1;
+        self.last_applied = Some(fault);
         out.fault = Some(fault);
         out
     }

@@ -161,8 +161,9 @@ impl<T: Transport> ServoBus for PacketBus<T> {
     fn scan(&mut self) -> Result<Vec<PingInfo>, BusError> {
         self.send(BROADCAST_ID, instruction::PING, &[])?;
         let mut found = Vec::new();
-        // Replies come in id order, each after its return delay; stop after a silence.
-        let timeout = wire_time(14, self.link.baud()) * 253 + self.margin;
+        // Replies come in id order, each after its return delay (up to 508 µs); stop after a
+        // silence once something answered.
+        let timeout = (wire_time(14, self.link.baud()) + Duration::from_micros(510)) * 253 + self.margin;
         let deadline = self.link.now() + timeout;
         let mut buf = [0u8; 512];
         loop {

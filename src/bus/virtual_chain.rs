@@ -54,6 +54,8 @@ fn respond(
                 emit(Duration::from_micros(delay), &hit.bytes);
                 after.extend_from_slice(&hit.after_burst);
             }
+            // Stale bytes come with the burst's end: they are in the host's input buffer
+            // before its next instruction.
             if !after.is_empty() {
                 emit(Duration::ZERO, &after);
             }
@@ -259,13 +261,18 @@ fn serve_loop(port: &mut serialport::TTYPort, chain: &Mutex<Chain>, stop: &Atomi
         let mut chain = chain.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         chain.step((now - last).as_secs_f64());
         last = now;
+        // Chunks without a pause between them go out in one write, as one burst.
         let mut sends: Vec<(Duration, Vec<u8>)> = Vec::new();
+        let mut push = |d: Duration, b: &[u8]| match sends.last_mut() {
+            Some(last) if d < Duration::from_micros(50) => last.1.extend_from_slice(b),
+            _ => sends.push((d, b.to_vec())),
+        };
         let mut inj = injector.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         while let Received::Packet(raw) = rx.next_packet() {
             let n = raw.len();
             let packet = raw.to_vec();
             rx.consume(n);
-            respond(&mut chain, &packet, inj.as_mut(), &mut out, &mut replies, |d, b| sends.push((d, b.to_vec())));
+            respond(&mut chain, &packet, inj.as_mut(), &mut out, &mut replies, &mut push);
         }
         drop(inj);
         drop(chain);
