@@ -97,23 +97,46 @@ impl std::fmt::Display for Budget {
             ReadMode::Bulk => "Bulk Read",
             ReadMode::FastSync => "Fast Sync Read",
         };
-        writeln!(f, "{} servos at {} bit/s, {mode} of {} bytes each", self.servos, self.baud, self.read_bytes_per_servo)?;
+        writeln!(
+            f,
+            "{} servos at {} bit/s, {mode} of {} bytes each",
+            self.servos, self.baud, self.read_bytes_per_servo
+        )?;
         writeln!(f, "  sync write      {:>6} B", self.write_bytes)?;
         writeln!(f, "  read request    {:>6} B", self.read_request_bytes)?;
         writeln!(f, "  read replies    {:>6} B", self.read_reply_bytes)?;
-        writeln!(f, "  per cycle       {:>6} B  {:>9.1} µs on the wire", self.bytes_per_cycle, self.wire_time_us)?;
+        writeln!(
+            f,
+            "  per cycle       {:>6} B  {:>9.1} µs on the wire",
+            self.bytes_per_cycle, self.wire_time_us
+        )?;
         writeln!(f, "  return delays            {:>9.1} µs", self.return_delay_us)?;
         writeln!(f, "  USB latency              {:>9.1} µs", self.usb_latency_us)?;
-        writeln!(f, "  cycle                    {:>9.1} µs  → at most {:.1} Hz", self.cycle_time_us, self.max_rate_hz)?;
+        writeln!(
+            f,
+            "  cycle                    {:>9.1} µs  → at most {:.1} Hz",
+            self.cycle_time_us, self.max_rate_hz
+        )?;
         if let (Some(r), Some(u)) = (self.requested_rate_hz, self.utilisation) {
             if u <= 1.0 {
-                writeln!(f, "  {r} Hz fits: the bus is busy {:.0} % of each period", u * 100.0)?;
+                writeln!(
+                    f,
+                    "  {r} Hz fits: the bus is busy {:.0} % of each period",
+                    u * 100.0
+                )?;
             } else {
-                writeln!(f, "  {r} Hz does NOT fit: a cycle needs {:.0} % of the period", u * 100.0)?;
+                writeln!(
+                    f,
+                    "  {r} Hz does NOT fit: a cycle needs {:.0} % of the period",
+                    u * 100.0
+                )?;
             }
         }
         if self.usb_latency_us > 1000.0 {
-            writeln!(f, "  warning: USB latency above 1 ms; set the adapter's latency_timer to 1")?;
+            writeln!(
+                f,
+                "  warning: USB latency above 1 ms; set the adapter's latency_timer to 1"
+            )?;
         }
         Ok(())
     }

@@ -279,12 +279,23 @@ pub enum CliError {
 /// [`CliError`], to be printed on one line.
 pub fn run(cli: Cli) -> Result<(), CliError> {
     let result = match cli.command {
-        Command::Profile { profile, asf } => crate::rig_cli::profile_cmd(&profile, asf.as_deref(), &mut io::stdout().lock()),
-        Command::Budget { profile, rate, json } => crate::rig_cli::budget_cmd(&profile, rate, json, &mut io::stdout().lock()),
-        Command::Ports => crate::rig_cli::ports_cmd(&mut io::stdout().lock()),
-        Command::Scan { port, baud, r#virtual } => {
-            crate::rig_cli::scan_cmd(port.as_deref(), baud, r#virtual.as_deref(), &mut io::stdout().lock())
+        Command::Profile { profile, asf } => {
+            crate::rig_cli::profile_cmd(&profile, asf.as_deref(), &mut io::stdout().lock())
         }
+        Command::Budget { profile, rate, json } => {
+            crate::rig_cli::budget_cmd(&profile, rate, json, &mut io::stdout().lock())
+        }
+        Command::Ports => crate::rig_cli::ports_cmd(&mut io::stdout().lock()),
+        Command::Scan {
+            port,
+            baud,
+            r#virtual,
+        } => crate::rig_cli::scan_cmd(
+            port.as_deref(),
+            baud,
+            r#virtual.as_deref(),
+            &mut io::stdout().lock(),
+        ),
         Command::Info {
             skeleton,
             amc,

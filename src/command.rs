@@ -74,7 +74,11 @@ impl CommandStage {
     /// first command moves from there within the limits.
     pub fn start_from(&mut self, rig: &Rig, present: &[i32]) {
         for (k, servo) in rig.servos.iter().enumerate().take(self.len) {
-            let p = present.get(k).copied().unwrap_or(servo.min_tick).clamp(servo.min_tick, servo.max_tick);
+            let p = present
+                .get(k)
+                .copied()
+                .unwrap_or(servo.min_tick)
+                .clamp(servo.min_tick, servo.max_tick);
             self.position[k] = f64::from(p);
             self.velocity[k] = 0.0;
             self.ticks[k] = p;
@@ -99,7 +103,10 @@ impl CommandStage {
     /// [`CommandError`]: the command is refused as a whole and the last one stands.
     pub fn command(&mut self, rig: &Rig, angles: &[f64], dt: f64) -> Result<(&[i32], Limited), CommandError> {
         if angles.len() != rig.len() || rig.len() != self.len {
-            return Err(CommandError::WrongLength { got: angles.len(), want: rig.len() });
+            return Err(CommandError::WrongLength {
+                got: angles.len(),
+                want: rig.len(),
+            });
         }
         if !(dt.is_finite() && dt > 0.0) {
             return Err(CommandError::BadTimeStep);

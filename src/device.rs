@@ -75,7 +75,9 @@ impl VirtualServo {
         self.put(
             addr::SHUTDOWN,
             1,
-            u32::from(hardware_error::OVERHEATING | hardware_error::ELECTRICAL_SHOCK | hardware_error::OVERLOAD),
+            u32::from(
+                hardware_error::OVERHEATING | hardware_error::ELECTRICAL_SHOCK | hardware_error::OVERLOAD,
+            ),
         );
         self.clear_ram();
     }
@@ -96,7 +98,10 @@ impl VirtualServo {
 
     fn get(&self, a: u16, n: usize) -> u32 {
         let a = usize::from(a);
-        self.table[a..a + n].iter().rev().fold(0, |acc, &b| (acc << 8) | u32::from(b))
+        self.table[a..a + n]
+            .iter()
+            .rev()
+            .fold(0, |acc, &b| (acc << 8) | u32::from(b))
     }
 
     fn put(&mut self, a: u16, n: usize, v: u32) {
@@ -206,7 +211,9 @@ impl VirtualServo {
     fn refresh_present(&mut self) {
         let p = self.present_tick();
         self.put(addr::PRESENT_POSITION, 4, p as u32);
-        let v = self.velocity_report.unwrap_or(libm::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32);
+        let v = self
+            .velocity_report
+            .unwrap_or(libm::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32);
         self.put(addr::PRESENT_VELOCITY, 4, v as u32);
         self.put(addr::MOVING, 1, u32::from(self.velocity != 0.0));
         self.put(addr::PRESENT_INPUT_VOLTAGE, 2, 120);
@@ -217,7 +224,10 @@ impl VirtualServo {
     pub fn step(&mut self, dt: f64) {
         let wd = self.table[usize::from(addr::BUS_WATCHDOG)];
         self.since_packet += dt;
-        if self.torque_on() && !self.watchdog_expired && (1..=127).contains(&wd) && self.since_packet > f64::from(wd) * 0.020
+        if self.torque_on()
+            && !self.watchdog_expired
+            && (1..=127).contains(&wd)
+            && self.since_packet > f64::from(wd) * 0.020
         {
             // Expiry: stop where it is; the register reads −1 and goal writes fail.
             self.watchdog_expired = true;
@@ -230,9 +240,17 @@ impl VirtualServo {
             let goal = f64::from(self.goal_tick());
             let max_v = self.model.no_load_rpm / 60.0 * f64::from(TICKS_PER_TURN);
             let pv = self.get(addr::PROFILE_VELOCITY, 4);
-            let v = if pv == 0 { max_v } else { (f64::from(pv) * TICKS_PER_S_PER_VELOCITY_UNIT).min(max_v) };
+            let v = if pv == 0 {
+                max_v
+            } else {
+                (f64::from(pv) * TICKS_PER_S_PER_VELOCITY_UNIT).min(max_v)
+            };
             let pa = self.get(addr::PROFILE_ACCELERATION, 4);
-            let a = if pa == 0 { max_v / DEFAULT_RAMP_S } else { f64::from(pa) * TICKS_PER_S2_PER_ACCELERATION_UNIT };
+            let a = if pa == 0 {
+                max_v / DEFAULT_RAMP_S
+            } else {
+                f64::from(pa) * TICKS_PER_S2_PER_ACCELERATION_UNIT
+            };
             let (p, vel) = step_towards(self.position, self.velocity, goal, v, a, dt);
             self.position = p;
             self.velocity = if p == goal { 0.0 } else { vel };
@@ -261,14 +279,20 @@ impl VirtualServo {
         let covers = |r: u16, n: usize| start <= usize::from(r) && usize::from(r) + n <= end;
         let value = |r: u16, n: usize| {
             let o = usize::from(r) - start;
-            data[o..o + n].iter().rev().fold(0u32, |acc, &b| (acc << 8) | u32::from(b))
+            data[o..o + n]
+                .iter()
+                .rev()
+                .fold(0u32, |acc, &b| (acc << 8) | u32::from(b))
         };
         if covers(addr::GOAL_POSITION, 4) {
             if self.watchdog_expired {
                 return status_error::ACCESS;
             }
             let g = value(addr::GOAL_POSITION, 4) as i32;
-            let (lo, hi) = (self.get(addr::MIN_POSITION_LIMIT, 4) as i32, self.get(addr::MAX_POSITION_LIMIT, 4) as i32);
+            let (lo, hi) = (
+                self.get(addr::MIN_POSITION_LIMIT, 4) as i32,
+                self.get(addr::MAX_POSITION_LIMIT, 4) as i32,
+            );
             if g < lo || g > hi {
                 return status_error::DATA_LIMIT;
             }
@@ -398,7 +422,11 @@ impl Chain {
         self.params.clear();
         let _ = self.params.extend_from_slice(p.params);
         let (id, inst) = (p.id, p.instruction);
-        let mut w = Writer { out, used: 0, replies };
+        let mut w = Writer {
+            out,
+            used: 0,
+            replies,
+        };
         let params = core::mem::take(&mut self.params);
         self.execute(id, inst, &params, &mut w);
         self.params = params;
@@ -421,7 +449,9 @@ impl Chain {
                 }
             }
             instruction::READ if !broadcast => {
-                let Some(s) = self.servos.iter().find(|s| s.id() == id) else { return };
+                let Some(s) = self.servos.iter().find(|s| s.id() == id) else {
+                    return;
+                };
                 if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
                     return;
                 }
@@ -547,8 +577,18 @@ impl Writer<'_, '_> {
         }
         params[0] = error | s.alert();
         params[1..=data.len()].copy_from_slice(data);
-        if let Ok(n) = protocol::encode(s.id(), instruction::STATUS, &params[..=data.len()], &mut self.out[self.used..]) {
-            let reply = Reply { id: s.id(), start: self.used, len: n, delay_us: s.return_delay_us() };
+        if let Ok(n) = protocol::encode(
+            s.id(),
+            instruction::STATUS,
+            &params[..=data.len()],
+            &mut self.out[self.used..],
+        ) {
+            let reply = Reply {
+                id: s.id(),
+                start: self.used,
+                len: n,
+                delay_us: s.return_delay_us(),
+            };
             if self.replies.push(reply).is_ok() {
                 self.used += n;
             }
@@ -566,7 +606,10 @@ pub struct Receiver {
 
 impl Default for Receiver {
     fn default() -> Self {
-        Receiver { buf: [0; MAX_PACKET], len: 0 }
+        Receiver {
+            buf: [0; MAX_PACKET],
+            len: 0,
+        }
     }
 }
 

@@ -40,6 +40,10 @@ pub mod servo;
 pub mod skeleton;
 
 #[cfg(feature = "std")]
+pub mod budget;
+#[cfg(feature = "std")]
+pub mod bus;
+#[cfg(feature = "std")]
 /// The command line.
 pub mod cli;
 #[cfg(feature = "std")]
@@ -48,9 +52,5 @@ pub mod formats;
 pub mod motion;
 #[cfg(feature = "std")]
 pub mod profile;
-#[cfg(feature = "std")]
-pub mod budget;
-#[cfg(feature = "std")]
-pub mod bus;
 #[cfg(feature = "std")]
 pub mod rig_cli;

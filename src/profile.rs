@@ -44,7 +44,9 @@ use crate::servo::{self, ServoModel, MAX_TICK};
 use crate::skeleton::{Dof, Skeleton};
 
 /// Baud rates a Dynamixel X servo can be set to.
-pub const DYNAMIXEL_BAUDS: [u32; 8] = [9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000];
+pub const DYNAMIXEL_BAUDS: [u32; 8] = [
+    9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000,
+];
 
 /// How present values are read each cycle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -300,10 +302,17 @@ impl Profile {
         let bus = check_bus(&ck, &raw.bus)?;
         let mut bone_orders = Vec::new();
         for b in &raw.bone {
-            let order = EulerOrder::parse(b.get_ref().order.get_ref())
-                .ok_or_else(|| ck.at(&b.get_ref().order, "expected an Euler order such as \"XYZ\" or \"ZXZ\""))?;
+            let order = EulerOrder::parse(b.get_ref().order.get_ref()).ok_or_else(|| {
+                ck.at(
+                    &b.get_ref().order,
+                    "expected an Euler order such as \"XYZ\" or \"ZXZ\"",
+                )
+            })?;
             let name = b.get_ref().name.get_ref().clone();
-            if bone_orders.iter().any(|(n, _, _): &(String, EulerOrder, u32)| *n == name) {
+            if bone_orders
+                .iter()
+                .any(|(n, _, _): &(String, EulerOrder, u32)| *n == name)
+            {
                 return Err(ck.at(&b.get_ref().name, format!("bone `{name}` is listed twice")));
             }
             bone_orders.push((name, order, ck.line(b)));
@@ -323,26 +332,50 @@ impl Profile {
             if spec.model.max_baud < bus.baud {
                 return Err(ck.at(
                     &s.get_ref().model,
-                    format!("{} runs at most {} bit/s, the bus is set to {}", spec.model.name, spec.model.max_baud, bus.baud),
+                    format!(
+                        "{} runs at most {} bit/s, the bus is set to {}",
+                        spec.model.name, spec.model.max_baud, bus.baud
+                    ),
                 ));
             }
             if let Some(first) = ids.insert(spec.id, spec.line) {
-                return Err(ck.at(&s.get_ref().id, format!("duplicate id {} (first used on line {first})", spec.id)));
+                return Err(ck.at(
+                    &s.get_ref().id,
+                    format!("duplicate id {} (first used on line {first})", spec.id),
+                ));
             }
             if let Some(first) = names.insert(spec.name.clone(), spec.line) {
-                return Err(ck.at(&s.get_ref().name, format!("duplicate servo name `{}` (line {first})", spec.name)));
+                return Err(ck.at(
+                    &s.get_ref().name,
+                    format!("duplicate servo name `{}` (line {first})", spec.name),
+                ));
             }
             let key = match &spec.drive {
                 Drive::Bone { bone, dof } => format!("{bone}.{}", dof.name()),
                 Drive::Joint(j) => format!("joint {j}"),
             };
             if let Some(first) = drives.insert(key.clone(), spec.line) {
-                let at = s.get_ref().bone.as_ref().or(s.get_ref().joint.as_ref()).map_or(ck.line(s), |x| ck.line(x));
-                return Err(TextError::new(at, 0, format!("`{key}` already drives the servo on line {first}")));
+                let at = s
+                    .get_ref()
+                    .bone
+                    .as_ref()
+                    .or(s.get_ref().joint.as_ref())
+                    .map_or(ck.line(s), |x| ck.line(x));
+                return Err(TextError::new(
+                    at,
+                    0,
+                    format!("`{key}` already drives the servo on line {first}"),
+                ));
             }
             servos.push(spec);
         }
-        Ok(Profile { path: path.to_path_buf(), name: raw.rig.name, bus, bone_orders, servos })
+        Ok(Profile {
+            path: path.to_path_buf(),
+            name: raw.rig.name,
+            bus,
+            bone_orders,
+            servos,
+        })
     }
 
     /// Names of the robot joints the profile drives, in servo order (the layout of the joint
@@ -385,14 +418,27 @@ impl Profile {
                 Drive::Joint(j) => JointSource::Joint(joints.iter().position(|n| n == j).unwrap_or(0)),
                 Drive::Bone { bone, dof } => {
                     let Some(sk) = skeleton else {
-                        return Err(err(s.line, format!("servo `{}` follows bone `{bone}`: an ASF skeleton is needed", s.name)));
+                        return Err(err(
+                            s.line,
+                            format!(
+                                "servo `{}` follows bone `{bone}`: an ASF skeleton is needed",
+                                s.name
+                            ),
+                        ));
                     };
                     let Some(b) = sk.find(bone) else {
                         let known: Vec<&str> = sk.bones().iter().map(|b| b.name()).collect();
-                        return Err(err(s.line, format!("unknown bone `{bone}`; the skeleton has: {}", known.join(" "))));
+                        return Err(err(
+                            s.line,
+                            format!("unknown bone `{bone}`; the skeleton has: {}", known.join(" ")),
+                        ));
                     };
                     let bone_ref = &sk.bones()[b];
-                    let order = self.bone_orders.iter().find(|(n, _, _)| n == bone).map(|(_, o, _)| *o);
+                    let order = self
+                        .bone_orders
+                        .iter()
+                        .find(|(n, _, _)| n == bone)
+                        .map(|(_, o, _)| *o);
                     match order {
                         Some(order) => {
                             let axis = dof.axis().filter(|_| dof.is_rotation());
@@ -400,7 +446,11 @@ impl Profile {
                             let Some(slot) = slot.filter(|_| !order.is_proper()) else {
                                 return Err(err(
                                     s.line,
-                                    format!("`{bone}.{}` is not one of the three axes of the rig order {}", dof.name(), order.name()),
+                                    format!(
+                                        "`{bone}.{}` is not one of the three axes of the rig order {}",
+                                        dof.name(),
+                                        order.name()
+                                    ),
                                 ));
                             };
                             JointSource::Redecomposed { bone: b, order, slot }
@@ -410,11 +460,18 @@ impl Profile {
                                 let has: Vec<&str> = bone_ref.dofs().iter().map(|d| d.name()).collect();
                                 return Err(err(
                                     s.line,
-                                    format!("bone `{bone}` has no DOF `{}`; it has: {}", dof.name(), has.join(" ")),
+                                    format!(
+                                        "bone `{bone}` has no DOF `{}`; it has: {}",
+                                        dof.name(),
+                                        has.join(" ")
+                                    ),
                                 ));
                             };
                             if !dof.is_rotation() {
-                                return Err(err(s.line, format!("`{bone}.{}` is not a rotation", dof.name())));
+                                return Err(err(
+                                    s.line,
+                                    format!("`{bone}.{}` is not a rotation", dof.name()),
+                                ));
                             }
                             JointSource::Channel(bone_ref.first_channel() + k)
                         }
@@ -432,7 +489,10 @@ fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextE
     let b = raw.get_ref();
     let baud = *b.baud.get_ref();
     let Some(baud) = u32::try_from(baud).ok().filter(|v| DYNAMIXEL_BAUDS.contains(v)) else {
-        return Err(ck.at(&b.baud, format!("expected a Dynamixel baud rate, one of {DYNAMIXEL_BAUDS:?}, found {baud}")));
+        return Err(ck.at(
+            &b.baud,
+            format!("expected a Dynamixel baud rate, one of {DYNAMIXEL_BAUDS:?}, found {baud}"),
+        ));
     };
     if let Some(p) = &b.protocol {
         if *p.get_ref() != 2.0 {
@@ -453,7 +513,12 @@ fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextE
         None | Some((_, "sync")) => ReadMode::Sync,
         Some((_, "bulk")) => ReadMode::Bulk,
         Some((_, "fast-sync")) => ReadMode::FastSync,
-        Some((r, other)) => return Err(ck.at(r, format!("expected read = \"sync\", \"bulk\" or \"fast-sync\", found \"{other}\""))),
+        Some((r, other)) => {
+            return Err(ck.at(
+                r,
+                format!("expected read = \"sync\", \"bulk\" or \"fast-sync\", found \"{other}\""),
+            ))
+        }
     };
     let mut read_fields = ReadFields::default();
     if let Some(fields) = &b.read_fields {
@@ -463,7 +528,10 @@ fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextE
                 "velocity" => read_fields.velocity = true,
                 "current" => read_fields.current = true,
                 other => {
-                    return Err(ck.at(fields, format!("expected read fields among position, velocity, current; found `{other}`")))
+                    return Err(ck.at(
+                        fields,
+                        format!("expected read fields among position, velocity, current; found `{other}`"),
+                    ))
                 }
             }
         }
@@ -480,12 +548,22 @@ fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextE
         Some(v) => {
             let x = *v.get_ref();
             if x != 0 && !(20..=2540).contains(&x) {
-                return Err(ck.at(v, format!("expected 0 (off) or 20…2540 ms (20 ms steps), found {x}")));
+                return Err(ck.at(
+                    v,
+                    format!("expected 0 (off) or 20…2540 ms (20 ms steps), found {x}"),
+                ));
             }
             x as u32
         }
     };
-    Ok(BusConfig { baud, return_delay_us, read, read_fields, usb_latency_us, watchdog_ms })
+    Ok(BusConfig {
+        baud,
+        return_delay_us,
+        read,
+        read_fields,
+        usb_latency_us,
+        watchdog_ms,
+    })
 }
 
 fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, TextError> {
@@ -500,7 +578,14 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
     }
     let model = servo::model_by_name(s.model.get_ref()).ok_or_else(|| {
         let known: Vec<&str> = servo::MODELS.iter().map(|m| m.name).collect();
-        ck.at(&s.model, format!("unknown servo model `{}`; known: {}", s.model.get_ref(), known.join(", ")))
+        ck.at(
+            &s.model,
+            format!(
+                "unknown servo model `{}`; known: {}",
+                s.model.get_ref(),
+                known.join(", ")
+            ),
+        )
     })?;
     let drive = match (&s.bone, &s.joint) {
         (Some(b), None) => {
@@ -509,12 +594,28 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
                 .rsplit_once('.')
                 .and_then(|(bone, d)| Some((bone, Dof::parse(d)?)))
                 .filter(|(bone, d)| !bone.is_empty() && d.is_rotation())
-                .ok_or_else(|| ck.at(b, format!("expected `bone.rx|ry|rz` such as `lhumerus.rz`, found `{}`", b.get_ref())))?;
-            Drive::Bone { bone: bone.to_string(), dof }
+                .ok_or_else(|| {
+                    ck.at(
+                        b,
+                        format!(
+                            "expected `bone.rx|ry|rz` such as `lhumerus.rz`, found `{}`",
+                            b.get_ref()
+                        ),
+                    )
+                })?;
+            Drive::Bone {
+                bone: bone.to_string(),
+                dof,
+            }
         }
         (None, Some(j)) if !j.get_ref().trim().is_empty() => Drive::Joint(j.get_ref().trim().to_string()),
         (Some(_), Some(j)) => return Err(ck.at(j, "give either `bone` or `joint`, not both")),
-        _ => return Err(ck.at(raw, format!("servo `{name}` needs `bone = \"<bone>.<dof>\"` or `joint = \"<name>\"`"))),
+        _ => {
+            return Err(ck.at(
+                raw,
+                format!("servo `{name}` needs `bone = \"<bone>.<dof>\"` or `joint = \"<name>\"`"),
+            ))
+        }
     };
     let direction = match &s.direction {
         None => 1.0,
@@ -524,21 +625,37 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
     let zero = match &s.zero {
         None => 2048.0,
         Some(z) if (0.0..=f64::from(MAX_TICK)).contains(z.get_ref()) => *z.get_ref(),
-        Some(z) => return Err(ck.at(z, format!("expected a zero tick in 0…{MAX_TICK}, found {}", z.get_ref()))),
+        Some(z) => {
+            return Err(ck.at(
+                z,
+                format!("expected a zero tick in 0…{MAX_TICK}, found {}", z.get_ref()),
+            ))
+        }
     };
     let gear = match &s.gear {
         None => 1.0,
         Some(g) if g.get_ref().is_finite() && *g.get_ref() > 0.0 && *g.get_ref() <= 100.0 => *g.get_ref(),
-        Some(g) => return Err(ck.at(g, format!("expected a gear ratio in (0, 100], found {}", g.get_ref()))),
+        Some(g) => {
+            return Err(ck.at(
+                g,
+                format!("expected a gear ratio in (0, 100], found {}", g.get_ref()),
+            ))
+        }
     };
     let (lo, hi) = (*s.min_deg.get_ref(), *s.max_deg.get_ref());
     if !lo.is_finite() {
         return Err(ck.at(&s.min_deg, "expected a finite angle"));
     }
     if !hi.is_finite() || hi <= lo {
-        return Err(ck.at(&s.max_deg, format!("expected max_deg > min_deg ({lo}), found {hi}")));
+        return Err(ck.at(
+            &s.max_deg,
+            format!("expected max_deg > min_deg ({lo}), found {hi}"),
+        ));
     }
-    for (v, what) in [(&s.max_velocity_dps, "velocity"), (&s.max_acceleration_dps2, "acceleration")] {
+    for (v, what) in [
+        (&s.max_velocity_dps, "velocity"),
+        (&s.max_acceleration_dps2, "acceleration"),
+    ] {
         let x = *v.get_ref();
         if !(x.is_finite() && x > 0.0) {
             return Err(ck.at(v, format!("expected a positive max {what}, found {x}")));
@@ -573,7 +690,10 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
     if spec.max_velocity_dps > top {
         return Err(ck.at(
             &s.max_velocity_dps,
-            format!("{} reaches at most {top:.0} joint °/s at gear {gear}, found {}", model.name, spec.max_velocity_dps),
+            format!(
+                "{} reaches at most {top:.0} joint °/s at gear {gear}, found {}",
+                model.name, spec.max_velocity_dps
+            ),
         ));
     }
     Ok(spec)

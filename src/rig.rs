@@ -126,7 +126,12 @@ impl Rig {
                     } else if let Some(m) = bone_rotation(skeleton, bone, channels) {
                         let mut reference = [0.0; 3];
                         for (servo, prev) in self.servos.iter().zip(angles.iter()).skip(k) {
-                            if let JointSource::Redecomposed { bone: b, order: o, slot: s } = servo.source {
+                            if let JointSource::Redecomposed {
+                                bone: b,
+                                order: o,
+                                slot: s,
+                            } = servo.source
+                            {
                                 if b == bone && o == order && prev.is_finite() {
                                     reference[s] = *prev;
                                 }

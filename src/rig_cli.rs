@@ -24,7 +24,11 @@ pub fn profile_cmd(path: &Path, asf_path: Option<&Path>, out: &mut dyn Write) ->
         "bus: {} bit/s, return delay {} µs, {:?} read, USB latency {} µs, watchdog {} ms",
         b.baud, b.return_delay_us, b.read, b.usb_latency_us, b.watchdog_ms
     )?;
-    writeln!(out, "{:>3}  {:<16} {:<11} {:<16} {:>4} {:>7} {:>7} {:>6} {:>8}", "id", "name", "model", "drive", "dir", "min", "max", "°/s", "source")?;
+    writeln!(
+        out,
+        "{:>3}  {:<16} {:<11} {:<16} {:>4} {:>7} {:>7} {:>6} {:>8}",
+        "id", "name", "model", "drive", "dir", "min", "max", "°/s", "source"
+    )?;
     for (s, m) in profile.servos.iter().zip(&rig.servos) {
         let drive = match &s.drive {
             Drive::Bone { bone, dof } => format!("{bone}.{}", dof.name()),
@@ -38,11 +42,27 @@ pub fn profile_cmd(path: &Path, asf_path: Option<&Path>, out: &mut dyn Write) ->
         writeln!(
             out,
             "{:>3}  {:<16} {:<11} {:<16} {:>4} {:>7} {:>7} {:>6} {:>8}",
-            s.id, s.name, s.model.name, drive, s.direction, m.min_tick, m.max_tick, s.max_velocity_dps, source
+            s.id,
+            s.name,
+            s.model.name,
+            drive,
+            s.direction,
+            m.min_tick,
+            m.max_tick,
+            s.max_velocity_dps,
+            source
         )?;
     }
-    if skeleton.is_none() && profile.servos.iter().any(|s| matches!(s.drive, Drive::Bone { .. })) {
-        writeln!(out, "(bones not checked: give --asf to check them against a skeleton)")?;
+    if skeleton.is_none()
+        && profile
+            .servos
+            .iter()
+            .any(|s| matches!(s.drive, Drive::Bone { .. }))
+    {
+        writeln!(
+            out,
+            "(bones not checked: give --asf to check them against a skeleton)"
+        )?;
     }
     Ok(())
 }
@@ -52,7 +72,9 @@ pub fn budget_cmd(path: &Path, rate: Option<f64>, json: bool, out: &mut dyn Writ
     let profile = Profile::load(path)?;
     if let Some(r) = rate {
         if !(r.is_finite() && r > 0.0) {
-            return Err(CliError::Usage(format!("--rate must be a positive number of Hz, got {r}")));
+            return Err(CliError::Usage(format!(
+                "--rate must be a positive number of Hz, got {r}"
+            )));
         }
     }
     let budget = plan(&profile.bus, profile.servos.len(), rate);
@@ -80,9 +102,13 @@ pub fn latency_timer_ms(port: &str) -> Option<u32> {
 
 /// `marionette ports`.
 pub fn ports_cmd(out: &mut dyn Write) -> Result<(), CliError> {
-    let ports = serialport::available_ports().map_err(|e| CliError::Usage(format!("listing serial ports: {e}")))?;
+    let ports =
+        serialport::available_ports().map_err(|e| CliError::Usage(format!("listing serial ports: {e}")))?;
     if ports.is_empty() {
-        writeln!(out, "no serial ports found (try `marionette scan --virtual <PROFILE>` to run without hardware)")?;
+        writeln!(
+            out,
+            "no serial ports found (try `marionette scan --virtual <PROFILE>` to run without hardware)"
+        )?;
     }
     for p in ports {
         match p.port_type {
@@ -94,14 +120,20 @@ pub fn ports_cmd(out: &mut dyn Write) -> Result<(), CliError> {
                 };
                 let product = u.product.unwrap_or_default();
                 let maker = u.manufacturer.unwrap_or_default();
-                write!(out, "{}  USB {:04x}:{:04x} {maker} {product}{mark}", p.port_name, u.vid, u.pid)?;
+                write!(
+                    out,
+                    "{}  USB {:04x}:{:04x} {maker} {product}{mark}",
+                    p.port_name, u.vid, u.pid
+                )?;
                 match latency_timer_ms(&p.port_name) {
                     Some(ms) if ms > 1 => writeln!(
                         out,
                         "\n  warning: latency timer {ms} ms caps the loop near {} Hz; \
                          `echo 1 | sudo tee /sys/bus/usb-serial/devices/{}/latency_timer`",
                         1000 / ms.max(1),
-                        Path::new(&p.port_name).file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned())
+                        Path::new(&p.port_name)
+                            .file_name()
+                            .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
                     )?,
                     Some(ms) => writeln!(out, "  latency timer {ms} ms")?,
                     None => writeln!(out)?,
@@ -117,7 +149,12 @@ pub fn ports_cmd(out: &mut dyn Write) -> Result<(), CliError> {
 
 /// `marionette scan`: over a port, or over a virtual chain for a profile served on a
 /// pseudo-terminal (so the same `dynamixel2` path is used).
-pub fn scan_cmd(port: Option<&str>, baud: u32, virtual_profile: Option<&Path>, out: &mut dyn Write) -> Result<(), CliError> {
+pub fn scan_cmd(
+    port: Option<&str>,
+    baud: u32,
+    virtual_profile: Option<&Path>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
     let (_served, path, baud) = match (port, virtual_profile) {
         (Some(p), None) => (None, p.to_string(), baud),
         (None, Some(prof)) => {
@@ -126,7 +163,11 @@ pub fn scan_cmd(port: Option<&str>, baud: u32, virtual_profile: Option<&Path>, o
             let path = pty.path().to_string();
             (Some(pty), path, profile.bus.baud)
         }
-        _ => return Err(CliError::Usage("give either --port <PATH> or --virtual <PROFILE>".into())),
+        _ => {
+            return Err(CliError::Usage(
+                "give either --port <PATH> or --virtual <PROFILE>".into(),
+            ))
+        }
     };
     let mut bus = Dynamixel2Bus::open(&path, baud).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
     let found = bus.scan().map_err(|e| CliError::Usage(format!("{path}: {e}")))?;

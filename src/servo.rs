@@ -121,16 +121,43 @@ impl ServoModel {
 
 /// The models this release knows.
 pub const MODELS: [ServoModel; 4] = [
-    ServoModel { name: "XL330-M288", model_number: 1200, max_baud: 4_000_000, no_load_rpm: 103.0, stall_torque_nm: 0.52 },
-    ServoModel { name: "XL430-W250", model_number: 1060, max_baud: 4_500_000, no_load_rpm: 57.0, stall_torque_nm: 1.4 },
-    ServoModel { name: "XM430-W350", model_number: 1020, max_baud: 4_500_000, no_load_rpm: 46.0, stall_torque_nm: 4.1 },
-    ServoModel { name: "XH540-W270", model_number: 1110, max_baud: 4_500_000, no_load_rpm: 30.0, stall_torque_nm: 10.6 },
+    ServoModel {
+        name: "XL330-M288",
+        model_number: 1200,
+        max_baud: 4_000_000,
+        no_load_rpm: 103.0,
+        stall_torque_nm: 0.52,
+    },
+    ServoModel {
+        name: "XL430-W250",
+        model_number: 1060,
+        max_baud: 4_500_000,
+        no_load_rpm: 57.0,
+        stall_torque_nm: 1.4,
+    },
+    ServoModel {
+        name: "XM430-W350",
+        model_number: 1020,
+        max_baud: 4_500_000,
+        no_load_rpm: 46.0,
+        stall_torque_nm: 4.1,
+    },
+    ServoModel {
+        name: "XH540-W270",
+        model_number: 1110,
+        max_baud: 4_500_000,
+        no_load_rpm: 30.0,
+        stall_torque_nm: 10.6,
+    },
 ];
 
 /// The model with this catalogue name (case-insensitive; a `-T`/`-R` suffix is ignored).
 #[must_use]
 pub fn model_by_name(name: &str) -> Option<&'static ServoModel> {
-    let base = name.strip_suffix("-T").or_else(|| name.strip_suffix("-R")).unwrap_or(name);
+    let base = name
+        .strip_suffix("-T")
+        .or_else(|| name.strip_suffix("-R"))
+        .unwrap_or(name);
     MODELS.iter().find(|m| m.name.eq_ignore_ascii_case(base))
 }
 

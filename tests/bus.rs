@@ -13,7 +13,12 @@ use marionette::profile::Profile;
 use marionette::servo::{addr, hardware_error, status_error};
 
 fn profile(name: &str) -> Profile {
-    Profile::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile").join(name)).unwrap()
+    Profile::load(
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("firmware-profile")
+            .join(name),
+    )
+    .unwrap()
 }
 
 /// Random start positions inside each servo's limits.
@@ -44,24 +49,43 @@ fn dynamixel2_start_up_on_a_pty() {
     let mut bus = Dynamixel2Bus::open(pty.path(), p.bus.baud).unwrap();
     let found = bus.scan().unwrap();
     assert_eq!(found.iter().map(|f| f.id).collect::<Vec<_>>(), p.ids());
-    assert!(found.iter().all(|f| f.model().map(|m| m.name) == Some("XM430-W350") && f.firmware == 48));
+    assert!(found
+        .iter()
+        .all(|f| f.model().map(|m| m.name) == Some("XM430-W350") && f.firmware == 48));
     for round in 0..3u64 {
         let present = start_up(&mut bus, &p).unwrap();
         {
             let chain = pty.chain();
             for (s, spec) in chain.servos().iter().zip(&p.servos) {
                 assert!(s.torque_on(), "round {round}: servo {} torque", spec.id);
-                assert_eq!(s.torque_jumps(), 0, "round {round}: servo {} jumped at torque-on", spec.id);
+                assert_eq!(
+                    s.torque_jumps(),
+                    0,
+                    "round {round}: servo {} jumped at torque-on",
+                    spec.id
+                );
                 assert_eq!(s.return_delay_us(), 0);
             }
         }
         for (k, spec) in p.servos.iter().enumerate() {
-            assert_eq!(bus.read_value(spec.id, addr::GOAL_POSITION, 4).unwrap() as i32, present[k]);
-            assert_eq!(bus.read_value(spec.id, addr::BUS_WATCHDOG, 1).unwrap(), p.bus.watchdog_ms / 20);
+            assert_eq!(
+                bus.read_value(spec.id, addr::GOAL_POSITION, 4).unwrap() as i32,
+                present[k]
+            );
+            assert_eq!(
+                bus.read_value(spec.id, addr::BUS_WATCHDOG, 1).unwrap(),
+                p.bus.watchdog_ms / 20
+            );
             assert_eq!(bus.read_value(spec.id, addr::STATUS_RETURN_LEVEL, 1).unwrap(), 2);
             let m = spec.map(marionette::rig::JointSource::Joint(0));
-            assert_eq!(bus.read_value(spec.id, addr::MIN_POSITION_LIMIT, 4).unwrap() as i32, m.min_tick);
-            assert_eq!(bus.read_value(spec.id, addr::MAX_POSITION_LIMIT, 4).unwrap() as i32, m.max_tick);
+            assert_eq!(
+                bus.read_value(spec.id, addr::MIN_POSITION_LIMIT, 4).unwrap() as i32,
+                m.min_tick
+            );
+            assert_eq!(
+                bus.read_value(spec.id, addr::MAX_POSITION_LIMIT, 4).unwrap() as i32,
+                m.max_tick
+            );
         }
         shut_down(&mut bus, &p).unwrap();
         // Someone moves the limbs while torque is off.
@@ -85,7 +109,12 @@ fn dynamixel2_sync_write_read_exact_over_10k_cycles() {
     let mut bus = Dynamixel2Bus::open(pty.path(), p.bus.baud).unwrap();
     start_up(&mut bus, &p).unwrap();
     let ids = p.ids();
-    let limits: Vec<(i32, i32)> = p.servos.iter().map(|s| s.map(marionette::rig::JointSource::Joint(0))).map(|m| (m.min_tick, m.max_tick)).collect();
+    let limits: Vec<(i32, i32)> = p
+        .servos
+        .iter()
+        .map(|s| s.map(marionette::rig::JointSource::Joint(0)))
+        .map(|m| (m.min_tick, m.max_tick))
+        .collect();
     let mut rng = Rng::new(3);
     let mut goals = vec![0i32; ids.len()];
     let mut read = vec![0i32; ids.len()];
@@ -117,7 +146,10 @@ fn dynamixel2_sync_write_read_exact_over_10k_cycles() {
         }
     }
     let per_cycle = t0.elapsed() / cycles;
-    println!("{cycles} write+read cycles of {} servos through dynamixel2 on a pty: {per_cycle:?} per cycle", ids.len());
+    println!(
+        "{cycles} write+read cycles of {} servos through dynamixel2 on a pty: {per_cycle:?} per cycle",
+        ids.len()
+    );
     let chain = pty.chain();
     assert!(chain.servos().iter().all(|s| s.goal_writes() >= cycles));
 }
@@ -135,7 +167,9 @@ fn dynamixel2_stuffing_defect_is_reported_not_used() {
     let mut out = [0u8; 8];
     let e = bus.read(1, addr::PRESENT_VELOCITY, &mut out).unwrap_err();
     assert!(matches!(e, BusError::Malformed { id: 1, .. }), "{e:?}");
-    let e = bus.sync_read(addr::PRESENT_VELOCITY, 8, &[1, 2], &mut [0u8; 16]).unwrap_err();
+    let e = bus
+        .sync_read(addr::PRESENT_VELOCITY, 8, &[1, 2], &mut [0u8; 16])
+        .unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Malformed, "{e:?}");
     // Servo 2 has no such pattern (velocity 0): the same read works.
     bus.read(2, addr::PRESENT_VELOCITY, &mut out).unwrap();
@@ -143,10 +177,25 @@ fn dynamixel2_stuffing_defect_is_reported_not_used() {
 
     // The project's host side reads the pattern correctly.
     let mut ours = in_process(&p, 0);
-    for s in ours.link_mut().chain_mut().servos().iter().map(|s| s.id()).collect::<Vec<_>>() {
-        ours.link_mut().chain_mut().servo_mut(s).unwrap().set_position(253.0);
+    for s in ours
+        .link_mut()
+        .chain_mut()
+        .servos()
+        .iter()
+        .map(|s| s.id())
+        .collect::<Vec<_>>()
+    {
+        ours.link_mut()
+            .chain_mut()
+            .servo_mut(s)
+            .unwrap()
+            .set_position(253.0);
     }
-    ours.link_mut().chain_mut().servo_mut(1).unwrap().force_present_velocity(Some(-1));
+    ours.link_mut()
+        .chain_mut()
+        .servo_mut(1)
+        .unwrap()
+        .force_present_velocity(Some(-1));
     ours.read(1, addr::PRESENT_VELOCITY, &mut out).unwrap();
     assert_eq!(out, [0xFF, 0xFF, 0xFF, 0xFF, 0xFD, 0, 0, 0]);
 }
@@ -156,10 +205,17 @@ fn dynamixel2_stuffing_defect_is_reported_not_used() {
 #[test]
 fn dynamixel2_faults_on_a_pty() {
     let p = profile("robotis-op3.toml");
-    let pty = PtyChain::serve(chain_for(&p, |k| 1000 + 50 * k as i32), Some(FaultInjector::new(9, 0.0, &[], 40_000))).unwrap();
+    let pty = PtyChain::serve(
+        chain_for(&p, |k| 1000 + 50 * k as i32),
+        Some(FaultInjector::new(9, 0.0, &[], 40_000)),
+    )
+    .unwrap();
     let mut bus = Dynamixel2Bus::open(pty.path(), p.bus.baud).unwrap();
     let ids = [3u8, 4, 5, 6];
-    let truth: Vec<i32> = ids.iter().map(|&id| pty.chain().servo(id).unwrap().present_tick()).collect();
+    let truth: Vec<i32> = ids
+        .iter()
+        .map(|&id| pty.chain().servo(id).unwrap().present_tick())
+        .collect();
     let mut rng = Rng::new(11);
     let per_kind = 12;
     for fault in Fault::ALL {
@@ -168,16 +224,25 @@ fn dynamixel2_faults_on_a_pty() {
             pty.injector().as_mut().unwrap().arm(fault, at);
             let mut got = [0i32; 4];
             let result = bus.read_positions(&ids, &mut got);
-            let fault = pty.injector().as_mut().unwrap().take_last().expect("a fault was applied");
+            let fault = pty
+                .injector()
+                .as_mut()
+                .unwrap()
+                .take_last()
+                .expect("a fault was applied");
             match result {
                 Ok(()) => {
                     assert!(fault.expected().is_empty(), "{fault:?} at {at} went unnoticed");
                     assert_eq!(&got[..], &truth[..], "{fault:?}: wrong values returned as good");
                 }
-                Err(e) => assert!(fault.expected().contains(&e.kind()), "{fault:?} at {at} reported as {e:?}"),
+                Err(e) => assert!(
+                    fault.expected().contains(&e.kind()),
+                    "{fault:?} at {at} reported as {e:?}"
+                ),
             }
             let mut clean = [0i32; 4];
-            bus.read_positions(&ids, &mut clean).unwrap_or_else(|e| panic!("clean cycle after {fault:?}: {e}"));
+            bus.read_positions(&ids, &mut clean)
+                .unwrap_or_else(|e| panic!("clean cycle after {fault:?}: {e}"));
             assert_eq!(&clean[..], &truth[..]);
         }
     }
@@ -189,7 +254,10 @@ fn dynamixel2_faults_on_a_pty() {
 /// returned as good, every fault reported as its kind, the next clean cycle succeeds.
 #[test]
 fn injected_faults_in_process() {
-    let n: u64 = std::env::var("MARIONETTE_FAULTS").ok().and_then(|v| v.parse().ok()).unwrap_or(100_000);
+    let n: u64 = std::env::var("MARIONETTE_FAULTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(100_000);
     run_faults(n, 21);
 }
 
@@ -205,7 +273,13 @@ fn run_faults(n: u64, seed: u64) {
     // Delays go past the host's timeout but end within its drain window.
     bus.link_mut().injector = Some(FaultInjector::new(seed, 0.0, &[], 2_600));
     let ids = p.ids();
-    let truth: Vec<i32> = bus.link().chain().servos().iter().map(|s| s.present_tick()).collect();
+    let truth: Vec<i32> = bus
+        .link()
+        .chain()
+        .servos()
+        .iter()
+        .map(|s| s.present_tick())
+        .collect();
     let mut rng = Rng::new(seed ^ 0x55);
     let mut by_kind = std::collections::BTreeMap::<(Fault, Option<ErrorKind>), u64>::new();
     let mut got = vec![0i32; ids.len()];
@@ -214,34 +288,65 @@ fn run_faults(n: u64, seed: u64) {
         let fault = Fault::ALL[rng.below(8) as usize];
         // Mostly Sync Reads of the whole rig; some single reads.
         let single = i % 8 == 7;
-        let at = if single { 0 } else { rng.below(ids.len() as u64) as usize };
+        let at = if single {
+            0
+        } else {
+            rng.below(ids.len() as u64) as usize
+        };
         bus.link_mut().injector.as_mut().unwrap().arm(fault, at);
         let result = if single {
             let k = rng.below(ids.len() as u64) as usize;
             bus.read(ids[k], addr::PRESENT_POSITION, &mut one).map(|()| {
-                assert_eq!(i32::from_le_bytes(one), truth[k], "{fault:?}: wrong value returned as good");
+                assert_eq!(
+                    i32::from_le_bytes(one),
+                    truth[k],
+                    "{fault:?}: wrong value returned as good"
+                );
             })
         } else {
             got.fill(i32::MIN);
-            bus.read_positions(&ids, &mut got).map(|()| assert_eq!(got, truth, "{fault:?}: wrong values returned as good"))
+            bus.read_positions(&ids, &mut got)
+                .map(|()| assert_eq!(got, truth, "{fault:?}: wrong values returned as good"))
         };
-        let fault = bus.link_mut().injector.as_mut().unwrap().take_last().expect("a fault was applied");
+        let fault = bus
+            .link_mut()
+            .injector
+            .as_mut()
+            .unwrap()
+            .take_last()
+            .expect("a fault was applied");
         match &result {
-            Ok(()) => assert!(fault.expected().is_empty(), "fault {i} {fault:?} at {at} went unnoticed"),
-            Err(e) => assert!(fault.expected().contains(&e.kind()), "fault {i} {fault:?} at {at} reported as {e:?}"),
+            Ok(()) => assert!(
+                fault.expected().is_empty(),
+                "fault {i} {fault:?} at {at} went unnoticed"
+            ),
+            Err(e) => assert!(
+                fault.expected().contains(&e.kind()),
+                "fault {i} {fault:?} at {at} reported as {e:?}"
+            ),
         }
         if result.is_err() {
-            assert!(got.iter().all(|g| *g == i32::MIN) || single, "values written on a failed read");
+            assert!(
+                got.iter().all(|g| *g == i32::MIN) || single,
+                "values written on a failed read"
+            );
         }
-        *by_kind.entry((fault, result.err().map(|e| e.kind()))).or_default() += 1;
-        bus.read_positions(&ids, &mut got).unwrap_or_else(|e| panic!("clean cycle after fault {i} {fault:?}: {e}"));
+        *by_kind
+            .entry((fault, result.err().map(|e| e.kind())))
+            .or_default() += 1;
+        bus.read_positions(&ids, &mut got)
+            .unwrap_or_else(|e| panic!("clean cycle after fault {i} {fault:?}: {e}"));
         assert_eq!(got, truth);
     }
     let applied = bus.link().injector.as_ref().unwrap().total();
     assert_eq!(applied, n);
     println!("{n} faults applied; outcome by fault:");
     for ((f, k), c) in &by_kind {
-        println!("  {:<13} → {:<9} {c}", f.name(), k.map_or("recovered", ErrorKind::name));
+        println!(
+            "  {:<13} → {:<9} {c}",
+            f.name(),
+            k.map_or("recovered", ErrorKind::name)
+        );
     }
 }
 
@@ -254,7 +359,13 @@ fn watchdog_stops_servos_when_the_host_goes_quiet() {
     start_up(&mut bus, &p).unwrap();
     let ids = p.ids();
     // Command a move, let it start, then go silent.
-    let goals: Vec<i32> = bus.link().chain().servos().iter().map(|s| s.present_tick() + if s.present_tick() < 2048 { 300 } else { -300 }).collect();
+    let goals: Vec<i32> = bus
+        .link()
+        .chain()
+        .servos()
+        .iter()
+        .map(|s| s.present_tick() + if s.present_tick() < 2048 { 300 } else { -300 })
+        .collect();
     bus.write_goals(&ids, &goals).unwrap();
     for _ in 0..10 {
         bus.link_mut().advance(Duration::from_millis(5));
@@ -262,25 +373,54 @@ fn watchdog_stops_servos_when_the_host_goes_quiet() {
     }
     let moving: Vec<f64> = bus.link().chain().servos().iter().map(|s| s.position()).collect();
     bus.link_mut().advance(Duration::from_millis(99));
-    assert!(bus.link().chain().servos().iter().all(|s| !s.watchdog_expired()), "watchdog fired early");
+    assert!(
+        bus.link().chain().servos().iter().all(|s| !s.watchdog_expired()),
+        "watchdog fired early"
+    );
     for _ in 0..20 {
         bus.link_mut().advance(Duration::from_millis(1));
     }
     let chain = bus.link().chain();
     for (s, before) in chain.servos().iter().zip(&moving) {
         assert!(s.watchdog_expired(), "servo {} still running", s.id());
-        assert!(s.position() != *before && s.goal_tick() == s.present_tick(), "servo {} did not stop", s.id());
+        assert!(
+            s.position() != *before && s.goal_tick() == s.present_tick(),
+            "servo {} did not stop",
+            s.id()
+        );
     }
     let stopped: Vec<f64> = chain.servos().iter().map(|s| s.position()).collect();
     bus.link_mut().advance(Duration::from_millis(500));
-    assert!(bus.link().chain().servos().iter().zip(&stopped).all(|(s, p)| s.position() == *p));
+    assert!(bus
+        .link()
+        .chain()
+        .servos()
+        .iter()
+        .zip(&stopped)
+        .all(|(s, p)| s.position() == *p));
     // Goal writes are refused; the watchdog register reads −1.
-    let e = bus.write(1, addr::GOAL_POSITION, &2048i32.to_le_bytes()).unwrap_err();
-    assert!(matches!(e, BusError::Servo { id: 1, error: status_error::ACCESS }), "{e:?}");
+    let e = bus
+        .write(1, addr::GOAL_POSITION, &2048i32.to_le_bytes())
+        .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            BusError::Servo {
+                id: 1,
+                error: status_error::ACCESS
+            }
+        ),
+        "{e:?}"
+    );
     assert_eq!(bus.read_value(1, addr::BUS_WATCHDOG, 1).unwrap(), 0xFF);
     // A new start-up clears it and holds where the servos stopped.
     start_up(&mut bus, &p).unwrap();
-    assert!(bus.link().chain().servos().iter().all(|s| !s.watchdog_expired() && s.torque_on() && s.torque_jumps() == 0));
+    assert!(bus
+        .link()
+        .chain()
+        .servos()
+        .iter()
+        .all(|s| !s.watchdog_expired() && s.torque_on() && s.torque_jumps() == 0));
 }
 
 /// A hardware error turns torque off, sets the alert flag, blocks start-up; a reboot clears it.
@@ -289,14 +429,29 @@ fn hardware_error_blocks_start_up_until_reboot() {
     let p = profile("robotis-op3.toml");
     let mut bus = in_process(&p, 5);
     start_up(&mut bus, &p).unwrap();
-    bus.link_mut().chain_mut().servo_mut(7).unwrap().raise_hardware_error(hardware_error::OVERLOAD);
+    bus.link_mut()
+        .chain_mut()
+        .servo_mut(7)
+        .unwrap()
+        .raise_hardware_error(hardware_error::OVERLOAD);
     assert!(!bus.link().chain().servo(7).unwrap().torque_on());
     assert_eq!(bus.hardware_error(7).unwrap(), hardware_error::OVERLOAD);
     // Torque cannot come back while the error stands.
     let e = bus.set_torque(7, true).unwrap_err();
-    assert!(matches!(e, BusError::Servo { id: 7, error: status_error::RESULT_FAIL }), "{e:?}");
+    assert!(
+        matches!(
+            e,
+            BusError::Servo {
+                id: 7,
+                error: status_error::RESULT_FAIL
+            }
+        ),
+        "{e:?}"
+    );
     match start_up(&mut bus, &p) {
-        Err(StartupError::HardwareError { id: 7, status, .. }) => assert_eq!(status, hardware_error::OVERLOAD),
+        Err(StartupError::HardwareError { id: 7, status, .. }) => {
+            assert_eq!(status, hardware_error::OVERLOAD)
+        }
         other => panic!("{other:?}"),
     }
     bus.reboot(7).unwrap();
@@ -312,17 +467,36 @@ fn start_up_checks_the_rig() {
     short.servos.pop();
     let chain = chain_for(&short, |_| 2048);
     let mut bus = PacketBus::new(InProcess::new(chain, p.bus.baud), Duration::from_millis(2));
-    assert!(matches!(start_up(&mut bus, &p), Err(StartupError::Missing { id: 20, .. })));
+    assert!(matches!(
+        start_up(&mut bus, &p),
+        Err(StartupError::Missing { id: 20, .. })
+    ));
 
     let mut other = p.clone();
     other.servos[3].model = &marionette::servo::MODELS[0];
-    let mut bus = PacketBus::new(InProcess::new(chain_for(&other, |_| 2048), p.bus.baud), Duration::from_millis(2));
-    assert!(matches!(start_up(&mut bus, &p), Err(StartupError::WrongModel { id: 4, found: 1200, .. })));
+    let mut bus = PacketBus::new(
+        InProcess::new(chain_for(&other, |_| 2048), p.bus.baud),
+        Duration::from_millis(2),
+    );
+    assert!(matches!(
+        start_up(&mut bus, &p),
+        Err(StartupError::WrongModel {
+            id: 4,
+            found: 1200,
+            ..
+        })
+    ));
 
     let puppet = profile("cmu-puppet.toml");
-    let mut bus = PacketBus::new(InProcess::new(chain_for(&puppet, |_| 100), puppet.bus.baud), Duration::from_millis(2));
+    let mut bus = PacketBus::new(
+        InProcess::new(chain_for(&puppet, |_| 100), puppet.bus.baud),
+        Duration::from_millis(2),
+    );
     let r = start_up(&mut bus, &puppet);
-    assert!(matches!(r, Err(StartupError::OutsideLimits { id: 1, tick: 100, .. })), "{r:?}");
+    assert!(
+        matches!(r, Err(StartupError::OutsideLimits { id: 1, tick: 100, .. })),
+        "{r:?}"
+    );
     assert!(bus.link().chain().servos().iter().all(|s| !s.torque_on()));
 }
 
@@ -333,7 +507,8 @@ fn virtual_servos_move_with_limited_speed() {
     let mut bus = in_process(&p, 6);
     start_up(&mut bus, &p).unwrap();
     // Profile Velocity 100 units = 22.9 rpm = 1563 ticks/s.
-    bus.write(1, addr::PROFILE_VELOCITY, &100u32.to_le_bytes()).unwrap();
+    bus.write(1, addr::PROFILE_VELOCITY, &100u32.to_le_bytes())
+        .unwrap();
     let from = bus.link().chain().servo(1).unwrap().present_tick();
     let to = if from < 2048 { from + 1000 } else { from - 1000 };
     bus.write(1, addr::GOAL_POSITION, &to.to_le_bytes()).unwrap();
@@ -350,4 +525,3 @@ fn virtual_servos_move_with_limited_speed() {
     }
     assert_eq!(bus.read_value(1, addr::PRESENT_POSITION, 4).unwrap() as i32, to);
 }
-

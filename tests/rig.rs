@@ -14,7 +14,9 @@ use marionette::servo::{model_by_name, MODELS};
 use proptest::prelude::*;
 
 fn profile_path(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("firmware-profile")
+        .join(name)
 }
 
 fn servo(direction: f64, zero: f64, gear: f64) -> ServoMap {
@@ -65,15 +67,26 @@ fn euler_redecomposition_exact_for_all_orders() {
     for from in EulerOrder::ALL {
         for to in EulerOrder::ALL {
             for _ in 0..500 {
-                let mid = if from.is_proper() { uniform(0.05, 3.09) } else { uniform(-1.52, 1.52) };
+                let mid = if from.is_proper() {
+                    uniform(0.05, 3.09)
+                } else {
+                    uniform(-1.52, 1.52)
+                };
                 let a = [uniform(-3.1, 3.1), mid, uniform(-3.1, 3.1)];
                 let b = redecompose(from, a, to, [0.0; 3]);
                 let (ma, mb) = (from.to_mat3_f64(a), to.to_mat3_f64(b));
-                let diff = (ma - mb).to_cols_array().iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                let diff = (ma - mb)
+                    .to_cols_array()
+                    .iter()
+                    .fold(0.0f64, |m, x| m.max(x.abs()));
                 worst_matrix = worst_matrix.max(diff);
                 // Back to `from`, choosing the solution next to the original angles.
                 let back = redecompose(to, b, from, a);
-                let near_lock = if to.is_proper() { b[1].sin().abs() < 0.05 } else { b[1].cos().abs() < 0.05 };
+                let near_lock = if to.is_proper() {
+                    b[1].sin().abs() < 0.05
+                } else {
+                    b[1].cos().abs() < 0.05
+                };
                 if !near_lock {
                     let d = (0..3).map(|k| (back[k] - a[k]).abs()).fold(0.0, f64::max);
                     worst_angles = worst_angles.max(d);
@@ -92,24 +105,66 @@ fn euler_redecomposition_exact_for_all_orders() {
 fn shipped_profiles_load() {
     let skel = asf::load(&common::data("16.asf")).unwrap().skeleton;
     let puppet = Profile::load(&profile_path("cmu-puppet.toml")).unwrap();
-    assert!((24..=32).contains(&puppet.servos.len()), "{} servos", puppet.servos.len());
+    assert!(
+        (24..=32).contains(&puppet.servos.len()),
+        "{} servos",
+        puppet.servos.len()
+    );
     let rig = puppet.rig(Some(&skel)).unwrap();
     assert_eq!(rig.len(), puppet.servos.len());
     for m in MODELS.iter() {
-        assert!(puppet.servos.iter().any(|s| s.model.name == m.name), "puppet uses {}", m.name);
+        assert!(
+            puppet.servos.iter().any(|s| s.model.name == m.name),
+            "puppet uses {}",
+            m.name
+        );
     }
-    for part in ["lowerback", "lowerneck", "humerus", "radius", "femur", "tibia", "foot"] {
-        assert!(puppet.servos.iter().any(|s| matches!(&s.drive, Drive::Bone { bone, .. } if bone.contains(part))), "{part}");
+    for part in [
+        "lowerback",
+        "lowerneck",
+        "humerus",
+        "radius",
+        "femur",
+        "tibia",
+        "foot",
+    ] {
+        assert!(
+            puppet
+                .servos
+                .iter()
+                .any(|s| matches!(&s.drive, Drive::Bone { bone, .. } if bone.contains(part))),
+            "{part}"
+        );
     }
-    assert!(rig.servos.iter().any(|s| matches!(s.source, JointSource::Redecomposed { .. })));
+    assert!(rig
+        .servos
+        .iter()
+        .any(|s| matches!(s.source, JointSource::Redecomposed { .. })));
 
     let op3 = Profile::load(&profile_path("robotis-op3.toml")).unwrap();
     assert_eq!(op3.bus.baud, 2_000_000);
     assert_eq!(op3.servos.len(), 20);
     let names = [
-        "r_sho_pitch", "l_sho_pitch", "r_sho_roll", "l_sho_roll", "r_el", "l_el", "r_hip_yaw", "l_hip_yaw",
-        "r_hip_roll", "l_hip_roll", "r_hip_pitch", "l_hip_pitch", "r_knee", "l_knee", "r_ank_pitch", "l_ank_pitch",
-        "r_ank_roll", "l_ank_roll", "head_pan", "head_tilt",
+        "r_sho_pitch",
+        "l_sho_pitch",
+        "r_sho_roll",
+        "l_sho_roll",
+        "r_el",
+        "l_el",
+        "r_hip_yaw",
+        "l_hip_yaw",
+        "r_hip_roll",
+        "l_hip_roll",
+        "r_hip_pitch",
+        "l_hip_pitch",
+        "r_knee",
+        "l_knee",
+        "r_ank_pitch",
+        "l_ank_pitch",
+        "r_ank_roll",
+        "l_ank_roll",
+        "head_pan",
+        "head_tilt",
     ];
     for (k, s) in op3.servos.iter().enumerate() {
         assert_eq!(s.id as usize, k + 1);
@@ -131,7 +186,9 @@ fn puppet_shoulders_follow_the_walk() {
     let rig = profile.rig(Some(&skel)).unwrap();
     let humerus = skel.find("lhumerus").unwrap();
     let shoulder: Vec<usize> = (0..rig.len())
-        .filter(|&k| matches!(rig.servos[k].source, JointSource::Redecomposed { bone, .. } if bone == humerus))
+        .filter(
+            |&k| matches!(rig.servos[k].source, JointSource::Redecomposed { bone, .. } if bone == humerus),
+        )
         .collect();
     assert_eq!(shoulder.len(), 3);
     let mut angles = vec![0.0; rig.len()];
@@ -139,16 +196,28 @@ fn puppet_shoulders_follow_the_walk() {
     let mut worst = 0.0f64;
     let mut biggest_step = 0.0f64;
     for f in 0..motion.len() {
-        let channels: Vec<f64> = motion.frame(f).iter().enumerate().map(|(c, v)| rotation_value(&skel, c, *v)).collect();
+        let channels: Vec<f64> = motion
+            .frame(f)
+            .iter()
+            .enumerate()
+            .map(|(c, v)| rotation_value(&skel, c, *v))
+            .collect();
         rig.joint_angles(&skel, &channels, &[], &mut angles);
         let mut zyx = [0.0; 3];
         for &k in &shoulder {
-            let JointSource::Redecomposed { slot, .. } = rig.servos[k].source else { unreachable!() };
+            let JointSource::Redecomposed { slot, .. } = rig.servos[k].source else {
+                unreachable!()
+            };
             zyx[slot] = angles[k];
         }
         let rebuilt = EulerOrder::ZYX.to_mat3_f64(zyx);
         let want = bone_rotation(&skel, humerus, &channels).unwrap();
-        worst = worst.max((rebuilt - want).to_cols_array().iter().fold(0.0f64, |m, x| m.max(x.abs())));
+        worst = worst.max(
+            (rebuilt - want)
+                .to_cols_array()
+                .iter()
+                .fold(0.0f64, |m, x| m.max(x.abs())),
+        );
         // Frames 0–1 of 16_15 are a left-arm dropout (all zeros, see README "BVH"): the
         // capture itself jumps into frame 2, so steps are measured from frame 3 on.
         if let (Some(p), true) = (&previous, f >= 3) {
@@ -158,9 +227,17 @@ fn puppet_shoulders_follow_the_walk() {
         }
         previous = Some(angles.clone());
     }
-    println!("lhumerus ZYX over {} frames: worst rebuild {worst:.2e}, largest step {:.2}°", motion.len(), biggest_step.to_degrees());
+    println!(
+        "lhumerus ZYX over {} frames: worst rebuild {worst:.2e}, largest step {:.2}°",
+        motion.len(),
+        biggest_step.to_degrees()
+    );
     assert!(worst < 1e-9);
-    assert!(biggest_step.to_degrees() < 10.0, "a jump of {}°", biggest_step.to_degrees());
+    assert!(
+        biggest_step.to_degrees() < 10.0,
+        "a jump of {}°",
+        biggest_step.to_degrees()
+    );
 }
 
 /// AMC channels are degrees for rotations; the rig wants radians.
@@ -190,11 +267,20 @@ fn command_stage_rejects_non_finite_and_keeps_the_last_command() {
     let (t, _) = stage.command(&rig, &[0.1], 0.01).unwrap();
     let before = t.to_vec();
     for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
-        assert_eq!(stage.command(&rig, &[bad], 0.01).unwrap_err(), CommandError::NotFinite { servo: 0 });
+        assert_eq!(
+            stage.command(&rig, &[bad], 0.01).unwrap_err(),
+            CommandError::NotFinite { servo: 0 }
+        );
         assert_eq!(stage.last(), &before[..]);
     }
-    assert_eq!(stage.command(&rig, &[0.1, 0.2], 0.01).unwrap_err(), CommandError::WrongLength { got: 2, want: 1 });
-    assert_eq!(stage.command(&rig, &[0.1], f64::NAN).unwrap_err(), CommandError::BadTimeStep);
+    assert_eq!(
+        stage.command(&rig, &[0.1, 0.2], 0.01).unwrap_err(),
+        CommandError::WrongLength { got: 2, want: 1 }
+    );
+    assert_eq!(
+        stage.command(&rig, &[0.1], f64::NAN).unwrap_err(),
+        CommandError::BadTimeStep
+    );
 }
 
 #[test]
@@ -236,7 +322,11 @@ fn command_stage_clamps_and_limits_velocity_and_acceleration() {
         let (t, _) = stage.command(&rig, &[target], dt).unwrap();
         let p = f64::from(t[0]);
         let v = (p - prev_p) / dt;
-        assert!((v - prev_v).abs() <= 10_000.0 * dt + 2.0 / dt, "acceleration {}", (v - prev_v) / dt);
+        assert!(
+            (v - prev_v).abs() <= 10_000.0 * dt + 2.0 / dt,
+            "acceleration {}",
+            (v - prev_v) / dt
+        );
         assert!(p <= 3000.0, "overshoot to {p}");
         peak = peak.max(v);
         prev_p = p;
@@ -252,32 +342,111 @@ fn profile_errors_name_the_line() {
     let good = std::fs::read_to_string(profile_path("robotis-op3.toml")).unwrap();
     let skel = asf::load(&common::data("16.asf")).unwrap().skeleton;
     let servo_line = |text: &str, n: usize| -> u32 {
-        text.lines().enumerate().filter(|(_, l)| l.trim() == "[[servo]]").nth(n).map(|(i, _)| i as u32 + 1).unwrap()
+        text.lines()
+            .enumerate()
+            .filter(|(_, l)| l.trim() == "[[servo]]")
+            .nth(n)
+            .map(|(i, _)| i as u32 + 1)
+            .unwrap()
     };
     // (description, edited text, expected line, words in the message)
     let mut cases: Vec<(&str, String, u32, &str)> = Vec::new();
     let first = servo_line(&good, 0);
     let second = servo_line(&good, 1);
-    cases.push(("syntax", good.replacen("baud = 2_000_000", "baud = = 2", 1), line_of(&good, "baud ="), "expected"));
-    cases.push(("unknown key", good.replacen("usb_latency_us", "usb_latency", 1), line_of(&good, "usb_latency_us"), "unknown field"));
-    cases.push(("bad baud", good.replacen("baud = 2_000_000", "baud = 2_500_000", 1), line_of(&good, "baud ="), "baud rate"));
-    cases.push(("unknown model", good.replacen("model = \"XM430-W350\"", "model = \"XM999\"", 1), first + 3, "unknown servo model"));
-    cases.push(("duplicate id", good.replacen("id = 2\n", "id = 1\n", 1), second + 1, "duplicate id 1"));
-    cases.push(("id range", good.replacen("id = 2\n", "id = 253\n", 1), second + 1, "0…252"));
-    cases.push(("duplicate name", good.replacen("name = \"l_sho_pitch\"", "name = \"r_sho_pitch\"", 1), second + 2, "duplicate servo name"));
+    cases.push((
+        "syntax",
+        good.replacen("baud = 2_000_000", "baud = = 2", 1),
+        line_of(&good, "baud ="),
+        "expected",
+    ));
+    cases.push((
+        "unknown key",
+        good.replacen("usb_latency_us", "usb_latency", 1),
+        line_of(&good, "usb_latency_us"),
+        "unknown field",
+    ));
+    cases.push((
+        "bad baud",
+        good.replacen("baud = 2_000_000", "baud = 2_500_000", 1),
+        line_of(&good, "baud ="),
+        "baud rate",
+    ));
+    cases.push((
+        "unknown model",
+        good.replacen("model = \"XM430-W350\"", "model = \"XM999\"", 1),
+        first + 3,
+        "unknown servo model",
+    ));
+    cases.push((
+        "duplicate id",
+        good.replacen("id = 2\n", "id = 1\n", 1),
+        second + 1,
+        "duplicate id 1",
+    ));
+    cases.push((
+        "id range",
+        good.replacen("id = 2\n", "id = 253\n", 1),
+        second + 1,
+        "0…252",
+    ));
+    cases.push((
+        "duplicate name",
+        good.replacen("name = \"l_sho_pitch\"", "name = \"r_sho_pitch\"", 1),
+        second + 2,
+        "duplicate servo name",
+    ));
     cases.push((
         "limit outside range",
         good.replacen("min_deg = -179", "min_deg = -200", 1),
         first + 6,
         "outside the servo's range",
     ));
-    cases.push(("max below min", good.replacen("max_deg = 179", "max_deg = -179.5", 1), first + 7, "max_deg > min_deg"));
-    cases.push(("direction", good.replacen("zero = 2048\n", "zero = 2048\ndirection = 2\n", 1), first + 6, "direction 1 or -1"));
-    cases.push(("too fast", good.replacen("max_velocity_dps = 270", "max_velocity_dps = 900", 1), first + 8, "reaches at most"));
-    cases.push(("no drive", good.replacen("joint = \"r_sho_pitch\"\n", "", 1), first, "needs `bone"));
-    cases.push(("both drives", good.replacen("joint = \"r_sho_pitch\"", "joint = \"r_sho_pitch\"\nbone = \"lfemur.rx\"", 1), first + 4, "either"));
-    cases.push(("same joint twice", good.replacen("joint = \"l_sho_pitch\"", "joint = \"r_sho_pitch\"", 1), second + 4, "already drives"));
-    cases.push(("bad dof", good.replacen("joint = \"r_sho_pitch\"", "bone = \"lfemur.tx\"", 1), first + 4, "bone.rx|ry|rz"));
+    cases.push((
+        "max below min",
+        good.replacen("max_deg = 179", "max_deg = -179.5", 1),
+        first + 7,
+        "max_deg > min_deg",
+    ));
+    cases.push((
+        "direction",
+        good.replacen("zero = 2048\n", "zero = 2048\ndirection = 2\n", 1),
+        first + 6,
+        "direction 1 or -1",
+    ));
+    cases.push((
+        "too fast",
+        good.replacen("max_velocity_dps = 270", "max_velocity_dps = 900", 1),
+        first + 8,
+        "reaches at most",
+    ));
+    cases.push((
+        "no drive",
+        good.replacen("joint = \"r_sho_pitch\"\n", "", 1),
+        first,
+        "needs `bone",
+    ));
+    cases.push((
+        "both drives",
+        good.replacen(
+            "joint = \"r_sho_pitch\"",
+            "joint = \"r_sho_pitch\"\nbone = \"lfemur.rx\"",
+            1,
+        ),
+        first + 4,
+        "either",
+    ));
+    cases.push((
+        "same joint twice",
+        good.replacen("joint = \"l_sho_pitch\"", "joint = \"r_sho_pitch\"", 1),
+        second + 4,
+        "already drives",
+    ));
+    cases.push((
+        "bad dof",
+        good.replacen("joint = \"r_sho_pitch\"", "bone = \"lfemur.tx\"", 1),
+        first + 4,
+        "bone.rx|ry|rz",
+    ));
     for (what, text, line, words) in &cases {
         let err = Profile::parse(text, Path::new("op3.toml")).expect_err(what);
         assert_eq!(err.line, *line, "{what}: {err:?}");
@@ -287,8 +456,14 @@ fn profile_errors_name_the_line() {
     let puppet = std::fs::read_to_string(profile_path("cmu-puppet.toml")).unwrap();
     let p1 = servo_line(&puppet, 0);
     for (edit, words) in [
-        (puppet.replacen("bone = \"lowerback.rx\"", "bone = \"lowerbak.rx\"", 1), "unknown bone `lowerbak`"),
-        (puppet.replacen("bone = \"ltibia.rx\"", "bone = \"ltibia.rz\"", 1), "has no DOF `rz`"),
+        (
+            puppet.replacen("bone = \"lowerback.rx\"", "bone = \"lowerbak.rx\"", 1),
+            "unknown bone `lowerbak`",
+        ),
+        (
+            puppet.replacen("bone = \"ltibia.rx\"", "bone = \"ltibia.rz\"", 1),
+            "has no DOF `rz`",
+        ),
     ] {
         let p = Profile::parse(&edit, Path::new("puppet.toml")).unwrap();
         let err = p.rig(Some(&skel)).unwrap_err().to_string();
@@ -302,10 +477,16 @@ fn profile_errors_name_the_line() {
     std::fs::create_dir_all(&dir).unwrap();
     let bad = dir.join("bad.toml");
     std::fs::write(&bad, good.replacen("id = 2\n", "id = 1\n", 1)).unwrap();
-    let out = common::bin().args(["profile", bad.to_str().unwrap()]).output().unwrap();
+    let out = common::bin()
+        .args(["profile", bad.to_str().unwrap()])
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(1));
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains(&format!("bad.toml:{}:", second + 1)) && stderr.contains("duplicate id"), "{stderr}");
+    assert!(
+        stderr.contains(&format!("bad.toml:{}:", second + 1)) && stderr.contains("duplicate id"),
+        "{stderr}"
+    );
     assert!(model_by_name("XM430-W350-R").is_some());
 }
 
@@ -318,7 +499,16 @@ fn line_of(text: &str, needle: &str) -> u32 {
 /// 448 B · 10 bit / 2 Mbit/s = 2240 µs; return delay 0; USB latency 1000 µs → 3240 µs, 308.6 Hz.
 #[test]
 fn budget_matches_hand_computation() {
-    let out = common::bin().args(["budget", profile_path("robotis-op3.toml").to_str().unwrap(), "--json", "--rate", "125"]).output().unwrap();
+    let out = common::bin()
+        .args([
+            "budget",
+            profile_path("robotis-op3.toml").to_str().unwrap(),
+            "--json",
+            "--rate",
+            "125",
+        ])
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["servos"], 20);

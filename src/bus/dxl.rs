@@ -36,7 +36,10 @@ impl Dynamixel2Bus {
     /// The port cannot be opened or configured.
     pub fn open(path: &str, baud: u32) -> io::Result<Dynamixel2Bus> {
         let bus = dynamixel2::Bus::open_with_buffers(path, baud, vec![0; BUFFER], vec![0; BUFFER])?;
-        Ok(Dynamixel2Bus { bus, quiet: Duration::from_millis(10) })
+        Ok(Dynamixel2Bus {
+            bus,
+            quiet: Duration::from_millis(10),
+        })
     }
 
     /// The underlying `dynamixel2` bus.
@@ -48,7 +51,10 @@ impl Dynamixel2Bus {
     fn drain(&mut self) {
         // Every reply (or noise) that still arrives restarts the wait; silence ends it.
         for _ in 0..64 {
-            match self.bus.read_status_response_deadline(std::time::Instant::now() + self.quiet) {
+            match self
+                .bus
+                .read_status_response_deadline(std::time::Instant::now() + self.quiet)
+            {
                 Err(ReadError::Io(e)) if e.kind() == io::ErrorKind::TimedOut => break,
                 _ => {}
             }
@@ -57,7 +63,9 @@ impl Dynamixel2Bus {
     }
 
     fn fail<T>(&mut self, e: BusError) -> Result<T, BusError> {
-        if !matches!(e, BusError::Io(_)) || matches!(&e, BusError::Io(io) if io.kind() == io::ErrorKind::TimedOut) {
+        if !matches!(e, BusError::Io(_))
+            || matches!(&e, BusError::Io(io) if io.kind() == io::ErrorKind::TimedOut)
+        {
             self.drain();
         }
         Err(e)
@@ -70,22 +78,40 @@ pub fn map_read_error(id: u8, e: ReadError) -> BusError {
     match e {
         ReadError::Io(io) if io.kind() == io::ErrorKind::TimedOut => BusError::Timeout { id },
         ReadError::Io(io) => BusError::Io(io),
-        ReadError::BufferFull(_) => BusError::Malformed { id, what: "reply longer than the buffer" },
+        ReadError::BufferFull(_) => BusError::Malformed {
+            id,
+            what: "reply longer than the buffer",
+        },
         ReadError::InvalidMessage(m) => match m {
             InvalidMessage::InvalidChecksum(_) => BusError::Crc { id },
-            InvalidMessage::InvalidPacketId(p) => BusError::WrongId { expected: id, got: p.actual },
+            InvalidMessage::InvalidPacketId(p) => BusError::WrongId {
+                expected: id,
+                got: p.actual,
+            },
             InvalidMessage::InvalidHeaderPrefix(_) => BusError::Malformed { id, what: "header" },
-            InvalidMessage::InvalidInstruction(_) => BusError::Malformed { id, what: "instruction" },
-            InvalidMessage::InvalidParameterCount(_) => BusError::Malformed { id, what: "parameter count" },
+            InvalidMessage::InvalidInstruction(_) => BusError::Malformed {
+                id,
+                what: "instruction",
+            },
+            InvalidMessage::InvalidParameterCount(_) => BusError::Malformed {
+                id,
+                what: "parameter count",
+            },
         },
-        ReadError::MotorError(m) => BusError::Servo { id, error: m.error_number() },
+        ReadError::MotorError(m) => BusError::Servo {
+            id,
+            error: m.error_number(),
+        },
     }
 }
 
 fn map_write_error(e: WriteError) -> BusError {
     match e {
         WriteError::Write(io) | WriteError::DiscardBuffer(io) => BusError::Io(io),
-        WriteError::BufferTooSmall(_) => BusError::Io(io::Error::new(io::ErrorKind::InvalidInput, "instruction too long")),
+        WriteError::BufferTooSmall(_) => BusError::Io(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "instruction too long",
+        )),
     }
 }
 
@@ -99,7 +125,11 @@ fn map_transfer_error(id: u8, e: TransferError) -> BusError {
 impl ServoBus for Dynamixel2Bus {
     fn ping(&mut self, id: u8) -> Result<PingInfo, BusError> {
         match self.bus.ping(id) {
-            Ok(r) => Ok(PingInfo { id: r.motor_id, model_number: r.data.model, firmware: r.data.firmware }),
+            Ok(r) => Ok(PingInfo {
+                id: r.motor_id,
+                model_number: r.data.model,
+                firmware: r.data.firmware,
+            }),
             Err(e) => self.fail(map_transfer_error(id, e)),
         }
     }
@@ -109,7 +139,11 @@ impl ServoBus for Dynamixel2Bus {
         let mut out: Vec<PingInfo> = found
             .into_iter()
             .filter_map(Result::ok)
-            .map(|r| PingInfo { id: r.motor_id, model_number: r.data.model, firmware: r.data.firmware })
+            .map(|r| PingInfo {
+                id: r.motor_id,
+                model_number: r.data.model,
+                firmware: r.data.firmware,
+            })
             .collect();
         out.sort_by_key(|p| p.id);
         out.dedup_by_key(|p| p.id);
@@ -122,7 +156,10 @@ impl ServoBus for Dynamixel2Bus {
                 out.copy_from_slice(&r.data);
                 Ok(())
             }
-            Ok(_) => self.fail(BusError::Malformed { id, what: "parameter count" }),
+            Ok(_) => self.fail(BusError::Malformed {
+                id,
+                what: "parameter count",
+            }),
             Err(e) => self.fail(map_transfer_error(id, e)),
         }
     }
@@ -136,25 +173,35 @@ impl ServoBus for Dynamixel2Bus {
 
     fn sync_write(&mut self, address: u16, len: u16, ids: &[u8], data: &[u8]) -> Result<(), BusError> {
         let len_us = usize::from(len);
-        let records = ids.iter().enumerate().map(|(k, &id)| dynamixel2::instructions::SyncWriteData {
-            motor_id: id,
-            data: &data[k * len_us..(k + 1) * len_us],
-        });
-        self.bus.sync_write(address, len, records).map_err(map_write_error)
+        let records = ids
+            .iter()
+            .enumerate()
+            .map(|(k, &id)| dynamixel2::instructions::SyncWriteData {
+                motor_id: id,
+                data: &data[k * len_us..(k + 1) * len_us],
+            });
+        self.bus
+            .sync_write(address, len, records)
+            .map_err(map_write_error)
     }
 
     fn sync_read(&mut self, address: u16, len: u16, ids: &[u8], out: &mut [u8]) -> Result<(), BusError> {
         let l = usize::from(len);
         let mut scratch = [0u8; 16 * MAX_SERVOS];
         if ids.len() * l > scratch.len() {
-            return Err(BusError::Io(io::Error::new(io::ErrorKind::InvalidInput, "sync read too large")));
+            return Err(BusError::Io(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "sync read too large",
+            )));
         }
         let mut first: Option<BusError> = None;
         let mut k = 0usize;
         let r = self.bus.sync_read_cb(ids, address, len, |reply| {
             let id = ids.get(k).copied().unwrap_or(0);
             match reply {
-                Ok(resp) if resp.data.len() == l && first.is_none() => scratch[k * l..(k + 1) * l].copy_from_slice(resp.data),
+                Ok(resp) if resp.data.len() == l && first.is_none() => {
+                    scratch[k * l..(k + 1) * l].copy_from_slice(resp.data)
+                }
                 Ok(_) => {}
                 Err(e) => {
                     if first.is_none() {

@@ -135,7 +135,17 @@ impl FaultInjector {
     /// back `delay_us`.
     #[must_use]
     pub fn new(seed: u64, rate: f64, kinds: &[Fault], delay_us: u32) -> FaultInjector {
-        FaultInjector { rng: Rng::new(seed), rate, kinds: kinds.to_vec(), delay_us, previous: Vec::new(), armed: None, reply_index: 0, last_applied: None, counts: [0; 8] }
+        FaultInjector {
+            rng: Rng::new(seed),
+            rate,
+            kinds: kinds.to_vec(),
+            delay_us,
+            previous: Vec::new(),
+            armed: None,
+            reply_index: 0,
+            last_applied: None,
+            counts: [0; 8],
+        }
     }
 
     /// Total faults applied.
@@ -158,7 +168,10 @@ impl FaultInjector {
 
     /// Decides the fate of one reply; `last` is true for the last reply of a burst.
     pub fn apply(&mut self, reply: &[u8], last: bool) -> Injected {
-        let mut out = Injected { bytes: reply.to_vec(), ..Injected::default() };
+        let mut out = Injected {
+            bytes: reply.to_vec(),
+            ..Injected::default()
+        };
         let stale = std::mem::replace(&mut self.previous, reply.to_vec());
         let index = self.reply_index;
         self.reply_index = if last { 0 } else { index + 1 };

@@ -36,8 +36,14 @@ pub enum ErrorKind {
 
 impl ErrorKind {
     /// All kinds, in a fixed order.
-    pub const ALL: [ErrorKind; 6] =
-        [ErrorKind::Timeout, ErrorKind::Crc, ErrorKind::WrongId, ErrorKind::Servo, ErrorKind::Malformed, ErrorKind::Io];
+    pub const ALL: [ErrorKind; 6] = [
+        ErrorKind::Timeout,
+        ErrorKind::Crc,
+        ErrorKind::WrongId,
+        ErrorKind::Servo,
+        ErrorKind::Malformed,
+        ErrorKind::Io,
+    ];
 
     /// Lower-case name.
     #[must_use]
@@ -147,7 +153,11 @@ impl PingInfo {
 impl fmt::Display for PingInfo {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let model = self.model().map_or("unknown model", |m| m.name);
-        write!(f, "id {:>3}  model {:>5} ({model})  firmware {}", self.id, self.model_number, self.firmware)
+        write!(
+            f,
+            "id {:>3}  model {:>5} ({model})  firmware {}",
+            self.id, self.model_number, self.firmware
+        )
     }
 }
 
@@ -229,7 +239,11 @@ pub trait ServoBus {
     /// [`BusError`].
     fn write_goals(&mut self, ids: &[u8], ticks: &[i32]) -> Result<(), BusError> {
         let mut data = [0u8; 4 * crate::rig::MAX_SERVOS];
-        for (k, t) in ticks.iter().enumerate().take(ids.len().min(crate::rig::MAX_SERVOS)) {
+        for (k, t) in ticks
+            .iter()
+            .enumerate()
+            .take(ids.len().min(crate::rig::MAX_SERVOS))
+        {
             data[4 * k..4 * k + 4].copy_from_slice(&t.to_le_bytes());
         }
         let n = ids.len().min(crate::rig::MAX_SERVOS);
@@ -278,7 +292,9 @@ pub enum StartupError {
         want: &'static str,
     },
     /// A servo rests outside its software limits: torque-on would make it jump.
-    #[error("servo {id} (`{name}`) rests at tick {tick}, outside its limits {lo}…{hi}; move it inside by hand")]
+    #[error(
+        "servo {id} (`{name}`) rests at tick {tick}, outside its limits {lo}…{hi}; move it inside by hand"
+    )]
     OutsideLimits {
         /// Id.
         id: u8,
@@ -292,7 +308,9 @@ pub enum StartupError {
         hi: i32,
     },
     /// A servo reports a hardware error.
-    #[error("servo {id} (`{name}`) reports hardware error status {status:#04x}; reboot it after fixing the cause")]
+    #[error(
+        "servo {id} (`{name}`) reports hardware error status {status:#04x}; reboot it after fixing the cause"
+    )]
     HardwareError {
         /// Id.
         id: u8,
@@ -315,7 +333,12 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
     let found = bus.scan()?;
     for s in &profile.servos {
         match found.iter().find(|p| p.id == s.id) {
-            None => return Err(StartupError::Missing { id: s.id, name: s.name.clone() }),
+            None => {
+                return Err(StartupError::Missing {
+                    id: s.id,
+                    name: s.name.clone(),
+                })
+            }
             Some(p) if p.model_number != s.model.model_number => {
                 return Err(StartupError::WrongModel {
                     id: s.id,
@@ -339,9 +362,17 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
         bus.set_torque(s.id, false)?;
         let status = bus.hardware_error(s.id)?;
         if status != 0 {
-            return Err(StartupError::HardwareError { id: s.id, name: s.name.clone(), status });
+            return Err(StartupError::HardwareError {
+                id: s.id,
+                name: s.name.clone(),
+                status,
+            });
         }
-        bus.write(s.id, addr::RETURN_DELAY_TIME, &[(profile.bus.return_delay_us / 2) as u8])?;
+        bus.write(
+            s.id,
+            addr::RETURN_DELAY_TIME,
+            &[(profile.bus.return_delay_us / 2) as u8],
+        )?;
         bus.write(s.id, addr::STATUS_RETURN_LEVEL, &[2])?;
         bus.write(s.id, addr::MAX_POSITION_LIMIT, &hi.to_le_bytes())?;
         bus.write(s.id, addr::MIN_POSITION_LIMIT, &lo.to_le_bytes())?;
@@ -353,7 +384,13 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
     bus.read_positions(&ids, &mut present)?;
     for (s, (p, (lo, hi))) in profile.servos.iter().zip(present.iter().zip(&rig_limits)) {
         if p < lo || p > hi {
-            return Err(StartupError::OutsideLimits { id: s.id, name: s.name.clone(), tick: *p, lo: *lo, hi: *hi });
+            return Err(StartupError::OutsideLimits {
+                id: s.id,
+                name: s.name.clone(),
+                tick: *p,
+                lo: *lo,
+                hi: *hi,
+            });
         }
     }
     bus.write_goals(&ids, &present)?;
@@ -361,7 +398,10 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
         // Read back: the goal must equal the present position before torque goes on.
         let goal = bus.read_value(s.id, addr::GOAL_POSITION, 4)? as i32;
         if goal != *p {
-            return Err(StartupError::Bus(BusError::Malformed { id: s.id, what: "goal read back differs from present" }));
+            return Err(StartupError::Bus(BusError::Malformed {
+                id: s.id,
+                what: "goal read back differs from present",
+            }));
         }
     }
     let wd = (profile.bus.watchdog_ms / 20).min(127) as u8;

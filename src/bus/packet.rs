@@ -74,8 +74,12 @@ impl<T: Transport> PacketBus<T> {
     }
 
     fn send(&mut self, id: u8, inst: u8, params: &[u8]) -> Result<(), BusError> {
-        let n = protocol::encode(id, inst, params, &mut self.tx)
-            .map_err(|_| BusError::Io(io::Error::new(io::ErrorKind::InvalidInput, "instruction too long")))?;
+        let n = protocol::encode(id, inst, params, &mut self.tx).map_err(|_| {
+            BusError::Io(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "instruction too long",
+            ))
+        })?;
         self.rx.clear();
         self.link.send(&self.tx[..n])?;
         Ok(())
@@ -91,11 +95,15 @@ impl<T: Transport> PacketBus<T> {
             match self.rx.next_packet() {
                 Received::Packet(raw) => {
                     let n = raw.len();
-                    let decoded = protocol::decode(raw, &mut self.params).map(|(p, _)| (p.id, p.instruction, p.params.len()));
+                    let decoded = protocol::decode(raw, &mut self.params)
+                        .map(|(p, _)| (p.id, p.instruction, p.params.len()));
                     self.rx.consume(n);
                     let (got, inst, plen) = decoded.map_err(|e| match e {
                         CodecError::BadCrc { .. } => BusError::Crc { id },
-                        CodecError::BadStuffing => BusError::Malformed { id, what: "byte stuffing" },
+                        CodecError::BadStuffing => BusError::Malformed {
+                            id,
+                            what: "byte stuffing",
+                        },
                         _ => BusError::Malformed { id, what: "packet" },
                     })?;
                     if inst != instruction::STATUS {
@@ -106,14 +114,20 @@ impl<T: Transport> PacketBus<T> {
                         return Err(BusError::WrongId { expected: id, got });
                     }
                     if plen == 0 {
-                        return Err(BusError::Malformed { id, what: "status without error byte" });
+                        return Err(BusError::Malformed {
+                            id,
+                            what: "status without error byte",
+                        });
                     }
                     let error = self.params[0] & 0x7F;
                     if error != 0 {
                         return Err(BusError::Servo { id, error });
                     }
                     if len.is_some_and(|l| l != plen - 1) {
-                        return Err(BusError::Malformed { id, what: "parameter count" });
+                        return Err(BusError::Malformed {
+                            id,
+                            what: "parameter count",
+                        });
                     }
                     return Ok(plen - 1);
                 }
@@ -155,7 +169,11 @@ impl<T: Transport> ServoBus for PacketBus<T> {
     fn ping(&mut self, id: u8) -> Result<PingInfo, BusError> {
         self.transact(id, instruction::PING, &[], Some(3))?;
         let p = &self.params[1..4];
-        Ok(PingInfo { id, model_number: u16::from_le_bytes([p[0], p[1]]), firmware: p[2] })
+        Ok(PingInfo {
+            id,
+            model_number: u16::from_le_bytes([p[0], p[1]]),
+            firmware: p[2],
+        })
     }
 
     fn scan(&mut self) -> Result<Vec<PingInfo>, BusError> {
@@ -170,12 +188,17 @@ impl<T: Transport> ServoBus for PacketBus<T> {
             match self.rx.next_packet() {
                 Received::Packet(raw) => {
                     let n = raw.len();
-                    let d = protocol::decode(raw, &mut self.params).map(|(p, _)| (p.id, p.instruction, p.params.len()));
+                    let d = protocol::decode(raw, &mut self.params)
+                        .map(|(p, _)| (p.id, p.instruction, p.params.len()));
                     self.rx.consume(n);
                     if let Ok((id, instruction::STATUS, 4)) = d {
                         let p = &self.params[1..4];
                         if !found.iter().any(|f: &PingInfo| f.id == id) {
-                            found.push(PingInfo { id, model_number: u16::from_le_bytes([p[0], p[1]]), firmware: p[2] });
+                            found.push(PingInfo {
+                                id,
+                                model_number: u16::from_le_bytes([p[0], p[1]]),
+                                firmware: p[2],
+                            });
                         }
                     }
                 }
@@ -184,7 +207,10 @@ impl<T: Transport> ServoBus for PacketBus<T> {
                     if now >= deadline {
                         break;
                     }
-                    let got = self.link.recv(&mut buf, (deadline - now).min(self.quiet.max(Duration::from_millis(20))))?;
+                    let got = self.link.recv(
+                        &mut buf,
+                        (deadline - now).min(self.quiet.max(Duration::from_millis(20))),
+                    )?;
                     if got == 0 && self.rx.pending() == 0 && !found.is_empty() {
                         break;
                     }
@@ -213,7 +239,8 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         if id == BROADCAST_ID {
             return self.send(id, instruction::WRITE, &p[..2 + data.len()]);
         }
-        self.transact(id, instruction::WRITE, &p[..2 + data.len()], Some(0)).map(|_| ())
+        self.transact(id, instruction::WRITE, &p[..2 + data.len()], Some(0))
+            .map(|_| ())
     }
 
     fn sync_write(&mut self, address: u16, len: u16, ids: &[u8], data: &[u8]) -> Result<(), BusError> {
@@ -238,7 +265,10 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         self.send(BROADCAST_ID, instruction::SYNC_READ, &p[..4 + ids.len()])?;
         let len = usize::from(len);
         if ids.len() * len > MAX_PACKET || out.len() < ids.len() * len {
-            return Err(BusError::Io(io::Error::new(io::ErrorKind::InvalidInput, "sync read too large")));
+            return Err(BusError::Io(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "sync read too large",
+            )));
         }
         // Collect into a scratch copy: `out` is written only when every reply passed.
         let mut scratch = [0u8; MAX_PACKET];

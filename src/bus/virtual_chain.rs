@@ -42,7 +42,10 @@ fn respond(
     match injector {
         None => {
             for r in replies.iter() {
-                emit(Duration::from_micros(u64::from(r.delay_us)), &out[r.start..r.start + r.len]);
+                emit(
+                    Duration::from_micros(u64::from(r.delay_us)),
+                    &out[r.start..r.start + r.len],
+                );
             }
         }
         Some(inj) => {
@@ -121,7 +124,9 @@ impl Transport for InProcess {
         }
         self.clock += wire_time(bytes.len(), self.baud);
         self.rx.push(bytes);
-        let mut at = self.clock.max(self.pending.back().map_or(Duration::ZERO, |(t, _)| *t));
+        let mut at = self
+            .clock
+            .max(self.pending.back().map_or(Duration::ZERO, |(t, _)| *t));
         while let Received::Packet(raw) = self.rx.next_packet() {
             let n = raw.len();
             let mut packet = [0u8; MAX_PACKET];
@@ -129,13 +134,20 @@ impl Transport for InProcess {
             self.rx.consume(n);
             let baud = self.baud;
             let pending = &mut self.pending;
-            respond(&mut self.chain, &packet[..n], self.injector.as_mut(), &mut self.out[..], &mut self.replies, |delay, b| {
-                at += delay;
-                for &byte in b {
-                    at += wire_time(1, baud);
-                    pending.push_back((at, byte));
-                }
-            });
+            respond(
+                &mut self.chain,
+                &packet[..n],
+                self.injector.as_mut(),
+                &mut self.out[..],
+                &mut self.replies,
+                |delay, b| {
+                    at += delay;
+                    for &byte in b {
+                        at += wire_time(1, baud);
+                        pending.push_back((at, byte));
+                    }
+                },
+            );
         }
         Ok(())
     }
@@ -189,7 +201,9 @@ pub struct PtyChain {
 
 impl std::fmt::Debug for PtyChain {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("PtyChain").field("path", &self.path).finish_non_exhaustive()
+        f.debug_struct("PtyChain")
+            .field("path", &self.path)
+            .finish_non_exhaustive()
     }
 }
 
@@ -200,8 +214,10 @@ impl PtyChain {
     /// When no pseudo-terminal can be opened.
     pub fn serve(chain: Chain, injector: Option<FaultInjector>) -> io::Result<PtyChain> {
         let (mut device_end, client_end) = serialport::TTYPort::pair().map_err(io::Error::other)?;
-        let path = serialport::SerialPort::name(&client_end).ok_or_else(|| io::Error::other("pseudo-terminal without a name"))?;
-        serialport::SerialPort::set_timeout(&mut device_end, Duration::from_millis(1)).map_err(io::Error::other)?;
+        let path = serialport::SerialPort::name(&client_end)
+            .ok_or_else(|| io::Error::other("pseudo-terminal without a name"))?;
+        serialport::SerialPort::set_timeout(&mut device_end, Duration::from_millis(1))
+            .map_err(io::Error::other)?;
         let chain = Arc::new(Mutex::new(chain));
         let injector = Arc::new(Mutex::new(injector));
         let stop = Arc::new(AtomicBool::new(false));
@@ -213,7 +229,14 @@ impl PtyChain {
                 .name("virtual-chain".into())
                 .spawn(move || serve_loop(&mut device_end, &chain, &stop, &injector))?
         };
-        Ok(PtyChain { path, chain, injector, stop, thread: Some(thread), _client_end: client_end })
+        Ok(PtyChain {
+            path,
+            chain,
+            injector,
+            stop,
+            thread: Some(thread),
+            _client_end: client_end,
+        })
     }
 
     /// The device path clients open.
@@ -224,7 +247,9 @@ impl PtyChain {
 
     /// The fault injector (locked; keep the guard short).
     pub fn injector(&self) -> MutexGuard<'_, Option<FaultInjector>> {
-        self.injector.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+        self.injector
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// The chain (locked; keep the guard short).
@@ -232,7 +257,9 @@ impl PtyChain {
     /// # Panics
     /// If the serving thread panicked while holding the lock.
     pub fn chain(&self) -> MutexGuard<'_, Chain> {
-        self.chain.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+        self.chain
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 }
 
@@ -245,7 +272,12 @@ impl Drop for PtyChain {
     }
 }
 
-fn serve_loop(port: &mut serialport::TTYPort, chain: &Mutex<Chain>, stop: &AtomicBool, injector: &Mutex<Option<FaultInjector>>) {
+fn serve_loop(
+    port: &mut serialport::TTYPort,
+    chain: &Mutex<Chain>,
+    stop: &AtomicBool,
+    injector: &Mutex<Option<FaultInjector>>,
+) {
     let mut rx = Receiver::default();
     let mut out = vec![0u8; 8 * MAX_PACKET];
     let mut replies = Replies::new();
@@ -272,7 +304,14 @@ fn serve_loop(port: &mut serialport::TTYPort, chain: &Mutex<Chain>, stop: &Atomi
             let n = raw.len();
             let packet = raw.to_vec();
             rx.consume(n);
-            respond(&mut chain, &packet, inj.as_mut(), &mut out, &mut replies, &mut push);
+            respond(
+                &mut chain,
+                &packet,
+                inj.as_mut(),
+                &mut out,
+                &mut replies,
+                &mut push,
+            );
         }
         drop(inj);
         drop(chain);
