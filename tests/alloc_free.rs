@@ -99,7 +99,10 @@ fn rig_and_bus_cycle_allocates_nothing() {
     let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml");
     let profile = Profile::load(&path).unwrap();
     let rig = profile.rig(Some(&skel)).unwrap();
-    let mut bus = PacketBus::new(InProcess::new(chain_for(&profile, |_| 2048), profile.bus.baud), Duration::from_millis(2));
+    let mut bus = PacketBus::new(
+        InProcess::new(chain_for(&profile, |_| 2048), profile.bus.baud),
+        Duration::from_millis(2),
+    );
     let present = start_up(&mut bus, &profile).unwrap();
     let ids = profile.ids();
     let mut stage = CommandStage::new(rig.len());
@@ -130,8 +133,17 @@ fn rig_and_bus_cycle_allocates_nothing() {
         bus.link_mut().advance(Duration::from_secs_f64(dt));
     }
     let allocated = allocations() - before;
-    println!("{} cycles of {} servos: {allocated} allocations", frames.len(), rig.len());
+    println!(
+        "{} cycles of {} servos: {allocated} allocations",
+        frames.len(),
+        rig.len()
+    );
     assert_eq!(allocated, 0);
     // And the servos did follow.
-    assert!(bus.link().chain().servos().iter().all(|s| s.goal_writes() >= frames.len() as u32));
+    assert!(bus
+        .link()
+        .chain()
+        .servos()
+        .iter()
+        .all(|s| s.goal_writes() >= frames.len() as u32));
 }

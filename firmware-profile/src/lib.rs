@@ -113,7 +113,10 @@ mod tests {
         for id in 1..=3u8 {
             let mut p = [0u8; 16];
             let (packet, len) = decode(&out[at..used], &mut p).unwrap();
-            assert_eq!((packet.id, packet.status()), (id, Some((0, &[0x00, 0x08, 0, 0][..]))));
+            assert_eq!(
+                (packet.id, packet.status()),
+                (id, Some((0, &[0x00, 0x08, 0, 0][..])))
+            );
             at += len;
         }
     }
