@@ -9,6 +9,8 @@
 //! * [`interp`] — per-frame editing maths in f64: facing (eq. 6–7), SLERP (eq. 12), ease
 //!   weights (eq. 13), frame interpolation.
 //!
+//! * [`ik`] — f64 FK and the analytic limb solver with swivel search (help note §IV);
+//!   [`ik_numeric`] — CCD, Jacobian transpose, pseudoinverse, DLS, conjugate gradient.
 //! * [`servo`] — X-series servo models and control-table addresses.
 //! * [`rig`] — joint sources and angle ↔ tick mapping, Euler re-decomposition.
 //! * [`command`] — the command stage: finite check, position, velocity and acceleration limits.
@@ -32,6 +34,8 @@ pub mod asf;
 pub mod command;
 pub mod device;
 pub mod fk;
+pub mod ik;
+pub mod ik_numeric;
 pub mod interp;
 pub mod math;
 pub mod protocol;

@@ -1,0 +1,591 @@
+//! Inverse kinematics in f64 (help note §IV): an analytic 2-bone limb solver with a swivel-angle
+//! search inside quaternion joint-limit regions, and numerical solvers (CCD, Jacobian
+//! transpose, pseudoinverse, damped least squares, conjugate gradient) on fixed-size buffers.
+//!
+//! Frames follow [`crate::fk`]: a bone's world rotation is `Wᵢ = Wₚ·Qᵢ` with `Qᵢ = C·M·Cᵀ`;
+//! channel vectors hold radians for rotations and file units for translations.
+
+use glam::{DMat3, DQuat, DVec3};
+
+use crate::interp::euler_near;
+use crate::math::{quat_distance_f64, EulerOrder};
+use crate::rig::dof_order;
+use crate::skeleton::{Dof, Skeleton, MAX_BONES};
+
+/// Global state of every bone, f64.
+#[derive(Clone, Debug)]
+pub struct Pose64 {
+    /// Joint (start) positions.
+    pub start: [DVec3; MAX_BONES],
+    /// Tip positions.
+    pub tip: [DVec3; MAX_BONES],
+    /// Local frames in world coordinates, `Fᵢ = Wₚ·C·M`.
+    pub frame: [DMat3; MAX_BONES],
+    /// World rotations of rest vectors, `Wᵢ = Fᵢ·Cᵀ`.
+    pub world: [DMat3; MAX_BONES],
+}
+
+impl Default for Pose64 {
+    fn default() -> Self {
+        Pose64 {
+            start: [DVec3::ZERO; MAX_BONES],
+            tip: [DVec3::ZERO; MAX_BONES],
+            frame: [DMat3::IDENTITY; MAX_BONES],
+            world: [DMat3::IDENTITY; MAX_BONES],
+        }
+    }
+}
+
+/// A bone's rest frame `C` in f64, re-orthonormalised (the skeleton stores it in f32, and a
+/// slightly skewed `C` would make `Cᵀ·Q·C` no rotation, which Euler extraction amplifies near
+/// gimbal lock).
+fn c64(m: glam::Mat3) -> DMat3 {
+    DMat3::from_quat(DQuat::from_mat3(&m.as_dmat3()).normalize())
+}
+
+/// A bone's rest direction (world) in f64, unit length.
+fn dir64(bone: &crate::skeleton::Bone) -> DVec3 {
+    bone.direction().as_dvec3().normalize_or_zero()
+}
+
+/// Forward kinematics in f64, eq. (1)–(5). Missing channels count as 0.
+pub fn fk64(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64) {
+    for (i, bone) in skeleton.bones().iter().enumerate() {
+        let mut m = DMat3::IDENTITY;
+        let mut t = DVec3::ZERO;
+        let mut l = 0.0;
+        for (d, c) in bone.dofs().iter().zip(bone.channels()) {
+            let v = channels.get(c).copied().unwrap_or(0.0);
+            match d {
+                Dof::Rx => m = DMat3::from_rotation_x(v) * m,
+                Dof::Ry => m = DMat3::from_rotation_y(v) * m,
+                Dof::Rz => m = DMat3::from_rotation_z(v) * m,
+                Dof::Tx => t.x = v,
+                Dof::Ty => t.y = v,
+                Dof::Tz => t.z = v,
+                Dof::L => l = v,
+            }
+        }
+        let c = c64(bone.axis_rotation());
+        match bone.parent() {
+            None => {
+                let w = c * m;
+                let p = skeleton.root().position.as_dvec3() + t;
+                pose.frame[i] = w;
+                pose.world[i] = w;
+                pose.start[i] = p;
+                pose.tip[i] = p;
+            }
+            Some(p) => {
+                let axes = pose.world[p] * c;
+                let f = axes * m;
+                let start = pose.tip[p] + axes * t;
+                pose.frame[i] = f;
+                pose.world[i] = f * c.transpose();
+                pose.start[i] = start;
+                pose.tip[i] = start + pose.world[i] * (dir64(bone) * (f64::from(bone.length()) + l));
+            }
+        }
+    }
+}
+
+/// The world axis of a bone's rotation DOF number `k` (index into its DOF list), eq. (43)'s `uᵢ`:
+/// `Wₚ·C·R(last)…R(k+1)·e_k`. For a translation DOF, the translation axis (eq. 46).
+#[must_use]
+pub fn dof_axis(skeleton: &Skeleton, pose: &Pose64, bone: usize, k: usize, channels: &[f64]) -> DVec3 {
+    let b = &skeleton.bones()[bone];
+    let parent_world = b.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
+    let c = c64(b.axis_rotation());
+    let dofs = b.dofs();
+    let first = b.first_channel();
+    if !dofs[k].is_rotation() {
+        let e = dofs[k].axis().map_or(DVec3::ZERO, |a| a.unit().as_dvec3());
+        return if b.parent().is_none() {
+            e
+        } else {
+            parent_world * c * e
+        };
+    }
+    let mut after = DMat3::IDENTITY;
+    for j in (k + 1..dofs.len()).rev() {
+        if let (true, Some(a)) = (dofs[j].is_rotation(), dofs[j].axis()) {
+            after *= a.rotation_f64(channels.get(first + j).copied().unwrap_or(0.0));
+        }
+    }
+    let e = dofs[k].axis().map_or(DVec3::ZERO, |a| a.unit().as_dvec3());
+    parent_world * c * after * e
+}
+
+/// Rotation taking unit vector `a` to unit vector `b` by the shortest arc. Past 90° it is
+/// composed of two arcs through the perpendicular in the a–b plane: a single arc loses
+/// precision as the vectors become opposite.
+fn rotation_between(a: DVec3, b: DVec3) -> DQuat {
+    let a = a.normalize_or_zero();
+    let b = b.normalize_or_zero();
+    if a.dot(b) >= 0.0 {
+        return DQuat::from_rotation_arc(a, b);
+    }
+    let mut m = b - a * a.dot(b);
+    if m.length_squared() < 1e-24 {
+        m = a.any_orthonormal_vector();
+    }
+    let m = m.normalize();
+    DQuat::from_rotation_arc(m, b) * DQuat::from_rotation_arc(a, m)
+}
+
+/// Why a limb cannot be set up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LimbError {
+    /// The lower bone is not a child of the upper bone.
+    NotAChain,
+    /// The upper bone needs three rotation DOFs.
+    UpperNeeds3Dofs,
+    /// The lower bone needs one or three rotation DOFs.
+    LowerDofs,
+    /// A bone has zero length.
+    ZeroLength,
+    /// The elbow axis cannot be found (straight at rest and in the given frame).
+    NoElbowAxis,
+}
+
+impl core::fmt::Display for LimbError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            LimbError::NotAChain => "the lower bone is not a child of the upper bone",
+            LimbError::UpperNeeds3Dofs => "the upper bone (shoulder/hip) needs rx ry rz",
+            LimbError::LowerDofs => "the lower bone (elbow/knee) needs one or three rotation DOFs",
+            LimbError::ZeroLength => "a limb bone has zero length",
+            LimbError::NoElbowAxis => {
+                "the elbow axis cannot be found: the limb is straight at rest and in the given frame"
+            }
+        })
+    }
+}
+
+impl core::error::Error for LimbError {}
+
+/// How the swivel angle is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Swivel {
+    /// Searched inside the joint limits (eq. 27–30), optionally kept near a previous value.
+    Auto {
+        /// The previous solution's swivel angle, for streams.
+        previous: Option<f64>,
+    },
+    /// Given (radians, help note eq. 18–22 convention).
+    Fixed(f64),
+}
+
+/// A 2-bone limb of a skeleton (arm: humerus–radius, leg: femur–tibia), help note §IV steps 1–8.
+#[derive(Clone, Debug)]
+pub struct Limb {
+    /// Upper bone (shoulder/hip joint at its start).
+    pub upper: usize,
+    /// Lower bone (elbow/knee joint at its start); the effector is its tip.
+    pub lower: usize,
+    upper_order: EulerOrder,
+    upper_rot_dofs: [usize; 3],
+    /// Elbow axis in the upper bone's rest (world-at-rest) coordinates, and how the elbow angle
+    /// maps to the lower bone's channels.
+    elbow_axis: DVec3,
+    elbow: Elbow,
+    d1: DVec3,
+    d2: DVec3,
+    l1: f64,
+    l2: f64,
+    corners: heapless::Vec<DQuat, 8>,
+    center: [f64; 3],
+    limits: [(f64, f64); 3],
+    elbow_limit: (f64, f64),
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Elbow {
+    /// One DOF: channel offset into the lower bone's DOFs.
+    One(usize),
+    /// Three DOFs in this order: the elbow rotation is written as Euler angles.
+    Three(EulerOrder, [usize; 3]),
+}
+
+/// The result of a limb solve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LimbSolution {
+    /// Whether the target is within reach (else the limb is stretched or folded towards it).
+    pub reachable: bool,
+    /// Distance from the effector to the target after the solve, file units.
+    pub error: f64,
+    /// The swivel angle used (radians, eq. 18–22 convention: 0 = elbow towards â).
+    pub swivel: f64,
+    /// Whether the shoulder angles are within the ASF limits.
+    pub upper_within_limits: bool,
+    /// Whether the elbow angle is within its limit.
+    pub elbow_within_limits: bool,
+    /// Sum of limit violations, radians (0 when within).
+    pub violation: f64,
+}
+
+fn rot_dofs(dofs: &[Dof]) -> heapless::Vec<usize, 3> {
+    let mut v = heapless::Vec::new();
+    for (k, d) in dofs.iter().enumerate() {
+        if d.is_rotation() {
+            let _ = v.push(k);
+        }
+    }
+    v
+}
+
+impl Limb {
+    /// Sets up the limb `upper`→`lower`. The elbow axis comes from the lower bone's single DOF,
+    /// or — for a 3-DOF elbow — from the rest pose (cross product of the two bone directions),
+    /// or, when the limb is straight at rest, from `frame` (a mocap frame, radians).
+    ///
+    /// # Errors
+    /// [`LimbError`].
+    pub fn new(
+        skeleton: &Skeleton,
+        upper: usize,
+        lower: usize,
+        frame: Option<&[f64]>,
+    ) -> Result<Limb, LimbError> {
+        let bones = skeleton.bones();
+        let (u, lo) = (
+            bones.get(upper).ok_or(LimbError::NotAChain)?,
+            bones.get(lower).ok_or(LimbError::NotAChain)?,
+        );
+        if lo.parent() != Some(upper) {
+            return Err(LimbError::NotAChain);
+        }
+        let upper_order = dof_order(u.dofs()).ok_or(LimbError::UpperNeeds3Dofs)?;
+        let ur = rot_dofs(u.dofs());
+        let upper_rot_dofs = [ur[0], ur[1], ur[2]];
+        let (l1, l2) = (f64::from(u.length()), f64::from(lo.length()));
+        if l1 <= 1e-9 || l2 <= 1e-9 {
+            return Err(LimbError::ZeroLength);
+        }
+        let d1 = dir64(u);
+        let d2 = dir64(lo);
+        let lr = rot_dofs(lo.dofs());
+        let c_lower = c64(lo.axis_rotation());
+        let (elbow_axis, elbow) = match lr.len() {
+            1 => {
+                let axis = lo.dofs()[lr[0]].axis().map_or(DVec3::X, |a| a.unit().as_dvec3());
+                (c_lower * axis, Elbow::One(lr[0]))
+            }
+            3 => {
+                let mut axis = d1.cross(d2);
+                if axis.length() < 1e-6 {
+                    let f = frame.ok_or(LimbError::NoElbowAxis)?;
+                    let mut pose = Pose64::default();
+                    fk64(skeleton, f, &mut pose);
+                    let upper_dir = pose.tip[upper] - pose.start[upper];
+                    let lower_dir = pose.tip[lower] - pose.start[lower];
+                    // Into the upper bone's rest coordinates.
+                    axis = pose.world[upper].transpose() * upper_dir.cross(lower_dir);
+                    if axis.length() < 1e-6 {
+                        return Err(LimbError::NoElbowAxis);
+                    }
+                }
+                let order = dof_order(lo.dofs()).ok_or(LimbError::LowerDofs)?;
+                (axis.normalize(), Elbow::Three(order, [lr[0], lr[1], lr[2]]))
+            }
+            _ => return Err(LimbError::LowerDofs),
+        };
+        let lim = |b: &crate::skeleton::Bone, k: usize| {
+            b.limits().get(k).map_or((f64::NEG_INFINITY, f64::INFINITY), |l| {
+                (f64::from(l.min), f64::from(l.max))
+            })
+        };
+        let limits = [lim(u, ur[0]), lim(u, ur[1]), lim(u, ur[2])];
+        // The 8 corners of the limit box as quaternions (fewer when a DOF is unlimited).
+        let mut corners = heapless::Vec::new();
+        let finite = |x: f64, fallback: f64| if x.is_finite() { x } else { fallback };
+        for mask in 0..8u8 {
+            let pick = |k: usize| {
+                let (a, b) = limits[k];
+                if mask & (1 << k) == 0 {
+                    finite(a, -core::f64::consts::PI)
+                } else {
+                    finite(b, core::f64::consts::PI)
+                }
+            };
+            let angles = [pick(0), pick(1), pick(2)];
+            let _ = corners.push(DQuat::from_mat3(&upper_order.to_mat3_f64(angles)));
+        }
+        let center = [0, 1, 2].map(|k| {
+            let (a, b) = limits[k];
+            if a.is_finite() && b.is_finite() {
+                0.5 * (a + b)
+            } else {
+                0.0
+            }
+        });
+        let elbow_limit = match elbow {
+            Elbow::One(k) => lim(lo, k),
+            Elbow::Three(..) => (f64::NEG_INFINITY, f64::INFINITY),
+        };
+        Ok(Limb {
+            upper,
+            lower,
+            upper_order,
+            upper_rot_dofs,
+            elbow_axis,
+            elbow,
+            d1,
+            d2,
+            l1,
+            l2,
+            corners,
+            center,
+            limits,
+            elbow_limit,
+        })
+    }
+
+    /// Longest reach (shoulder to effector), file units.
+    #[must_use]
+    pub fn reach(&self) -> (f64, f64) {
+        // |v1 + R(θ)v2| over θ: extremes of the closed form in `elbow_for_distance`.
+        let (a, b, c) = self.coefficients();
+        let amp = libm::sqrt(b * b + c * c);
+        let lo = libm::sqrt((self.l1 * self.l1 + self.l2 * self.l2 + 2.0 * (a - amp)).max(0.0));
+        let hi = libm::sqrt(self.l1 * self.l1 + self.l2 * self.l2 + 2.0 * (a + amp));
+        (lo, hi)
+    }
+
+    /// `v1·R(θ)v2 = A + B cos θ + C sin θ` for the elbow rotation about its axis.
+    fn coefficients(&self) -> (f64, f64, f64) {
+        let v1 = self.d1 * self.l1;
+        let v2 = self.d2 * self.l2;
+        let a = self.elbow_axis;
+        let aa = v1.dot(a) * a.dot(v2);
+        (aa, v1.dot(v2) - aa, v1.dot(a.cross(v2)))
+    }
+
+    /// Elbow angles giving shoulder–effector distance `dist` (eq. 16 generalised to any rest
+    /// offset and axis): both branches, clamped to the reachable range.
+    fn elbow_for_distance(&self, dist: f64) -> ([f64; 2], bool) {
+        let (a, b, c) = self.coefficients();
+        let k = 0.5 * (dist * dist - self.l1 * self.l1 - self.l2 * self.l2) - a;
+        let amp = libm::sqrt(b * b + c * c);
+        let base = libm::atan2(c, b);
+        if amp < 1e-12 {
+            return ([0.0, 0.0], (k.abs() < 1e-9));
+        }
+        let ratio = k / amp;
+        let reachable = (-1.0 - 1e-12..=1.0 + 1e-12).contains(&ratio);
+        let delta = libm::acos(ratio.clamp(-1.0, 1.0));
+        ([base + delta, base - delta], reachable)
+    }
+
+    fn elbow_rotation(&self, theta: f64) -> DMat3 {
+        DMat3::from_axis_angle(self.elbow_axis, theta)
+    }
+
+    /// Writes the elbow angle into the channels.
+    fn set_elbow(&self, skeleton: &Skeleton, channels: &mut [f64], theta: f64) {
+        let lo = &skeleton.bones()[self.lower];
+        match self.elbow {
+            Elbow::One(k) => channels[lo.first_channel() + k] = theta,
+            Elbow::Three(order, ks) => {
+                let c = c64(lo.axis_rotation());
+                let m = c.transpose() * self.elbow_rotation(theta) * c;
+                let prev = ks.map(|k| channels[lo.first_channel() + k]);
+                let a = euler_near(order, &m, prev);
+                for (j, k) in ks.iter().enumerate() {
+                    channels[lo.first_channel() + k] = a[j];
+                }
+            }
+        }
+    }
+
+    /// Euler angles of a shoulder rotation `Q` (world-at-rest) and their limit violation: of the
+    /// two Euler solutions (each angle taken modulo 2π next to its limit range), the one
+    /// violating the limits least, then the one nearest the range's centre.
+    fn shoulder_angles(&self, skeleton: &Skeleton, q: &DMat3) -> ([f64; 3], f64) {
+        let c = c64(skeleton.bones()[self.upper].axis_rotation());
+        let m = c.transpose() * *q * c;
+        let a = self.upper_order.from_mat3_f64(&m);
+        let pi = core::f64::consts::PI;
+        let b2 = if self.upper_order.is_proper() {
+            -a[1]
+        } else {
+            pi - a[1]
+        };
+        let mut best = ([0.0; 3], f64::INFINITY, f64::INFINITY);
+        for cand in [a, [a[0] + pi, b2, a[2] + pi]] {
+            let w = [0, 1, 2].map(|k| crate::interp::wrap_near(cand[k], self.center[k]));
+            let v: f64 = (0..3)
+                .map(|k| (self.limits[k].0 - w[k]).max(0.0) + (w[k] - self.limits[k].1).max(0.0))
+                .sum();
+            let off: f64 = (0..3).map(|k| (w[k] - self.center[k]).abs()).sum();
+            if v < best.1 - 1e-12 || (v <= best.1 + 1e-12 && off < best.2) {
+                best = (w, v, off);
+            }
+        }
+        (best.0, best.1)
+    }
+
+    /// Solves the limb so that the lower bone's tip reaches `target` (world, file units),
+    /// writing the shoulder and elbow channels. The parents' pose is taken from `channels`.
+    pub fn solve(
+        &self,
+        skeleton: &Skeleton,
+        channels: &mut [f64],
+        target: DVec3,
+        swivel: Swivel,
+    ) -> LimbSolution {
+        let mut pose = Pose64::default();
+        fk64(skeleton, channels, &mut pose);
+        let ub = &skeleton.bones()[self.upper];
+        let parent_world = ub.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
+        let s = pose.start[self.upper];
+        let mut to_target = target - s;
+        if !to_target.is_finite() {
+            to_target = pose.tip[self.lower] - s;
+        }
+        let dist = to_target.length();
+        // Elbow (steps 1–3): the branch inside the elbow limit, nearest the present angle.
+        let present = match self.elbow {
+            Elbow::One(k) => channels[skeleton.bones()[self.lower].first_channel() + k],
+            Elbow::Three(..) => 0.0,
+        };
+        let (cands, reachable) = self.elbow_for_distance(dist);
+        let (lo, hi) = self.elbow_limit;
+        let mut best = (f64::INFINITY, 0.0, false);
+        for c in cands {
+            for turn in [-1.0, 0.0, 1.0] {
+                let t = c + turn * core::f64::consts::TAU;
+                let inside = t >= lo - 1e-12 && t <= hi + 1e-12;
+                let clamped = t.clamp(lo, hi);
+                let cost = (clamped - t).abs() * 1e3 + (clamped - present).abs();
+                if cost < best.0 {
+                    best = (cost, clamped, inside);
+                }
+            }
+        }
+        let (_, theta, elbow_ok) = best;
+        let w0 = self.d1 * self.l1 + self.elbow_rotation(theta) * (self.d2 * self.l2);
+        // Direction to the target in the parent's rest coordinates (degenerate: keep the limb's
+        // present direction).
+        let mut d = parent_world.transpose() * to_target;
+        if d.length() < 1e-9 {
+            d = parent_world.transpose() * (pose.tip[self.lower] - s);
+            if d.length() < 1e-9 {
+                d = w0;
+            }
+        }
+        let dhat = d.normalize();
+        let base = DMat3::from_quat(rotation_between(w0, dhat));
+        // Swivel convention (eq. 18–22): n̂ towards the target, û from â = −y (or −z).
+        let n_world = parent_world * dhat;
+        let mut a_hat = DVec3::NEG_Y;
+        if n_world.cross(a_hat).length() < 1e-6 {
+            a_hat = DVec3::NEG_Z;
+        }
+        let u_hat = (a_hat - n_world * a_hat.dot(n_world)).normalize();
+        let v_hat = n_world.cross(u_hat);
+        let elbow_phi = |q: &DMat3| {
+            let e = parent_world * (*q * (self.d1 * self.l1));
+            libm::atan2(v_hat.dot(e), u_hat.dot(e))
+        };
+        let phi0 = elbow_phi(&base);
+        let q_at = |phi: f64| DMat3::from_axis_angle(dhat, phi - phi0) * base;
+        let eval = |phi: f64, previous: Option<f64>| {
+            let q = q_at(phi);
+            let (_, v) = self.shoulder_angles(skeleton, &q);
+            let quat = DQuat::from_mat3(&(c64(ub.axis_rotation()).transpose() * q * c64(ub.axis_rotation())));
+            let spread: f64 = self.corners.iter().map(|c| quat_distance_f64(quat, *c)).sum();
+            let keep = previous.map_or(0.0, |p| {
+                let d = crate::interp::wrap_near(phi, p) - p;
+                0.5 * d * d
+            });
+            // Inside the limits first (eq. 30's centrality among legal swivels), else least
+            // violation.
+            let legal = if v > 1e-12 { 1e3 * (1.0 + v) } else { 0.0 };
+            legal + spread + keep
+        };
+        let phi = match swivel {
+            Swivel::Fixed(p) => p,
+            Swivel::Auto { previous } => {
+                // Coarse scan of the swivel circle, then golden-section refinement (step 7).
+                let n = 120;
+                let mut best = (f64::INFINITY, 0.0);
+                let mut best_legal: Option<(f64, f64)> = None;
+                let violation = |p: f64| self.shoulder_angles(skeleton, &q_at(p)).1;
+                for i in 0..n {
+                    let p = -core::f64::consts::PI + core::f64::consts::TAU * f64::from(i) / f64::from(n);
+                    let f = eval(p, previous);
+                    if f < best.0 {
+                        best = (f, p);
+                    }
+                    if violation(p) == 0.0 && best_legal.is_none_or(|(bf, _)| f < bf) {
+                        best_legal = Some((f, p));
+                    }
+                }
+                let step = core::f64::consts::TAU / f64::from(n);
+                let found = golden(|p| eval(p, previous), best.1 - step, best.1 + step, 1e-7);
+                match best_legal {
+                    // The optimum lies on the limit boundary: step back inside, towards the
+                    // best legal sample, by bisection on legality.
+                    Some((_, inside)) if violation(found) > 0.0 => {
+                        let (mut good, mut bad) = (inside, found);
+                        for _ in 0..60 {
+                            let mid = 0.5 * (good + bad);
+                            if violation(mid) == 0.0 {
+                                good = mid;
+                            } else {
+                                bad = mid;
+                            }
+                        }
+                        good
+                    }
+                    _ => found,
+                }
+            }
+        };
+        let q = q_at(phi);
+        let (angles, violation) = self.shoulder_angles(skeleton, &q);
+        let first = ub.first_channel();
+        for (j, k) in self.upper_rot_dofs.iter().enumerate() {
+            channels[first + k] = angles[j];
+        }
+        self.set_elbow(skeleton, channels, theta);
+        fk64(skeleton, channels, &mut pose);
+        let error = (pose.tip[self.lower] - target).length();
+        LimbSolution {
+            reachable: reachable && error.is_finite(),
+            error: if error.is_finite() { error } else { f64::INFINITY },
+            swivel: crate::interp::wrap_near(phi, 0.0),
+            upper_within_limits: violation == 0.0,
+            elbow_within_limits: elbow_ok,
+            violation,
+        }
+    }
+}
+
+/// Golden-section minimisation of `f` on `[a, b]`.
+pub fn golden(mut f: impl FnMut(f64) -> f64, mut a: f64, mut b: f64, tol: f64) -> f64 {
+    let r = 0.5 * (libm::sqrt(5.0) - 1.0);
+    let mut c = b - r * (b - a);
+    let mut d = a + r * (b - a);
+    let (mut fc, mut fd) = (f(c), f(d));
+    for _ in 0..200 {
+        if (b - a).abs() < tol {
+            break;
+        }
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - r * (b - a);
+            fc = f(c);
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + r * (b - a);
+            fd = f(d);
+        }
+    }
+    0.5 * (a + b)
+}

@@ -1,0 +1,310 @@
+//! Inverse kinematics: f64 FK, Jacobians, the analytic limb solver, the numerical solvers.
+
+mod common;
+
+use glam::DVec3;
+use marionette::bus::faults::Rng;
+use marionette::fk::{forward_kinematics, Pose};
+use marionette::formats::{amc, asf};
+use marionette::ik::{fk64, Limb, Pose64, Swivel};
+use marionette::ik_numeric::{chain_mask, Constraint, JacobianKind, Method, Settings, Solver};
+use marionette::skeleton::{Skeleton, MAX_CHANNELS};
+
+fn skeleton() -> Skeleton {
+    asf::load(&common::data("16.asf")).unwrap().skeleton
+}
+
+fn uniform(rng: &mut Rng, lo: f64, hi: f64) -> f64 {
+    lo + (hi - lo) * (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Random angles within the ASF limits for the given bones' rotation DOFs.
+fn random_pose(skel: &Skeleton, bones: &[usize], rng: &mut Rng, channels: &mut [f64]) {
+    for &b in bones {
+        let bone = &skel.bones()[b];
+        for (k, d) in bone.dofs().iter().enumerate() {
+            if d.is_rotation() {
+                let l = bone.limits()[k];
+                channels[bone.first_channel() + k] = uniform(rng, f64::from(l.min), f64::from(l.max));
+            }
+        }
+    }
+}
+
+fn walk_frames(skel: &Skeleton) -> Vec<Vec<f64>> {
+    let motion = amc::load(skel, &common::data("16_15.amc")).unwrap();
+    (0..motion.len())
+        .map(|f| {
+            motion
+                .frame(f)
+                .iter()
+                .enumerate()
+                .map(|(c, v)| match skel.channel_owner(c) {
+                    Some((_, d)) if d.is_rotation() => v.to_radians(),
+                    _ => *v,
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn fk64_matches_the_f32_fk() {
+    let skel = skeleton();
+    let frames = walk_frames(&skel);
+    let mut p64 = Pose64::default();
+    let mut p32 = Pose::new();
+    let mut worst = 0.0f64;
+    for f in frames.iter().step_by(10) {
+        fk64(&skel, f, &mut p64);
+        let mut c = [0.0f32; MAX_CHANNELS];
+        for (i, v) in f.iter().enumerate() {
+            c[i] = *v as f32;
+        }
+        forward_kinematics(&skel, &c, &mut p32).unwrap();
+        for b in 0..skel.len() {
+            worst = worst.max((p64.tip[b] - p32.tip[b].as_dvec3()).length());
+        }
+    }
+    assert!(worst < 1e-3, "{worst}");
+}
+
+/// The analytic Jacobian (eq. 43–47) equals central differences.
+#[test]
+fn analytic_jacobian_matches_finite_differences() {
+    let skel = skeleton();
+    let frames = walk_frames(&skel);
+    let hand = skel.find("lhand").unwrap();
+    let mask = chain_mask(&skel, 0, hand);
+    let mut rng = Rng::new(3);
+    for f in frames.iter().step_by(47) {
+        let mut pose = Pose64::default();
+        fk64(&skel, f, &mut pose);
+        let target =
+            pose.tip[hand] + DVec3::new(uniform(&mut rng, -3.0, 3.0), uniform(&mut rng, -3.0, 3.0), 1.0);
+        let c = [Constraint {
+            bone: hand,
+            position: target,
+            axes: Some((DVec3::X, DVec3::Y)),
+        }];
+        let mut ch = f.clone();
+        let mut solver = Solver::new(&skel, &mask, true);
+        let rows = solver.jacobian_at(&skel, &c, &mut ch, 10.0, JacobianKind::Analytic);
+        let analytic: Vec<Vec<f64>> = (0..rows).map(|r| solver.jacobian_row(r).to_vec()).collect();
+        solver.jacobian_at(&skel, &c, &mut ch, 10.0, JacobianKind::FiniteDifference);
+        let scale = analytic.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
+        for (r, row) in analytic.iter().enumerate() {
+            for (a, b) in row.iter().zip(solver.jacobian_row(r)) {
+                assert!(
+                    (a - b).abs() <= 1e-6 * scale,
+                    "row {r}: analytic {a} vs finite difference {b}"
+                );
+            }
+        }
+        assert_eq!(rows, 9);
+        assert_eq!(analytic[0].len(), solver.variables());
+    }
+}
+
+/// Targets made by FK of random within-limit angles are reached by the limb solver, with the
+/// shoulder inside its limits, for an arm and a leg.
+#[test]
+fn limb_reaches_random_reachable_targets_within_limits() {
+    let skel = skeleton();
+    let mut rng = Rng::new(5);
+    for (upper, lower) in [("lhumerus", "lradius"), ("rfemur", "rtibia")] {
+        let (u, l) = (skel.find(upper).unwrap(), skel.find(lower).unwrap());
+        let limb = Limb::new(&skel, u, l, None).unwrap();
+        let n = 2000;
+        let (mut ok, mut legal, mut worst) = (0, 0, 0.0f64);
+        for _ in 0..n {
+            let mut goal = vec![0.0; skel.channel_count()];
+            random_pose(&skel, &[u, l], &mut rng, &mut goal);
+            let mut pose = Pose64::default();
+            fk64(&skel, &goal, &mut pose);
+            let target = pose.tip[l];
+            let mut ch = vec![0.0; skel.channel_count()];
+            let s = limb.solve(&skel, &mut ch, target, Swivel::Auto { previous: None });
+            assert!(ch.iter().all(|x| x.is_finite()));
+            assert!(s.reachable);
+            worst = worst.max(s.error);
+            ok += usize::from(s.error < 1e-6);
+            legal += usize::from(s.upper_within_limits && s.elbow_within_limits);
+        }
+        println!("{upper}/{lower}: {ok}/{n} within 1e-6 (worst {worst:.1e}), {legal}/{n} within limits");
+        assert_eq!(ok, n);
+        assert!(legal as f64 >= 0.99 * n as f64, "{legal}/{n} within limits");
+    }
+}
+
+/// Out of reach: stretched towards the target, flagged, never NaN; degenerate targets too.
+#[test]
+fn limb_handles_unreachable_and_degenerate_targets() {
+    let skel = skeleton();
+    let (u, l) = (skel.find("lhumerus").unwrap(), skel.find("lradius").unwrap());
+    let limb = Limb::new(&skel, u, l, None).unwrap();
+    let mut ch = vec![0.0; skel.channel_count()];
+    let mut pose = Pose64::default();
+    fk64(&skel, &ch, &mut pose);
+    let s0 = pose.start[u];
+    let (_, reach) = limb.reach();
+    let far = s0 + DVec3::new(100.0, 50.0, -30.0);
+    let sol = limb.solve(&skel, &mut ch, far, Swivel::Auto { previous: None });
+    assert!(!sol.reachable);
+    fk64(&skel, &ch, &mut pose);
+    let dir = (pose.tip[l] - s0).normalize();
+    assert!(
+        dir.dot((far - s0).normalize()) > 1.0 - 1e-9,
+        "not stretched towards the target"
+    );
+    assert!(((pose.tip[l] - s0).length() - reach).abs() < 1e-6);
+    for target in [
+        s0,
+        DVec3::NAN,
+        DVec3::splat(f64::INFINITY),
+        s0 + DVec3::new(0.0, 1e-12, 0.0),
+    ] {
+        let mut ch = vec![0.0; skel.channel_count()];
+        let sol = limb.solve(&skel, &mut ch, target, Swivel::Auto { previous: None });
+        assert!(ch.iter().all(|x| x.is_finite()), "{target:?}");
+        assert!(!sol.error.is_nan());
+    }
+    assert!(Limb::new(&skel, l, u, None).is_err());
+}
+
+/// Streaming the walk's left wrist path through the limb solver with warm starts: the wrist
+/// follows, the swivel and joints move smoothly.
+#[test]
+fn limb_stream_is_continuous() {
+    let skel = skeleton();
+    let frames = walk_frames(&skel);
+    let (u, l) = (skel.find("lhumerus").unwrap(), skel.find("lradius").unwrap());
+    let limb = Limb::new(&skel, u, l, None).unwrap();
+    let mut previous = None;
+    let mut last: Option<Vec<f64>> = None;
+    let (mut worst_err, mut worst_step) = (0.0f64, 0.0f64);
+    let mut pose = Pose64::default();
+    for f in &frames[3..] {
+        fk64(&skel, f, &mut pose);
+        let target = pose.tip[l];
+        let mut ch = f.clone();
+        let s = limb.solve(&skel, &mut ch, target, Swivel::Auto { previous });
+        previous = Some(s.swivel);
+        worst_err = worst_err.max(s.error);
+        if let Some(p) = &last {
+            let b = &skel.bones()[u];
+            for c in b.channels().chain(skel.bones()[l].channels()) {
+                worst_step = worst_step.max((ch[c] - p[c]).abs());
+            }
+        }
+        last = Some(ch);
+    }
+    println!(
+        "walk wrist path: worst error {worst_err:.1e}, largest joint step {:.2}°",
+        worst_step.to_degrees()
+    );
+    assert!(worst_err < 1e-6);
+    assert!(worst_step.to_degrees() < 10.0);
+}
+
+/// Each numerical method reaches random reachable arm targets (humerus + radius, 4 DOFs), with
+/// limits respected in every result.
+#[test]
+fn numerical_methods_reach_random_targets() {
+    let skel = skeleton();
+    let (u, l) = (skel.find("lhumerus").unwrap(), skel.find("lradius").unwrap());
+    let mask = chain_mask(&skel, u, l);
+    let mut rng = Rng::new(8);
+    for method in [
+        Method::Ccd,
+        Method::Transpose,
+        Method::Pseudoinverse,
+        Method::DampedLeastSquares,
+        Method::ConjugateGradient,
+    ] {
+        let mut solver = Solver::new(&skel, &mask, false);
+        assert_eq!(solver.variables(), 4);
+        let settings = Settings {
+            method,
+            max_iterations: 2000,
+            damping: 0.05,
+            ..Settings::default()
+        };
+        let n = 200;
+        let mut ok = 0;
+        for _ in 0..n {
+            let mut goal = vec![0.0; skel.channel_count()];
+            random_pose(&skel, &[u, l], &mut rng, &mut goal);
+            let mut pose = Pose64::default();
+            fk64(&skel, &goal, &mut pose);
+            let mut ch = vec![0.0; skel.channel_count()];
+            let out = solver.solve(
+                &skel,
+                &[Constraint {
+                    bone: l,
+                    position: pose.tip[l],
+                    axes: None,
+                }],
+                &mut ch,
+                &settings,
+            );
+            assert!(solver.within_limits(&ch), "{method:?} left the limits");
+            assert!(out.position_error.is_finite());
+            ok += usize::from(out.converged);
+        }
+        println!("{method:?}: {ok}/{n}");
+        let floor = match method {
+            Method::Ccd | Method::Transpose => 0.7,
+            _ => 0.75,
+        };
+        assert!(ok as f64 >= floor * n as f64, "{method:?}: {ok}/{n}");
+    }
+}
+
+/// Several constraints at once: both feet and a hand, from a walk frame.
+#[test]
+fn numerical_ik_with_several_constraints() {
+    let skel = skeleton();
+    let frames = walk_frames(&skel);
+    let (lf, rf, lh) = (
+        skel.find("ltibia").unwrap(),
+        skel.find("rtibia").unwrap(),
+        skel.find("lradius").unwrap(),
+    );
+    let mut pose = Pose64::default();
+    fk64(&skel, &frames[200], &mut pose);
+    let targets = [
+        Constraint {
+            bone: lf,
+            position: pose.tip[lf],
+            axes: None,
+        },
+        Constraint {
+            bone: rf,
+            position: pose.tip[rf],
+            axes: None,
+        },
+        Constraint {
+            bone: lh,
+            position: pose.tip[lh] + DVec3::new(0.0, 2.0, 1.0),
+            axes: None,
+        },
+    ];
+    let mut mask = [true; marionette::skeleton::MAX_BONES];
+    mask[0] = true;
+    let mut solver = Solver::new(&skel, &mask, false);
+    let mut ch = frames[200].clone();
+    let out = solver.solve(
+        &skel,
+        &targets,
+        &mut ch,
+        &Settings {
+            max_iterations: 1000,
+            damping: 0.1,
+            ..Settings::default()
+        },
+    );
+    println!("{out:?}");
+    assert!(out.converged, "{out:?}");
+    assert!(solver.within_limits(&ch));
+}
