@@ -43,6 +43,35 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Inverse kinematics: move a bone's tip to a target and print the result.
+    Ik {
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Starting motion (.amc); the start is its frame --frame (default: the rest pose).
+        #[arg(long)]
+        amc: Option<PathBuf>,
+        /// AMC frame number to start from.
+        #[arg(long)]
+        frame: Option<i64>,
+        /// The bone whose tip must reach the target (lradius: wrist, ltibia: ankle).
+        #[arg(long)]
+        effector: String,
+        /// Target position X,Y,Z in ASF file units (global).
+        #[arg(long, allow_hyphen_values = true)]
+        target: String,
+        /// Pointing direction X,Y,Z of the next bone (hand, foot).
+        #[arg(long, allow_hyphen_values = true)]
+        point_dir: Option<String>,
+        /// Roll about the pointing direction, degrees.
+        #[arg(long, allow_hyphen_values = true)]
+        roll: Option<f64>,
+        /// Solver (default: analytic where the effector ends a 2-bone limb, else dls).
+        #[arg(long, value_enum)]
+        method: Option<crate::ik_cli::IkMethod>,
+        /// Write the solved pose as a one-frame AMC.
+        #[arg(short = 'o', long)]
+        output: Option<PathBuf>,
+    },
     /// List serial adapters (USB VID/PID, U2D2/FTDI, latency timer).
     Ports,
     /// Ping every id on a bus: ids, models, firmware, hardware error status.
@@ -285,6 +314,43 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Budget { profile, rate, json } => {
             crate::rig_cli::budget_cmd(&profile, rate, json, &mut io::stdout().lock())
         }
+        Command::Ik {
+            asf,
+            amc,
+            frame,
+            effector,
+            target,
+            point_dir,
+            roll,
+            method,
+            output,
+        } => (|| {
+            let target = crate::ik_cli::parse_vec3(&target, "--target")?;
+            let point_dir = point_dir
+                .as_deref()
+                .map(|p| crate::ik_cli::parse_vec3(p, "--point-dir"))
+                .transpose()?;
+            if point_dir.is_some_and(|d| d.length() < 1e-12) {
+                return Err(CliError::Usage("--point-dir must not be zero".into()));
+            }
+            if roll.is_some_and(|r| !r.is_finite()) {
+                return Err(CliError::Usage(
+                    "--roll must be a finite number of degrees".into(),
+                ));
+            }
+            let args = crate::ik_cli::IkArgs {
+                asf: &asf,
+                amc: amc.as_deref(),
+                frame,
+                effector: &effector,
+                target,
+                point_dir,
+                roll,
+                method,
+                output: output.as_deref(),
+            };
+            crate::ik_cli::ik_cmd(&args, &mut io::stdout().lock())
+        })(),
         Command::Ports => crate::rig_cli::ports_cmd(&mut io::stdout().lock()),
         Command::Scan {
             port,

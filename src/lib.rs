@@ -53,6 +53,8 @@ pub mod cli;
 #[cfg(feature = "std")]
 pub mod formats;
 #[cfg(feature = "std")]
+pub mod ik_cli;
+#[cfg(feature = "std")]
 pub mod motion;
 #[cfg(feature = "std")]
 pub mod profile;

@@ -308,3 +308,103 @@ fn numerical_ik_with_several_constraints() {
     assert!(out.converged, "{out:?}");
     assert!(solver.within_limits(&ch));
 }
+
+/// `marionette ik` end to end: a reachable wrist target from a walk frame is met by every
+/// method, the pose file reproduces it, and bad input gets a clear error.
+#[test]
+fn ik_command_line() {
+    let skel = skeleton();
+    let frames = walk_frames(&skel);
+    let l = skel.find("lradius").unwrap();
+    let mut pose = Pose64::default();
+    fk64(&skel, &frames[99], &mut pose);
+    // Bring the wrist 30 % closer to the shoulder and a little forward (the elbow bends).
+    let s = pose.start[skel.find("lhumerus").unwrap()];
+    let t = pose.tip[l] + (s - pose.tip[l]) * 0.3 + DVec3::new(0.0, 0.0, 0.5);
+    let target = format!("{},{},{}", t.x, t.y, t.z);
+    let dir = std::env::temp_dir().join(format!("marionette-ik-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for method in ["analytic", "ccd", "jt", "pinv", "dls", "cg"] {
+        let out_path = dir.join(format!("{method}.amc"));
+        let out = common::bin()
+            .args([
+                "ik",
+                common::data("16.asf").to_str().unwrap(),
+                "--amc",
+                common::data("16_15.amc").to_str().unwrap(),
+            ])
+            .args([
+                "--frame",
+                "100",
+                "--effector",
+                "lradius",
+                "--target",
+                &target,
+                "--method",
+                method,
+                "-o",
+            ])
+            .arg(&out_path)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{method}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let residual: f64 = stdout
+            .split("residual ")
+            .nth(1)
+            .unwrap()
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(residual < 1e-3, "{method}: {stdout}");
+        assert!(stdout.contains("joint limits met"), "{method}: {stdout}");
+        // The written pose puts the wrist on the target.
+        let m = amc::load(&skel, &out_path).unwrap();
+        let mut p = Pose64::default();
+        let ch: Vec<f64> = m
+            .frame(0)
+            .iter()
+            .enumerate()
+            .map(|(c, v)| match skel.channel_owner(c) {
+                Some((_, d)) if d.is_rotation() => v.to_radians(),
+                _ => *v,
+            })
+            .collect();
+        fk64(&skel, &ch, &mut p);
+        assert!((p.tip[l] - t).length() < 1e-3, "{method}");
+    }
+    for (args, words) in [
+        (vec!["--effector", "lfoo", "--target", "1,2,3"], "unknown bone"),
+        (vec!["--effector", "lradius", "--target", "1,2"], "X,Y,Z"),
+        (vec!["--effector", "lradius", "--target", "1,nan,3"], "finite"),
+        (
+            vec![
+                "--effector",
+                "lfingers",
+                "--target",
+                "1,2,3",
+                "--method",
+                "analytic",
+            ],
+            "2-bone limb",
+        ),
+    ] {
+        let out = common::bin()
+            .args(["ik", common::data("16.asf").to_str().unwrap()])
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(words),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
