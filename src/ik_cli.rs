@@ -9,8 +9,7 @@ use crate::cli::CliError;
 use crate::formats::{amc, asf};
 use crate::ik::{fk64, Limb, Pose64, Swivel};
 use crate::ik_numeric::{chain_mask, Constraint, Method, Settings, Solver};
-use crate::motion::{Motion, CMU_FRAME_RATE};
-use crate::skeleton::Skeleton;
+use crate::motion::{frame_to_radians, radians_to_frame, Motion, CMU_FRAME_RATE};
 
 /// The solver asked for on the command line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -42,29 +41,6 @@ pub fn parse_vec3(text: &str, what: &str) -> Result<DVec3, CliError> {
         )));
     }
     Ok(DVec3::new(v[0], v[1], v[2]))
-}
-
-/// Frame values (file units, degrees) → channels (radians for rotations).
-fn to_channels(skel: &Skeleton, frame: &[f64]) -> Vec<f64> {
-    frame
-        .iter()
-        .enumerate()
-        .map(|(c, v)| match skel.channel_owner(c) {
-            Some((_, d)) if d.is_rotation() => v.to_radians(),
-            _ => *v,
-        })
-        .collect()
-}
-
-fn to_frame(skel: &Skeleton, channels: &[f64]) -> Vec<f64> {
-    channels
-        .iter()
-        .enumerate()
-        .map(|(c, v)| match skel.channel_owner(c) {
-            Some((_, d)) if d.is_rotation() => v.to_degrees(),
-            _ => *v,
-        })
-        .collect()
 }
 
 /// Options of `marionette ik`.
@@ -105,7 +81,7 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
                 motion.first_frame
             )));
         }
-        channels = to_channels(skel, motion.frame((n - motion.first_frame) as usize));
+        channels = frame_to_radians(skel, motion.frame((n - motion.first_frame) as usize));
     } else if args.frame.is_some() {
         return Err(CliError::Usage("--frame needs --amc".into()));
     }
@@ -285,7 +261,7 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
     writeln!(out, "{} tip at {:.4},{:.4},{:.4}", args.effector, t.x, t.y, t.z)?;
     if let Some(path) = args.output {
         let mut m = Motion::new(skel.channel_count(), CMU_FRAME_RATE);
-        m.push_frame(&to_frame(skel, &channels));
+        m.push_frame(&radians_to_frame(skel, &channels));
         amc::save(skel, &m, path)?;
         writeln!(out, "pose written to {}", path.display())?;
     }

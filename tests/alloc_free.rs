@@ -109,17 +109,7 @@ fn rig_and_bus_cycle_allocates_nothing() {
     stage.start_from(&rig, &present);
     // Frames as radians, prepared outside the measured loop.
     let frames: Vec<Vec<f64>> = (0..motion.len())
-        .map(|f| {
-            motion
-                .frame(f)
-                .iter()
-                .enumerate()
-                .map(|(c, v)| match skel.channel_owner(c) {
-                    Some((_, d)) if d.is_rotation() => v.to_radians(),
-                    _ => *v,
-                })
-                .collect()
-        })
+        .map(|f| marionette::motion::frame_to_radians(&skel, motion.frame(f)))
         .collect();
     let mut angles = vec![0.0; rig.len()];
     let mut read = vec![0i32; rig.len()];

@@ -34,17 +34,7 @@ fn random_pose(skel: &Skeleton, bones: &[usize], rng: &mut Rng, channels: &mut [
 fn walk_frames(skel: &Skeleton) -> Vec<Vec<f64>> {
     let motion = amc::load(skel, &common::data("16_15.amc")).unwrap();
     (0..motion.len())
-        .map(|f| {
-            motion
-                .frame(f)
-                .iter()
-                .enumerate()
-                .map(|(c, v)| match skel.channel_owner(c) {
-                    Some((_, d)) if d.is_rotation() => v.to_radians(),
-                    _ => *v,
-                })
-                .collect()
-        })
+        .map(|f| marionette::motion::frame_to_radians(&skel, motion.frame(f)))
         .collect()
 }
 
@@ -367,15 +357,7 @@ fn ik_command_line() {
         // The written pose puts the wrist on the target.
         let m = amc::load(&skel, &out_path).unwrap();
         let mut p = Pose64::default();
-        let ch: Vec<f64> = m
-            .frame(0)
-            .iter()
-            .enumerate()
-            .map(|(c, v)| match skel.channel_owner(c) {
-                Some((_, d)) if d.is_rotation() => v.to_radians(),
-                _ => *v,
-            })
-            .collect();
+        let ch: Vec<f64> = marionette::motion::frame_to_radians(&skel, m.frame(0));
         fk64(&skel, &ch, &mut p);
         assert!((p.tip[l] - t).length() < 1e-3, "{method}");
     }

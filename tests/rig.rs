@@ -196,12 +196,7 @@ fn puppet_shoulders_follow_the_walk() {
     let mut worst = 0.0f64;
     let mut biggest_step = 0.0f64;
     for f in 0..motion.len() {
-        let channels: Vec<f64> = motion
-            .frame(f)
-            .iter()
-            .enumerate()
-            .map(|(c, v)| rotation_value(&skel, c, *v))
-            .collect();
+        let channels = marionette::motion::frame_to_radians(&skel, motion.frame(f));
         rig.joint_angles(&skel, &channels, &[], &mut angles);
         let mut zyx = [0.0; 3];
         for &k in &shoulder {
@@ -238,14 +233,6 @@ fn puppet_shoulders_follow_the_walk() {
         "a jump of {}°",
         biggest_step.to_degrees()
     );
-}
-
-/// AMC channels are degrees for rotations; the rig wants radians.
-fn rotation_value(skel: &marionette::skeleton::Skeleton, channel: usize, v: f64) -> f64 {
-    match skel.channel_owner(channel) {
-        Some((_, d)) if d.is_rotation() => v.to_radians(),
-        _ => v,
-    }
 }
 
 fn one_servo_rig(max_velocity: f64, max_acceleration: f64) -> Rig {

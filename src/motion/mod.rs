@@ -141,6 +141,33 @@ pub fn frame_to_channels(skeleton: &Skeleton, values: &[f64], out: &mut [f32]) {
     }
 }
 
+/// Converts file values (degrees) of one frame into an f64 channel vector (radians), as the IK
+/// solvers and the rig mapping take it.
+#[must_use]
+pub fn frame_to_radians(skeleton: &Skeleton, values: &[f64]) -> Vec<f64> {
+    values
+        .iter()
+        .enumerate()
+        .map(|(c, v)| match skeleton.channel_owner(c) {
+            Some((_, d)) if d.is_rotation() => v.to_radians(),
+            _ => *v,
+        })
+        .collect()
+}
+
+/// Converts an f64 channel vector (radians) back to file values (degrees).
+#[must_use]
+pub fn radians_to_frame(skeleton: &Skeleton, channels: &[f64]) -> Vec<f64> {
+    channels
+        .iter()
+        .enumerate()
+        .map(|(c, v)| match skeleton.channel_owner(c) {
+            Some((_, d)) if d.is_rotation() => v.to_degrees(),
+            _ => *v,
+        })
+        .collect()
+}
+
 /// Converts a core frame vector back to file values (degrees).
 ///
 /// # Panics
