@@ -34,7 +34,7 @@ fn random_pose(skel: &Skeleton, bones: &[usize], rng: &mut Rng, channels: &mut [
 fn walk_frames(skel: &Skeleton) -> Vec<Vec<f64>> {
     let motion = amc::load(skel, &common::data("16_15.amc")).unwrap();
     (0..motion.len())
-        .map(|f| marionette::motion::frame_to_radians(&skel, motion.frame(f)))
+        .map(|f| marionette::motion::frame_to_radians(skel, motion.frame(f)))
         .collect()
 }
 
