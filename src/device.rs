@@ -353,7 +353,6 @@ pub type Replies = heapless::Vec<Reply, MAX_SERVOS>;
 #[derive(Clone, Debug, Default)]
 pub struct Chain {
     servos: heapless::Vec<VirtualServo, MAX_SERVOS>,
-    params: heapless::Vec<u8, MAX_PACKET>,
     instructions: u64,
 }
 
@@ -419,17 +418,12 @@ impl Chain {
             return Ok(());
         }
         self.instructions += 1;
-        self.params.clear();
-        let _ = self.params.extend_from_slice(p.params);
-        let (id, inst) = (p.id, p.instruction);
         let mut w = Writer {
             out,
             used: 0,
             replies,
         };
-        let params = core::mem::take(&mut self.params);
-        self.execute(id, inst, &params, &mut w);
-        self.params = params;
+        self.execute(p.id, p.instruction, p.params, &mut w);
         Ok(())
     }
 

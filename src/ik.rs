@@ -398,13 +398,12 @@ impl Limb {
         }
     }
 
-    /// Euler angles of a shoulder rotation `Q` (world-at-rest) and their limit violation: of the
+    /// Euler angles of a shoulder rotation `M = Cᵀ·Q·C` (the bone's own frame) and their limit
+    /// violation: of the
     /// two Euler solutions (each angle taken modulo 2π next to its limit range), the one
     /// violating the limits least, then the one nearest the range's centre.
-    fn shoulder_angles(&self, skeleton: &Skeleton, q: &DMat3) -> ([f64; 3], f64) {
-        let c = c64(skeleton.bones()[self.upper].axis_rotation());
-        let m = c.transpose() * *q * c;
-        let a = self.upper_order.from_mat3_f64(&m);
+    fn shoulder_angles(&self, m: &DMat3) -> ([f64; 3], f64) {
+        let a = self.upper_order.from_mat3_f64(m);
         let pi = core::f64::consts::PI;
         let b2 = if self.upper_order.is_proper() {
             -a[1]
@@ -490,10 +489,13 @@ impl Limb {
         };
         let phi0 = elbow_phi(&base);
         let q_at = |phi: f64| DMat3::from_axis_angle(dhat, phi - phi0) * base;
+        let c_upper = c64(ub.axis_rotation());
+        let local = |phi: f64| c_upper.transpose() * q_at(phi) * c_upper;
+        // The swivel's score and the shoulder's limit violation.
         let eval = |phi: f64, previous: Option<f64>| {
-            let q = q_at(phi);
-            let (_, v) = self.shoulder_angles(skeleton, &q);
-            let quat = DQuat::from_mat3(&(c64(ub.axis_rotation()).transpose() * q * c64(ub.axis_rotation())));
+            let m = local(phi);
+            let (_, v) = self.shoulder_angles(&m);
+            let quat = DQuat::from_mat3(&m);
             let spread: f64 = self.corners.iter().map(|c| quat_distance_f64(quat, *c)).sum();
             let keep = previous.map_or(0.0, |p| {
                 let d = crate::interp::wrap_near(phi, p) - p;
@@ -502,7 +504,7 @@ impl Limb {
             // Inside the limits first (eq. 30's centrality among legal swivels), else least
             // violation.
             let legal = if v > 1e-12 { 1e3 * (1.0 + v) } else { 0.0 };
-            legal + spread + keep
+            (legal + spread + keep, v)
         };
         let phi = match swivel {
             Swivel::Fixed(p) => p,
@@ -511,19 +513,19 @@ impl Limb {
                 let n = 120;
                 let mut best = (f64::INFINITY, 0.0);
                 let mut best_legal: Option<(f64, f64)> = None;
-                let violation = |p: f64| self.shoulder_angles(skeleton, &q_at(p)).1;
+                let violation = |p: f64| self.shoulder_angles(&local(p)).1;
                 for i in 0..n {
                     let p = -core::f64::consts::PI + core::f64::consts::TAU * f64::from(i) / f64::from(n);
-                    let f = eval(p, previous);
+                    let (f, v) = eval(p, previous);
                     if f < best.0 {
                         best = (f, p);
                     }
-                    if violation(p) == 0.0 && best_legal.is_none_or(|(bf, _)| f < bf) {
+                    if v == 0.0 && best_legal.is_none_or(|(bf, _)| f < bf) {
                         best_legal = Some((f, p));
                     }
                 }
                 let step = core::f64::consts::TAU / f64::from(n);
-                let found = golden(|p| eval(p, previous), best.1 - step, best.1 + step, 1e-7);
+                let found = golden(|p| eval(p, previous).0, best.1 - step, best.1 + step, 1e-7);
                 match best_legal {
                     // The optimum lies on the limit boundary: step back inside, towards the
                     // best legal sample, by bisection on legality.
@@ -543,8 +545,7 @@ impl Limb {
                 }
             }
         };
-        let q = q_at(phi);
-        let (angles, violation) = self.shoulder_angles(skeleton, &q);
+        let (angles, violation) = self.shoulder_angles(&local(phi));
         let first = ub.first_channel();
         for (j, k) in self.upper_rot_dofs.iter().enumerate() {
             channels[first + k] = angles[j];

@@ -146,6 +146,14 @@ pub struct ServoSpec {
 }
 
 impl ServoSpec {
+    /// The software limits in ticks, `(lowest, highest)`: the joint limits through direction,
+    /// zero and gear, rounded inwards.
+    #[must_use]
+    pub fn tick_limits(&self) -> (i32, i32) {
+        let m = self.map(JointSource::Joint(0));
+        (m.min_tick, m.max_tick)
+    }
+
     /// The core's view of this servo, with the source resolved by the caller.
     #[must_use]
     pub fn map(&self, source: JointSource) -> ServoMap {

@@ -6,7 +6,7 @@ use std::path::Path;
 use crate::budget::plan;
 use crate::bus::dxl::Dynamixel2Bus;
 use crate::bus::virtual_chain::{chain_for, PtyChain};
-use crate::bus::{PingInfo, ServoBus};
+use crate::bus::ServoBus;
 use crate::cli::CliError;
 use crate::formats::asf;
 use crate::profile::{Drive, Profile};
@@ -173,7 +173,7 @@ pub fn scan_cmd(
     let found = bus.scan().map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
     writeln!(out, "{path} at {baud} bit/s: {} servo(s)", found.len())?;
     for p in &found {
-        write!(out, "{}", PingInfo { ..*p })?;
+        write!(out, "{p}")?;
         match bus.hardware_error(p.id) {
             Ok(0) => writeln!(out, "  ok")?,
             Ok(e) => writeln!(out, "  hardware error status {e:#04x}")?,

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use dynamixel2::{InvalidMessage, ReadError, TransferError, WriteError};
 
-use super::{BusError, PingInfo, ServoBus};
+use super::{invalid_request, BusError, PingInfo, ServoBus};
 use crate::rig::MAX_SERVOS;
 
 /// Read/write buffer size: a Sync Write to 64 servos with 4 bytes each is 14 + 5·64 bytes.
@@ -42,6 +42,14 @@ impl Dynamixel2Bus {
         })
     }
 
+    /// How long the line must stay quiet after a failed reply before the next instruction
+    /// (default 10 ms): a reply later than the timeout plus this window is taken for fresh.
+    #[must_use]
+    pub fn with_drain(mut self, quiet: Duration) -> Dynamixel2Bus {
+        self.quiet = quiet;
+        self
+    }
+
     /// The underlying `dynamixel2` bus.
     pub fn inner(&mut self) -> &mut dynamixel2::Bus<Vec<u8>, Vec<u8>> {
         &mut self.bus
@@ -62,10 +70,9 @@ impl Dynamixel2Bus {
         let _ = self.bus.serial_port().discard_input_buffer();
     }
 
+    /// Reports a failed reply after draining the line (a failing port is not drained).
     fn fail<T>(&mut self, e: BusError) -> Result<T, BusError> {
-        if !matches!(e, BusError::Io(_))
-            || matches!(&e, BusError::Io(io) if io.kind() == io::ErrorKind::TimedOut)
-        {
+        if !matches!(e, BusError::Io(_)) {
             self.drain();
         }
         Err(e)
@@ -108,10 +115,7 @@ pub fn map_read_error(id: u8, e: ReadError) -> BusError {
 fn map_write_error(e: WriteError) -> BusError {
     match e {
         WriteError::Write(io) | WriteError::DiscardBuffer(io) => BusError::Io(io),
-        WriteError::BufferTooSmall(_) => BusError::Io(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            "instruction too long",
-        )),
+        WriteError::BufferTooSmall(_) => invalid_request("instruction too long"),
     }
 }
 
@@ -173,6 +177,9 @@ impl ServoBus for Dynamixel2Bus {
 
     fn sync_write(&mut self, address: u16, len: u16, ids: &[u8], data: &[u8]) -> Result<(), BusError> {
         let len_us = usize::from(len);
+        if data.len() < ids.len() * len_us {
+            return Err(invalid_request("sync write data shorter than ids × len"));
+        }
         let records = ids
             .iter()
             .enumerate()
@@ -188,11 +195,10 @@ impl ServoBus for Dynamixel2Bus {
     fn sync_read(&mut self, address: u16, len: u16, ids: &[u8], out: &mut [u8]) -> Result<(), BusError> {
         let l = usize::from(len);
         let mut scratch = [0u8; 16 * MAX_SERVOS];
-        if ids.len() * l > scratch.len() {
-            return Err(BusError::Io(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                "sync read too large",
-            )));
+        if ids.len() * l > scratch.len() || out.len() < ids.len() * l {
+            return Err(invalid_request(
+                "sync read too large, or output shorter than ids × len",
+            ));
         }
         let mut first: Option<BusError> = None;
         let mut k = 0usize;

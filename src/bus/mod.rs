@@ -103,6 +103,11 @@ pub enum BusError {
     Io(#[from] std::io::Error),
 }
 
+/// A request the caller got wrong (too long for a packet, buffers of the wrong size).
+pub(crate) fn invalid_request(what: &'static str) -> BusError {
+    BusError::Io(std::io::Error::new(std::io::ErrorKind::InvalidInput, what))
+}
+
 fn servo_error_text(e: u8) -> &'static str {
     match e {
         servo::status_error::RESULT_FAIL => "result fail",
@@ -353,10 +358,7 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
     let rig_limits: Vec<(i32, i32)> = profile
         .servos
         .iter()
-        .map(|s| {
-            let m = s.map(crate::rig::JointSource::Joint(0));
-            (m.min_tick, m.max_tick)
-        })
+        .map(crate::profile::ServoSpec::tick_limits)
         .collect();
     for (s, (lo, hi)) in profile.servos.iter().zip(&rig_limits) {
         bus.set_torque(s.id, false)?;

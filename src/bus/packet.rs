@@ -7,7 +7,7 @@
 use std::io;
 use std::time::Duration;
 
-use super::{BusError, PingInfo, ServoBus};
+use super::{invalid_request, BusError, PingInfo, ServoBus};
 use crate::device::{Received, Receiver, MAX_PACKET};
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
 
@@ -74,15 +74,24 @@ impl<T: Transport> PacketBus<T> {
     }
 
     fn send(&mut self, id: u8, inst: u8, params: &[u8]) -> Result<(), BusError> {
-        let n = protocol::encode(id, inst, params, &mut self.tx).map_err(|_| {
-            BusError::Io(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                "instruction too long",
-            ))
-        })?;
+        let n = protocol::encode(id, inst, params, &mut self.tx)
+            .map_err(|_| invalid_request("instruction too long"))?;
         self.rx.clear();
         self.link.send(&self.tx[..n])?;
         Ok(())
+    }
+
+    /// The next complete packet received, decoded (parameters in `self.params`) and removed
+    /// from the buffer: `(id, instruction, parameter count)`; `None` while incomplete.
+    fn take_packet(&mut self) -> Option<Result<(u8, u8, usize), CodecError>> {
+        let Received::Packet(raw) = self.rx.next_packet() else {
+            return None;
+        };
+        let n = raw.len();
+        let decoded =
+            protocol::decode(raw, &mut self.params).map(|(p, _)| (p.id, p.instruction, p.params.len()));
+        self.rx.consume(n);
+        Some(decoded)
     }
 
     /// Waits for one status packet from `id` with exactly `len` data bytes (any length when
@@ -92,12 +101,8 @@ impl<T: Transport> PacketBus<T> {
         let timeout = wire_time(11 + expect, self.link.baud()) + self.margin;
         let deadline = self.link.now() + timeout;
         loop {
-            match self.rx.next_packet() {
-                Received::Packet(raw) => {
-                    let n = raw.len();
-                    let decoded = protocol::decode(raw, &mut self.params)
-                        .map(|(p, _)| (p.id, p.instruction, p.params.len()));
-                    self.rx.consume(n);
+            match self.take_packet() {
+                Some(decoded) => {
                     let (got, inst, plen) = decoded.map_err(|e| match e {
                         CodecError::BadCrc { .. } => BusError::Crc { id },
                         CodecError::BadStuffing => BusError::Malformed {
@@ -131,7 +136,7 @@ impl<T: Transport> PacketBus<T> {
                     }
                     return Ok(plen - 1);
                 }
-                Received::Pending => {
+                None => {
                     let now = self.link.now();
                     if now >= deadline {
                         return Err(BusError::Timeout { id });
@@ -185,13 +190,9 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         let deadline = self.link.now() + timeout;
         let mut buf = [0u8; 512];
         loop {
-            match self.rx.next_packet() {
-                Received::Packet(raw) => {
-                    let n = raw.len();
-                    let d = protocol::decode(raw, &mut self.params)
-                        .map(|(p, _)| (p.id, p.instruction, p.params.len()));
-                    self.rx.consume(n);
-                    if let Ok((id, instruction::STATUS, 4)) = d {
+            match self.take_packet() {
+                Some(decoded) => {
+                    if let Ok((id, instruction::STATUS, 4)) = decoded {
                         let p = &self.params[1..4];
                         if !found.iter().any(|f: &PingInfo| f.id == id) {
                             found.push(PingInfo {
@@ -202,7 +203,7 @@ impl<T: Transport> ServoBus for PacketBus<T> {
                         }
                     }
                 }
-                Received::Pending => {
+                None => {
                     let now = self.link.now();
                     if now >= deadline {
                         break;
@@ -223,6 +224,9 @@ impl<T: Transport> ServoBus for PacketBus<T> {
     }
 
     fn read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), BusError> {
+        if out.len() >= MAX_PACKET {
+            return Err(invalid_request("read too long"));
+        }
         let n = out.len() as u16;
         let a = address.to_le_bytes();
         let l = n.to_le_bytes();
@@ -232,6 +236,9 @@ impl<T: Transport> ServoBus for PacketBus<T> {
     }
 
     fn write(&mut self, id: u8, address: u16, data: &[u8]) -> Result<(), BusError> {
+        if 2 + data.len() > MAX_PACKET {
+            return Err(invalid_request("instruction too long"));
+        }
         let mut p = [0u8; MAX_PACKET];
         let a = address.to_le_bytes();
         p[..2].copy_from_slice(&a);
@@ -245,6 +252,11 @@ impl<T: Transport> ServoBus for PacketBus<T> {
 
     fn sync_write(&mut self, address: u16, len: u16, ids: &[u8], data: &[u8]) -> Result<(), BusError> {
         let len = usize::from(len);
+        if 4 + ids.len() * (1 + len) > MAX_PACKET || data.len() < ids.len() * len {
+            return Err(invalid_request(
+                "sync write too long, or data shorter than ids × len",
+            ));
+        }
         let mut p = [0u8; MAX_PACKET];
         p[..2].copy_from_slice(&address.to_le_bytes());
         p[2..4].copy_from_slice(&(len as u16).to_le_bytes());
@@ -258,18 +270,18 @@ impl<T: Transport> ServoBus for PacketBus<T> {
     }
 
     fn sync_read(&mut self, address: u16, len: u16, ids: &[u8], out: &mut [u8]) -> Result<(), BusError> {
+        let n = usize::from(len);
+        if 4 + ids.len() > MAX_PACKET || ids.len() * n > MAX_PACKET || out.len() < ids.len() * n {
+            return Err(invalid_request(
+                "sync read too large, or output shorter than ids × len",
+            ));
+        }
         let mut p = [0u8; MAX_PACKET];
         p[..2].copy_from_slice(&address.to_le_bytes());
         p[2..4].copy_from_slice(&len.to_le_bytes());
         p[4..4 + ids.len()].copy_from_slice(ids);
         self.send(BROADCAST_ID, instruction::SYNC_READ, &p[..4 + ids.len()])?;
-        let len = usize::from(len);
-        if ids.len() * len > MAX_PACKET || out.len() < ids.len() * len {
-            return Err(BusError::Io(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                "sync read too large",
-            )));
-        }
+        let len = n;
         // Collect into a scratch copy: `out` is written only when every reply passed.
         let mut scratch = [0u8; MAX_PACKET];
         for (k, &id) in ids.iter().enumerate() {

@@ -145,24 +145,22 @@ pub fn frame_to_channels(skeleton: &Skeleton, values: &[f64], out: &mut [f32]) {
 /// solvers and the rig mapping take it.
 #[must_use]
 pub fn frame_to_radians(skeleton: &Skeleton, values: &[f64]) -> Vec<f64> {
-    values
-        .iter()
-        .enumerate()
-        .map(|(c, v)| match skeleton.channel_owner(c) {
-            Some((_, d)) if d.is_rotation() => v.to_radians(),
-            _ => *v,
-        })
-        .collect()
+    map_rotations(skeleton, values, f64::to_radians)
 }
 
 /// Converts an f64 channel vector (radians) back to file values (degrees).
 #[must_use]
 pub fn radians_to_frame(skeleton: &Skeleton, channels: &[f64]) -> Vec<f64> {
-    channels
+    map_rotations(skeleton, channels, f64::to_degrees)
+}
+
+/// Applies `f` to the rotation channels, copying the others.
+fn map_rotations(skeleton: &Skeleton, values: &[f64], f: fn(f64) -> f64) -> Vec<f64> {
+    values
         .iter()
         .enumerate()
         .map(|(c, v)| match skeleton.channel_owner(c) {
-            Some((_, d)) if d.is_rotation() => v.to_degrees(),
+            Some((_, d)) if d.is_rotation() => f(*v),
             _ => *v,
         })
         .collect()
