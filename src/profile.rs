@@ -60,6 +60,18 @@ pub enum ReadMode {
     FastSync,
 }
 
+impl ReadMode {
+    /// Its name in profiles (`sync`, `bulk`, `fast-sync`).
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            ReadMode::Sync => "sync",
+            ReadMode::Bulk => "bulk",
+            ReadMode::FastSync => "fast-sync",
+        }
+    }
+}
+
 /// Which present values are read each cycle (one contiguous block of the control table).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct ReadFields {

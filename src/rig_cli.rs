@@ -21,8 +21,12 @@ pub fn profile_cmd(path: &Path, asf_path: Option<&Path>, out: &mut dyn Write) ->
     writeln!(out, "{} — {} servos", profile.name, profile.servos.len())?;
     writeln!(
         out,
-        "bus: {} bit/s, return delay {} µs, {:?} read, USB latency {} µs, watchdog {} ms",
-        b.baud, b.return_delay_us, b.read, b.usb_latency_us, b.watchdog_ms
+        "bus: {} bit/s, return delay {} µs, {} read, USB latency {} µs, watchdog {} ms",
+        b.baud,
+        b.return_delay_us,
+        b.read.name(),
+        b.usb_latency_us,
+        b.watchdog_ms
     )?;
     writeln!(
         out,
