@@ -8,7 +8,7 @@
 use glam::{DMat3, DQuat, DVec3};
 
 use crate::interp::euler_near;
-use crate::math::{quat_distance_f64, EulerOrder};
+use crate::math::{quat_distance_fast, EulerOrder};
 use crate::rig::dof_order;
 use crate::skeleton::{Dof, Skeleton, MAX_BONES};
 
@@ -50,41 +50,68 @@ fn dir64(bone: &crate::skeleton::Bone) -> DVec3 {
 
 /// Forward kinematics in f64, eq. (1)–(5). Missing channels count as 0.
 pub fn fk64(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64) {
-    for (i, bone) in skeleton.bones().iter().enumerate() {
-        let mut m = DMat3::IDENTITY;
-        let mut t = DVec3::ZERO;
-        let mut l = 0.0;
-        for (d, c) in bone.dofs().iter().zip(bone.channels()) {
-            let v = channels.get(c).copied().unwrap_or(0.0);
-            match d {
-                Dof::Rx => m = DMat3::from_rotation_x(v) * m,
-                Dof::Ry => m = DMat3::from_rotation_y(v) * m,
-                Dof::Rz => m = DMat3::from_rotation_z(v) * m,
-                Dof::Tx => t.x = v,
-                Dof::Ty => t.y = v,
-                Dof::Tz => t.z = v,
-                Dof::L => l = v,
-            }
+    for i in 0..skeleton.bones().len() {
+        fk64_bone(skeleton, channels, pose, i);
+    }
+}
+
+/// [`fk64`] for the listed bones only (ascending, each after its parent — e.g. from
+/// [`ancestors`]); the other entries of `pose` are left as they were.
+pub fn fk64_bones(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, bones: &[usize]) {
+    for &i in bones {
+        fk64_bone(skeleton, channels, pose, i);
+    }
+}
+
+/// The bones from the root down to `bone` (ascending; bones are stored parents first).
+#[must_use]
+pub fn ancestors(skeleton: &Skeleton, bone: usize) -> heapless::Vec<usize, MAX_BONES> {
+    let mut v = heapless::Vec::new();
+    let mut b = Some(bone);
+    while let Some(i) = b {
+        let _ = v.push(i);
+        b = skeleton.bones().get(i).and_then(crate::skeleton::Bone::parent);
+    }
+    v.reverse();
+    v
+}
+
+/// One bone of [`fk64`], its parent already computed.
+fn fk64_bone(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, i: usize) {
+    let bone = &skeleton.bones()[i];
+    let mut m = DMat3::IDENTITY;
+    let mut t = DVec3::ZERO;
+    let mut l = 0.0;
+    for (d, c) in bone.dofs().iter().zip(bone.channels()) {
+        let v = channels.get(c).copied().unwrap_or(0.0);
+        match d {
+            Dof::Rx => m = DMat3::from_rotation_x(v) * m,
+            Dof::Ry => m = DMat3::from_rotation_y(v) * m,
+            Dof::Rz => m = DMat3::from_rotation_z(v) * m,
+            Dof::Tx => t.x = v,
+            Dof::Ty => t.y = v,
+            Dof::Tz => t.z = v,
+            Dof::L => l = v,
         }
-        let c = c64(bone.axis_rotation());
-        match bone.parent() {
-            None => {
-                let w = c * m;
-                let p = skeleton.root().position.as_dvec3() + t;
-                pose.frame[i] = w;
-                pose.world[i] = w;
-                pose.start[i] = p;
-                pose.tip[i] = p;
-            }
-            Some(p) => {
-                let axes = pose.world[p] * c;
-                let f = axes * m;
-                let start = pose.tip[p] + axes * t;
-                pose.frame[i] = f;
-                pose.world[i] = f * c.transpose();
-                pose.start[i] = start;
-                pose.tip[i] = start + pose.world[i] * (dir64(bone) * (f64::from(bone.length()) + l));
-            }
+    }
+    let c = c64(bone.axis_rotation());
+    match bone.parent() {
+        None => {
+            let w = c * m;
+            let p = skeleton.root().position.as_dvec3() + t;
+            pose.frame[i] = w;
+            pose.world[i] = w;
+            pose.start[i] = p;
+            pose.tip[i] = p;
+        }
+        Some(p) => {
+            let axes = pose.world[p] * c;
+            let f = axes * m;
+            let start = pose.tip[p] + axes * t;
+            pose.frame[i] = f;
+            pose.world[i] = f * c.transpose();
+            pose.start[i] = start;
+            pose.tip[i] = start + pose.world[i] * (dir64(bone) * (f64::from(bone.length()) + l));
         }
     }
 }
@@ -176,6 +203,9 @@ pub enum Swivel {
     Fixed(f64),
 }
 
+/// Samples of the swivel circle in the coarse scan before refinement (every 10°).
+const SWIVEL_SAMPLES: u32 = 36;
+
 /// A 2-bone limb of a skeleton (arm: humerus–radius, leg: femur–tibia), help note §IV steps 1–8.
 #[derive(Clone, Debug)]
 pub struct Limb {
@@ -197,6 +227,10 @@ pub struct Limb {
     center: [f64; 3],
     limits: [(f64, f64); 3],
     elbow_limit: (f64, f64),
+    /// `C` of the upper bone as a quaternion.
+    c_upper: DQuat,
+    /// The root…lower bones, for FK of just the limb.
+    chain: heapless::Vec<usize, MAX_BONES>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -338,6 +372,8 @@ impl Limb {
             center,
             limits,
             elbow_limit,
+            c_upper: DQuat::from_mat3(&c64(u.axis_rotation())).normalize(),
+            chain: ancestors(skeleton, lower),
         })
     }
 
@@ -412,11 +448,13 @@ impl Limb {
         };
         let mut best = ([0.0; 3], f64::INFINITY, f64::INFINITY);
         for cand in [a, [a[0] + pi, b2, a[2] + pi]] {
-            let w = [0, 1, 2].map(|k| crate::interp::wrap_near(cand[k], self.center[k]));
-            let v: f64 = (0..3)
-                .map(|k| (self.limits[k].0 - w[k]).max(0.0) + (w[k] - self.limits[k].1).max(0.0))
-                .sum();
-            let off: f64 = (0..3).map(|k| (w[k] - self.center[k]).abs()).sum();
+            let mut w = [0.0; 3];
+            let (mut v, mut off) = (0.0, 0.0);
+            for k in 0..3 {
+                w[k] = crate::interp::wrap_near(cand[k], self.center[k]);
+                v += (self.limits[k].0 - w[k]).max(0.0) + (w[k] - self.limits[k].1).max(0.0);
+                off += (w[k] - self.center[k]).abs();
+            }
             if v < best.1 - 1e-12 || (v <= best.1 + 1e-12 && off < best.2) {
                 best = (w, v, off);
             }
@@ -433,14 +471,30 @@ impl Limb {
         target: DVec3,
         swivel: Swivel,
     ) -> LimbSolution {
+        // A non-finite swivel means none given.
+        let swivel = match swivel {
+            Swivel::Fixed(p) if !p.is_finite() => Swivel::Auto { previous: None },
+            Swivel::Fixed(p) => Swivel::Fixed(libm::remainder(p, core::f64::consts::TAU)),
+            Swivel::Auto { previous } => Swivel::Auto {
+                previous: previous
+                    .filter(|p| p.is_finite())
+                    .map(|p| libm::remainder(p, core::f64::consts::TAU)),
+            },
+        };
         let mut pose = Pose64::default();
-        fk64(skeleton, channels, &mut pose);
+        fk64_bones(skeleton, channels, &mut pose, &self.chain);
         let ub = &skeleton.bones()[self.upper];
         let parent_world = ub.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
         let s = pose.start[self.upper];
+        // The limb's present direction (zero when its channels hold garbage): the fallback for
+        // a target that is not finite, or one at the shoulder.
+        let mut present_dir = pose.tip[self.lower] - s;
+        if !present_dir.is_finite() {
+            present_dir = DVec3::ZERO;
+        }
         let mut to_target = target - s;
         if !to_target.is_finite() {
-            to_target = pose.tip[self.lower] - s;
+            to_target = present_dir;
         }
         let dist = to_target.length();
         // Elbow (steps 1–3): the branch inside the elbow limit, nearest the present angle.
@@ -448,33 +502,98 @@ impl Limb {
             Elbow::One(k) => channels[skeleton.bones()[self.lower].first_channel() + k],
             Elbow::Three(..) => 0.0,
         };
-        let (cands, reachable) = self.elbow_for_distance(dist);
         let (lo, hi) = self.elbow_limit;
+        let present = if present.is_finite() {
+            present.clamp(lo.max(-1e3), hi.min(1e3))
+        } else {
+            0.0
+        };
+        let (cands, reachable) = self.elbow_for_distance(dist);
         let mut best = (f64::INFINITY, 0.0, false);
+        let mut inside_angles: heapless::Vec<f64, 6> = heapless::Vec::new();
         for c in cands {
             for turn in [-1.0, 0.0, 1.0] {
                 let t = c + turn * core::f64::consts::TAU;
                 let inside = t >= lo - 1e-12 && t <= hi + 1e-12;
                 let clamped = t.clamp(lo, hi);
-                let cost = (clamped - t).abs() * 1e3 + (clamped - present).abs();
+                if inside {
+                    let _ = inside_angles.push(clamped);
+                }
+                // Inside the limit first, nearest the present angle; else least outside.
+                let cost = if inside {
+                    (t - present).abs()
+                } else {
+                    1e9 + (clamped - t).abs()
+                };
                 if cost < best.0 {
                     best = (cost, clamped, inside);
                 }
             }
         }
-        let (_, theta, elbow_ok) = best;
+        let other_branch = inside_angles
+            .iter()
+            .copied()
+            .filter(|t| (t - best.1).abs() > 1e-9)
+            .min_by(|a, b| (a - present).abs().total_cmp(&(b - present).abs()));
+        // Candidates sorted by cost: the first is the branch nearest the present angle; the
+        // next admissible one is tried when the first leaves no legal swivel.
+        let (theta, elbow_ok) = (best.1, best.2);
+        let (mut phi, mut angles, mut violation) =
+            self.shoulder_for(theta, parent_world, to_target, present_dir, swivel);
+        let (mut theta, mut elbow_ok) = (theta, elbow_ok);
+        if violation > 1e-12 {
+            if let Some(other) = other_branch {
+                let (p2, a2, v2) = self.shoulder_for(other, parent_world, to_target, present_dir, swivel);
+                if v2 < violation {
+                    (phi, angles, violation, theta, elbow_ok) = (p2, a2, v2, other, true);
+                }
+            }
+        }
+        let inside = violation <= 1e-12;
+        let first = ub.first_channel();
+        for (j, k) in self.upper_rot_dofs.iter().enumerate() {
+            // A legal solution is legal exactly (rounding may leave it 1e-12 outside).
+            channels[first + k] = if inside {
+                angles[j].clamp(self.limits[j].0, self.limits[j].1)
+            } else {
+                angles[j]
+            };
+        }
+        self.set_elbow(skeleton, channels, theta);
+        fk64_bones(skeleton, channels, &mut pose, &self.chain);
+        let error = (pose.tip[self.lower] - target).length();
+        LimbSolution {
+            reachable: reachable && error.is_finite(),
+            error: if error.is_finite() { error } else { f64::INFINITY },
+            swivel: crate::interp::wrap_near(phi, 0.0),
+            upper_within_limits: inside,
+            elbow_within_limits: elbow_ok,
+            violation,
+        }
+    }
+    /// Steps 4–8 for elbow angle `theta`: the swivel (given, or searched inside the limits,
+    /// eq. 27–30) and the shoulder's Euler angles with their limit violation.
+    fn shoulder_for(
+        &self,
+        theta: f64,
+        parent_world: DMat3,
+        to_target: DVec3,
+        present_dir: DVec3,
+        swivel: Swivel,
+    ) -> (f64, [f64; 3], f64) {
         let w0 = self.d1 * self.l1 + self.elbow_rotation(theta) * (self.d2 * self.l2);
         // Direction to the target in the parent's rest coordinates (degenerate: keep the limb's
         // present direction).
         let mut d = parent_world.transpose() * to_target;
-        if d.length() < 1e-9 {
-            d = parent_world.transpose() * (pose.tip[self.lower] - s);
-            if d.length() < 1e-9 {
+        if !d.is_finite() || d.length() < 1e-9 {
+            d = parent_world.transpose() * present_dir;
+            if !d.is_finite() || d.length() < 1e-9 {
                 d = w0;
             }
         }
         let dhat = d.normalize();
-        let base = DMat3::from_quat(rotation_between(w0, dhat));
+        let base_q = rotation_between(w0, dhat);
+        let base = DMat3::from_quat(base_q);
         // Swivel convention (eq. 18–22): n̂ towards the target, û from â = −y (or −z).
         let n_world = parent_world * dhat;
         let mut a_hat = DVec3::NEG_Y;
@@ -488,52 +607,59 @@ impl Limb {
             libm::atan2(v_hat.dot(e), u_hat.dot(e))
         };
         let phi0 = elbow_phi(&base);
-        let q_at = |phi: f64| DMat3::from_axis_angle(dhat, phi - phi0) * base;
-        let c_upper = c64(ub.axis_rotation());
-        let local = |phi: f64| c_upper.transpose() * q_at(phi) * c_upper;
+        // The shoulder rotation in the bone's own frame, `Cᵀ·Q(φ)·C` (eq. 23–26), as a
+        // quaternion.
+        let c_upper = self.c_upper;
+        let local_q =
+            |phi: f64| c_upper.conjugate() * DQuat::from_axis_angle(dhat, phi - phi0) * base_q * c_upper;
+        let local = |phi: f64| DMat3::from_quat(local_q(phi));
+        // Legal: inside the limits up to rounding.
+        let legal = |v: f64| v <= 1e-12;
         // The swivel's score and the shoulder's limit violation.
         let eval = |phi: f64, previous: Option<f64>| {
-            let m = local(phi);
-            let (_, v) = self.shoulder_angles(&m);
-            let quat = DQuat::from_mat3(&m);
-            let spread: f64 = self.corners.iter().map(|c| quat_distance_f64(quat, *c)).sum();
+            let quat = local_q(phi);
+            let (_, v) = self.shoulder_angles(&DMat3::from_quat(quat));
+            // Eq. (30): summed distance (eq. 27–28) to the corners of the limit region.
+            let spread: f64 = self.corners.iter().map(|c| quat_distance_fast(quat, *c)).sum();
             let keep = previous.map_or(0.0, |p| {
                 let d = crate::interp::wrap_near(phi, p) - p;
                 0.5 * d * d
             });
             // Inside the limits first (eq. 30's centrality among legal swivels), else least
             // violation.
-            let legal = if v > 1e-12 { 1e3 * (1.0 + v) } else { 0.0 };
-            (legal + spread + keep, v)
+            let penalty = if legal(v) { 0.0 } else { 1e3 * (1.0 + v) };
+            (penalty + spread + keep, v)
         };
         let phi = match swivel {
             Swivel::Fixed(p) => p,
             Swivel::Auto { previous } => {
                 // Coarse scan of the swivel circle, then golden-section refinement (step 7).
-                let n = 120;
+                const N: usize = SWIVEL_SAMPLES as usize;
+                let step = core::f64::consts::TAU / N as f64;
                 let mut best = (f64::INFINITY, 0.0);
                 let mut best_legal: Option<(f64, f64)> = None;
+                let mut sampled = [0.0f64; N];
                 let violation = |p: f64| self.shoulder_angles(&local(p)).1;
-                for i in 0..n {
-                    let p = -core::f64::consts::PI + core::f64::consts::TAU * f64::from(i) / f64::from(n);
+                for (i, v_out) in sampled.iter_mut().enumerate() {
+                    let p = -core::f64::consts::PI + step * i as f64;
                     let (f, v) = eval(p, previous);
+                    *v_out = v;
                     if f < best.0 {
                         best = (f, p);
                     }
-                    if v == 0.0 && best_legal.is_none_or(|(bf, _)| f < bf) {
+                    if legal(v) && best_legal.is_none_or(|(bf, _)| f < bf) {
                         best_legal = Some((f, p));
                     }
                 }
-                let step = core::f64::consts::TAU / f64::from(n);
-                let found = golden(|p| eval(p, previous).0, best.1 - step, best.1 + step, 1e-7);
+                let found = golden(|p| eval(p, previous).0, best.1 - step, best.1 + step, 1e-4);
                 match best_legal {
                     // The optimum lies on the limit boundary: step back inside, towards the
                     // best legal sample, by bisection on legality.
-                    Some((_, inside)) if violation(found) > 0.0 => {
+                    Some((_, inside)) if !legal(violation(found)) => {
                         let (mut good, mut bad) = (inside, found);
-                        for _ in 0..60 {
+                        for _ in 0..30 {
                             let mid = 0.5 * (good + bad);
-                            if violation(mid) == 0.0 {
+                            if legal(violation(mid)) {
                                 good = mid;
                             } else {
                                 bad = mid;
@@ -541,26 +667,38 @@ impl Limb {
                         }
                         good
                     }
-                    _ => found,
+                    Some(_) => found,
+                    // No legal sample: a legal arc, if there is one, is narrower than the scan
+                    // step (near the shoulder's gimbal lock). Minimise the violation itself
+                    // around the lowest local minima of the samples.
+                    None => {
+                        let mut result = (violation(found), found);
+                        let mut minima: heapless::Vec<(f64, usize), N> = heapless::Vec::new();
+                        for i in 0..N {
+                            let (before, after) = (sampled[(i + N - 1) % N], sampled[(i + 1) % N]);
+                            if sampled[i] <= before && sampled[i] <= after {
+                                let _ = minima.push((sampled[i], i));
+                            }
+                        }
+                        minima.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+                        for &(_, i) in minima.iter().take(3) {
+                            let centre = -core::f64::consts::PI + step * i as f64;
+                            let p = golden(violation, centre - step, centre + step, 1e-10);
+                            let v = violation(p);
+                            if v < result.0 {
+                                result = (v, p);
+                            }
+                            if legal(result.0) {
+                                break;
+                            }
+                        }
+                        result.1
+                    }
                 }
             }
         };
         let (angles, violation) = self.shoulder_angles(&local(phi));
-        let first = ub.first_channel();
-        for (j, k) in self.upper_rot_dofs.iter().enumerate() {
-            channels[first + k] = angles[j];
-        }
-        self.set_elbow(skeleton, channels, theta);
-        fk64(skeleton, channels, &mut pose);
-        let error = (pose.tip[self.lower] - target).length();
-        LimbSolution {
-            reachable: reachable && error.is_finite(),
-            error: if error.is_finite() { error } else { f64::INFINITY },
-            swivel: crate::interp::wrap_near(phi, 0.0),
-            upper_within_limits: violation == 0.0,
-            elbow_within_limits: elbow_ok,
-            violation,
-        }
+        (phi, angles, violation)
     }
 }
 

@@ -5,7 +5,7 @@
 
 use glam::{DMat3, DVec3};
 
-use crate::ik::{dof_axis, fk64, Pose64};
+use crate::ik::{dof_axis, fk64_bones, Pose64};
 use crate::skeleton::{Skeleton, MAX_BONES};
 
 /// Most constraints solved together.
@@ -70,6 +70,11 @@ pub struct Settings {
     pub max_step: f64,
     /// Whether the root may translate.
     pub move_root: bool,
+    /// Restarts allowed when a solve stalls short of the tolerance (a local minimum against the
+    /// limits): first from the centre of the limit box, then from seeded random points inside
+    /// it. The best result is kept; the iteration cap counts all attempts. `0` for warm-started
+    /// streams, where a jump to another pose is worse than a small residual.
+    pub restarts: usize,
 }
 
 impl Default for Settings {
@@ -83,6 +88,7 @@ impl Default for Settings {
             damping: 0.5,
             max_step: 0.3,
             move_root: false,
+            restarts: 8,
         }
     }
 }
@@ -113,6 +119,8 @@ pub struct Solver {
     pose: Pose64,
     lo: [f64; MAX_VARS],
     hi: [f64; MAX_VARS],
+    /// The constraint bones and their ancestors, ascending: all FK has to compute.
+    needed: heapless::Vec<usize, MAX_BONES>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -136,6 +144,7 @@ impl Solver {
             pose: Pose64::default(),
             lo: [0.0; MAX_VARS],
             hi: [0.0; MAX_VARS],
+            needed: heapless::Vec::new(),
         };
         for (b, bone) in skeleton.bones().iter().enumerate() {
             if !mask[b] {
@@ -196,8 +205,9 @@ impl Solver {
         kind: JacobianKind,
     ) -> usize {
         let constraints = &constraints[..constraints.len().min(MAX_CONSTRAINTS)];
+        self.set_needed(skeleton, constraints);
         let cd = 180.0 / (core::f64::consts::PI * degrees_per_unit.max(1e-9));
-        fk64(skeleton, channels, &mut self.pose);
+        fk64_bones(skeleton, channels, &mut self.pose, &self.needed);
         self.errors(constraints, cd);
         self.jacobian(skeleton, constraints, channels, cd, kind);
         self.rows
@@ -299,9 +309,9 @@ impl Solver {
                     let ch = self.vars[i].channel;
                     let x = channels[ch];
                     channels[ch] = x + h;
-                    fk64(skeleton, channels, &mut plus);
+                    fk64_bones(skeleton, channels, &mut plus, &self.needed);
                     channels[ch] = x - h;
-                    fk64(skeleton, channels, &mut minus);
+                    fk64_bones(skeleton, channels, &mut minus, &self.needed);
                     channels[ch] = x;
                     let mut r = 0;
                     for c in constraints {
@@ -333,7 +343,7 @@ impl Solver {
         channels: &[f64],
         cd: f64,
     ) -> f64 {
-        fk64(skeleton, channels, &mut self.pose);
+        fk64_bones(skeleton, channels, &mut self.pose, &self.needed);
         let mut p = 0.0;
         for c in constraints {
             p += (c.position - self.pose.tip[c.bone]).length_squared();
@@ -346,7 +356,8 @@ impl Solver {
     }
 
     /// Applies `Δθ` scaled so no joint moves more than `max_step`, projected onto the limits.
-    fn apply(&self, channels: &mut [f64], delta: &[f64], max_step: f64) {
+    /// Applies `Δθ`; false when nothing moved.
+    fn apply(&self, channels: &mut [f64], delta: &[f64], max_step: f64) -> bool {
         let n = self.vars.len();
         let big = delta[..n]
             .iter()
@@ -354,13 +365,22 @@ impl Solver {
             .filter(|(i, _)| self.vars[*i].rotation)
             .fold(0.0f64, |m, (_, d)| m.max(d.abs()));
         let scale = if big > max_step { max_step / big } else { 1.0 };
+        let mut moved = false;
         for (i, v) in self.vars.iter().enumerate() {
-            let x = channels[v.channel] + scale * delta[i];
-            channels[v.channel] = self.clamp(i, x);
+            let old = channels[v.channel];
+            let x = self.clamp(i, old + scale * delta[i]);
+            moved |= x != old;
+            channels[v.channel] = x;
         }
+        moved
     }
 
     /// Solves for `constraints` starting from (and writing into) `channels`.
+    ///
+    /// Every iterate stays inside the limits: a variable resting on a limit that the step would
+    /// push further out is taken out of the step (its Jacobian column zeroed) and the step is
+    /// formed again, so a stuck joint does not drag its neighbours. A solve that stops improving
+    /// restarts (see [`Settings::restarts`]); the best iterate is what is returned.
     pub fn solve(
         &mut self,
         skeleton: &Skeleton,
@@ -368,31 +388,125 @@ impl Solver {
         channels: &mut [f64],
         settings: &Settings,
     ) -> Outcome {
+        /// Iterations without a 10 % drop of the squared residual that count as a stall.
+        const STALL: usize = 6;
         let constraints = &constraints[..constraints.len().min(MAX_CONSTRAINTS)];
+        self.set_needed(skeleton, constraints);
         let cd = 180.0 / (core::f64::consts::PI * settings.degrees_per_unit.max(1e-9));
         let otol = settings.tolerance / cd;
-        // Start inside the limits.
         for (i, v) in self.vars.iter().enumerate() {
             channels[v.channel] = self.clamp(i, channels[v.channel]);
         }
         let n = self.vars.len();
-        let mut delta = [0.0f64; MAX_VARS];
-        let mut grad_prev = [0.0f64; MAX_VARS];
-        let mut dir = [0.0f64; MAX_VARS];
+        let mut best = [0.0f64; MAX_VARS];
+        let mut best_score = f64::INFINITY;
+        let mut state = StepState::new(settings.damping);
+        let mut restarts_left = settings.restarts;
+        let mut rng = SplitMix(0x6d61_7269_6f6e_6574);
+        let (mut window, mut since) = (f64::INFINITY, 0);
         let mut it = 0;
         let (mut pe, mut oe);
         loop {
-            fk64(skeleton, channels, &mut self.pose);
+            fk64_bones(skeleton, channels, &mut self.pose, &self.needed);
             (pe, oe) = self.errors(constraints, cd);
+            let score = self.residual();
+            if score < best_score {
+                best_score = score;
+                for (i, v) in self.vars.iter().enumerate() {
+                    best[i] = channels[v.channel];
+                }
+            }
             if (pe <= settings.tolerance && oe <= otol) || it >= settings.max_iterations || n == 0 {
                 break;
             }
-            it += 1;
-            match settings.method {
-                Method::Ccd => self.ccd_sweep(skeleton, constraints, channels, cd),
-                Method::Transpose => {
-                    self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
-                    // Δθ = α Jᵀe with α = ⟨e, JJᵀe⟩ / ⟨JJᵀe, JJᵀe⟩.
+            if score < 0.9 * window {
+                (window, since) = (score, 0);
+            } else {
+                since += 1;
+            }
+            let moved = since < STALL && {
+                it += 1;
+                self.step(skeleton, constraints, channels, cd, settings, &mut state)
+            };
+            if !moved {
+                if restarts_left == 0 {
+                    break;
+                }
+                restarts_left -= 1;
+                let first = restarts_left + 1 == settings.restarts;
+                for (i, v) in self.vars.iter().enumerate() {
+                    let (lo, hi) = (self.lo[i], self.hi[i]);
+                    channels[v.channel] = if !lo.is_finite() || !hi.is_finite() {
+                        best[i]
+                    } else if first {
+                        0.5 * (lo + hi)
+                    } else {
+                        lo + (hi - lo) * rng.unit()
+                    };
+                }
+                (window, since) = (f64::INFINITY, 0);
+                state = StepState::new(settings.damping);
+            }
+        }
+        if !(pe <= settings.tolerance && oe <= otol) && best_score.is_finite() {
+            for (i, v) in self.vars.iter().enumerate() {
+                channels[v.channel] = best[i];
+            }
+            fk64_bones(skeleton, channels, &mut self.pose, &self.needed);
+            (pe, oe) = self.errors(constraints, cd);
+        }
+        Outcome {
+            iterations: it,
+            position_error: pe,
+            orientation_error: oe,
+            converged: pe <= settings.tolerance && oe <= otol,
+        }
+    }
+
+    /// The bones FK must compute for `constraints`.
+    fn set_needed(&mut self, skeleton: &Skeleton, constraints: &[Constraint]) {
+        let mut on = [false; MAX_BONES];
+        for c in constraints {
+            let mut b = Some(c.bone);
+            while let Some(i) = b.filter(|&i| i < skeleton.bones().len()) {
+                on[i] = true;
+                b = skeleton.bones()[i].parent();
+            }
+        }
+        self.needed.clear();
+        for (i, _) in on.iter().enumerate().filter(|(_, o)| **o) {
+            let _ = self.needed.push(i);
+        }
+    }
+
+    /// Squared norm of the error vector of the last [`Solver::errors`].
+    fn residual(&self) -> f64 {
+        self.err[..self.rows].iter().map(|e| e * e).sum()
+    }
+
+    /// One iteration of the chosen method from the pose in `self.pose` (errors formed); false
+    /// when the method can make no more progress from here.
+    #[allow(clippy::needless_range_loop)]
+    fn step(
+        &mut self,
+        skeleton: &Skeleton,
+        constraints: &[Constraint],
+        channels: &mut [f64],
+        cd: f64,
+        settings: &Settings,
+        state: &mut StepState,
+    ) -> bool {
+        let n = self.vars.len();
+        let mut delta = [0.0f64; MAX_VARS];
+        match settings.method {
+            Method::Ccd => {
+                self.ccd_sweep(skeleton, constraints, channels, cd);
+                true
+            }
+            Method::Transpose => {
+                self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
+                for _ in 0..2 {
+                    // Δθ = α Jᵀe with α = ⟨e, JJᵀe⟩ / ⟨JJᵀe, JJᵀe⟩ (Buss & Kim).
                     self.jt_e(&mut delta);
                     let mut jjte = [0.0f64; MAX_ROWS];
                     for (r, out) in jjte.iter_mut().enumerate().take(self.rows) {
@@ -404,61 +518,136 @@ impl Solver {
                     for d in delta.iter_mut().take(n) {
                         *d *= alpha;
                     }
-                    self.apply(channels, &delta, settings.max_step);
-                }
-                Method::Pseudoinverse | Method::DampedLeastSquares => {
-                    self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
-                    let lambda2 = if settings.method == Method::DampedLeastSquares {
-                        settings.damping * settings.damping
-                    } else {
-                        1e-10
-                    };
-                    if !self.least_squares_step(lambda2, &mut delta) {
+                    if !self.freeze_blocked(channels, &delta) {
                         break;
                     }
-                    self.apply(channels, &delta, settings.max_step);
                 }
-                Method::ConjugateGradient => {
-                    self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
-                    // ∇P = −2Jᵀb (eq. 42); descend along the Polak–Ribière direction.
-                    let mut grad = [0.0f64; MAX_VARS];
-                    self.jt_e(&mut grad);
-                    for g in grad.iter_mut().take(n) {
-                        *g *= -2.0;
+                self.apply(channels, &delta, settings.max_step)
+            }
+            Method::Pseudoinverse => {
+                self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
+                for _ in 0..2 {
+                    if !self.least_squares_step(1e-10, &mut delta) {
+                        return false;
                     }
-                    let gg_prev: f64 = grad_prev[..n].iter().map(|g| g * g).sum();
-                    let beta = if it == 1 || gg_prev < 1e-30 || it % n.max(1) == 0 {
-                        0.0
-                    } else {
-                        ((0..n).map(|i| grad[i] * (grad[i] - grad_prev[i])).sum::<f64>() / gg_prev).max(0.0)
-                    };
+                    if !self.freeze_blocked(channels, &delta) {
+                        break;
+                    }
+                }
+                self.apply(channels, &delta, settings.max_step)
+            }
+            Method::DampedLeastSquares => {
+                // Levenberg–Marquardt damping: λ shrinks after a step that lowers eq. (35) and
+                // grows (the step undone) after one that does not.
+                self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
+                let before = self.residual();
+                let mut saved = [0.0f64; MAX_VARS];
+                for (i, v) in self.vars.iter().enumerate() {
+                    saved[i] = channels[v.channel];
+                }
+                for _ in 0..2 {
+                    if !self.least_squares_step(state.lambda * state.lambda, &mut delta) {
+                        return false;
+                    }
+                    if !self.freeze_blocked(channels, &delta) {
+                        break;
+                    }
+                }
+                if !self.apply(channels, &delta, settings.max_step) {
+                    return false;
+                }
+                if self.objective(skeleton, constraints, channels, cd) < before {
+                    state.lambda = (state.lambda * 0.5).max(1e-6);
+                } else {
+                    for (i, v) in self.vars.iter().enumerate() {
+                        channels[v.channel] = saved[i];
+                    }
+                    state.lambda *= 4.0;
+                    if state.lambda > 1e6 {
+                        return false;
+                    }
+                }
+                true
+            }
+            Method::ConjugateGradient => {
+                self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
+                // ∇P = −2Jᵀb (eq. 42), zero along limits that block descent; Polak–Ribière
+                // directions, reset every n iterations and whenever not a descent direction.
+                let mut grad = [0.0f64; MAX_VARS];
+                self.jt_e(&mut grad);
+                for (i, g) in grad.iter_mut().enumerate().take(n) {
+                    *g *= -2.0;
+                    let x = channels[self.vars[i].channel];
+                    if (x <= self.lo[i] && *g > 0.0) || (x >= self.hi[i] && *g < 0.0) {
+                        *g = 0.0;
+                    }
+                }
+                let gg_prev: f64 = state.grad_prev[..n].iter().map(|g| g * g).sum();
+                let beta = if state.k % n.max(1) == 0 || gg_prev < 1e-30 {
+                    0.0
+                } else {
+                    ((0..n)
+                        .map(|i| grad[i] * (grad[i] - state.grad_prev[i]))
+                        .sum::<f64>()
+                        / gg_prev)
+                        .max(0.0)
+                };
+                state.k += 1;
+                for i in 0..n {
+                    state.dir[i] = -grad[i] + beta * state.dir[i];
+                }
+                if (0..n).map(|i| state.dir[i] * grad[i]).sum::<f64>() >= 0.0 {
                     for i in 0..n {
-                        dir[i] = -grad[i] + beta * dir[i];
-                    }
-                    if (0..n).map(|i| dir[i] * grad[i]).sum::<f64>() >= 0.0 {
-                        for i in 0..n {
-                            dir[i] = -grad[i];
-                        }
-                    }
-                    grad_prev = grad;
-                    if !self.line_search(skeleton, constraints, channels, &dir, cd, settings.max_step) {
-                        // No decrease along the direction: restart from steepest descent.
-                        for i in 0..n {
-                            dir[i] = -grad[i];
-                        }
-                        if !self.line_search(skeleton, constraints, channels, &dir, cd, settings.max_step) {
-                            break;
-                        }
+                        state.dir[i] = -grad[i];
                     }
                 }
+                state.grad_prev = grad;
+                let dir = state.dir;
+                let slope = (0..n).map(|i| dir[i] * grad[i]).sum();
+                if self.line_search(
+                    skeleton,
+                    constraints,
+                    channels,
+                    &dir,
+                    slope,
+                    cd,
+                    settings.max_step,
+                ) {
+                    return true;
+                }
+                for i in 0..n {
+                    state.dir[i] = -grad[i];
+                }
+                let dir = state.dir;
+                let slope = (0..n).map(|i| dir[i] * grad[i]).sum();
+                self.line_search(
+                    skeleton,
+                    constraints,
+                    channels,
+                    &dir,
+                    slope,
+                    cd,
+                    settings.max_step,
+                )
             }
         }
-        Outcome {
-            iterations: it,
-            position_error: pe,
-            orientation_error: oe,
-            converged: pe <= settings.tolerance && oe <= otol,
+    }
+
+    /// Zeroes the Jacobian columns of variables resting on a limit that `delta` pushes further
+    /// out; true when any was zeroed (the step must be formed again).
+    fn freeze_blocked(&mut self, channels: &[f64], delta: &[f64; MAX_VARS]) -> bool {
+        let mut any = false;
+        for (i, v) in self.vars.iter().enumerate() {
+            let x = channels[v.channel];
+            let blocked = (x <= self.lo[i] && delta[i] < 0.0) || (x >= self.hi[i] && delta[i] > 0.0);
+            if blocked && (0..self.rows).any(|r| self.jac[r][i] != 0.0) {
+                for row in self.jac.iter_mut().take(self.rows) {
+                    row[i] = 0.0;
+                }
+                any = true;
+            }
         }
+        any
     }
 
     fn jt_e(&self, out: &mut [f64; MAX_VARS]) {
@@ -491,13 +680,17 @@ impl Solver {
         true
     }
 
-    /// Backtracking line search along `dir` with projection onto the limits; true on decrease.
+    /// Line search along `dir` with projection onto the limits: backtracking from a step that
+    /// moves no joint more than `max_step`, then the minimiser of the quadratic through `f(0)`,
+    /// the slope `f′(0)` and the accepted step, when that is lower. True on decrease.
+    #[allow(clippy::too_many_arguments)]
     fn line_search(
         &mut self,
         skeleton: &Skeleton,
         constraints: &[Constraint],
         channels: &mut [f64],
         dir: &[f64; MAX_VARS],
+        slope: f64,
         cd: f64,
         max_step: f64,
     ) -> bool {
@@ -507,16 +700,31 @@ impl Solver {
         if big < 1e-300 {
             return false;
         }
-        let mut t = max_step / big;
+        let t_max = max_step / big;
+        let mut t = t_max;
         let mut saved = [0.0f64; MAX_VARS];
         for (i, v) in self.vars.iter().enumerate() {
             saved[i] = channels[v.channel];
         }
-        for _ in 0..40 {
-            for (i, v) in self.vars.iter().enumerate() {
-                channels[v.channel] = self.clamp(i, saved[i] + t * dir[i]);
+        let set = |s: &Self, channels: &mut [f64], t: f64| {
+            for (i, v) in s.vars.iter().enumerate() {
+                channels[v.channel] = s.clamp(i, saved[i] + t * dir[i]);
             }
-            if self.objective(skeleton, constraints, channels, cd) < f0 {
+        };
+        for _ in 0..40 {
+            set(self, channels, t);
+            let f = self.objective(skeleton, constraints, channels, cd);
+            if f < f0 {
+                let curvature = 2.0 * (f - f0 - slope * t);
+                if slope < 0.0 && curvature > 0.0 {
+                    let ts = (-slope * t * t / curvature).min(t_max);
+                    if (ts - t).abs() > 1e-3 * t {
+                        set(self, channels, ts);
+                        if self.objective(skeleton, constraints, channels, cd) >= f {
+                            set(self, channels, t);
+                        }
+                    }
+                }
                 return true;
             }
             t *= 0.5;
@@ -532,7 +740,7 @@ impl Solver {
     fn ccd_sweep(&mut self, skeleton: &Skeleton, constraints: &[Constraint], channels: &mut [f64], cd: f64) {
         for i in (0..self.vars.len()).rev() {
             let v = self.vars[i];
-            fk64(skeleton, channels, &mut self.pose);
+            fk64_bones(skeleton, channels, &mut self.pose, &self.needed);
             let u = dof_axis(skeleton, &self.pose, v.bone, v.dof, channels);
             if v.rotation {
                 let pivot = self.pose.start[v.bone];
@@ -573,6 +781,41 @@ impl Solver {
                 }
             }
         }
+    }
+}
+
+/// Per-solve state of the iterative methods.
+#[derive(Clone, Copy)]
+struct StepState {
+    /// DLS damping λ now.
+    lambda: f64,
+    /// CG: the previous gradient and direction, and iterations since the last reset.
+    grad_prev: [f64; MAX_VARS],
+    dir: [f64; MAX_VARS],
+    k: usize,
+}
+
+impl StepState {
+    fn new(lambda: f64) -> StepState {
+        StepState {
+            lambda: lambda.max(1e-6),
+            grad_prev: [0.0; MAX_VARS],
+            dir: [0.0; MAX_VARS],
+            k: 0,
+        }
+    }
+}
+
+/// SplitMix64, for the restart points (deterministic: the same solve gives the same result).
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn unit(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
     }
 }
 

@@ -125,7 +125,19 @@ pub fn set_channel_rotation(bone: &Bone, frame: &mut [f64], m: &DMat3) {
 /// `angle + 2πk` closest to `reference`.
 #[must_use]
 pub fn wrap_near(angle: f64, reference: f64) -> f64 {
-    angle + TAU * libm::round((reference - angle) / TAU)
+    let d = reference - angle;
+    // The common case (within a turn or two) without libm's software `round`.
+    if d.abs() <= 2.5 * TAU {
+        let mut a = angle;
+        while reference - a > core::f64::consts::PI {
+            a += TAU;
+        }
+        while a - reference > core::f64::consts::PI {
+            a -= TAU;
+        }
+        return a;
+    }
+    angle + TAU * libm::round(d / TAU)
 }
 
 /// Euler angles of `m` in `order`, of the two equivalent solutions and all 2π shifts the

@@ -197,58 +197,207 @@ fn limb_stream_is_continuous() {
     assert!(worst_step.to_degrees() < 10.0);
 }
 
-/// Each numerical method reaches random reachable arm targets (humerus + radius, 4 DOFs), with
-/// limits respected in every result.
+/// 10⁶ random inputs to the analytic solver — reachable, unreachable, at and near the
+/// shoulder, NaN/∞/huge components, garbage in the limb's own channels, NaN or wild previous
+/// swivels and fixed swivels — never give a NaN channel or a NaN error, on an arm and a leg.
+/// `MARIONETTE_IK_INPUTS=N` changes the count.
+#[test]
+fn limb_never_returns_nan() {
+    let skel = skeleton();
+    let count: usize = std::env::var("MARIONETTE_IK_INPUTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1_000_000);
+    let mut rng = Rng::new(11);
+    let weird = [
+        f64::NAN,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        1e300,
+        -1e300,
+        0.0,
+        1e-300,
+    ];
+    let mut ch = vec![0.0; skel.channel_count()];
+    let mut pose = Pose64::default();
+    for (upper, lower) in [("lhumerus", "lradius"), ("rfemur", "rtibia")] {
+        let (u, l) = (skel.find(upper).unwrap(), skel.find(lower).unwrap());
+        let limb = Limb::new(&skel, u, l, None).unwrap();
+        fk64(&skel, &ch, &mut pose);
+        let shoulder = pose.start[u];
+        for i in 0..count / 2 {
+            ch.iter_mut().for_each(|x| *x = 0.0);
+            let kind = rng.below(6);
+            let target = match kind {
+                0 => {
+                    shoulder
+                        + DVec3::new(
+                            uniform(&mut rng, -30.0, 30.0),
+                            uniform(&mut rng, -30.0, 30.0),
+                            uniform(&mut rng, -30.0, 30.0),
+                        )
+                }
+                1 => {
+                    shoulder
+                        + DVec3::new(
+                            uniform(&mut rng, -1e6, 1e6),
+                            uniform(&mut rng, -1e6, 1e6),
+                            uniform(&mut rng, -1e6, 1e6),
+                        )
+                }
+                2 => {
+                    shoulder
+                        + DVec3::new(
+                            uniform(&mut rng, -1e-9, 1e-9),
+                            0.0,
+                            uniform(&mut rng, -1e-9, 1e-9),
+                        )
+                }
+                3 => DVec3::new(
+                    weird[rng.below(7) as usize],
+                    uniform(&mut rng, -10.0, 10.0),
+                    weird[rng.below(7) as usize],
+                ),
+                4 => shoulder,
+                _ => {
+                    random_pose(&skel, &[u, l], &mut rng, &mut ch);
+                    fk64(&skel, &ch, &mut pose);
+                    pose.tip[l]
+                }
+            };
+            // Garbage in the limb's own channels (outputs, but the present elbow is read).
+            if rng.chance(0.2) {
+                for b in [u, l] {
+                    for c in skel.bones()[b].channels() {
+                        ch[c] = if rng.chance(0.5) {
+                            weird[rng.below(7) as usize]
+                        } else {
+                            uniform(&mut rng, -20.0, 20.0)
+                        };
+                    }
+                }
+            }
+            let swivel = match rng.below(4) {
+                0 => Swivel::Auto { previous: None },
+                1 => Swivel::Auto {
+                    previous: Some(if rng.chance(0.5) {
+                        weird[rng.below(7) as usize]
+                    } else {
+                        uniform(&mut rng, -1e3, 1e3)
+                    }),
+                },
+                2 => Swivel::Fixed(weird[rng.below(7) as usize]),
+                _ => Swivel::Fixed(uniform(&mut rng, -10.0, 10.0)),
+            };
+            let sol = limb.solve(&skel, &mut ch, target, swivel);
+            assert!(
+                skel.bones()[u]
+                    .channels()
+                    .chain(skel.bones()[l].channels())
+                    .all(|c| ch[c].is_finite()),
+                "input {i} kind {kind}: {target:?} {swivel:?} gave {sol:?}"
+            );
+            assert!(
+                !sol.error.is_nan() && sol.swivel.is_finite() && !sol.violation.is_nan(),
+                "{target:?} {swivel:?} {sol:?}"
+            );
+            if kind == 5 {
+                assert!(
+                    sol.reachable && sol.error < 1e-6,
+                    "reachable target missed: {swivel:?} {sol:?}"
+                );
+            }
+        }
+    }
+}
+
+/// Each numerical method reaches random reachable targets (arm: humerus + radius, leg: femur +
+/// tibia, 4 DOFs each) from the rest pose within 100 iterations, restarts included; limits are
+/// respected in every result. DLS and CG must reach 99.5 % (issue 4); the full 10,000-target
+/// table is `cargo run --release --example ik_compare`.
 #[test]
 fn numerical_methods_reach_random_targets() {
     let skel = skeleton();
-    let (u, l) = (skel.find("lhumerus").unwrap(), skel.find("lradius").unwrap());
-    let mask = chain_mask(&skel, u, l);
-    let mut rng = Rng::new(8);
-    for method in [
-        Method::Ccd,
-        Method::Transpose,
-        Method::Pseudoinverse,
-        Method::DampedLeastSquares,
-        Method::ConjugateGradient,
-    ] {
-        let mut solver = Solver::new(&skel, &mask, false);
-        assert_eq!(solver.variables(), 4);
-        let settings = Settings {
-            method,
-            max_iterations: 2000,
-            damping: 0.05,
-            ..Settings::default()
-        };
-        let n = 200;
-        let mut ok = 0;
+    for (upper, lower, seed) in [("lhumerus", "lradius", 8), ("lfemur", "ltibia", 9)] {
+        let (u, l) = (skel.find(upper).unwrap(), skel.find(lower).unwrap());
+        let mask = chain_mask(&skel, u, l);
+        let mut rng = Rng::new(seed);
+        let n = 2000;
+        let mut goals = Vec::new();
         for _ in 0..n {
             let mut goal = vec![0.0; skel.channel_count()];
             random_pose(&skel, &[u, l], &mut rng, &mut goal);
             let mut pose = Pose64::default();
             fk64(&skel, &goal, &mut pose);
-            let mut ch = vec![0.0; skel.channel_count()];
-            let out = solver.solve(
-                &skel,
-                &[Constraint {
-                    bone: l,
-                    position: pose.tip[l],
-                    axes: None,
-                }],
-                &mut ch,
-                &settings,
-            );
-            assert!(solver.within_limits(&ch), "{method:?} left the limits");
-            assert!(out.position_error.is_finite());
-            ok += usize::from(out.converged);
+            goals.push(pose.tip[l]);
         }
-        println!("{method:?}: {ok}/{n}");
-        let floor = match method {
-            Method::Ccd | Method::Transpose => 0.7,
-            _ => 0.75,
-        };
-        assert!(ok as f64 >= floor * n as f64, "{method:?}: {ok}/{n}");
+        for method in [
+            Method::Ccd,
+            Method::Transpose,
+            Method::Pseudoinverse,
+            Method::DampedLeastSquares,
+            Method::ConjugateGradient,
+        ] {
+            let mut solver = Solver::new(&skel, &mask, false);
+            assert_eq!(solver.variables(), 4);
+            let settings = Settings {
+                method,
+                max_iterations: 100,
+                ..Settings::default()
+            };
+            let mut ok = 0;
+            for &goal in &goals {
+                let mut ch = vec![0.0; skel.channel_count()];
+                let out = solver.solve(
+                    &skel,
+                    &[Constraint {
+                        bone: l,
+                        position: goal,
+                        axes: None,
+                    }],
+                    &mut ch,
+                    &settings,
+                );
+                assert!(solver.within_limits(&ch), "{method:?} left the limits");
+                assert!(out.position_error.is_finite() && out.iterations <= 100);
+                let mut pose = Pose64::default();
+                fk64(&skel, &ch, &mut pose);
+                let e = (pose.tip[l] - goal).length();
+                assert!(
+                    (e - out.position_error).abs() < 1e-9,
+                    "reported {out:?}, actual {e}"
+                );
+                ok += usize::from(out.converged);
+            }
+            println!("{upper}/{lower} {method:?}: {ok}/{n}");
+            let floor = match method {
+                Method::Ccd | Method::Transpose => 0.6,
+                Method::Pseudoinverse => 0.99,
+                Method::DampedLeastSquares | Method::ConjugateGradient => 0.995,
+            };
+            assert!(ok as f64 >= floor * n as f64, "{upper} {method:?}: {ok}/{n}");
+        }
     }
+}
+
+/// The swivel score's polynomial arctangent agrees with libm's to 1e-7 rad.
+#[test]
+fn fast_quaternion_distance_matches_libm() {
+    use glam::DQuat;
+    use marionette::math::{quat_distance_f64, quat_distance_fast};
+    let mut rng = Rng::new(3);
+    let mut worst = 0.0f64;
+    for _ in 0..100_000 {
+        let mut q = || {
+            let v = [0; 4].map(|_| uniform(&mut rng, -1.0, 1.0));
+            DQuat::from_xyzw(v[0], v[1], v[2], v[3]).normalize()
+        };
+        let (a, b) = (q(), q());
+        worst = worst.max((quat_distance_fast(a, b) - quat_distance_f64(a, b)).abs());
+    }
+    assert_eq!(quat_distance_fast(DQuat::IDENTITY, DQuat::IDENTITY), 0.0);
+    println!("worst {worst:.1e}");
+    assert!(worst < 1e-7, "{worst}");
 }
 
 /// Several constraints at once: both feet and a hand, from a walk frame.
