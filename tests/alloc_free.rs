@@ -137,3 +137,89 @@ fn rig_and_bus_cycle_allocates_nothing() {
         .iter()
         .all(|s| s.goal_writes() >= frames.len() as u32));
 }
+
+/// Every IK solve allocates nothing: the analytic limb (searched and fixed swivel, a stream with
+/// warm start) and each numerical method with both Jacobians, on several constraints.
+#[test]
+fn ik_solves_allocate_nothing() {
+    use glam::DVec3;
+    use marionette::ik::{fk64, Limb, Pose64, Swivel};
+    use marionette::ik_numeric::{chain_mask, Constraint, JacobianKind, Method, Settings, Solver};
+    let skel = asf::load(&common::data("16.asf")).unwrap().skeleton;
+    let motion = amc::load(&skel, &common::data("16_15.amc")).unwrap();
+    let frames: Vec<Vec<f64>> = (0..motion.len())
+        .map(|f| marionette::motion::frame_to_radians(&skel, motion.frame(f)))
+        .collect();
+    let (u, l) = (skel.find("lhumerus").unwrap(), skel.find("lradius").unwrap());
+    let (fu, fl) = (skel.find("rfemur").unwrap(), skel.find("rtibia").unwrap());
+    let arm = Limb::new(&skel, u, l, None).unwrap();
+    let mut arm_solver = Solver::new(&skel, &chain_mask(&skel, u, l), false);
+    let mut both = [false; marionette::skeleton::MAX_BONES];
+    for (i, b) in chain_mask(&skel, u, l)
+        .iter()
+        .zip(chain_mask(&skel, fu, fl))
+        .enumerate()
+    {
+        both[i] = *b.0 || b.1;
+    }
+    let mut two_solver = Solver::new(&skel, &both, false);
+    let mut pose = Pose64::default();
+    let mut ch = frames[0].clone();
+    let mut solved = 0usize;
+    let before = allocations();
+    let mut previous = None;
+    for f in frames.iter().step_by(5) {
+        fk64(&skel, f, &mut pose);
+        let (hand, foot) = (pose.tip[l], pose.tip[fl]);
+        let s = arm.solve(&skel, &mut ch, hand, Swivel::Auto { previous });
+        previous = Some(s.swivel);
+        let _ = arm.solve(&skel, &mut ch, hand + DVec3::X, Swivel::Fixed(0.5));
+        solved += 2;
+        for method in [
+            Method::Ccd,
+            Method::Transpose,
+            Method::Pseudoinverse,
+            Method::DampedLeastSquares,
+            Method::ConjugateGradient,
+        ] {
+            for jacobian in [JacobianKind::Analytic, JacobianKind::FiniteDifference] {
+                let settings = Settings {
+                    method,
+                    jacobian,
+                    max_iterations: 30,
+                    ..Settings::default()
+                };
+                let axes = Some((pose.frame[l].x_axis, pose.frame[l].y_axis));
+                ch.copy_from_slice(&frames[0]);
+                let _ = arm_solver.solve(
+                    &skel,
+                    &[Constraint {
+                        bone: l,
+                        position: hand,
+                        axes,
+                    }],
+                    &mut ch,
+                    &settings,
+                );
+                ch.copy_from_slice(&frames[0]);
+                let goals = [
+                    Constraint {
+                        bone: l,
+                        position: hand,
+                        axes: None,
+                    },
+                    Constraint {
+                        bone: fl,
+                        position: foot,
+                        axes: None,
+                    },
+                ];
+                let _ = two_solver.solve(&skel, &goals, &mut ch, &settings);
+                solved += 2;
+            }
+        }
+    }
+    let during = allocations() - before;
+    assert_eq!(during, 0, "{during} allocations over {solved} solves");
+    assert!(std::hint::black_box(ch).iter().all(|x| x.is_finite()));
+}
