@@ -72,6 +72,27 @@ enum Command {
         #[arg(short = 'o', long)]
         output: Option<PathBuf>,
     },
+    /// Keep a bone's tip where it was at one frame over a range of frames (foot planting),
+    /// blended in and out; writes the edited motion.
+    IkEdit {
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Motion to edit (.amc).
+        amc: PathBuf,
+        /// BONE@FRAME: the bone's tip stays where it was at that frame (repeatable; e.g.
+        /// ltibia@120 for the left ankle).
+        #[arg(long, required = true)]
+        pin: Vec<String>,
+        /// A..B: AMC frame numbers (inclusive) over which the pins hold.
+        #[arg(long)]
+        frames: String,
+        /// Frames of ease-in before A and ease-out after B.
+        #[arg(long, default_value_t = 12)]
+        blend: usize,
+        /// Output motion (.amc).
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+    },
     /// List serial adapters (USB VID/PID, U2D2/FTDI, latency timer).
     Ports,
     /// Ping every id on a bus: ids, models, firmware, hardware error status.
@@ -351,6 +372,24 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
             };
             crate::ik_cli::ik_cmd(&args, &mut io::stdout().lock())
         })(),
+        Command::IkEdit {
+            asf,
+            amc,
+            pin,
+            frames,
+            blend,
+            output,
+        } => crate::ik_cli::ik_edit_cmd(
+            &crate::ik_cli::IkEditArgs {
+                asf: &asf,
+                amc: &amc,
+                pins: &pin,
+                frames: &frames,
+                blend,
+                output: &output,
+            },
+            &mut io::stdout().lock(),
+        ),
         Command::Ports => crate::rig_cli::ports_cmd(&mut io::stdout().lock()),
         Command::Scan {
             port,

@@ -201,6 +201,10 @@ pub enum Swivel {
     },
     /// Given (radians, help note eq. 18–22 convention).
     Fixed(f64),
+    /// The legal swivel nearest the given one (the given one when legal): keeps a captured
+    /// elbow or knee direction where the limits allow, and moves it continuously to the
+    /// nearest legal one where they do not.
+    Nearest(f64),
 }
 
 /// Samples of the swivel circle in the coarse scan before refinement (every 10°).
@@ -229,6 +233,10 @@ pub struct Limb {
     elbow_limit: (f64, f64),
     /// `C` of the upper bone as a quaternion.
     c_upper: DQuat,
+    /// The swivel's zero direction `â` in the parent's rest frame: of −y (the help note's
+    /// default) and −z, the one more perpendicular to the limb at rest, so that a leg hanging
+    /// along −y does not make the swivel ill-defined.
+    swivel_reference: DVec3,
     /// The root…lower bones, for FK of just the limb.
     chain: heapless::Vec<usize, MAX_BONES>,
 }
@@ -248,7 +256,8 @@ pub struct LimbSolution {
     pub reachable: bool,
     /// Distance from the effector to the target after the solve, file units.
     pub error: f64,
-    /// The swivel angle used (radians, eq. 18–22 convention: 0 = elbow towards â).
+    /// The swivel angle used (radians, eq. 18–22: the elbow axis's angle about the shoulder–
+    /// effector line from û).
     pub swivel: f64,
     /// Whether the shoulder angles are within the ASF limits.
     pub upper_within_limits: bool,
@@ -373,8 +382,55 @@ impl Limb {
             limits,
             elbow_limit,
             c_upper: DQuat::from_mat3(&c64(u.axis_rotation())).normalize(),
+            swivel_reference: {
+                let rest = (d1 * l1 + d2 * l2).normalize_or_zero();
+                if rest.dot(DVec3::Y).abs() <= rest.dot(DVec3::Z).abs() {
+                    DVec3::NEG_Y
+                } else {
+                    DVec3::NEG_Z
+                }
+            },
             chain: ancestors(skeleton, lower),
         })
+    }
+
+    /// The swivel angle of the limb as posed in `channels` (eq. 18–22, the convention of
+    /// [`Swivel::Fixed`]): the angle of the elbow axis about the shoulder–effector line,
+    /// from `û`. Solving for
+    /// the present effector position with `Swivel::Fixed` of this angle gives the same pose
+    /// back, which is how an edit keeps a capture's knee or elbow direction.
+    #[must_use]
+    pub fn swivel_of(&self, skeleton: &Skeleton, channels: &[f64]) -> f64 {
+        let mut pose = Pose64::default();
+        fk64_bones(skeleton, channels, &mut pose, &self.chain);
+        let s = pose.start[self.upper];
+        let n = (pose.tip[self.lower] - s).normalize_or_zero();
+        if n == DVec3::ZERO {
+            return 0.0;
+        }
+        let parent_world = skeleton.bones()[self.upper]
+            .parent()
+            .map_or(DMat3::IDENTITY, |p| pose.world[p]);
+        let (u_hat, v_hat) = self.swivel_basis(parent_world, n);
+        let k = pose.world[self.upper] * self.elbow_axis;
+        libm::atan2(v_hat.dot(k), u_hat.dot(k))
+    }
+
+    /// The swivel circle's axes for the shoulder→target direction `n` (eq. 18–22): `û` is the
+    /// limb's reference `â` (in the parent's frame) made perpendicular to `n`, `v̂ = n × û`.
+    fn swivel_basis(&self, parent_world: DMat3, n: DVec3) -> (DVec3, DVec3) {
+        let mut a = parent_world * self.swivel_reference;
+        if n.cross(a).length() < 1e-3 {
+            // Within 0.06° of the reference: the other of −y and −z.
+            let other = if self.swivel_reference == DVec3::NEG_Y {
+                DVec3::NEG_Z
+            } else {
+                DVec3::NEG_Y
+            };
+            a = parent_world * other;
+        }
+        let u_hat = (a - n * a.dot(n)).normalize();
+        (u_hat, n.cross(u_hat))
     }
 
     /// Longest reach (shoulder to effector), file units.
@@ -434,11 +490,16 @@ impl Limb {
         }
     }
 
-    /// Euler angles of a shoulder rotation `M = Cᵀ·Q·C` (the bone's own frame) and their limit
-    /// violation: of the
-    /// two Euler solutions (each angle taken modulo 2π next to its limit range), the one
-    /// violating the limits least, then the one nearest the range's centre.
+    /// [`Limb::shoulder_angles_near`] the limit range's centre.
     fn shoulder_angles(&self, m: &DMat3) -> ([f64; 3], f64) {
+        self.shoulder_angles_near(m, &self.center)
+    }
+
+    /// Euler angles of a shoulder rotation `M = Cᵀ·Q·C` (the bone's own frame) and their limit
+    /// violation: of the two Euler solutions (each angle taken modulo 2π next to its limit
+    /// range), the one violating the limits least, then the one nearest `reference` (the
+    /// present angles, so a stream does not flip between equivalent solutions).
+    fn shoulder_angles_near(&self, m: &DMat3, reference: &[f64; 3]) -> ([f64; 3], f64) {
         let a = self.upper_order.from_mat3_f64(m);
         let pi = core::f64::consts::PI;
         let b2 = if self.upper_order.is_proper() {
@@ -453,7 +514,7 @@ impl Limb {
             for k in 0..3 {
                 w[k] = crate::interp::wrap_near(cand[k], self.center[k]);
                 v += (self.limits[k].0 - w[k]).max(0.0) + (w[k] - self.limits[k].1).max(0.0);
-                off += (w[k] - self.center[k]).abs();
+                off += (w[k] - reference[k]).abs();
             }
             if v < best.1 - 1e-12 || (v <= best.1 + 1e-12 && off < best.2) {
                 best = (w, v, off);
@@ -473,7 +534,8 @@ impl Limb {
     ) -> LimbSolution {
         // A non-finite swivel means none given.
         let swivel = match swivel {
-            Swivel::Fixed(p) if !p.is_finite() => Swivel::Auto { previous: None },
+            Swivel::Fixed(p) | Swivel::Nearest(p) if !p.is_finite() => Swivel::Auto { previous: None },
+            Swivel::Nearest(p) => Swivel::Nearest(libm::remainder(p, core::f64::consts::TAU)),
             Swivel::Fixed(p) => Swivel::Fixed(libm::remainder(p, core::f64::consts::TAU)),
             Swivel::Auto { previous } => Swivel::Auto {
                 previous: previous
@@ -535,15 +597,24 @@ impl Limb {
             .copied()
             .filter(|t| (t - best.1).abs() > 1e-9)
             .min_by(|a, b| (a - present).abs().total_cmp(&(b - present).abs()));
+        // The present shoulder angles (the centre of the limits when they are garbage).
+        let mut reference = self.center;
+        for (j, k) in self.upper_rot_dofs.iter().enumerate() {
+            let x = channels[ub.first_channel() + k];
+            if x.is_finite() && x.abs() < 100.0 {
+                reference[j] = x;
+            }
+        }
         // Candidates sorted by cost: the first is the branch nearest the present angle; the
         // next admissible one is tried when the first leaves no legal swivel.
         let (theta, elbow_ok) = (best.1, best.2);
         let (mut phi, mut angles, mut violation) =
-            self.shoulder_for(theta, parent_world, to_target, present_dir, swivel);
+            self.shoulder_for(theta, parent_world, to_target, present_dir, swivel, &reference);
         let (mut theta, mut elbow_ok) = (theta, elbow_ok);
         if violation > 1e-12 {
             if let Some(other) = other_branch {
-                let (p2, a2, v2) = self.shoulder_for(other, parent_world, to_target, present_dir, swivel);
+                let (p2, a2, v2) =
+                    self.shoulder_for(other, parent_world, to_target, present_dir, swivel, &reference);
                 if v2 < violation {
                     (phi, angles, violation, theta, elbow_ok) = (p2, a2, v2, other, true);
                 }
@@ -580,6 +651,7 @@ impl Limb {
         to_target: DVec3,
         present_dir: DVec3,
         swivel: Swivel,
+        reference: &[f64; 3],
     ) -> (f64, [f64; 3], f64) {
         let w0 = self.d1 * self.l1 + self.elbow_rotation(theta) * (self.d2 * self.l2);
         // Direction to the target in the parent's rest coordinates (degenerate: keep the limb's
@@ -594,17 +666,14 @@ impl Limb {
         let dhat = d.normalize();
         let base_q = rotation_between(w0, dhat);
         let base = DMat3::from_quat(base_q);
-        // Swivel convention (eq. 18–22): n̂ towards the target, û from â = −y (or −z).
+        // Swivel convention (eq. 18–22): n̂ towards the target, û from the limb's â.
         let n_world = parent_world * dhat;
-        let mut a_hat = DVec3::NEG_Y;
-        if n_world.cross(a_hat).length() < 1e-6 {
-            a_hat = DVec3::NEG_Z;
-        }
-        let u_hat = (a_hat - n_world * a_hat.dot(n_world)).normalize();
-        let v_hat = n_world.cross(u_hat);
+        let (u_hat, v_hat) = self.swivel_basis(parent_world, n_world);
+        // The swivel is read from the elbow axis, which a straight limb defines too (the elbow
+        // position does not).
         let elbow_phi = |q: &DMat3| {
-            let e = parent_world * (*q * (self.d1 * self.l1));
-            libm::atan2(v_hat.dot(e), u_hat.dot(e))
+            let k = parent_world * (*q * self.elbow_axis);
+            libm::atan2(v_hat.dot(k), u_hat.dot(k))
         };
         let phi0 = elbow_phi(&base);
         // The shoulder rotation in the bone's own frame, `Cᵀ·Q(φ)·C` (eq. 23–26), as a
@@ -632,6 +701,46 @@ impl Limb {
         };
         let phi = match swivel {
             Swivel::Fixed(p) => p,
+            Swivel::Nearest(p) => {
+                let violation = |p: f64| self.shoulder_angles(&local(p)).1;
+                let v0 = violation(p);
+                if legal(v0) {
+                    p
+                } else {
+                    // Outwards in 2° steps both ways to the first legal sample, then bisection
+                    // to the limit boundary; with none legal, the least violating sample.
+                    let step = core::f64::consts::PI / 90.0;
+                    let mut found = None;
+                    let mut least = (v0, p);
+                    'scan: for i in 1..=90 {
+                        for sign in [1.0, -1.0] {
+                            let q = p + sign * step * f64::from(i);
+                            let v = violation(q);
+                            if legal(v) {
+                                found = Some((q, q - sign * step));
+                                break 'scan;
+                            }
+                            if v < least.0 {
+                                least = (v, q);
+                            }
+                        }
+                    }
+                    match found {
+                        Some((mut good, mut bad)) => {
+                            for _ in 0..30 {
+                                let mid = 0.5 * (good + bad);
+                                if legal(violation(mid)) {
+                                    good = mid;
+                                } else {
+                                    bad = mid;
+                                }
+                            }
+                            good
+                        }
+                        None => golden(violation, least.1 - step, least.1 + step, 1e-10),
+                    }
+                }
+            }
             Swivel::Auto { previous } => {
                 // Coarse scan of the swivel circle, then golden-section refinement (step 7).
                 const N: usize = SWIVEL_SAMPLES as usize;
@@ -697,7 +806,7 @@ impl Limb {
                 }
             }
         };
-        let (angles, violation) = self.shoulder_angles(&local(phi));
+        let (angles, violation) = self.shoulder_angles_near(&local(phi), reference);
         (phi, angles, violation)
     }
 }

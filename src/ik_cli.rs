@@ -267,3 +267,279 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
     }
     Ok(())
 }
+
+/// Options of `marionette ik-edit`.
+#[derive(Debug)]
+pub struct IkEditArgs<'a> {
+    /// Skeleton.
+    pub asf: &'a Path,
+    /// Motion to edit.
+    pub amc: &'a Path,
+    /// `BONE@FRAME` pins: the bone's tip stays where it was at that AMC frame.
+    pub pins: &'a [String],
+    /// `A..B`: the AMC frames (inclusive) over which the pins hold.
+    pub frames: &'a str,
+    /// Frames of ease-in before `A` and ease-out after `B` (eq. 13).
+    pub blend: usize,
+    /// Output motion.
+    pub output: &'a Path,
+}
+
+/// How one pin is solved.
+enum PinSolver {
+    /// The bone ends a 2-bone limb: analytic, the capture's swivel kept where legal.
+    Limb(Box<Limb>),
+    /// Otherwise damped least squares over the bone and its two parents.
+    Numeric(Box<Solver>),
+}
+
+/// One pin and what happened to it.
+struct Pin {
+    bone: usize,
+    frame: i64,
+    position: DVec3,
+    solver: PinSolver,
+    /// Channels the pin may change.
+    channels: Vec<usize>,
+    drift_before: f64,
+    drift_after: f64,
+    missed: usize,
+    outside_limits: usize,
+    swivel_moved: usize,
+}
+
+fn parse_frame_range(text: &str) -> Result<(i64, i64), CliError> {
+    let bad = || {
+        CliError::Usage(format!(
+            "--frames must be A..B (AMC frame numbers, A ≤ B), got '{text}'"
+        ))
+    };
+    let (a, b) = text.split_once("..").ok_or_else(bad)?;
+    let b = b.strip_prefix('=').unwrap_or(b);
+    let (a, b): (i64, i64) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if a > b {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
+
+/// Runs `marionette ik-edit`: keeps each pinned bone's tip where it was at its frame over the
+/// frame range, blended in and out with the ease weights of eq. (13); limbs are solved
+/// analytically per frame with the capture's own swivel (so the knee keeps pointing where it
+/// did), or the legal swivel nearest it where that would leave the limits.
+pub fn ik_edit_cmd(args: &IkEditArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
+    let file = asf::load(args.asf)?;
+    let skel = &file.skeleton;
+    let mut motion = amc::load(skel, args.amc)?;
+    if motion.is_empty() {
+        return Err(CliError::Usage(format!("{} has no frames", args.amc.display())));
+    }
+    let first = motion.first_frame;
+    let last = first + motion.len() as i64 - 1;
+    let (a, b) = parse_frame_range(args.frames)?;
+    if a < first || b > last {
+        return Err(CliError::Usage(format!(
+            "--frames {a}..{b} is not inside the clip's frames {first}..{last}"
+        )));
+    }
+    if args.pins.is_empty() {
+        return Err(CliError::Usage("give at least one --pin BONE@FRAME".into()));
+    }
+    let original = motion.clone();
+    let radians = |f: i64| frame_to_radians(skel, original.frame((f - first) as usize));
+    let mut pins = Vec::new();
+    let mut pose = Pose64::default();
+    for text in args.pins {
+        let (name, frame) = text
+            .rsplit_once('@')
+            .and_then(|(n, f)| f.trim().parse::<i64>().ok().map(|f| (n, f)))
+            .ok_or_else(|| CliError::Usage(format!("--pin must be BONE@FRAME, got '{text}'")))?;
+        let bone = skel.find(name).ok_or_else(|| {
+            let names: Vec<&str> = skel.bones().iter().map(|b| b.name()).collect();
+            CliError::Usage(format!(
+                "unknown bone '{name}' in --pin; the skeleton has: {}",
+                names.join(" ")
+            ))
+        })?;
+        if frame < first || frame > last {
+            return Err(CliError::Usage(format!(
+                "--pin {text}: frame {frame} is not in the clip's frames {first}..{last}"
+            )));
+        }
+        let parent = skel.bones()[bone]
+            .parent()
+            .filter(|&p| skel.bones()[p].parent().is_some());
+        let Some(parent) = parent else {
+            return Err(CliError::Usage(format!(
+                "--pin {text}: the root and its direct children cannot be pinned"
+            )));
+        };
+        let at = radians(frame);
+        fk64(skel, &at, &mut pose);
+        let (solver, moving) = match Limb::new(skel, parent, bone, Some(&at)) {
+            Ok(limb) => (PinSolver::Limb(Box::new(limb)), vec![parent, bone]),
+            Err(_) => {
+                let mut mask = [false; crate::skeleton::MAX_BONES];
+                let mut moving = Vec::new();
+                let mut i = Some(bone);
+                while let Some(k) = i.filter(|&k| skel.bones()[k].parent().is_some() && moving.len() < 3) {
+                    mask[k] = true;
+                    moving.push(k);
+                    i = skel.bones()[k].parent();
+                }
+                (
+                    PinSolver::Numeric(Box::new(Solver::new(skel, &mask, false))),
+                    moving,
+                )
+            }
+        };
+        let channels = moving
+            .iter()
+            .flat_map(|&m| skel.bones()[m].channels())
+            .filter(|&c| skel.channel_owner(c).is_some_and(|(_, d)| d.is_rotation()))
+            .collect();
+        pins.push(Pin {
+            bone,
+            frame,
+            position: pose.tip[bone],
+            solver,
+            channels,
+            drift_before: 0.0,
+            drift_after: 0.0,
+            missed: 0,
+            outside_limits: 0,
+            swivel_moved: 0,
+        });
+    }
+    // Weight of the pin at frame f: 1 inside A..B, eased over `blend` frames on either side.
+    let n = args.blend as i64;
+    let weight = |f: i64| -> f64 {
+        if f >= a && f <= b {
+            1.0
+        } else if f < a && f >= a - n {
+            crate::interp::ease_weight((f - (a - n)) as usize, args.blend + 1)
+        } else if f > b && f <= b + n {
+            crate::interp::ease_weight(((b + n) - f) as usize, args.blend + 1)
+        } else {
+            0.0
+        }
+    };
+    let settings = Settings {
+        max_iterations: 200,
+        tolerance: 1e-5,
+        restarts: 0,
+        ..Settings::default()
+    };
+    let (from, to) = ((a - n).max(first), (b + n).min(last));
+    let mut edited = 0;
+    for f in from..=to {
+        let w = weight(f);
+        if w <= 0.0 {
+            continue;
+        }
+        let mut ch = radians(f);
+        for pin in &mut pins {
+            fk64(skel, &ch, &mut pose);
+            let tip = pose.tip[pin.bone];
+            let target = tip.lerp(pin.position, w);
+            if (a..=b).contains(&f) {
+                pin.drift_before = pin.drift_before.max((tip - pin.position).length());
+            }
+            let within = match &mut pin.solver {
+                PinSolver::Limb(limb) => {
+                    let captured = limb.swivel_of(skel, &ch);
+                    let s = limb.solve(skel, &mut ch, target, Swivel::Nearest(captured));
+                    if (crate::interp::wrap_near(s.swivel, captured) - captured).abs() > 1e-9 {
+                        pin.swivel_moved += 1;
+                    }
+                    s.upper_within_limits && s.elbow_within_limits
+                }
+                PinSolver::Numeric(solver) => {
+                    let c = Constraint {
+                        bone: pin.bone,
+                        position: target,
+                        axes: None,
+                    };
+                    solver.solve(skel, &[c], &mut ch, &settings);
+                    solver.within_limits(&ch)
+                }
+            };
+            if !within {
+                // Written out legal: each moved angle clamped into its ASF limits.
+                for &c in &pin.channels {
+                    if let Some((b, _)) = skel.channel_owner(c) {
+                        let bone = &skel.bones()[b];
+                        let l = bone.limits()[c - bone.first_channel()];
+                        ch[c] = ch[c].clamp(f64::from(l.min), f64::from(l.max));
+                    }
+                }
+            }
+            fk64(skel, &ch, &mut pose);
+            let miss = (pose.tip[pin.bone] - target).length();
+            pin.missed += usize::from(miss > 1e-4);
+            pin.outside_limits += usize::from(!within);
+            if (a..=b).contains(&f) {
+                pin.drift_after = pin.drift_after.max((pose.tip[pin.bone] - pin.position).length());
+            }
+        }
+        // Write back only the channels the pins may move; the rest stay bit for bit.
+        let values = radians_to_frame(skel, &ch);
+        let row = motion.frame_mut((f - first) as usize);
+        for pin in &pins {
+            for &c in &pin.channels {
+                row[c] = values[c];
+            }
+        }
+        edited += 1;
+    }
+    // Largest frame-to-frame change of the edited channels, before and after.
+    let step = |m: &Motion, pin: &Pin| -> f64 {
+        let lo = (from - first).max(1) as usize;
+        let hi = ((to - first) as usize + 1).min(m.len() - 1);
+        (lo..=hi)
+            .flat_map(|i| pin.channels.iter().map(move |&c| (i, c)))
+            .map(|(i, c)| (m.frame(i)[c] - m.frame(i - 1)[c]).abs())
+            .fold(0.0, f64::max)
+    };
+    writeln!(
+        out,
+        "edited frames {from}..{to} of {first}..{last} ({edited} frames; pins hold over {a}..{b}, {} blend frames each side)",
+        args.blend
+    )?;
+    let mpu = f64::from(skel.units().meters_per_unit());
+    for pin in &pins {
+        let p = pin.position;
+        writeln!(
+            out,
+            "pin {}@{} at {:.4},{:.4},{:.4} ({}): drift over {a}..{b} {:.4} → {:.2e} units ({:.1} mm → {:.4} mm)",
+            skel.bones()[pin.bone].name(),
+            pin.frame,
+            p.x,
+            p.y,
+            p.z,
+            match pin.solver {
+                PinSolver::Limb(_) => "analytic limb",
+                PinSolver::Numeric(_) => "damped least squares",
+            },
+            pin.drift_before,
+            pin.drift_after,
+            pin.drift_before * mpu * 1e3,
+            pin.drift_after * mpu * 1e3,
+        )?;
+        writeln!(
+            out,
+            "  largest frame-to-frame change of its joints {:.2}° (capture {:.2}°); target missed on {} frames, limits reached (angles clamped) on {}, swivel moved off the capture's to stay legal on {}",
+            step(&motion, pin),
+            step(&original, pin),
+            pin.missed,
+            pin.outside_limits,
+            pin.swivel_moved
+        )?;
+    }
+    amc::save(skel, &motion, args.output)?;
+    writeln!(out, "written to {}", args.output.display())?;
+    Ok(())
+}

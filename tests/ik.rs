@@ -539,3 +539,121 @@ fn ik_command_line() {
         );
     }
 }
+
+/// `ik-edit` plants the left foot (ankle = ltibia's tip) of the walk over its stance frames
+/// 150..170: the ankle holds the pinned position, frames outside the blend are untouched, only
+/// the leg's channels change, and the leg moves smoothly. Also the swivel read back from a pose
+/// reproduces it, and bad arguments are refused with a message.
+#[test]
+fn ik_edit_plants_a_foot() {
+    let skel = skeleton();
+    let frames = walk_frames(&skel);
+    let (fe, ti) = (skel.find("lfemur").unwrap(), skel.find("ltibia").unwrap());
+    let limb = Limb::new(&skel, fe, ti, Some(&frames[0])).unwrap();
+    let mut pose = Pose64::default();
+    for f in &frames {
+        let mut ch = f.clone();
+        fk64(&skel, f, &mut pose);
+        let s = limb.solve(
+            &skel,
+            &mut ch,
+            pose.tip[ti],
+            Swivel::Fixed(limb.swivel_of(&skel, f)),
+        );
+        for c in skel.bones()[fe].channels().chain(skel.bones()[ti].channels()) {
+            assert!(
+                (ch[c] - f[c]).abs() < 1e-7,
+                "swivel_of does not reproduce the pose: {s:?}"
+            );
+        }
+    }
+
+    let dir = std::env::temp_dir().join(format!("marionette-ik-edit-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out_path = dir.join("planted.amc");
+    let run = |extra: &[&str]| {
+        common::bin()
+            .args([
+                "ik-edit",
+                common::data("16.asf").to_str().unwrap(),
+                common::data("16_15.amc").to_str().unwrap(),
+            ])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let out = run(&[
+        "--pin",
+        "ltibia@160",
+        "--frames",
+        "150..170",
+        "-o",
+        out_path.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    println!("{stdout}");
+    assert!(stdout.contains("pin ltibia@160") && stdout.contains("target missed on 0 frames"));
+    let input = amc::load(&skel, &common::data("16_15.amc")).unwrap();
+    let edited = amc::load(&skel, &out_path).unwrap();
+    assert_eq!(edited.len(), input.len());
+    fk64(&skel, &frames[159], &mut pose);
+    let pin = pose.tip[ti];
+    let leg: Vec<usize> = skel.bones()[fe]
+        .channels()
+        .chain(skel.bones()[ti].channels())
+        .collect();
+    let mut largest_step = 0.0f64;
+    for i in 0..input.len() {
+        let f = i as i64 + 1;
+        for c in 0..skel.channel_count() {
+            if !(138..=182).contains(&f) || !leg.contains(&c) {
+                assert_eq!(
+                    edited.frame(i)[c],
+                    input.frame(i)[c],
+                    "frame {f} channel {c} changed"
+                );
+            }
+        }
+        if (150..=170).contains(&f) {
+            let ch = marionette::motion::frame_to_radians(&skel, edited.frame(i));
+            fk64(&skel, &ch, &mut pose);
+            let drift = (pose.tip[ti] - pin).length();
+            assert!(drift < 1e-6, "frame {f}: ankle {drift} from the pin");
+        }
+        if i > 0 {
+            for &c in &leg {
+                largest_step = largest_step.max((edited.frame(i)[c] - edited.frame(i - 1)[c]).abs());
+            }
+        }
+    }
+    println!("largest leg step {largest_step:.2}°");
+    assert!(largest_step < 5.0, "{largest_step}°");
+
+    for (args, expect) in [
+        (vec!["--pin", "ltibia@160", "--frames", "170..150"], "A ≤ B"),
+        (
+            vec!["--pin", "ltibia@160", "--frames", "1..9999"],
+            "not inside the clip",
+        ),
+        (
+            vec!["--pin", "nose@160", "--frames", "150..170"],
+            "unknown bone 'nose'",
+        ),
+        (vec!["--pin", "ltibia", "--frames", "150..170"], "BONE@FRAME"),
+        (
+            vec!["--pin", "ltibia@0", "--frames", "150..170"],
+            "frame 0 is not in the clip",
+        ),
+    ] {
+        let mut a = args.clone();
+        a.extend(["-o", out_path.to_str().unwrap()]);
+        let out = run(&a);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && stderr.contains(expect),
+            "{args:?}: {stderr}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
