@@ -811,6 +811,119 @@ impl Limb {
     }
 }
 
+/// What [`point_bone`] achieved.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pointing {
+    /// Angle between the bone's direction and the asked one afterwards, radians.
+    pub direction_error: f64,
+    /// Summed excess of the bone's angles over their ASF limits, radians (0: legal). The
+    /// angles are written as solved, not clamped.
+    pub violation: f64,
+}
+
+/// Why [`point_bone`] cannot point a bone.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PointError {
+    /// The bone does not have three rotation DOFs (use the numerical solvers).
+    Needs3Dofs,
+    /// The bone has zero length or no direction.
+    NoDirection,
+    /// The asked direction is zero or not finite.
+    BadDirection,
+}
+
+/// Eq. (31)–(34): turns a 3-DOF bone (a wrist, a neck) so that it points along `direction`
+/// (world) rolled by `roll` radians about it. With `A = Wₚ·C` (parent world times the bone's
+/// rest frame) and `V̂ₕ = Cᵀ·d` the rest direction in the bone's frame, the local rotation is
+/// `M = ΔR·R_roll(θ, V̂ₕ)` where `ΔR` is the shortest rotation from `V̂ₕ` to `Aᵀ·V̂_hd`
+/// (eq. 32–33 written in the bone's frame) and the roll turns about the local pointing axis
+/// (eq. 34). `M` is written as the bone's Euler angles, of the equivalent solutions the one
+/// nearest the present angles. The parents' pose is taken from `channels`.
+///
+/// # Errors
+/// [`PointError`].
+pub fn point_bone(
+    skeleton: &Skeleton,
+    channels: &mut [f64],
+    bone: usize,
+    direction: DVec3,
+    roll: f64,
+) -> Result<Pointing, PointError> {
+    let b = skeleton.bones().get(bone).ok_or(PointError::Needs3Dofs)?;
+    let order = dof_order(b.dofs()).ok_or(PointError::Needs3Dofs)?;
+    let ks = rot_dofs(b.dofs());
+    if ks.len() != 3 {
+        return Err(PointError::Needs3Dofs);
+    }
+    let rest = dir64(b);
+    if rest == DVec3::ZERO || b.length() <= 0.0 {
+        return Err(PointError::NoDirection);
+    }
+    if !direction.is_finite() || direction.length() < 1e-12 || !roll.is_finite() {
+        return Err(PointError::BadDirection);
+    }
+    let mut pose = Pose64::default();
+    fk64_bones(skeleton, channels, &mut pose, &ancestors(skeleton, bone));
+    let parent_world = b.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
+    let c = c64(b.axis_rotation());
+    let a = parent_world * c;
+    let v_h = c.transpose() * rest;
+    let wanted = (a.transpose() * direction.normalize()).normalize();
+    let delta = DMat3::from_quat(rotation_between(v_h, wanted));
+    let m = delta * DMat3::from_axis_angle(v_h, libm::remainder(roll, core::f64::consts::TAU));
+    let first = b.first_channel();
+    let present = [0, 1, 2].map(|j| {
+        let x = channels[first + ks[j]];
+        if x.is_finite() {
+            x
+        } else {
+            0.0
+        }
+    });
+    // Of the two Euler solutions (each angle in the turn nearest its limit range's centre): the
+    // one violating the limits least, then the one nearest the present angles.
+    let lim = |j: usize| {
+        b.limits()
+            .get(ks[j])
+            .map_or((f64::NEG_INFINITY, f64::INFINITY), |l| {
+                (f64::from(l.min), f64::from(l.max))
+            })
+    };
+    let a0 = order.from_mat3_f64(&m);
+    let pi = core::f64::consts::PI;
+    let b2 = if order.is_proper() { -a0[1] } else { pi - a0[1] };
+    let mut best = ([0.0; 3], f64::INFINITY, f64::INFINITY);
+    for cand in [a0, [a0[0] + pi, b2, a0[2] + pi]] {
+        let (mut w, mut v, mut off) = ([0.0; 3], 0.0, 0.0);
+        for j in 0..3 {
+            let (lo, hi) = lim(j);
+            let centre = if lo.is_finite() && hi.is_finite() {
+                0.5 * (lo + hi)
+            } else {
+                present[j]
+            };
+            w[j] = crate::interp::wrap_near(cand[j], centre);
+            v += (lo - w[j]).max(0.0) + (w[j] - hi).max(0.0);
+            off += (w[j] - present[j]).abs();
+        }
+        if v < best.1 - 1e-12 || (v <= best.1 + 1e-12 && off < best.2) {
+            best = (w, v, off);
+        }
+    }
+    let (angles, violation) = (best.0, best.1);
+    for (j, &k) in ks.iter().enumerate() {
+        channels[first + k] = angles[j];
+    }
+    fk64_bones(skeleton, channels, &mut pose, &ancestors(skeleton, bone));
+    let got = (pose.tip[bone] - pose.start[bone]).normalize_or_zero();
+    let want = direction.normalize();
+    let direction_error = libm::atan2(got.cross(want).length(), got.dot(want));
+    Ok(Pointing {
+        direction_error,
+        violation,
+    })
+}
+
 /// Golden-section minimisation of `f` on `[a, b]`.
 pub fn golden(mut f: impl FnMut(f64) -> f64, mut a: f64, mut b: f64, tol: f64) -> f64 {
     let r = 0.5 * (libm::sqrt(5.0) - 1.0);

@@ -205,8 +205,35 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
             limits_met = solver.within_limits(&channels);
         }
     }
-    // Wrist/ankle: point the next bone (eq. 31–34), numerically over its own DOFs.
-    if let Some((h, dir, goal_frame, with_roll)) = orient {
+    // Wrist/ankle: point the next bone. A 3-DOF bone in closed form (eq. 31–34), with the roll
+    // measured from the rest direction's shortest turn onto `dir` (world) like the numerical
+    // path; fewer DOFs numerically over the bones down to it.
+    let three_dofs = |b: usize| skel.bones()[b].dofs().iter().filter(|d| d.is_rotation()).count() == 3;
+    let closed = orient.filter(|o| three_dofs(o.0));
+    if let Some((h, dir, goal_frame, with_roll)) = closed {
+        let mut p = crate::ik::point_bone(skel, &mut channels, h, dir, 0.0)
+            .map_err(|e| CliError::Usage(format!("cannot point '{}': {e:?}", skel.bones()[h].name())))?;
+        if with_roll {
+            fk64(skel, &channels, &mut pose);
+            let (axis, angle) = DQuat::from_mat3(&(pose.frame[h].transpose() * goal_frame)).to_axis_angle();
+            let local = skel.bones()[h].local_direction().as_dvec3();
+            let roll = if axis.dot(local) < 0.0 { -angle } else { angle };
+            p = crate::ik::point_bone(skel, &mut channels, h, dir, roll)
+                .map_err(|e| CliError::Usage(format!("cannot point '{}': {e:?}", skel.bones()[h].name())))?;
+        }
+        report.push_str(&format!(
+            "  {} points {:.4}° off the asked direction (closed form, eq. 31–34){}\n",
+            skel.bones()[h].name(),
+            p.direction_error.to_degrees(),
+            if p.violation > 0.0 {
+                ", outside its limits"
+            } else {
+                ""
+            }
+        ));
+        limits_met &= p.violation == 0.0;
+    }
+    if let Some((h, dir, goal_frame, with_roll)) = orient.filter(|o| !three_dofs(o.0)) {
         fk64(skel, &channels, &mut pose);
         let len = (pose.tip[h] - pose.start[h]).length();
         let axes = with_roll.then_some((goal_frame.x_axis, goal_frame.y_axis));
@@ -232,17 +259,21 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
             &Settings {
                 max_iterations: 500,
                 damping: 0.05,
+                // A direction to ≤ 0.01°: the tip within 1e-7 of a bone about a unit long.
+                tolerance: 1e-7,
                 ..Settings::default()
             },
         );
         fk64(skel, &channels, &mut pose);
         let got = (pose.tip[h] - pose.start[h]).normalize_or_zero();
+        let off = got.cross(dir).length().atan2(got.dot(dir)).to_degrees();
         report.push_str(&format!(
-            "  {} points {:.2}° off the asked direction{}\n",
+            "  {} points {off:.4}° off the asked direction{}\n",
             skel.bones()[h].name(),
-            got.dot(dir).clamp(-1.0, 1.0).acos().to_degrees(),
-            if o.converged {
+            if o.converged || (off <= 0.01 && !with_roll) {
                 ""
+            } else if with_roll {
+                " (its DOFs cannot meet direction and roll together)"
             } else {
                 " (its DOFs cannot do better)"
             }

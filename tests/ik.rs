@@ -208,7 +208,11 @@ fn limb_stream_is_continuous() {
             worst_step.to_degrees()
         );
         assert!(worst_err < 1e-6);
-        assert!(worst_swivel.to_degrees() <= 5.0, "{lower}: swivel jumped {:.2}°", worst_swivel.to_degrees());
+        assert!(
+            worst_swivel.to_degrees() <= 5.0,
+            "{lower}: swivel jumped {:.2}°",
+            worst_swivel.to_degrees()
+        );
         assert!(worst_step.to_degrees() < 10.0);
     }
 }
@@ -672,4 +676,68 @@ fn ik_edit_plants_a_foot() {
         );
     }
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Eq. (31)–(34) on the 3-DOF bones of the CMU skeleton (humerus, upper neck, lower back):
+/// for random legal poses, pointing the bone along its posed direction with the posed roll
+/// gives back the same frame; the direction error stays below 0.01° (it is ~1e-14 rad).
+#[test]
+fn closed_form_pointing_with_roll() {
+    use glam::{DMat3, DQuat};
+    use marionette::ik::{point_bone, PointError};
+    let skel = skeleton();
+    let frames = walk_frames(&skel);
+    let mut rng = Rng::new(21);
+    let mut worst_dir = 0.0f64;
+    let mut worst_frame = 0.0f64;
+    for name in ["lhumerus", "upperneck", "lowerback", "rfemur"] {
+        let b = skel.find(name).unwrap();
+        let v_h = skel.bones()[b].local_direction().as_dvec3().normalize();
+        for i in 0..2000 {
+            let mut goal = frames[i % frames.len()].clone();
+            random_pose(&skel, &[b], &mut rng, &mut goal);
+            let mut pose = Pose64::default();
+            fk64(&skel, &goal, &mut pose);
+            let dir = pose.tip[b] - pose.start[b];
+            let goal_frame = pose.frame[b];
+            // Roll 0 first, then the roll that the goal has relative to it.
+            let mut ch = frames[i % frames.len()].clone();
+            point_bone(&skel, &mut ch, b, dir, 0.0).unwrap();
+            fk64(&skel, &ch, &mut pose);
+            let (axis, angle) = DQuat::from_mat3(&(pose.frame[b].transpose() * goal_frame)).to_axis_angle();
+            let roll = if axis.dot(v_h) < 0.0 { -angle } else { angle };
+            let p = point_bone(&skel, &mut ch, b, dir * 3.7, roll).unwrap();
+            fk64(&skel, &ch, &mut pose);
+            worst_dir = worst_dir.max(p.direction_error);
+            let diff: DMat3 = pose.frame[b] - goal_frame;
+            let e = diff.x_axis.length() + diff.y_axis.length() + diff.z_axis.length();
+            worst_frame = worst_frame.max(e);
+            assert!(
+                p.violation < 1e-9,
+                "{name}: a legal pose came back outside the limits by {}",
+                p.violation
+            );
+        }
+    }
+    println!(
+        "pointing: worst direction error {:.1e}°, worst frame difference {worst_frame:.1e}",
+        worst_dir.to_degrees()
+    );
+    assert!(worst_dir.to_degrees() <= 0.01);
+    assert!(worst_frame < 1e-9);
+    let mut ch = vec![0.0; skel.channel_count()];
+    let radius = skel.find("lradius").unwrap();
+    assert_eq!(
+        point_bone(&skel, &mut ch, radius, DVec3::X, 0.0),
+        Err(PointError::Needs3Dofs)
+    );
+    let hum = skel.find("lhumerus").unwrap();
+    assert_eq!(
+        point_bone(&skel, &mut ch, hum, DVec3::ZERO, 0.0),
+        Err(PointError::BadDirection)
+    );
+    assert_eq!(
+        point_bone(&skel, &mut ch, hum, DVec3::NAN, 0.0),
+        Err(PointError::BadDirection)
+    );
 }
