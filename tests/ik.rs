@@ -123,7 +123,7 @@ fn limb_reaches_random_reachable_targets_within_limits() {
         }
         println!("{upper}/{lower}: {ok}/{n} within 1e-6 (worst {worst:.1e}), {legal}/{n} within limits");
         assert_eq!(ok, n);
-        assert!(legal as f64 >= 0.99 * n as f64, "{legal}/{n} within limits");
+        assert_eq!(legal, n, "{legal}/{n} within limits");
     }
 }
 
