@@ -40,6 +40,7 @@ pub mod interp;
 pub mod math;
 pub mod protocol;
 pub mod rig;
+pub mod schedule;
 pub mod servo;
 pub mod skeleton;
 
