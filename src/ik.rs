@@ -500,27 +500,7 @@ impl Limb {
     /// range), the one violating the limits least, then the one nearest `reference` (the
     /// present angles, so a stream does not flip between equivalent solutions).
     fn shoulder_angles_near(&self, m: &DMat3, reference: &[f64; 3]) -> ([f64; 3], f64) {
-        let a = self.upper_order.from_mat3_f64(m);
-        let pi = core::f64::consts::PI;
-        let b2 = if self.upper_order.is_proper() {
-            -a[1]
-        } else {
-            pi - a[1]
-        };
-        let mut best = ([0.0; 3], f64::INFINITY, f64::INFINITY);
-        for cand in [a, [a[0] + pi, b2, a[2] + pi]] {
-            let mut w = [0.0; 3];
-            let (mut v, mut off) = (0.0, 0.0);
-            for k in 0..3 {
-                w[k] = crate::interp::wrap_near(cand[k], self.center[k]);
-                v += (self.limits[k].0 - w[k]).max(0.0) + (w[k] - self.limits[k].1).max(0.0);
-                off += (w[k] - reference[k]).abs();
-            }
-            if v < best.1 - 1e-12 || (v <= best.1 + 1e-12 && off < best.2) {
-                best = (w, v, off);
-            }
-        }
-        (best.0, best.1)
+        legal_euler(self.upper_order, m, &self.limits, &self.center, reference)
     }
 
     /// Solves the limb so that the lower bone's tip reaches `target` (world, file units),
@@ -684,6 +664,18 @@ impl Limb {
         let local = |phi: f64| DMat3::from_quat(local_q(phi));
         // Legal: inside the limits up to rounding.
         let legal = |v: f64| v <= 1e-12;
+        // Bisection between a legal and an illegal swivel: the legal one next to the limit.
+        let to_boundary = |mut good: f64, mut bad: f64| {
+            for _ in 0..30 {
+                let mid = 0.5 * (good + bad);
+                if legal(self.shoulder_angles(&local(mid)).1) {
+                    good = mid;
+                } else {
+                    bad = mid;
+                }
+            }
+            good
+        };
         // The swivel's score and the shoulder's limit violation.
         let eval = |phi: f64, previous: Option<f64>| {
             let quat = local_q(phi);
@@ -726,17 +718,7 @@ impl Limb {
                         }
                     }
                     match found {
-                        Some((mut good, mut bad)) => {
-                            for _ in 0..30 {
-                                let mid = 0.5 * (good + bad);
-                                if legal(violation(mid)) {
-                                    good = mid;
-                                } else {
-                                    bad = mid;
-                                }
-                            }
-                            good
-                        }
+                        Some((good, bad)) => to_boundary(good, bad),
                         None => golden(violation, least.1 - step, least.1 + step, 1e-10),
                     }
                 }
@@ -764,18 +746,7 @@ impl Limb {
                 match best_legal {
                     // The optimum lies on the limit boundary: step back inside, towards the
                     // best legal sample, by bisection on legality.
-                    Some((_, inside)) if !legal(violation(found)) => {
-                        let (mut good, mut bad) = (inside, found);
-                        for _ in 0..30 {
-                            let mid = 0.5 * (good + bad);
-                            if legal(violation(mid)) {
-                                good = mid;
-                            } else {
-                                bad = mid;
-                            }
-                        }
-                        good
-                    }
+                    Some((_, inside)) if !legal(violation(found)) => to_boundary(inside, found),
                     Some(_) => found,
                     // No legal sample: a legal arc, if there is one, is narrower than the scan
                     // step (near the shoulder's gimbal lock). Minimise the violation itself
@@ -809,6 +780,34 @@ impl Limb {
         let (angles, violation) = self.shoulder_angles_near(&local(phi), reference);
         (phi, angles, violation)
     }
+}
+
+/// Euler angles of the local rotation `m` in `order` and their summed excess over `limits`: of
+/// the two Euler solutions, each angle taken in the turn nearest `centre`, the one violating the
+/// limits least, then the one nearest `reference`.
+fn legal_euler(
+    order: EulerOrder,
+    m: &DMat3,
+    limits: &[(f64, f64); 3],
+    centre: &[f64; 3],
+    reference: &[f64; 3],
+) -> ([f64; 3], f64) {
+    let a = order.from_mat3_f64(m);
+    let pi = core::f64::consts::PI;
+    let b2 = if order.is_proper() { -a[1] } else { pi - a[1] };
+    let mut best = ([0.0; 3], f64::INFINITY, f64::INFINITY);
+    for cand in [a, [a[0] + pi, b2, a[2] + pi]] {
+        let (mut w, mut v, mut off) = ([0.0; 3], 0.0, 0.0);
+        for k in 0..3 {
+            w[k] = crate::interp::wrap_near(cand[k], centre[k]);
+            v += (limits[k].0 - w[k]).max(0.0) + (w[k] - limits[k].1).max(0.0);
+            off += (w[k] - reference[k]).abs();
+        }
+        if v < best.1 - 1e-12 || (v <= best.1 + 1e-12 && off < best.2) {
+            best = (w, v, off);
+        }
+    }
+    (best.0, best.1)
 }
 
 /// What [`point_bone`] achieved.
@@ -880,37 +879,22 @@ pub fn point_bone(
             0.0
         }
     });
-    // Of the two Euler solutions (each angle in the turn nearest its limit range's centre): the
-    // one violating the limits least, then the one nearest the present angles.
-    let lim = |j: usize| {
+    let limits = [0, 1, 2].map(|j| {
         b.limits()
             .get(ks[j])
             .map_or((f64::NEG_INFINITY, f64::INFINITY), |l| {
                 (f64::from(l.min), f64::from(l.max))
             })
-    };
-    let a0 = order.from_mat3_f64(&m);
-    let pi = core::f64::consts::PI;
-    let b2 = if order.is_proper() { -a0[1] } else { pi - a0[1] };
-    let mut best = ([0.0; 3], f64::INFINITY, f64::INFINITY);
-    for cand in [a0, [a0[0] + pi, b2, a0[2] + pi]] {
-        let (mut w, mut v, mut off) = ([0.0; 3], 0.0, 0.0);
-        for j in 0..3 {
-            let (lo, hi) = lim(j);
-            let centre = if lo.is_finite() && hi.is_finite() {
-                0.5 * (lo + hi)
-            } else {
-                present[j]
-            };
-            w[j] = crate::interp::wrap_near(cand[j], centre);
-            v += (lo - w[j]).max(0.0) + (w[j] - hi).max(0.0);
-            off += (w[j] - present[j]).abs();
+    });
+    let centre = [0, 1, 2].map(|j| {
+        let (lo, hi) = limits[j];
+        if lo.is_finite() && hi.is_finite() {
+            0.5 * (lo + hi)
+        } else {
+            present[j]
         }
-        if v < best.1 - 1e-12 || (v <= best.1 + 1e-12 && off < best.2) {
-            best = (w, v, off);
-        }
-    }
-    let (angles, violation) = (best.0, best.1);
+    });
+    let (angles, violation) = legal_euler(order, &m, &limits, &centre, &present);
     for (j, &k) in ks.iter().enumerate() {
         channels[first + k] = angles[j];
     }

@@ -602,33 +602,28 @@ impl Solver {
                     }
                 }
                 state.grad_prev = grad;
-                let dir = state.dir;
-                let slope = (0..n).map(|i| dir[i] * grad[i]).sum();
-                if self.line_search(
-                    skeleton,
-                    constraints,
-                    channels,
-                    &dir,
-                    slope,
-                    cd,
-                    settings.max_step,
-                ) {
-                    return true;
+                // Along the CG direction, else (no decrease there) steepest descent.
+                for attempt in 0..2 {
+                    if attempt == 1 {
+                        for i in 0..n {
+                            state.dir[i] = -grad[i];
+                        }
+                    }
+                    let dir = state.dir;
+                    let slope = (0..n).map(|i| dir[i] * grad[i]).sum();
+                    if self.line_search(
+                        skeleton,
+                        constraints,
+                        channels,
+                        &dir,
+                        slope,
+                        cd,
+                        settings.max_step,
+                    ) {
+                        return true;
+                    }
                 }
-                for i in 0..n {
-                    state.dir[i] = -grad[i];
-                }
-                let dir = state.dir;
-                let slope = (0..n).map(|i| dir[i] * grad[i]).sum();
-                self.line_search(
-                    skeleton,
-                    constraints,
-                    channels,
-                    &dir,
-                    slope,
-                    cd,
-                    settings.max_step,
-                )
+                false
             }
         }
     }
