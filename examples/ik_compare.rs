@@ -10,6 +10,8 @@
 //!
 //! Prints a Markdown table (BENCHMARKS.md holds a copy).
 
+use std::fmt::Write as _;
+use std::io::Write as _;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -146,7 +148,15 @@ fn k_chain(skel: &Skeleton, upper: usize, lower: usize) -> (k::SerialChain<f64>,
     (k::SerialChain::from_end(&tip), channels)
 }
 
-fn run(skel: &Skeleton, upper: &str, lower: &str, targets: usize, seed: u64, max_iterations: usize) {
+fn run(
+    out: &mut String,
+    skel: &Skeleton,
+    upper: &str,
+    lower: &str,
+    targets: usize,
+    seed: u64,
+    max_iterations: usize,
+) {
     let (u, l) = (skel.find(upper).unwrap(), skel.find(lower).unwrap());
     let limb = Limb::new(skel, u, l, None).unwrap();
     let mask = chain_mask(skel, u, l);
@@ -238,12 +248,14 @@ fn run(skel: &Skeleton, upper: &str, lower: &str, targets: usize, seed: u64, max
         rows[last].add(e, None, us, within_limits(skel, &[u, l], &ch));
     }
 
-    println!(
+    writeln!(
+        out,
         "\n### {upper} + {lower} ({} DOF), {targets} targets, seed {seed}, cap {max_iterations} iterations\n",
         solver.variables()
-    );
-    println!("| method | success ≤ 1e-3 | mean / max iterations | p50 / p99 time (µs) | mean / max final error | limit violations |");
-    println!("|---|---|---|---|---|---|");
+    )
+    .unwrap();
+    writeln!(out, "| method | success ≤ 1e-3 | mean / max iterations | p50 / p99 time (µs) | mean / max final error | limit violations |").unwrap();
+    writeln!(out, "|---|---|---|---|---|---|").unwrap();
     let k_p50 = percentile(&mut rows.last().unwrap().micros.clone(), 0.5);
     for r in &mut rows {
         let its = if r.iterations.is_empty() {
@@ -257,7 +269,8 @@ fn run(skel: &Skeleton, upper: &str, lower: &str, targets: usize, seed: u64, max
         let max_e = r.errors.iter().cloned().fold(0.0, f64::max);
         let p50 = percentile(&mut r.micros, 0.5);
         let p99 = percentile(&mut r.micros, 0.99);
-        println!(
+        writeln!(
+            out,
             "| {} | {:.2} % ({}/{}) | {} | {:.2} / {:.2} (k ÷ this: {:.1}×) | {:.1e} / {:.1e} | {} |",
             r.name,
             100.0 * r.success as f64 / targets as f64,
@@ -270,7 +283,8 @@ fn run(skel: &Skeleton, upper: &str, lower: &str, targets: usize, seed: u64, max
             mean_e,
             max_e,
             r.violations
-        );
+        )
+        .unwrap();
     }
 }
 
@@ -297,8 +311,27 @@ fn main() {
     }
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/cmu/16.asf");
     let skel = asf::load(&path).expect("bundled 16.asf").skeleton;
-    println!("IK method comparison — `cargo run --release --example ik_compare -- --targets {targets} --seed {seed} --max-iterations {max_iterations}`");
-    println!("Start: rest pose; success: tip within {TOLERANCE} units (inches × 0.45 of the CMU ASF) of the target; limits: ASF limits ±1e-9 rad.");
-    run(&skel, "lhumerus", "lradius", targets, seed, max_iterations);
-    run(&skel, "lfemur", "ltibia", targets, seed + 1, max_iterations);
+    let mut out = String::new();
+    writeln!(out, "IK method comparison — `cargo run --release --example ik_compare -- --targets {targets} --seed {seed} --max-iterations {max_iterations}`").unwrap();
+    writeln!(out, "Start: rest pose; success: tip within {TOLERANCE} units (inches × 0.45 of the CMU ASF) of the target; limits: ASF limits ±1e-9 rad.").unwrap();
+    run(
+        &mut out,
+        &skel,
+        "lhumerus",
+        "lradius",
+        targets,
+        seed,
+        max_iterations,
+    );
+    run(
+        &mut out,
+        &skel,
+        "lfemur",
+        "ltibia",
+        targets,
+        seed + 1,
+        max_iterations,
+    );
+    // A closed pipe (`| head`) is not an error worth a panic.
+    let _ = std::io::stdout().write_all(out.as_bytes());
 }
