@@ -41,6 +41,17 @@ pub enum Method {
     ConjugateGradient,
 }
 
+impl Method {
+    /// Every method, in the order of the help note.
+    pub const ALL: [Method; 5] = [
+        Method::Ccd,
+        Method::Transpose,
+        Method::Pseudoinverse,
+        Method::DampedLeastSquares,
+        Method::ConjugateGradient,
+    ];
+}
+
 /// Jacobian by eq. (43)–(47), or by finite differences.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JacobianKind {

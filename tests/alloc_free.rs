@@ -175,13 +175,7 @@ fn ik_solves_allocate_nothing() {
         previous = Some(s.swivel);
         let _ = arm.solve(&skel, &mut ch, hand + DVec3::X, Swivel::Fixed(0.5));
         solved += 2;
-        for method in [
-            Method::Ccd,
-            Method::Transpose,
-            Method::Pseudoinverse,
-            Method::DampedLeastSquares,
-            Method::ConjugateGradient,
-        ] {
+        for method in Method::ALL {
             for jacobian in [JacobianKind::Analytic, JacobianKind::FiniteDifference] {
                 let settings = Settings {
                     method,

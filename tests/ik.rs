@@ -18,6 +18,11 @@ fn uniform(rng: &mut Rng, lo: f64, hi: f64) -> f64 {
     lo + (hi - lo) * (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64
 }
 
+/// A random offset, each of x and z uniform in `±xz`, y in `±y`.
+fn offset(rng: &mut Rng, xz: f64, y: f64) -> DVec3 {
+    DVec3::new(uniform(rng, -xz, xz), uniform(rng, -y, y), uniform(rng, -xz, xz))
+}
+
 /// Random angles within the ASF limits for the given bones' rotation DOFs.
 fn random_pose(skel: &Skeleton, bones: &[usize], rng: &mut Rng, channels: &mut [f64]) {
     for &b in bones {
@@ -249,30 +254,9 @@ fn limb_never_returns_nan() {
             ch.iter_mut().for_each(|x| *x = 0.0);
             let kind = rng.below(6);
             let target = match kind {
-                0 => {
-                    shoulder
-                        + DVec3::new(
-                            uniform(&mut rng, -30.0, 30.0),
-                            uniform(&mut rng, -30.0, 30.0),
-                            uniform(&mut rng, -30.0, 30.0),
-                        )
-                }
-                1 => {
-                    shoulder
-                        + DVec3::new(
-                            uniform(&mut rng, -1e6, 1e6),
-                            uniform(&mut rng, -1e6, 1e6),
-                            uniform(&mut rng, -1e6, 1e6),
-                        )
-                }
-                2 => {
-                    shoulder
-                        + DVec3::new(
-                            uniform(&mut rng, -1e-9, 1e-9),
-                            0.0,
-                            uniform(&mut rng, -1e-9, 1e-9),
-                        )
-                }
+                0 => shoulder + offset(&mut rng, 30.0, 30.0),
+                1 => shoulder + offset(&mut rng, 1e6, 1e6),
+                2 => shoulder + offset(&mut rng, 1e-9, 0.0),
                 3 => DVec3::new(
                     weird[rng.below(7) as usize],
                     uniform(&mut rng, -10.0, 10.0),
@@ -351,13 +335,7 @@ fn numerical_methods_reach_random_targets() {
             fk64(&skel, &goal, &mut pose);
             goals.push(pose.tip[l]);
         }
-        for method in [
-            Method::Ccd,
-            Method::Transpose,
-            Method::Pseudoinverse,
-            Method::DampedLeastSquares,
-            Method::ConjugateGradient,
-        ] {
+        for method in Method::ALL {
             let mut solver = Solver::new(&skel, &mask, false);
             assert_eq!(solver.variables(), 4);
             let settings = Settings {
