@@ -25,6 +25,8 @@
 //! * `motion` — a clip of frames (values as files hold them) and its frame vectors.
 //! * `formats` — file loading with `file:line:column` errors, AMC read/write, ASF write,
 //!   BVH import/export.
+//! * `bus` — servo buses (serial through `dynamixel2`, the virtual chain).
+//! * `control` — the fixed-rate loop, its inputs, statistics and fault policy.
 //! * `cli` — the `marionette` command.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![deny(unsafe_code)]
@@ -51,6 +53,8 @@ pub mod bus;
 #[cfg(feature = "std")]
 /// The command line.
 pub mod cli;
+#[cfg(feature = "std")]
+pub mod control;
 #[cfg(feature = "std")]
 pub mod formats;
 #[cfg(feature = "std")]

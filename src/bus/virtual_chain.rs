@@ -74,6 +74,8 @@ pub struct InProcess {
     chain: Chain,
     baud: u32,
     clock: Duration,
+    /// The time up to which the servos have moved.
+    stepped: Duration,
     rx: Receiver,
     pending: VecDeque<(Duration, u8)>,
     out: Box<[u8; 8 * MAX_PACKET]>,
@@ -90,6 +92,7 @@ impl InProcess {
             chain,
             baud,
             clock: Duration::ZERO,
+            stepped: Duration::ZERO,
             rx: Receiver::default(),
             pending: VecDeque::with_capacity(16 * MAX_PACKET),
             out: Box::new([0; 8 * MAX_PACKET]),
@@ -112,7 +115,15 @@ impl InProcess {
     /// Lets `dt` of virtual time pass: the servos move, bytes in flight arrive.
     pub fn advance(&mut self, dt: Duration) {
         self.clock += dt;
-        self.chain.step(dt.as_secs_f64());
+        self.catch_up();
+    }
+
+    /// Moves the servos up to the clock (time spent on the wire passes for them too).
+    fn catch_up(&mut self) {
+        if self.clock > self.stepped {
+            self.chain.step((self.clock - self.stepped).as_secs_f64());
+            self.stepped = self.clock;
+        }
     }
 }
 
@@ -123,6 +134,7 @@ impl Transport for InProcess {
             self.pending.pop_front();
         }
         self.clock += wire_time(bytes.len(), self.baud);
+        self.catch_up();
         self.rx.push(bytes);
         let mut at = self
             .clock
@@ -163,6 +175,7 @@ impl Transport for InProcess {
             return Ok(0);
         }
         self.clock = self.clock.max(first);
+        self.catch_up();
         // Everything that has arrived by now (a reply's bytes come together).
         let mut n = 0;
         while n < buf.len() {
@@ -322,5 +335,69 @@ fn serve_loop(
             let _ = port.write_all(&bytes);
         }
         let _ = port.flush();
+    }
+}
+
+/// A virtual chain in virtual time as both the loop's bus and its clock: bus transactions take
+/// their wire time, waiting for a deadline lets the servos move until then. Clone the handle to
+/// pass it as both; deterministic, no threads.
+#[derive(Clone, Debug)]
+pub struct VirtualRig(std::rc::Rc<std::cell::RefCell<super::packet::PacketBus<InProcess>>>);
+
+impl VirtualRig {
+    /// A virtual rig of `chain` at `baud`, replies waited for up to `timeout`.
+    #[must_use]
+    pub fn new(chain: Chain, baud: u32, timeout: Duration) -> VirtualRig {
+        VirtualRig(std::rc::Rc::new(std::cell::RefCell::new(
+            super::packet::PacketBus::new(InProcess::new(chain, baud), timeout),
+        )))
+    }
+
+    /// Runs `f` on the transport (the chain, the injector, the clock).
+    pub fn with<R>(&self, f: impl FnOnce(&mut InProcess) -> R) -> R {
+        f(self.0.borrow_mut().link_mut())
+    }
+}
+
+impl super::ServoBus for VirtualRig {
+    fn ping(&mut self, id: u8) -> Result<super::PingInfo, super::BusError> {
+        self.0.borrow_mut().ping(id)
+    }
+    fn scan(&mut self) -> Result<Vec<super::PingInfo>, super::BusError> {
+        self.0.borrow_mut().scan()
+    }
+    fn read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), super::BusError> {
+        self.0.borrow_mut().read(id, address, out)
+    }
+    fn write(&mut self, id: u8, address: u16, data: &[u8]) -> Result<(), super::BusError> {
+        self.0.borrow_mut().write(id, address, data)
+    }
+    fn sync_write(&mut self, address: u16, len: u16, ids: &[u8], data: &[u8]) -> Result<(), super::BusError> {
+        self.0.borrow_mut().sync_write(address, len, ids, data)
+    }
+    fn sync_read(
+        &mut self,
+        address: u16,
+        len: u16,
+        ids: &[u8],
+        out: &mut [u8],
+    ) -> Result<(), super::BusError> {
+        self.0.borrow_mut().sync_read(address, len, ids, out)
+    }
+    fn reboot(&mut self, id: u8) -> Result<(), super::BusError> {
+        self.0.borrow_mut().reboot(id)
+    }
+}
+
+impl crate::schedule::Clock for VirtualRig {
+    fn now_ns(&mut self) -> u64 {
+        u64::try_from(self.0.borrow().link().now().as_nanos()).unwrap_or(u64::MAX)
+    }
+
+    fn wait_until(&mut self, deadline_ns: u64) {
+        let now = self.now_ns();
+        if deadline_ns > now {
+            self.with(|t| t.advance(Duration::from_nanos(deadline_ns - now)));
+        }
     }
 }

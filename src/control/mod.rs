@@ -1,0 +1,774 @@
+//! The fixed-rate control loop: newest input → FK/IK → rig mapping → command stage → Sync
+//! Write → Sync Read → telemetry, on the absolute-deadline [`Schedule`].
+//!
+//! Everything a tick needs is prepared before the loop starts ([`Controller::new`]); a tick
+//! allocates nothing (the `alloc_free` test and the `allocations_in_tick` statistic prove it
+//! with a counting allocator). Time is passed in through a [`Clock`], so tests run the loop on
+//! virtual time.
+//!
+//! Fault policy: a failed or corrupt read is never used; after `hold_after` consecutive failed
+//! reads the last command written while reads were good is held; after `torque_off_after`
+//! without a valid read every servo's torque is turned off and the loop stops with a fault.
+//! A host that stops altogether is covered by the servos' Bus Watchdog, armed at start-up.
+
+pub mod input;
+pub mod rt;
+pub mod sources;
+pub mod stats;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use crossbeam_channel::{Sender, TrySendError};
+use glam::DVec3;
+
+use crate::bus::{BusError, ServoBus};
+use crate::command::{CommandError, CommandStage};
+use crate::ik::{fk64, point_bone, Limb, Pose64, Swivel};
+use crate::ik_numeric::{Constraint, Settings, Solver};
+use crate::rig::{Rig, MAX_SERVOS};
+use crate::schedule::{Clock, Schedule, Tick};
+use crate::servo::{addr, TICKS_PER_TURN};
+use crate::skeleton::{Skeleton, MAX_BONES, MAX_CHANNELS};
+use input::{InputPort, Payload, Target, MAX_EFFECTORS};
+use stats::{LoopStats, Stage};
+
+/// How the loop ends a run that was not stopped by a fault.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum StopMode {
+    /// Move to the rest pose (all joint angles 0, clamped to the limits) over `ramp_s` seconds
+    /// with an ease-in/out (eq. 13), then torque off.
+    Rest {
+        /// Ramp duration, seconds.
+        ramp_s: f64,
+    },
+    /// Hold the last command for `hold_s` seconds, then torque off.
+    Hold {
+        /// Hold duration, seconds.
+        hold_s: f64,
+    },
+}
+
+/// Settings of the loop.
+#[derive(Clone, Copy, Debug)]
+pub struct LoopConfig {
+    /// Ticks per second (50 … 1000 in practice).
+    pub rate_hz: f64,
+    /// Consecutive failed reads after which the last good command is held (K).
+    pub hold_after: u32,
+    /// Milliseconds without a valid read after which torque goes off (T).
+    pub torque_off_after_ms: f64,
+    /// How a run ends (end of input, duration, Ctrl-C).
+    pub stop: StopMode,
+    /// Stop after this many ticks (the `--duration`).
+    pub max_ticks: Option<u64>,
+    /// Heap allocations made so far on this thread (a counting global allocator's counter), to
+    /// count allocations inside ticks.
+    pub allocations: Option<fn() -> u64>,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        LoopConfig {
+            rate_hz: 120.0,
+            hold_after: 3,
+            torque_off_after_ms: 100.0,
+            stop: StopMode::Rest { ramp_s: 1.0 },
+            max_ticks: None,
+            allocations: None,
+        }
+    }
+}
+
+/// One tick's figures, sent to a telemetry consumer (never blocking the loop).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Telemetry {
+    /// Tick index.
+    pub index: u64,
+    /// Deadline, ns on the loop clock.
+    pub deadline_ns: u64,
+    /// Wake-up, ns.
+    pub woke_ns: u64,
+    /// Work without bus I/O, ns.
+    pub compute_ns: u64,
+    /// Whole tick, ns.
+    pub total_ns: u64,
+    /// Whether the tick ended after the next deadline.
+    pub missed: bool,
+    /// Whether the read succeeded.
+    pub read_ok: bool,
+    /// Whether the tick held the last good command.
+    pub held: bool,
+    /// RMS of commanded − present over the servos this tick, degrees (NaN without a read).
+    pub tracking_rms_deg: f64,
+    /// Tips of up to four watched bones (the effectors) after the solve, root frame.
+    pub tips: [DVec3; 4],
+    /// Clip time of the frame used (play), seconds.
+    pub clip_time: f64,
+}
+
+/// Why a run ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunEnd {
+    /// The input ended (clip played once, target file done).
+    InputEnded,
+    /// The tick count (`--duration`) was reached.
+    Duration,
+    /// Stopped from outside (Ctrl-C).
+    Interrupted,
+    /// No valid read for the torque-off time: torque was turned off.
+    ReadsFailed,
+}
+
+/// What the loop does with the input.
+#[derive(Debug)]
+pub enum Solve {
+    /// Frames are joint angles already (AMC playback).
+    Frames,
+    /// Effector targets solved by IK.
+    Follow(Box<Follower>),
+}
+
+/// How one effector is solved.
+#[derive(Debug)]
+enum EffectorSolver {
+    /// Analytic 2-bone limb (help note §IV) with the swivel kept near the previous one.
+    Limb(Box<Limb>),
+    /// Damped least squares over the bone and its two parents.
+    Numeric(Box<Solver>),
+}
+
+/// One effector of a follower.
+#[derive(Debug)]
+pub struct Effector {
+    /// Bone name (its tip is the effector).
+    pub name: String,
+    bone: usize,
+    solver: EffectorSolver,
+    swivel: Option<f64>,
+    /// The bone pointed by a direction target (hand, foot) and its solver when not 3-DOF.
+    pointer: Option<(usize, Option<Box<Solver>>)>,
+}
+
+/// Why a follower cannot be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum FollowError {
+    /// Unknown bone.
+    #[error("no bone named '{0}' in the skeleton")]
+    UnknownBone(String),
+    /// The root or its direct children.
+    #[error("'{0}' is the root or hangs from it: it cannot be an effector")]
+    TooHigh(String),
+    /// Too many.
+    #[error("at most {MAX_EFFECTORS} effectors")]
+    TooMany,
+}
+
+/// IK targets → joint angles, all state prepared before the loop.
+#[derive(Debug)]
+pub struct Follower {
+    effectors: Vec<Effector>,
+    targets: [Option<Target>; MAX_EFFECTORS],
+    numeric: Settings,
+}
+
+impl Follower {
+    /// Effectors by bone name: each ends a 2-bone limb (analytic) or is solved numerically.
+    ///
+    /// # Errors
+    /// [`FollowError`].
+    pub fn new(skeleton: &Skeleton, names: &[String]) -> Result<Follower, FollowError> {
+        if names.len() > MAX_EFFECTORS {
+            return Err(FollowError::TooMany);
+        }
+        let mut effectors = Vec::new();
+        for name in names {
+            let bone = skeleton
+                .find(name)
+                .ok_or_else(|| FollowError::UnknownBone(name.clone()))?;
+            let parent = skeleton.bones()[bone]
+                .parent()
+                .filter(|&p| skeleton.bones()[p].parent().is_some())
+                .ok_or_else(|| FollowError::TooHigh(name.clone()))?;
+            let solver = match Limb::new(skeleton, parent, bone, None) {
+                Ok(l) => EffectorSolver::Limb(Box::new(l)),
+                Err(_) => {
+                    let mut mask = [false; MAX_BONES];
+                    let mut i = Some(bone);
+                    let mut n = 0;
+                    while let Some(k) = i.filter(|&k| skeleton.bones()[k].parent().is_some() && n < 3) {
+                        mask[k] = true;
+                        n += 1;
+                        i = skeleton.bones()[k].parent();
+                    }
+                    EffectorSolver::Numeric(Box::new(Solver::new(skeleton, &mask, false)))
+                }
+            };
+            // The bone a direction points: down the first children until two DOFs are passed.
+            let mut pointer = None;
+            let mut dofs = 0;
+            let mut mask = [false; MAX_BONES];
+            let mut at = skeleton.children(bone).next();
+            while let Some(c) = at {
+                dofs += skeleton.bones()[c]
+                    .dofs()
+                    .iter()
+                    .filter(|d| d.is_rotation())
+                    .count();
+                mask[c] = true;
+                if dofs >= 2 {
+                    let three = skeleton.bones()[c]
+                        .dofs()
+                        .iter()
+                        .filter(|d| d.is_rotation())
+                        .count()
+                        == 3;
+                    let numeric = (!three).then(|| Box::new(Solver::new(skeleton, &mask, false)));
+                    pointer = Some((c, numeric));
+                    break;
+                }
+                at = skeleton.children(c).next();
+            }
+            effectors.push(Effector {
+                name: name.clone(),
+                bone,
+                solver,
+                swivel: None,
+                pointer,
+            });
+        }
+        Ok(Follower {
+            effectors,
+            targets: [None; MAX_EFFECTORS],
+            numeric: Settings {
+                max_iterations: 30,
+                restarts: 0,
+                tolerance: 1e-4,
+                damping: 0.05,
+                ..Settings::default()
+            },
+        })
+    }
+
+    /// The effector names, in order.
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.effectors.iter().map(|e| e.name.as_str())
+    }
+
+    /// Solves every effector that has a target, in place on `channels`; returns the summed
+    /// residual count (unreachable effectors) and records residuals in `stats`.
+    fn solve(&mut self, skeleton: &Skeleton, channels: &mut [f64], pose: &mut Pose64, stats: &mut LoopStats) {
+        for (k, e) in self.effectors.iter_mut().enumerate() {
+            let Some(t) = self.targets[k] else { continue };
+            let residual = match &mut e.solver {
+                EffectorSolver::Limb(limb) => {
+                    let s = limb.solve(
+                        skeleton,
+                        channels,
+                        t.position,
+                        Swivel::Auto { previous: e.swivel },
+                    );
+                    e.swivel = Some(s.swivel);
+                    if !s.reachable {
+                        stats.unreachable += 1;
+                    }
+                    s.error
+                }
+                EffectorSolver::Numeric(solver) => {
+                    let c = Constraint {
+                        bone: e.bone,
+                        position: t.position,
+                        axes: None,
+                    };
+                    solver
+                        .solve(skeleton, &[c], channels, &self.numeric)
+                        .position_error
+                }
+            };
+            stats.ik_error(residual);
+            if let (Some(dir), Some((hand, numeric))) = (t.direction, &mut e.pointer) {
+                let dir = dir.normalize();
+                match numeric {
+                    None => {
+                        let _ = point_bone(skeleton, channels, *hand, dir, 0.0);
+                    }
+                    Some(solver) => {
+                        fk64(skeleton, channels, pose);
+                        let len = (pose.tip[*hand] - pose.start[*hand]).length();
+                        let c = Constraint {
+                            bone: *hand,
+                            position: pose.start[*hand] + dir * len,
+                            axes: None,
+                        };
+                        solver.solve(skeleton, &[c], channels, &self.numeric);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The loop's state: everything a tick touches, allocated before the first tick.
+pub struct Controller {
+    skeleton: Arc<Skeleton>,
+    rig: Rig,
+    ids: Vec<u8>,
+    config: LoopConfig,
+    period_ns: u64,
+    stage: CommandStage,
+    channels: [f64; MAX_CHANNELS],
+    angles: Vec<f64>,
+    present: Vec<i32>,
+    read_buf: Vec<i32>,
+    last_good: Vec<i32>,
+    /// Goals of the previous tick's write: what the servos had a period to reach.
+    previous_goals: Option<Vec<i32>>,
+    pose: Box<Pose64>,
+    watch: [Option<usize>; 4],
+    input: InputPort,
+    solve: Solve,
+    telemetry: Option<Sender<Telemetry>>,
+    /// The statistics so far.
+    pub stats: LoopStats,
+    have_input: bool,
+    clip_time: f64,
+    failures: u32,
+    last_valid_read_ns: u64,
+    last_tick: Option<(u64, u64)>,
+}
+
+impl std::fmt::Debug for Controller {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Controller")
+            .field("servos", &self.ids.len())
+            .field("rate_hz", &self.config.rate_hz)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Controller {
+    /// A loop for `rig` (over `skeleton`) with servo `ids` in rig order, started from the
+    /// present positions `present` (as [`crate::bus::start_up`] returns them).
+    ///
+    /// # Panics
+    /// When `ids`, `present` and the rig differ in length or the rig has more than
+    /// [`MAX_SERVOS`] servos (profiles guarantee neither happens).
+    #[must_use]
+    pub fn new(
+        skeleton: Arc<Skeleton>,
+        rig: Rig,
+        ids: Vec<u8>,
+        present: &[i32],
+        input: InputPort,
+        solve: Solve,
+        config: LoopConfig,
+    ) -> Controller {
+        assert!(ids.len() == rig.len() && present.len() == rig.len() && rig.len() <= MAX_SERVOS);
+        let mut stage = CommandStage::new(rig.len());
+        stage.start_from(&rig, present);
+        let mut watch = [None; 4];
+        let names: Vec<&str> = match &solve {
+            Solve::Follow(f) => f.names().collect(),
+            Solve::Frames => vec!["lradius", "rradius", "ltibia", "rtibia"],
+        };
+        for (w, n) in watch.iter_mut().zip(names) {
+            *w = skeleton.find(n);
+        }
+        let n = rig.len();
+        let period_ns = (1e9 / config.rate_hz).round().max(1.0) as u64;
+        // The joint angles of the present positions: the reference for Euler re-decomposition.
+        let angles = rig
+            .servos
+            .iter()
+            .zip(present)
+            .map(|(s, p)| s.ticks_to_angle(f64::from(*p)))
+            .collect();
+        Controller {
+            skeleton,
+            stats: LoopStats::new(config.rate_hz),
+            rig,
+            ids,
+            config,
+            period_ns,
+            stage,
+            channels: [0.0; MAX_CHANNELS],
+            angles,
+            present: present.to_vec(),
+            read_buf: vec![0; n],
+            last_good: present.to_vec(),
+            previous_goals: None,
+            pose: Box::default(),
+            watch,
+            input,
+            solve,
+            telemetry: None,
+            have_input: false,
+            clip_time: f64::NAN,
+            failures: 0,
+            last_valid_read_ns: 0,
+            last_tick: None,
+        }
+    }
+
+    /// Sends per-tick figures to `tx` (bounded; a full channel drops the record, counted).
+    pub fn set_telemetry(&mut self, tx: Sender<Telemetry>) {
+        self.telemetry = Some(tx);
+    }
+
+    /// The period, nanoseconds.
+    #[must_use]
+    pub fn period_ns(&self) -> u64 {
+        self.period_ns
+    }
+
+    /// The present positions of the last valid read (ticks).
+    #[must_use]
+    pub fn present(&self) -> &[i32] {
+        &self.present
+    }
+
+    /// The last command written (ticks).
+    #[must_use]
+    pub fn last_command(&self) -> &[i32] {
+        self.stage.last()
+    }
+
+    /// The pose in use (channels, radians).
+    #[must_use]
+    pub fn channels(&self) -> &[f64] {
+        &self.channels[..self.skeleton.channel_count()]
+    }
+
+    /// Whether the input has ended (every producer gone, nothing left).
+    #[must_use]
+    pub fn input_finished(&self) -> bool {
+        self.input.finished()
+    }
+
+    /// Takes the newest due input; returns whether a new one was used.
+    fn take_input(&mut self, now: u64) -> bool {
+        let n = self.skeleton.channel_count();
+        let Some(msg) = self.input.take(now) else {
+            return false;
+        };
+        let age = now.saturating_sub(msg.made_ns);
+        let ok = match (&msg.payload, &mut self.solve) {
+            (
+                Payload::Frame {
+                    channels,
+                    len,
+                    clip_time,
+                },
+                Solve::Frames,
+            ) => {
+                if *len >= n && channels[..n].iter().all(|v| v.is_finite()) {
+                    self.channels[..n].copy_from_slice(&channels[..n]);
+                    self.clip_time = *clip_time;
+                    true
+                } else {
+                    false
+                }
+            }
+            (Payload::Targets(targets), Solve::Follow(f)) => {
+                let valid = targets
+                    .iter()
+                    .all(|t| t.is_finite() && t.effector < f.effectors.len());
+                if valid {
+                    for t in targets {
+                        f.targets[t.effector] = Some(*t);
+                    }
+                }
+                valid
+            }
+            _ => false,
+        };
+        if ok {
+            self.stats.inputs_used += 1;
+            self.stats.stage_mut(Stage::InputAge).record(age);
+            self.have_input = true;
+        } else {
+            self.stats.inputs_rejected += 1;
+        }
+        ok
+    }
+
+    /// One tick at `tick` (from [`Schedule::wait`]): input, solve, encode, write, read,
+    /// telemetry. Allocates nothing.
+    pub fn tick(&mut self, tick: &Tick, bus: &mut dyn ServoBus, clock: &mut dyn Clock) -> Option<RunEnd> {
+        let allocs = self.config.allocations.map(|f| f());
+        let start = clock.now_ns();
+        self.stats.ticks += 1;
+        self.stats.skipped_ticks += tick.skipped;
+        self.stats.wake_late.record(tick.lateness_ns());
+        if let Some((index, at)) = self.last_tick {
+            let expected = (tick.index - index) * self.period_ns;
+            let got = start.saturating_sub(at);
+            self.stats.period_error.record(got.abs_diff(expected));
+        }
+        self.last_tick = Some((tick.index, start));
+        if self.last_valid_read_ns == 0 {
+            self.last_valid_read_ns = start;
+        }
+
+        // Input.
+        let fresh = self.take_input(start);
+        if !fresh && self.have_input {
+            self.stats.inputs_stale += 1;
+        }
+
+        // Solve (IK for targets) and FK of the pose.
+        let t_solve = clock.now_ns();
+        let n = self.skeleton.channel_count();
+        if let Solve::Follow(f) = &mut self.solve {
+            if fresh {
+                f.solve(
+                    &self.skeleton,
+                    &mut self.channels[..n],
+                    &mut self.pose,
+                    &mut self.stats,
+                );
+            }
+        }
+        fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
+        let mut tips = [DVec3::NAN; 4];
+        for (t, w) in tips.iter_mut().zip(self.watch) {
+            if let Some(b) = w {
+                *t = self.pose.tip[b];
+            }
+        }
+        let t_encode = clock.now_ns();
+        self.stats.stage_mut(Stage::Solve).record(t_encode - t_solve);
+
+        // Encode: mapping and the command stage — or hold.
+        let holding = self.failures >= self.config.hold_after;
+        let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;
+        let mut goals = [0i32; MAX_SERVOS];
+        let len = self.ids.len();
+        if holding {
+            self.stats.held_ticks += 1;
+            goals[..len].copy_from_slice(&self.last_good);
+        } else if self.have_input {
+            self.rig
+                .joint_angles(&self.skeleton, &self.channels[..n], &[], &mut self.angles);
+            match self.stage.command(&self.rig, &self.angles, dt) {
+                Ok((g, limited)) => {
+                    goals[..len].copy_from_slice(g);
+                    self.stats.clamped += limited.clamped as u64;
+                    self.stats.rate_limited += limited.rate_limited as u64;
+                }
+                Err(
+                    CommandError::NotFinite { .. }
+                    | CommandError::WrongLength { .. }
+                    | CommandError::BadTimeStep,
+                ) => {
+                    self.stats.commands_refused += 1;
+                    goals[..len].copy_from_slice(self.stage.last());
+                }
+            }
+        } else {
+            // No input yet: keep the servos where they are (and their watchdog fed).
+            goals[..len].copy_from_slice(self.stage.last());
+        }
+        let t_write = clock.now_ns();
+        self.stats.stage_mut(Stage::Encode).record(t_write - t_encode);
+
+        // Bus write.
+        let written = bus.write_goals(&self.ids, &goals[..len]);
+        match &written {
+            Ok(()) => self.stats.commands_sent += 1,
+            Err(e) => self.stats.bus_error(e.kind()),
+        }
+        let t_read = clock.now_ns();
+        self.stats.stage_mut(Stage::BusWrite).record(t_read - t_write);
+
+        // Bus read: used only when every reply passed every check.
+        let read = bus.read_positions(&self.ids, &mut self.read_buf);
+        let t_after = clock.now_ns();
+        self.stats.stage_mut(Stage::BusRead).record(t_after - t_read);
+        let mut tracking = f64::NAN;
+        let mut end = None;
+        let read_ok = read.is_ok();
+        match read {
+            Ok(()) => {
+                self.present.copy_from_slice(&self.read_buf);
+                self.stats.reads_ok += 1;
+                self.failures = 0;
+                self.last_valid_read_ns = t_after;
+                if !holding {
+                    self.last_good.copy_from_slice(&goals[..len]);
+                }
+                // Tracking: the present position against the goal the servo had a period to
+                // reach (the one written a tick ago).
+                if let Some(prev) = &self.previous_goals {
+                    let mut sq = 0.0;
+                    for (s, (g, p)) in self.rig.servos.iter().zip(prev.iter().zip(&self.present)) {
+                        let deg =
+                            f64::from(g - p) * 360.0 / f64::from(TICKS_PER_TURN) / s.gear.abs().max(1e-9);
+                        self.stats.tracking(deg);
+                        sq += deg * deg;
+                    }
+                    tracking = (sq / len.max(1) as f64).sqrt();
+                }
+            }
+            Err(e) => {
+                self.stats.bus_error(e.kind());
+                self.failures = self.failures.saturating_add(1);
+                let silent_ms = (t_after.saturating_sub(self.last_valid_read_ns)) as f64 * 1e-6;
+                if silent_ms >= self.config.torque_off_after_ms {
+                    let _ = torque_off(bus, &self.ids);
+                    end = Some(RunEnd::ReadsFailed);
+                }
+            }
+        }
+
+        if written.is_ok() {
+            match &mut self.previous_goals {
+                Some(p) => p.copy_from_slice(&goals[..len]),
+                None => self.previous_goals = Some(goals[..len].to_vec()),
+            }
+        }
+
+        // Telemetry and timing.
+        let done = clock.now_ns();
+        let bus_ns = t_after - t_write;
+        let total = done - start;
+        let compute = total.saturating_sub(bus_ns);
+        self.stats.tick_total.record(total);
+        self.stats.tick_compute.record(compute);
+        let missed = done > tick.deadline_ns + self.period_ns;
+        if missed {
+            self.stats.deadline_misses += 1;
+        }
+        if let Some(tx) = &self.telemetry {
+            let t = Telemetry {
+                index: tick.index,
+                deadline_ns: tick.deadline_ns,
+                woke_ns: tick.woke_ns,
+                compute_ns: compute,
+                total_ns: total,
+                missed,
+                read_ok,
+                held: holding,
+                tracking_rms_deg: tracking,
+                tips,
+                clip_time: self.clip_time,
+            };
+            if let Err(TrySendError::Full(_)) = tx.try_send(t) {
+                self.stats.telemetry_dropped += 1;
+            }
+        }
+        if let (Some(f), Some(before)) = (self.config.allocations, allocs) {
+            *self.stats.allocations_in_tick.get_or_insert(0) += f() - before;
+        }
+        if end.is_none() && self.input.finished() && !fresh {
+            end = Some(RunEnd::InputEnded);
+        }
+        end
+    }
+
+    /// Runs ticks on `schedule` until the input ends, `max_ticks` pass, `stop` is set or reads
+    /// fail for the torque-off time; then (except after a fault) ramps to rest or holds, and
+    /// turns torque off.
+    pub fn run(
+        &mut self,
+        schedule: &mut Schedule,
+        bus: &mut dyn ServoBus,
+        clock: &mut dyn Clock,
+        stop: &AtomicBool,
+    ) -> RunEnd {
+        if self.config.allocations.is_some() {
+            self.stats.allocations_in_tick = Some(0);
+        }
+        let why = loop {
+            let tick = schedule.wait(clock);
+            if stop.load(Ordering::Relaxed) {
+                break RunEnd::Interrupted;
+            }
+            if self.config.max_ticks.is_some_and(|m| self.stats.ticks >= m) {
+                break RunEnd::Duration;
+            }
+            if let Some(end) = self.tick(&tick, bus, clock) {
+                break end;
+            }
+        };
+        self.input.stop_producers();
+        if why != RunEnd::ReadsFailed {
+            self.finish(schedule, bus, clock, stop);
+        }
+        why
+    }
+
+    /// The end of a run: ramp to the rest pose (or hold), then torque off. A second stop
+    /// request cuts the ramp short.
+    fn finish(
+        &mut self,
+        schedule: &mut Schedule,
+        bus: &mut dyn ServoBus,
+        clock: &mut dyn Clock,
+        stop: &AtomicBool,
+    ) {
+        let (ticks, to_rest) = match self.config.stop {
+            StopMode::Rest { ramp_s } => ((ramp_s.max(0.0) * self.config.rate_hz).ceil() as usize, true),
+            StopMode::Hold { hold_s } => ((hold_s.max(0.0) * self.config.rate_hz).ceil() as usize, false),
+        };
+        let from: Vec<f64> = self.angles.clone();
+        let dt = self.period_ns as f64 * 1e-9;
+        let interrupted_at_start = stop.load(Ordering::Relaxed);
+        // After the ramp, up to two more seconds for the rate limits to arrive at rest.
+        let extra = if to_rest {
+            (2.0 * self.config.rate_hz).ceil() as usize
+        } else {
+            0
+        };
+        for k in 1..=ticks + extra {
+            let _ = schedule.wait(clock);
+            if !interrupted_at_start && stop.load(Ordering::Relaxed) {
+                break;
+            }
+            if k > ticks && !to_rest {
+                break;
+            }
+            let mut arrived = false;
+            let goals: Vec<i32> = if to_rest && self.have_input {
+                let w = crate::interp::ease_weight(k.min(ticks), ticks + 1);
+                let angles: Vec<f64> = from.iter().map(|a| a * (1.0 - w)).collect();
+                match self.stage.command(&self.rig, &angles, dt) {
+                    Ok((g, limited)) => {
+                        arrived = k >= ticks && limited.rate_limited == 0;
+                        g.to_vec()
+                    }
+                    Err(_) => self.stage.last().to_vec(),
+                }
+            } else {
+                self.stage.last().to_vec()
+            };
+            let _ = bus.write_goals(&self.ids, &goals);
+            if bus.read_positions(&self.ids, &mut self.read_buf).is_ok() {
+                self.present.copy_from_slice(&self.read_buf);
+            }
+            if arrived {
+                break;
+            }
+        }
+        let _ = torque_off(bus, &self.ids);
+    }
+}
+
+/// Torque off on every servo: one Sync Write (no replies needed, so it gets through a bus whose
+/// reads fail), then each servo on its own (acknowledged). The first error is returned.
+///
+/// # Errors
+/// [`BusError`].
+pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> Result<(), BusError> {
+    let zeros = [0u8; MAX_SERVOS];
+    let n = ids.len().min(MAX_SERVOS);
+    let mut first = bus
+        .sync_write(addr::TORQUE_ENABLE, 1, &ids[..n], &zeros[..n])
+        .err();
+    for &id in ids {
+        if let Err(e) = bus.set_torque(id, false) {
+            first.get_or_insert(e);
+        }
+    }
+    first.map_or(Ok(()), Err)
+}

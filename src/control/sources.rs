@@ -1,0 +1,660 @@
+//! Producers of loop inputs, outside the tick: the clip player (SLERP resampling to the loop
+//! rate, looping, pause/seek/speed), target tracks from CSV or JSON-lines files, and live target
+//! lines from stdin or a UDP socket on loopback.
+//!
+//! Target lines, in the root's frame (file units), time in seconds:
+//!
+//! * CSV: `t,effector,x,y,z` or `t,effector,x,y,z,dx,dy,dz` (a header line starting with `t,`
+//!   and `#` comments are skipped; rows with the same `t` make one sample);
+//! * JSON lines: `{"t":0.5,"targets":[{"effector":"lradius","position":[x,y,z],"direction":[dx,dy,dz]}]}`
+//!   (`direction` optional), or one target per line as `{"t":…,"effector":…,"position":…}`.
+
+use std::io::BufRead;
+use std::net::UdpSocket;
+use std::path::Path;
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crossbeam_channel::Receiver;
+use glam::DVec3;
+
+use super::input::{Input, InputSender, Payload, Target, MAX_EFFECTORS};
+use crate::formats::{read_text, FileError, TextError};
+use crate::interp::interpolate_frames;
+use crate::motion::Motion;
+use crate::schedule::{Clock, SystemClock};
+use crate::skeleton::{Skeleton, MAX_CHANNELS};
+
+/// A clip sampled at the loop's rate: each call gives the frame at the next tick's clip time,
+/// SLERP between the two nearest clip frames (eq. 12), rotations in radians.
+#[derive(Debug)]
+pub struct ClipPlayer {
+    skeleton: Arc<Skeleton>,
+    motion: Arc<Motion>,
+    period_s: f64,
+    looping: bool,
+    speed: f64,
+    paused: bool,
+    time: f64,
+    started: bool,
+    buf: Vec<f64>,
+}
+
+/// A command to a running player.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PlayerCommand {
+    /// Hold the present frame.
+    Pause,
+    /// Go on.
+    Resume,
+    /// Pause or resume.
+    Toggle,
+    /// Jump to a clip time, seconds.
+    Seek(f64),
+    /// Play at this speed (1 = as captured).
+    Speed(f64),
+}
+
+impl ClipPlayer {
+    /// A player of `motion` at `rate_hz`.
+    #[must_use]
+    pub fn new(skeleton: Arc<Skeleton>, motion: Arc<Motion>, rate_hz: f64, looping: bool) -> ClipPlayer {
+        let n = motion.channel_count();
+        ClipPlayer {
+            skeleton,
+            motion,
+            period_s: 1.0 / rate_hz,
+            looping,
+            speed: 1.0,
+            paused: false,
+            time: 0.0,
+            started: false,
+            buf: vec![0.0; n],
+        }
+    }
+
+    /// The clip's length, seconds (time of its last frame).
+    #[must_use]
+    pub fn duration(&self) -> f64 {
+        self.motion.duration()
+    }
+
+    /// Samples at the loop rate a whole pass takes: one per tick from clip time 0 to the last
+    /// frame.
+    #[must_use]
+    pub fn samples_per_pass(&self) -> u64 {
+        (self.duration() / self.period_s + 1e-9).floor() as u64 + 1
+    }
+
+    /// Applies a command.
+    pub fn control(&mut self, c: PlayerCommand) {
+        match c {
+            PlayerCommand::Pause => self.paused = true,
+            PlayerCommand::Resume => self.paused = false,
+            PlayerCommand::Toggle => self.paused = !self.paused,
+            PlayerCommand::Seek(t) if t.is_finite() => {
+                self.time = t.clamp(0.0, self.duration());
+                self.started = false;
+            }
+            PlayerCommand::Speed(s) if s.is_finite() && s > 0.0 => self.speed = s,
+            PlayerCommand::Seek(_) | PlayerCommand::Speed(_) => {}
+        }
+    }
+
+    /// The next sample into `out` (radians), returning its clip time; `None` at the end of a
+    /// clip played once.
+    pub fn next_sample(&mut self, out: &mut [f64]) -> Option<f64> {
+        if self.motion.is_empty() {
+            return None;
+        }
+        if self.started && !self.paused {
+            self.time += self.period_s * self.speed;
+        }
+        self.started = true;
+        let d = self.duration();
+        if self.time > d + 1e-9 {
+            if !self.looping || d <= 0.0 {
+                return None;
+            }
+            self.time = (self.time - d).rem_euclid(d);
+        }
+        let f = (self.time.min(d) * self.motion.frame_rate).max(0.0);
+        let mut i = f.floor() as usize;
+        let mut u = f - i as f64;
+        if u > 1.0 - 1e-9 {
+            i += 1;
+            u = 0.0;
+        }
+        let last = self.motion.len() - 1;
+        let i = i.min(last);
+        let j = (i + 1).min(last);
+        let s = &self.skeleton;
+        interpolate_frames(s, self.motion.frame(i), self.motion.frame(j), u, &mut self.buf);
+        let n = s.channel_count().min(out.len());
+        for (c, o) in out.iter_mut().enumerate().take(n) {
+            let v = self.buf[c];
+            *o = match s.channel_owner(c) {
+                Some((_, dof)) if dof.is_rotation() => v.to_radians(),
+                _ => v,
+            };
+        }
+        Some(self.time)
+    }
+}
+
+/// What a producer thread did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ProducerReport {
+    /// Messages sent.
+    pub sent: u64,
+    /// Messages dropped for newer ones (live sources).
+    pub dropped: u64,
+    /// Lines or datagrams that could not be read as targets.
+    pub bad_lines: u64,
+}
+
+/// Runs `player` in a thread: sample `k` is due at tick `first_tick + k` of the loop's grid
+/// (`start_ns + tick·period_ns` on `clock`), sent up to the channel's capacity ahead.
+/// Commands arrive on `commands`. The thread ends with the clip (played once) or when the
+/// loop stops.
+///
+/// # Errors
+/// When the thread cannot be started.
+pub fn spawn_player(
+    mut player: ClipPlayer,
+    tx: InputSender,
+    mut clock: SystemClock,
+    start_ns: u64,
+    period_ns: u64,
+    commands: Option<Receiver<PlayerCommand>>,
+) -> std::io::Result<JoinHandle<ProducerReport>> {
+    std::thread::Builder::new()
+        .name("clip-player".into())
+        .spawn(move || {
+            let mut report = ProducerReport::default();
+            let mut frame = [0.0f64; MAX_CHANNELS];
+            let n = player.skeleton.channel_count().min(MAX_CHANNELS);
+            for k in 0u64.. {
+                if let Some(rx) = &commands {
+                    while let Ok(c) = rx.try_recv() {
+                        player.control(c);
+                    }
+                }
+                let Some(t) = player.next_sample(&mut frame[..n]) else {
+                    break;
+                };
+                let due = start_ns + k * period_ns;
+                let msg = Input::frame(k, due, clock.now_ns(), &frame[..n], t);
+                if tx.send_wait(msg).is_err() {
+                    break;
+                }
+                report.sent += 1;
+            }
+            report
+        })
+}
+
+/// Samples of effector targets over time, read from a file.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TargetTrack {
+    /// (time s, targets) in time order.
+    pub samples: Vec<(f64, heapless::Vec<Target, MAX_EFFECTORS>)>,
+}
+
+impl TargetTrack {
+    /// Reads a CSV or JSON-lines target file; effector names must be in `effectors`.
+    ///
+    /// # Errors
+    /// [`FileError`] with the line and what was expected.
+    pub fn load(path: &Path, effectors: &[String]) -> Result<TargetTrack, FileError> {
+        let text = read_text(path)?;
+        TargetTrack::parse(&text, effectors).map_err(|e| FileError::parse(path, e))
+    }
+
+    /// Parses target lines (see the module documentation).
+    ///
+    /// # Errors
+    /// [`TextError`] at the first bad line.
+    pub fn parse(text: &str, effectors: &[String]) -> Result<TargetTrack, TextError> {
+        let mut track = TargetTrack::default();
+        for (n, line) in text.lines().enumerate() {
+            let line_no = u32::try_from(n + 1).unwrap_or(u32::MAX);
+            let Some((t, targets)) =
+                parse_target_line(line, effectors).map_err(|m| TextError::new(line_no, 0, m))?
+            else {
+                continue;
+            };
+            if let Some((last_t, _)) = track.samples.last() {
+                if t < *last_t {
+                    return Err(TextError::new(
+                        line_no,
+                        0,
+                        format!(
+                            "time {t} goes back (the previous line has {last_t}); expected times in order"
+                        ),
+                    ));
+                }
+            }
+            match track.samples.last_mut() {
+                Some((last_t, last)) if *last_t == t => {
+                    for x in targets {
+                        merge_target(last, x);
+                    }
+                }
+                _ => track.samples.push((t, targets)),
+            }
+        }
+        if track.samples.is_empty() {
+            return Err(TextError::new(
+                0,
+                0,
+                "no targets (expected `t,effector,x,y,z` lines or JSON lines)",
+            ));
+        }
+        Ok(track)
+    }
+
+    /// Duration from the first to the last sample, seconds.
+    #[must_use]
+    pub fn duration(&self) -> f64 {
+        match (self.samples.first(), self.samples.last()) {
+            (Some(a), Some(b)) => b.0 - a.0,
+            _ => 0.0,
+        }
+    }
+}
+
+/// Replaces the target of the same effector or appends.
+fn merge_target(into: &mut heapless::Vec<Target, MAX_EFFECTORS>, t: Target) {
+    if let Some(x) = into.iter_mut().find(|x| x.effector == t.effector) {
+        *x = t;
+    } else {
+        let _ = into.push(t);
+    }
+}
+
+/// One line of targets: `Ok(None)` for blank, comment and header lines.
+///
+/// # Errors
+/// What is wrong and what was expected.
+pub fn parse_target_line(
+    line: &str,
+    effectors: &[String],
+) -> Result<Option<(f64, heapless::Vec<Target, MAX_EFFECTORS>)>, String> {
+    let line = line.trim();
+    if line.is_empty() || line.starts_with('#') || line.starts_with("t,") {
+        return Ok(None);
+    }
+    let index = |name: &str| {
+        effectors.iter().position(|e| e == name).ok_or_else(|| {
+            format!(
+                "effector '{name}' is not one of the effectors followed ({})",
+                effectors.join(", ")
+            )
+        })
+    };
+    let mut out = heapless::Vec::new();
+    if line.starts_with('{') {
+        let v: serde_json::Value =
+            serde_json::from_str(line).map_err(|e| format!("expected a JSON object: {e}"))?;
+        let t = v
+            .get("t")
+            .and_then(serde_json::Value::as_f64)
+            .ok_or("expected a number field \"t\" (seconds)")?;
+        let one = |o: &serde_json::Value| -> Result<Target, String> {
+            let name = o
+                .get("effector")
+                .and_then(serde_json::Value::as_str)
+                .ok_or("expected a string field \"effector\"")?;
+            let vec3 = |key: &str| -> Result<Option<DVec3>, String> {
+                match o.get(key) {
+                    None | Some(serde_json::Value::Null) => Ok(None),
+                    Some(serde_json::Value::Array(a)) if a.len() == 3 => {
+                        let mut x = [0.0; 3];
+                        for (k, c) in a.iter().enumerate() {
+                            x[k] = c
+                                .as_f64()
+                                .ok_or_else(|| format!("\"{key}\" must hold three numbers"))?;
+                        }
+                        Ok(Some(DVec3::from_array(x)))
+                    }
+                    Some(_) => Err(format!("\"{key}\" must be an array of three numbers")),
+                }
+            };
+            Ok(Target {
+                effector: index(name)?,
+                position: vec3("position")?.ok_or("expected \"position\": [x, y, z]")?,
+                direction: vec3("direction")?,
+            })
+        };
+        if let Some(list) = v.get("targets") {
+            let list = list.as_array().ok_or("\"targets\" must be an array")?;
+            for o in list {
+                merge_target(&mut out, one(o)?);
+            }
+        } else {
+            merge_target(&mut out, one(&v)?);
+        }
+        return Ok(Some((t, out)));
+    }
+    let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+    if fields.len() != 5 && fields.len() != 8 {
+        return Err(format!(
+            "expected `t,effector,x,y,z` or `t,effector,x,y,z,dx,dy,dz`, found {} fields",
+            fields.len()
+        ));
+    }
+    let num = |k: usize, what: &str| -> Result<f64, String> {
+        fields[k].parse::<f64>().map_err(|_| {
+            format!(
+                "field {} ({what}): expected a number, found '{}'",
+                k + 1,
+                fields[k]
+            )
+        })
+    };
+    let t = num(0, "t")?;
+    let position = DVec3::new(num(2, "x")?, num(3, "y")?, num(4, "z")?);
+    let direction = if fields.len() == 8 {
+        Some(DVec3::new(num(5, "dx")?, num(6, "dy")?, num(7, "dz")?))
+    } else {
+        None
+    };
+    merge_target(
+        &mut out,
+        Target {
+            effector: index(fields[1])?,
+            position,
+            direction,
+        },
+    );
+    Ok(Some((t, out)))
+}
+
+/// Streams a track in a thread: the sample at track time `t` is due at
+/// `start_ns + (t − t₀)` on the loop's clock; looping starts over after the last sample.
+///
+/// # Errors
+/// When the thread cannot be started.
+pub fn spawn_track(
+    track: TargetTrack,
+    tx: InputSender,
+    mut clock: SystemClock,
+    start_ns: u64,
+    looping: bool,
+) -> std::io::Result<JoinHandle<ProducerReport>> {
+    std::thread::Builder::new()
+        .name("target-track".into())
+        .spawn(move || {
+            let mut report = ProducerReport::default();
+            let Some(t0) = track.samples.first().map(|s| s.0) else {
+                return report;
+            };
+            // One period past the end before starting over, so the last and first samples of
+            // two passes are not due at the same instant.
+            let pass_ns = ((track.duration() + 1.0 / 120.0) * 1e9) as u64;
+            let mut seq = 0;
+            for pass in 0u64.. {
+                for (t, targets) in &track.samples {
+                    let due = start_ns + pass * pass_ns + ((t - t0) * 1e9) as u64;
+                    let msg = Input {
+                        seq,
+                        due_ns: due,
+                        made_ns: clock.now_ns(),
+                        payload: Payload::Targets(targets.clone()),
+                    };
+                    seq += 1;
+                    if tx.send_wait(msg).is_err() {
+                        return report;
+                    }
+                    report.sent += 1;
+                }
+                if !looping {
+                    break;
+                }
+            }
+            report
+        })
+}
+
+/// Reads target lines from stdin as they come (each due at once, newest wins). Ends at the end
+/// of input or when the loop stops (checked between lines).
+///
+/// # Errors
+/// When the thread cannot be started.
+pub fn spawn_stdin(
+    effectors: Vec<String>,
+    tx: InputSender,
+    clock: SystemClock,
+) -> std::io::Result<JoinHandle<ProducerReport>> {
+    std::thread::Builder::new()
+        .name("targets-stdin".into())
+        .spawn(move || {
+            let stdin = std::io::stdin();
+            let lines = stdin.lock().lines().map_while(Result::ok);
+            live_lines(lines, &effectors, &tx, clock)
+        })
+}
+
+fn live_lines(
+    lines: impl Iterator<Item = String>,
+    effectors: &[String],
+    tx: &InputSender,
+    mut clock: SystemClock,
+) -> ProducerReport {
+    let mut report = ProducerReport::default();
+    for (seq, line) in lines.enumerate() {
+        if tx.stopped() {
+            break;
+        }
+        match parse_target_line(&line, effectors) {
+            Ok(Some((_, targets))) => {
+                let msg = Input {
+                    seq: seq as u64,
+                    due_ns: 0,
+                    made_ns: clock.now_ns(),
+                    payload: Payload::Targets(targets),
+                };
+                match tx.send_newest(msg) {
+                    Ok(dropped) => {
+                        report.sent += 1;
+                        report.dropped += u64::from(dropped);
+                    }
+                    Err(_) => break,
+                }
+            }
+            Ok(None) => {}
+            Err(_) => report.bad_lines += 1,
+        }
+    }
+    report
+}
+
+/// Receives target lines as UDP datagrams on `socket` (one or more lines per datagram). Ends
+/// when the loop stops.
+///
+/// # Errors
+/// When the socket cannot be set up or the thread started.
+pub fn spawn_udp(
+    socket: UdpSocket,
+    effectors: Vec<String>,
+    tx: InputSender,
+    clock: SystemClock,
+) -> std::io::Result<JoinHandle<ProducerReport>> {
+    socket.set_read_timeout(Some(Duration::from_millis(20)))?;
+    std::thread::Builder::new()
+        .name("targets-udp".into())
+        .spawn(move || {
+            let mut report = ProducerReport::default();
+            let mut buf = [0u8; 65_536];
+            while !tx.stopped() {
+                let n = match socket.recv(&mut buf) {
+                    Ok(n) => n,
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::WouldBlock
+                                | std::io::ErrorKind::TimedOut
+                                | std::io::ErrorKind::Interrupted
+                        ) =>
+                    {
+                        continue
+                    }
+                    Err(_) => break,
+                };
+                let Ok(text) = std::str::from_utf8(&buf[..n]) else {
+                    report.bad_lines += 1;
+                    continue;
+                };
+                let r = live_lines(text.lines().map(str::to_string), &effectors, &tx, clock);
+                report.sent += r.sent;
+                report.dropped += r.dropped;
+                report.bad_lines += r.bad_lines;
+            }
+            report
+        })
+}
+
+/// Where a track made from a capture puts its targets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrackFrame {
+    /// The tips as captured, in the root's frame (root translation and rotation set to zero):
+    /// the paths a tracker on the body would report. A puppet whose spine stays at rest may not
+    /// reach all of them.
+    Root,
+    /// Each tip relative to its limb's parent bone (the clavicle, the hip joint), placed where
+    /// that bone is in the rest pose: the limb's own motion, reachable by a rig whose other
+    /// joints rest.
+    Limb,
+}
+
+/// The tips of the `effectors` bones over a clip, one sample per frame — a target track made
+/// from a capture.
+///
+/// # Errors
+/// The name of an effector the skeleton does not have.
+pub fn clip_track(
+    skeleton: &Skeleton,
+    motion: &Motion,
+    effectors: &[String],
+    frame: TrackFrame,
+) -> Result<TargetTrack, String> {
+    let bones = effectors
+        .iter()
+        .map(|n| {
+            skeleton
+                .find(n)
+                .ok_or_else(|| format!("no bone named '{n}' in the skeleton"))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    if bones.len() > MAX_EFFECTORS {
+        return Err(format!("at most {MAX_EFFECTORS} effectors"));
+    }
+    let mut pose = crate::ik::Pose64::default();
+    let mut rest = crate::ik::Pose64::default();
+    crate::ik::fk64(skeleton, &vec![0.0; skeleton.channel_count()], &mut rest);
+    let limb_parent = |b: usize| {
+        let up = skeleton.bones()[b].parent()?;
+        skeleton.bones()[up].parent()
+    };
+    let mut track = TargetTrack::default();
+    for f in 0..motion.len() {
+        let mut ch = crate::motion::frame_to_radians(skeleton, motion.frame(f));
+        if let Some(root) = skeleton.bones().first() {
+            for c in root.channels() {
+                ch[c] = 0.0;
+            }
+        }
+        crate::ik::fk64(skeleton, &ch, &mut pose);
+        let mut targets = heapless::Vec::new();
+        for (k, &b) in bones.iter().enumerate() {
+            let position = match (frame, limb_parent(b)) {
+                (TrackFrame::Limb, Some(p)) => {
+                    let local = pose.frame[p].transpose() * (pose.tip[b] - pose.tip[p]);
+                    rest.tip[p] + rest.frame[p] * local
+                }
+                _ => pose.tip[b],
+            };
+            let _ = targets.push(Target {
+                effector: k,
+                position,
+                direction: None,
+            });
+        }
+        track.samples.push((f as f64 / motion.frame_rate, targets));
+    }
+    Ok(track)
+}
+
+/// Writes a track as CSV target lines (see the module documentation).
+///
+/// # Errors
+/// I/O errors.
+pub fn write_csv(
+    track: &TargetTrack,
+    effectors: &[String],
+    out: &mut dyn std::io::Write,
+) -> std::io::Result<()> {
+    writeln!(out, "t,effector,x,y,z")?;
+    for (t, targets) in &track.samples {
+        for x in targets {
+            let p = x.position;
+            let name = effectors.get(x.effector).map_or("?", String::as_str);
+            match x.direction {
+                None => writeln!(out, "{t:.6},{name},{:.6},{:.6},{:.6}", p.x, p.y, p.z)?,
+                Some(d) => writeln!(
+                    out,
+                    "{t:.6},{name},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+                    p.x, p.y, p.z, d.x, d.y, d.z
+                )?,
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names() -> Vec<String> {
+        ["lradius", "rtibia"].iter().map(|s| (*s).to_string()).collect()
+    }
+
+    #[test]
+    fn csv_and_json_lines_read_alike() {
+        let csv = "t,effector,x,y,z\n0,lradius,1,2,3\n0,rtibia,4,5,6\n0.5,lradius,1,2,4,0,-1,0\n";
+        let json = "{\"t\":0,\"targets\":[{\"effector\":\"lradius\",\"position\":[1,2,3]},{\"effector\":\"rtibia\",\"position\":[4,5,6]}]}\n\
+                    {\"t\":0.5,\"effector\":\"lradius\",\"position\":[1,2,4],\"direction\":[0,-1,0]}\n";
+        let a = TargetTrack::parse(csv, &names()).unwrap();
+        let b = TargetTrack::parse(json, &names()).unwrap();
+        assert_eq!(a, b);
+        assert_eq!(a.samples.len(), 2);
+        assert_eq!(a.samples[0].1.len(), 2);
+        assert_eq!(a.samples[1].1[0].direction, Some(DVec3::new(0.0, -1.0, 0.0)));
+        assert_eq!(a.duration(), 0.5);
+    }
+
+    #[test]
+    fn bad_lines_say_where_and_what() {
+        for (text, line, says) in [
+            ("0,lradius,1,2\n", 1, "fields"),
+            ("0,lradius,1,2,3\n0,lhand,1,2,3\n", 2, "not one of"),
+            ("0,lradius,1,x,3\n", 1, "field 4 (y)"),
+            ("1,lradius,1,2,3\n0,lradius,1,2,3\n", 2, "goes back"),
+            ("{\"t\":0,\"effector\":\"lradius\"}\n", 1, "position"),
+            (
+                "{\"t\":0,\"effector\":\"lradius\",\"position\":[1,2]}\n",
+                1,
+                "three numbers",
+            ),
+            ("{t:0}\n", 1, "JSON"),
+            ("# nothing\n", 0, "no targets"),
+        ] {
+            let e = TargetTrack::parse(text, &names()).unwrap_err();
+            assert_eq!(e.line, line, "{text:?}: {e:?}");
+            assert!(e.message.contains(says), "{text:?}: {}", e.message);
+        }
+    }
+}

@@ -1,0 +1,523 @@
+//! Loop statistics: log-linear latency histograms (fixed memory, recording allocates nothing),
+//! counters, and the summary printed and written as JSON at the end of a run.
+
+use std::fmt;
+
+use serde::Serialize;
+
+use crate::bus::ErrorKind;
+
+/// Sub-buckets per power of two: 64 gives a relative bucket width under 1.6 %.
+const SUB_BITS: u32 = 6;
+const SUB: usize = 1 << SUB_BITS;
+/// Powers of two covered above the linear range: values up to 2⁶⁴ ns.
+const BUCKETS: usize = SUB + (64 - SUB_BITS as usize) * SUB;
+
+/// A histogram of durations in nanoseconds: exact below 64 ns, then 64 buckets per power of
+/// two (each quantile within 1.6 % of the true value); the maximum is exact.
+#[derive(Clone)]
+pub struct Histogram {
+    counts: Box<[u32; BUCKETS]>,
+    count: u64,
+    sum: f64,
+    max: u64,
+}
+
+impl fmt::Debug for Histogram {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Histogram")
+            .field("count", &self.count)
+            .field("max", &self.max)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Default for Histogram {
+    fn default() -> Self {
+        Histogram::new()
+    }
+}
+
+fn bucket_of(v: u64) -> usize {
+    if v < SUB as u64 {
+        return v as usize;
+    }
+    let msb = 63 - v.leading_zeros(); // ≥ SUB_BITS
+    let shift = msb - SUB_BITS;
+    let mantissa = ((v >> shift) as usize) & (SUB - 1);
+    SUB + (shift as usize) * SUB + mantissa
+}
+
+/// The middle of a bucket's value range.
+fn bucket_value(b: usize) -> u64 {
+    if b < SUB {
+        return b as u64;
+    }
+    let shift = ((b - SUB) / SUB) as u32;
+    let mantissa = ((b - SUB) % SUB) as u64;
+    let low = (SUB as u64 + mantissa) << shift;
+    low + ((1u64 << shift) >> 1)
+}
+
+impl Histogram {
+    /// An empty histogram (allocates its buckets now, never while recording).
+    #[must_use]
+    pub fn new() -> Histogram {
+        Histogram {
+            counts: Box::new([0; BUCKETS]),
+            count: 0,
+            sum: 0.0,
+            max: 0,
+        }
+    }
+
+    /// Records one value.
+    pub fn record(&mut self, ns: u64) {
+        let b = bucket_of(ns);
+        self.counts[b] = self.counts[b].saturating_add(1);
+        self.count += 1;
+        self.sum += ns as f64;
+        self.max = self.max.max(ns);
+    }
+
+    /// Number of values.
+    #[must_use]
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+
+    /// Largest value (exact).
+    #[must_use]
+    pub fn max(&self) -> u64 {
+        self.max
+    }
+
+    /// Mean value.
+    #[must_use]
+    pub fn mean(&self) -> f64 {
+        if self.count == 0 {
+            0.0
+        } else {
+            self.sum / self.count as f64
+        }
+    }
+
+    /// The value below which a fraction `q` of the values lie (nearest rank; 0 when empty,
+    /// never above the maximum).
+    #[must_use]
+    pub fn quantile(&self, q: f64) -> u64 {
+        if self.count == 0 {
+            return 0;
+        }
+        let rank = ((q.clamp(0.0, 1.0) * self.count as f64).ceil() as u64).max(1);
+        let mut seen = 0u64;
+        for (b, &c) in self.counts.iter().enumerate() {
+            seen += u64::from(c);
+            if seen >= rank {
+                return bucket_value(b).min(self.max);
+            }
+        }
+        self.max
+    }
+
+    /// p50, p99, p99.9 and max in microseconds.
+    #[must_use]
+    pub fn summary_us(&self) -> Quantiles {
+        let us = |ns: u64| ns as f64 / 1000.0;
+        Quantiles {
+            p50: us(self.quantile(0.50)),
+            p99: us(self.quantile(0.99)),
+            p999: us(self.quantile(0.999)),
+            max: us(self.max),
+        }
+    }
+
+    /// Non-empty buckets as (value ns, count), for pictures.
+    pub fn buckets(&self) -> impl Iterator<Item = (u64, u32)> + '_ {
+        self.counts
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| **c > 0)
+            .map(|(b, c)| (bucket_value(b), *c))
+    }
+}
+
+/// Quantiles of one histogram, microseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Quantiles {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// 99.9th percentile.
+    pub p999: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+impl fmt::Display for Quantiles {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "p50 {:>8.1}  p99 {:>8.1}  p99.9 {:>8.1}  max {:>8.1} µs",
+            self.p50, self.p99, self.p999, self.max
+        )
+    }
+}
+
+/// The measured stages of a tick, in order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// Age of the input used (tick wake-up minus the time the input was made).
+    InputAge,
+    /// Forward and inverse kinematics.
+    Solve,
+    /// Rig mapping, command limits and the goal records.
+    Encode,
+    /// The Sync Write of goal positions.
+    BusWrite,
+    /// The Sync Read of present positions.
+    BusRead,
+}
+
+impl Stage {
+    /// All stages.
+    pub const ALL: [Stage; 5] = [
+        Stage::InputAge,
+        Stage::Solve,
+        Stage::Encode,
+        Stage::BusWrite,
+        Stage::BusRead,
+    ];
+
+    /// Lower-case name.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::InputAge => "input_age",
+            Stage::Solve => "solve",
+            Stage::Encode => "encode",
+            Stage::BusWrite => "bus_write",
+            Stage::BusRead => "bus_read",
+        }
+    }
+}
+
+/// Everything the loop measures. Recording allocates nothing.
+#[derive(Debug, Default)]
+pub struct LoopStats {
+    /// Loop rate, Hz.
+    pub rate_hz: f64,
+    /// Ticks run.
+    pub ticks: u64,
+    /// Ticks whose work ended after the next tick was due.
+    pub deadline_misses: u64,
+    /// Deadlines passed over after an overrun (their ticks never ran).
+    pub skipped_ticks: u64,
+    /// Tick work without bus I/O: input, solve, encode, telemetry.
+    pub tick_compute: Histogram,
+    /// Whole tick, bus included.
+    pub tick_total: Histogram,
+    /// |interval between tick starts − period|.
+    pub period_error: Histogram,
+    /// Wake-up lateness after the deadline.
+    pub wake_late: Histogram,
+    /// Per-stage histograms, indexed as [`Stage::ALL`].
+    pub stages: [Histogram; 5],
+    /// Bus errors by kind, indexed as [`ErrorKind::ALL`].
+    pub bus_errors: [u64; 6],
+    /// Commands sent (ticks with a successful Sync Write).
+    pub commands_sent: u64,
+    /// Successful reads.
+    pub reads_ok: u64,
+    /// Inputs taken (distinct messages used).
+    pub inputs_used: u64,
+    /// Ticks without a new input (the last one used again).
+    pub inputs_stale: u64,
+    /// Inputs refused (non-finite values, wrong size, unsolvable).
+    pub inputs_rejected: u64,
+    /// Commands refused by the command stage (the last one stood).
+    pub commands_refused: u64,
+    /// Servos clamped to their position limits, summed over ticks.
+    pub clamped: u64,
+    /// Servos slowed by the velocity or acceleration limit, summed over ticks.
+    pub rate_limited: u64,
+    /// Effector targets out of reach (IK), summed over ticks.
+    pub unreachable: u64,
+    /// Ticks that held the last good command after consecutive read failures.
+    pub held_ticks: u64,
+    /// Telemetry records dropped because the consumer was behind.
+    pub telemetry_dropped: u64,
+    /// Heap allocations inside ticks (`None` without a counting allocator).
+    pub allocations_in_tick: Option<u64>,
+    tracking_sq: f64,
+    tracking_n: u64,
+    tracking_max_deg: f64,
+    /// Largest IK residual, file units.
+    pub ik_error_max: f64,
+    ik_error_sq: f64,
+    ik_error_n: u64,
+}
+
+impl LoopStats {
+    /// Empty statistics for a loop at `rate_hz`.
+    #[must_use]
+    pub fn new(rate_hz: f64) -> LoopStats {
+        LoopStats {
+            rate_hz,
+            ..LoopStats::default()
+        }
+    }
+
+    /// The histogram of a stage.
+    pub fn stage_mut(&mut self, s: Stage) -> &mut Histogram {
+        &mut self.stages[s as usize]
+    }
+
+    /// The histogram of a stage.
+    #[must_use]
+    pub fn stage(&self, s: Stage) -> &Histogram {
+        &self.stages[s as usize]
+    }
+
+    /// Counts a bus error.
+    pub fn bus_error(&mut self, kind: ErrorKind) {
+        if let Some(k) = ErrorKind::ALL.iter().position(|e| *e == kind) {
+            self.bus_errors[k] += 1;
+        }
+    }
+
+    /// Total bus errors.
+    #[must_use]
+    pub fn bus_error_total(&self) -> u64 {
+        self.bus_errors.iter().sum()
+    }
+
+    /// Adds one servo's tracking error (commanded minus present, degrees).
+    pub fn tracking(&mut self, deg: f64) {
+        self.tracking_sq += deg * deg;
+        self.tracking_n += 1;
+        self.tracking_max_deg = self.tracking_max_deg.max(deg.abs());
+    }
+
+    /// RMS tracking error, degrees (0 before any read).
+    #[must_use]
+    pub fn tracking_rms_deg(&self) -> f64 {
+        if self.tracking_n == 0 {
+            0.0
+        } else {
+            (self.tracking_sq / self.tracking_n as f64).sqrt()
+        }
+    }
+
+    /// Adds one effector's IK residual.
+    pub fn ik_error(&mut self, e: f64) {
+        self.ik_error_sq += e * e;
+        self.ik_error_n += 1;
+        self.ik_error_max = self.ik_error_max.max(e);
+    }
+
+    /// The JSON summary.
+    #[must_use]
+    pub fn report(&self) -> Report {
+        let mut bus_errors = serde_json::Map::new();
+        for (k, n) in ErrorKind::ALL.iter().zip(self.bus_errors) {
+            bus_errors.insert(k.name().to_string(), n.into());
+        }
+        let mut stages = serde_json::Map::new();
+        for s in Stage::ALL {
+            stages.insert(
+                format!("{}_us", s.name()),
+                serde_json::to_value(self.stage(s).summary_us()).unwrap_or_default(),
+            );
+        }
+        Report {
+            rate_hz: self.rate_hz,
+            ticks: self.ticks,
+            deadline_misses: self.deadline_misses,
+            skipped_ticks: self.skipped_ticks,
+            tick_compute_us: self.tick_compute.summary_us(),
+            tick_total_us: self.tick_total.summary_us(),
+            period_error_us: self.period_error.summary_us(),
+            wake_late_us: self.wake_late.summary_us(),
+            stages,
+            bus_errors: self.bus_error_total(),
+            bus_errors_by_kind: bus_errors,
+            allocations_in_tick: self.allocations_in_tick,
+            tracking_rms_deg: self.tracking_rms_deg(),
+            tracking_max_deg: self.tracking_max_deg,
+            commands_sent: self.commands_sent,
+            reads_ok: self.reads_ok,
+            inputs_used: self.inputs_used,
+            inputs_stale: self.inputs_stale,
+            inputs_rejected: self.inputs_rejected,
+            commands_refused: self.commands_refused,
+            clamped: self.clamped,
+            rate_limited: self.rate_limited,
+            unreachable: self.unreachable,
+            held_ticks: self.held_ticks,
+            telemetry_dropped: self.telemetry_dropped,
+            ik_error_rms: if self.ik_error_n == 0 {
+                0.0
+            } else {
+                (self.ik_error_sq / self.ik_error_n as f64).sqrt()
+            },
+            ik_error_max: self.ik_error_max,
+        }
+    }
+}
+
+/// The statistics of a run as written by `--stats-json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// Loop rate, Hz.
+    pub rate_hz: f64,
+    /// Ticks run.
+    pub ticks: u64,
+    /// Ticks that ended after the next was due.
+    pub deadline_misses: u64,
+    /// Deadlines skipped after overruns.
+    pub skipped_ticks: u64,
+    /// Tick work without bus I/O, µs.
+    pub tick_compute_us: Quantiles,
+    /// Whole tick including bus I/O, µs.
+    pub tick_total_us: Quantiles,
+    /// |tick start interval − period|, µs.
+    pub period_error_us: Quantiles,
+    /// Wake-up lateness, µs.
+    pub wake_late_us: Quantiles,
+    /// Per-stage quantiles, µs.
+    pub stages: serde_json::Map<String, serde_json::Value>,
+    /// All bus errors.
+    pub bus_errors: u64,
+    /// Bus errors by kind.
+    pub bus_errors_by_kind: serde_json::Map<String, serde_json::Value>,
+    /// Heap allocations inside ticks (null without a counting allocator).
+    pub allocations_in_tick: Option<u64>,
+    /// RMS of commanded − present over servos and reads, degrees.
+    pub tracking_rms_deg: f64,
+    /// Largest |commanded − present|, degrees.
+    pub tracking_max_deg: f64,
+    /// Commands sent.
+    pub commands_sent: u64,
+    /// Successful reads.
+    pub reads_ok: u64,
+    /// Inputs used.
+    pub inputs_used: u64,
+    /// Ticks without a new input.
+    pub inputs_stale: u64,
+    /// Inputs refused.
+    pub inputs_rejected: u64,
+    /// Commands refused by the command stage.
+    pub commands_refused: u64,
+    /// Servo-ticks clamped to position limits.
+    pub clamped: u64,
+    /// Servo-ticks slowed by rate limits.
+    pub rate_limited: u64,
+    /// Effector-ticks out of reach.
+    pub unreachable: u64,
+    /// Ticks holding after read failures.
+    pub held_ticks: u64,
+    /// Telemetry records dropped.
+    pub telemetry_dropped: u64,
+    /// RMS IK residual, file units.
+    pub ik_error_rms: f64,
+    /// Largest IK residual, file units.
+    pub ik_error_max: f64,
+}
+
+impl fmt::Display for LoopStats {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let period_us = 1e6 / self.rate_hz;
+        writeln!(
+            f,
+            "{} ticks at {} Hz (period {:.1} µs): {} deadline misses, {} skipped",
+            self.ticks, self.rate_hz, period_us, self.deadline_misses, self.skipped_ticks
+        )?;
+        writeln!(f, "tick compute    {}", self.tick_compute.summary_us())?;
+        writeln!(f, "tick total      {}", self.tick_total.summary_us())?;
+        writeln!(f, "period error    {}", self.period_error.summary_us())?;
+        for s in Stage::ALL {
+            if self.stage(s).count() > 0 {
+                writeln!(f, "{:<15} {}", s.name(), self.stage(s).summary_us())?;
+            }
+        }
+        let p99 = self.tick_compute.summary_us().p99;
+        writeln!(
+            f,
+            "tick compute p99 is {:.2} % of the period",
+            100.0 * p99 / period_us
+        )?;
+        write!(f, "bus errors      {}", self.bus_error_total())?;
+        for (k, n) in ErrorKind::ALL.iter().zip(self.bus_errors) {
+            if n > 0 {
+                write!(f, "  {} {n}", k.name())?;
+            }
+        }
+        writeln!(f)?;
+        writeln!(
+            f,
+            "commands sent   {}  refused {}  held {}  clamped {}  rate-limited {}",
+            self.commands_sent, self.commands_refused, self.held_ticks, self.clamped, self.rate_limited
+        )?;
+        writeln!(
+            f,
+            "inputs used     {}  stale ticks {}  rejected {}",
+            self.inputs_used, self.inputs_stale, self.inputs_rejected
+        )?;
+        if self.ik_error_n > 0 {
+            writeln!(
+                f,
+                "IK residual     rms {:.4}  max {:.4} (file units)  unreachable {}",
+                self.report().ik_error_rms,
+                self.ik_error_max,
+                self.unreachable
+            )?;
+        }
+        writeln!(
+            f,
+            "tracking        rms {:.3}°  max {:.3}° (commanded − present, {} reads)",
+            self.tracking_rms_deg(),
+            self.tracking_max_deg,
+            self.reads_ok
+        )?;
+        writeln!(f, "telemetry drops {}", self.telemetry_dropped)?;
+        match self.allocations_in_tick {
+            Some(n) => write!(f, "allocations in ticks: {n}"),
+            None => write!(f, "allocations in ticks: not counted"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quantiles_within_bucket_width() {
+        let mut h = Histogram::new();
+        for v in 1..=100_000u64 {
+            h.record(v * 10);
+        }
+        for (q, want) in [(0.5, 500_000.0), (0.99, 990_000.0), (0.999, 999_000.0)] {
+            let got = h.quantile(q) as f64;
+            assert!((got - want).abs() / want < 0.016, "q{q}: {got} vs {want}");
+        }
+        assert_eq!(h.max(), 1_000_000);
+        assert_eq!(h.quantile(1.0), 1_000_000);
+        assert_eq!(Histogram::new().quantile(0.5), 0);
+    }
+
+    #[test]
+    fn buckets_are_monotonic_and_cover_u64() {
+        assert!(bucket_of(u64::MAX) < BUCKETS);
+        let mut prev = 0;
+        for v in (0..1_000_000u64).step_by(7) {
+            let b = bucket_of(v);
+            assert!(b >= prev);
+            prev = b;
+            let mid = bucket_value(b) as f64;
+            assert!(v < 64 || (mid - v as f64).abs() / (v as f64) < 0.016);
+        }
+    }
+}

@@ -1,0 +1,536 @@
+//! The control loop on virtual time (the virtual chain in-process is both bus and clock):
+//! playback of a real clip, following targets made from its wrist and ankle paths, and the
+//! fault policy — reads failing, the host going quiet, NaN inputs.
+
+mod common;
+
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+use glam::DVec3;
+use marionette::bus::faults::{Fault, FaultInjector};
+use marionette::bus::virtual_chain::{chain_for, VirtualRig};
+use marionette::bus::{start_up, ServoBus};
+use marionette::control::input::{input_channel, Input, InputSender, Payload};
+use marionette::control::sources::{clip_track, ClipPlayer, TrackFrame};
+use marionette::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode};
+use marionette::formats::{amc, asf};
+use marionette::motion::Motion;
+use marionette::profile::Profile;
+use marionette::rig::Rig;
+use marionette::schedule::{Clock, Schedule};
+use marionette::skeleton::{Skeleton, MAX_CHANNELS};
+
+struct Setup {
+    skel: Arc<Skeleton>,
+    motion: Arc<Motion>,
+    profile: Profile,
+    rig: Rig,
+    vr: VirtualRig,
+    present: Vec<i32>,
+}
+
+fn setup() -> Setup {
+    let skel = asf::load(&common::data("16.asf")).unwrap().skeleton;
+    let motion = amc::load(&skel, &common::data("16_15.amc")).unwrap();
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml");
+    let profile = Profile::load(&path).unwrap();
+    let rig = profile.rig(Some(&skel)).unwrap();
+    // Servos resting at their zero angle, clamped into their limits.
+    let zero: Vec<i32> = rig
+        .servos
+        .iter()
+        .map(|s| s.angle_to_ticks(0.0).clamp(s.min_tick, s.max_tick))
+        .collect();
+    let mut vr = VirtualRig::new(
+        chain_for(&profile, |k| zero[k]),
+        profile.bus.baud,
+        Duration::from_millis(2),
+    );
+    let present = start_up(&mut vr, &profile).unwrap();
+    Setup {
+        skel: Arc::new(skel),
+        motion: Arc::new(motion),
+        profile,
+        rig,
+        vr,
+        present,
+    }
+}
+
+fn config(rate_hz: f64) -> LoopConfig {
+    LoopConfig {
+        rate_hz,
+        stop: StopMode::Hold { hold_s: 0.0 },
+        ..LoopConfig::default()
+    }
+}
+
+/// Runs the loop by hand on virtual time, asking `feed` before each tick for the input due at
+/// that tick (`None` ends the input). Returns why it ended and the goal ticks written per tick.
+fn run(
+    c: &mut Controller,
+    vr: &mut VirtualRig,
+    tx: InputSender,
+    mut feed: impl FnMut(u64, u64, &mut VirtualRig) -> Option<Input>,
+    max_ticks: u64,
+    mut each: impl FnMut(u64, &mut Controller, &mut VirtualRig),
+) -> RunEnd {
+    let period = c.period_ns();
+    let mut clock = vr.clone();
+    let mut schedule = Schedule::new(clock.now_ns() + period, period);
+    let mut tx = Some(tx);
+    for k in 0..max_ticks {
+        if let Some(sender) = &tx {
+            match feed(k, schedule.deadline(k), vr) {
+                Some(msg) => {
+                    sender.send_newest(msg).unwrap();
+                }
+                None => tx = None,
+            }
+        }
+        let tick = schedule.wait(&mut clock);
+        assert_eq!(tick.index, k);
+        let end = c.tick(&tick, vr, &mut clock);
+        each(k, c, vr);
+        if let Some(e) = end {
+            return e;
+        }
+    }
+    RunEnd::Duration
+}
+
+fn frames_controller(s: &Setup, rate: f64) -> (Controller, InputSender) {
+    let (tx, port) = input_channel(4);
+    let c = Controller::new(
+        Arc::clone(&s.skel),
+        s.rig.clone(),
+        s.profile.ids(),
+        &s.present,
+        port,
+        Solve::Frames,
+        config(rate),
+    );
+    (c, tx)
+}
+
+#[test]
+fn play_sends_every_frame_of_a_real_clip() {
+    for rate in [120.0, 500.0] {
+        let s = setup();
+        let (mut c, tx) = frames_controller(&s, rate);
+        let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), rate, false);
+        let expected = player.samples_per_pass();
+        let mut buf = [0.0; MAX_CHANNELS];
+        let n = s.skel.channel_count();
+        let end = run(
+            &mut c,
+            &mut s.vr.clone(),
+            tx,
+            |k, due, vr| {
+                let t = player.next_sample(&mut buf[..n])?;
+                Some(Input::frame(k, due, vr.now_ns(), &buf[..n], t))
+            },
+            100_000,
+            |_, _, _| {},
+        );
+        let st = &c.stats;
+        println!("{rate} Hz:\n{st}");
+        assert_eq!(end, RunEnd::InputEnded);
+        assert_eq!(st.inputs_used, expected, "every sample used once");
+        assert_eq!(st.inputs_stale, 1, "only the tick that found the input ended");
+        assert_eq!(st.commands_sent, st.ticks);
+        assert_eq!(st.bus_error_total(), 0);
+        assert_eq!(
+            st.deadline_misses, 0,
+            "the bus cycle fits the period on virtual time"
+        );
+        assert_eq!(st.commands_refused, 0);
+        // The servos followed the clip: on virtual time the only lag is the servo's own motion.
+        assert!(
+            st.tracking_rms_deg() < 1.0,
+            "tracking rms {}",
+            st.tracking_rms_deg()
+        );
+        // The last frame is where the servos went (within the rate limits' reach).
+        let chain_goals: Vec<i32> =
+            s.vr.with(|t| t.chain().servos().iter().map(|v| v.goal_tick()).collect());
+        assert_eq!(chain_goals, c.last_command());
+    }
+}
+
+#[test]
+fn play_resamples_by_slerp_and_seeks() {
+    let s = setup();
+    let mut p = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 240.0, false);
+    let n = s.skel.channel_count();
+    let mut a = vec![0.0; n];
+    // At 240 Hz every second sample is a clip frame.
+    let mut frames = 0;
+    while let Some(t) = p.next_sample(&mut a) {
+        let f = t * 120.0;
+        if (f - f.round()).abs() < 1e-9 {
+            let want = marionette::motion::frame_to_radians(&s.skel, s.motion.frame(f.round() as usize));
+            for (x, y) in a.iter().zip(&want) {
+                assert!((x - y).abs() < 1e-9);
+            }
+            frames += 1;
+        }
+    }
+    assert_eq!(frames, s.motion.len());
+    // Seek, pause and loop.
+    let mut p = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    p.control(marionette::control::sources::PlayerCommand::Seek(1.0));
+    assert!((p.next_sample(&mut a).unwrap() - 1.0).abs() < 1e-12);
+    p.control(marionette::control::sources::PlayerCommand::Pause);
+    assert!((p.next_sample(&mut a).unwrap() - 1.0).abs() < 1e-12);
+    p.control(marionette::control::sources::PlayerCommand::Resume);
+    let mut last = 0.0;
+    for _ in 0..2 * s.motion.len() {
+        last = p.next_sample(&mut a).unwrap();
+    }
+    assert!(last < s.motion.duration(), "looping wraps around");
+}
+
+fn effectors() -> Vec<String> {
+    ["lradius", "rradius", "ltibia", "rtibia"]
+        .iter()
+        .map(|s| (*s).to_string())
+        .collect()
+}
+
+#[test]
+fn follow_tracks_real_wrist_and_ankle_paths() {
+    let names = effectors();
+    for frame in [TrackFrame::Limb, TrackFrame::Root] {
+        let s = setup();
+        let track = clip_track(&s.skel, &s.motion, &names, frame).unwrap();
+        let follower = Follower::new(&s.skel, &names).unwrap();
+        let (tx, port) = input_channel(4);
+        let mut c = Controller::new(
+            Arc::clone(&s.skel),
+            s.rig.clone(),
+            s.profile.ids(),
+            &s.present,
+            port,
+            Solve::Follow(Box::new(follower)),
+            config(120.0),
+        );
+        let samples = track.samples.clone();
+        let mut ankle_gap = 0.0f64;
+        let mut pose = marionette::ik::Pose64::default();
+        let end = run(
+            &mut c,
+            &mut s.vr.clone(),
+            tx,
+            |k, due, vr| {
+                let (_, targets) = samples.get(k as usize)?;
+                Some(Input {
+                    seq: k,
+                    due_ns: due,
+                    made_ns: vr.now_ns(),
+                    payload: Payload::Targets(targets.clone()),
+                })
+            },
+            100_000,
+            |k, c, _| {
+                // The legs hang from the root as in the capture: their targets are met.
+                let Some((_, targets)) = samples.get(k as usize) else {
+                    return;
+                };
+                marionette::ik::fk64(&s.skel, c.channels(), &mut pose);
+                for (e, name) in names.iter().enumerate().skip(2) {
+                    let b = s.skel.find(name).unwrap();
+                    ankle_gap = ankle_gap.max((pose.tip[b] - targets[e].position).length());
+                }
+            },
+        );
+        let st = &c.stats;
+        let r = st.report();
+        println!("follow, {frame:?} frame:\n{st}");
+        assert_eq!(end, RunEnd::InputEnded);
+        assert_eq!(st.inputs_used, samples.len() as u64);
+        assert_eq!(st.bus_error_total(), 0);
+        assert!(ankle_gap < 1e-6, "ankle gap {ankle_gap}");
+        match frame {
+            TrackFrame::Limb => {
+                // Every limb motion is one the rig can make: all reached.
+                assert_eq!(st.unreachable, 0);
+                assert!(r.ik_error_max < 1e-6, "IK max {}", r.ik_error_max);
+            }
+            TrackFrame::Root => {
+                // With the spine at rest the captured wrists are sometimes past the arms'
+                // reach: stretched towards them and counted, never more than a few cm off.
+                assert!(
+                    st.unreachable < samples.len() as u64,
+                    "unreachable {}",
+                    st.unreachable
+                );
+                assert!(r.ik_error_max < 1.0, "IK max {}", r.ik_error_max);
+            }
+        }
+        assert!(st.tracking_rms_deg() < 1.0, "tracking {}", st.tracking_rms_deg());
+    }
+}
+
+#[test]
+fn failing_reads_hold_then_torque_off() {
+    let s = setup();
+    let (mut c, tx) = frames_controller(&s, 120.0);
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let mut held_goals: Option<Vec<i32>> = None;
+    let mut fail_from = None;
+    let k_fail = 60u64;
+    let end = run(
+        &mut c,
+        &mut s.vr.clone(),
+        tx,
+        |k, due, vr| {
+            if k == k_fail {
+                // From now on every reply is lost.
+                vr.with(|t| t.injector = Some(FaultInjector::new(7, 1.0, &[Fault::Drop], 0)));
+            }
+            let t = player.next_sample(&mut buf[..n])?;
+            Some(Input::frame(k, due, vr.now_ns(), &buf[..n], t))
+        },
+        10_000,
+        |k, c, vr| {
+            if k < k_fail {
+                return;
+            }
+            fail_from.get_or_insert(k);
+            let goals: Vec<i32> = vr.with(|t| t.chain().servos().iter().map(|v| v.goal_tick()).collect());
+            // K = 3: after the third failed read, the command written with the last good read
+            // stands.
+            if k >= k_fail + 3 {
+                match &held_goals {
+                    None => held_goals = Some(goals),
+                    Some(h) if c.stats.held_ticks > 0 => {
+                        let on: bool = vr.with(|t| t.chain().servos().iter().all(|v| v.torque_on()));
+                        if on {
+                            assert_eq!(&goals, h, "tick {k}: goals moved while holding");
+                        }
+                    }
+                    Some(_) => {}
+                }
+            }
+        },
+    );
+    let st = &c.stats;
+    println!("{st}");
+    assert_eq!(end, RunEnd::ReadsFailed);
+    // 100 ms without a valid read at 120 Hz: the 12th or 13th failed tick turns torque off.
+    let failed = st.ticks - k_fail;
+    assert!(
+        (12..=14).contains(&failed),
+        "torque off after {failed} failed ticks"
+    );
+    assert_eq!(st.held_ticks, failed - 3);
+    assert!(
+        st.bus_errors[0] + st.bus_errors[2] >= failed,
+        "{:?}",
+        st.bus_errors
+    );
+    let torque: Vec<bool> =
+        s.vr.with(|t| t.chain().servos().iter().map(|v| v.torque_on()).collect());
+    assert!(torque.iter().all(|on| !on), "torque still on: {torque:?}");
+}
+
+#[test]
+fn watchdog_stops_servos_when_the_host_goes_quiet() {
+    let s = setup();
+    let (mut c, tx) = frames_controller(&s, 120.0);
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let mut vr = s.vr.clone();
+    run(
+        &mut c,
+        &mut vr,
+        tx,
+        |k, due, vr| {
+            let t = player.next_sample(&mut buf[..n])?;
+            Some(Input::frame(k, due, vr.now_ns(), &buf[..n], t))
+        },
+        60,
+        |_, _, _| {},
+    );
+    // The host dies mid-motion: no more instructions. The profile arms a 100 ms watchdog.
+    let moving = s.vr.with(|t| {
+        t.chain()
+            .servos()
+            .iter()
+            .filter(|v| v.present_tick() != v.goal_tick())
+            .count()
+    });
+    assert!(moving > 0, "the rig was moving when the host stopped");
+    for _ in 0..12 {
+        let now = vr.now_ns();
+        vr.wait_until(now + 10_000_000);
+    }
+    let before: Vec<i32> =
+        s.vr.with(|t| t.chain().servos().iter().map(|v| v.present_tick()).collect());
+    let expired =
+        s.vr.with(|t| t.chain().servos().iter().all(|v| v.watchdog_expired()));
+    assert!(
+        expired,
+        "every servo's watchdog expired 120 ms after the last instruction"
+    );
+    let now = vr.now_ns();
+    vr.wait_until(now + 500_000_000);
+    let after: Vec<i32> =
+        s.vr.with(|t| t.chain().servos().iter().map(|v| v.present_tick()).collect());
+    assert_eq!(before, after, "stopped servos do not move");
+    // And a goal write is refused until the host re-arms the watchdog.
+    let id = s.profile.ids()[0];
+    let e = vr
+        .write(
+            id,
+            marionette::servo::addr::GOAL_POSITION,
+            &before[0].to_le_bytes(),
+        )
+        .unwrap_err();
+    assert!(matches!(e, marionette::bus::BusError::Servo { .. }), "{e}");
+}
+
+#[test]
+fn nan_inputs_never_reach_the_bus() {
+    let s = setup();
+    let names = effectors();
+    let track = clip_track(&s.skel, &s.motion, &names, TrackFrame::Limb).unwrap();
+    let follower = Follower::new(&s.skel, &names).unwrap();
+    let (tx, port) = input_channel(4);
+    let mut c = Controller::new(
+        Arc::clone(&s.skel),
+        s.rig.clone(),
+        s.profile.ids(),
+        &s.present,
+        port,
+        Solve::Follow(Box::new(follower)),
+        config(120.0),
+    );
+    let limits: Vec<(i32, i32)> = s.rig.servos.iter().map(|m| (m.min_tick, m.max_tick)).collect();
+    let samples = track.samples.clone();
+    let poisoned = |k: u64| k % 7 == 3;
+    let mut rejected = 0;
+    let mut last_pose: Vec<f64> = Vec::new();
+    let end = run(
+        &mut c,
+        &mut s.vr.clone(),
+        tx,
+        |k, due, vr| {
+            let (_, targets) = samples.get(k as usize)?;
+            let mut targets = targets.clone();
+            if poisoned(k) {
+                let bad = [f64::NAN, f64::INFINITY, -f64::INFINITY, 1e308 * 10.0][(k as usize / 7) % 4];
+                targets[(k as usize) % 4].position.y = bad;
+                if k % 2 == 0 {
+                    targets[0].direction = Some(DVec3::new(0.0, bad, 0.0));
+                }
+                rejected += 1;
+            }
+            Some(Input {
+                seq: k,
+                due_ns: due,
+                made_ns: vr.now_ns(),
+                payload: Payload::Targets(targets),
+            })
+        },
+        100_000,
+        |k, c, vr| {
+            let goals: Vec<i32> = vr.with(|t| t.chain().servos().iter().map(|v| v.goal_tick()).collect());
+            for (g, (lo, hi)) in goals.iter().zip(&limits) {
+                assert!(lo <= g && g <= hi, "tick {k}: goal {g} outside {lo}…{hi}");
+            }
+            if poisoned(k) {
+                // A refused input changes nothing: the pose is the previous one (what the stage
+                // sends is that pose, approached within the rate limits).
+                assert_eq!(c.stats.inputs_rejected as usize, (k as usize + 4) / 7);
+                assert_eq!(
+                    c.channels(),
+                    &last_pose[..],
+                    "tick {k}: a refused input moved the pose"
+                );
+            }
+            last_pose = c.channels().to_vec();
+        },
+    );
+    assert_eq!(end, RunEnd::InputEnded);
+    assert_eq!(c.stats.inputs_rejected, rejected);
+    assert_eq!(
+        c.stats.commands_refused, 0,
+        "nothing non-finite got as far as the command stage"
+    );
+    assert!(c.stats.report().ik_error_rms.is_finite());
+    // A frame with a NaN in play mode is refused too.
+    let (mut c, tx) = frames_controller(&s, 120.0);
+    let mut frame = vec![0.0; s.skel.channel_count()];
+    frame[10] = f64::NAN;
+    let mut sent = false;
+    run(
+        &mut c,
+        &mut s.vr.clone(),
+        tx,
+        |k, due, _| {
+            if sent {
+                return None;
+            }
+            sent = true;
+            Some(Input::frame(k, due, 0, &frame, 0.0))
+        },
+        5,
+        |_, _, _| {},
+    );
+    assert_eq!(c.stats.inputs_rejected, 1);
+    assert_eq!(c.stats.inputs_used, 0);
+}
+
+#[test]
+fn run_ramps_to_rest_then_turns_torque_off() {
+    let s = setup();
+    let mut cfg = config(120.0);
+    cfg.stop = StopMode::Rest { ramp_s: 0.5 };
+    cfg.max_ticks = Some(200);
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let mut clock = s.vr.clone();
+    let period = 1_000_000_000 / 120;
+    let mut schedule = Schedule::new(clock.now_ns() + period, period);
+    // Frames due at each tick, queued ahead of time (a channel that holds them all).
+    let (tx2, port2) = input_channel(300);
+    for k in 0..250 {
+        let t = player.next_sample(&mut buf[..n]).unwrap();
+        tx2.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
+            .unwrap();
+    }
+    let mut c = Controller::new(
+        Arc::clone(&s.skel),
+        s.rig.clone(),
+        s.profile.ids(),
+        &s.present,
+        port2,
+        Solve::Frames,
+        cfg,
+    );
+    let stop = AtomicBool::new(false);
+    let end = c.run(&mut schedule, &mut s.vr.clone(), &mut clock, &stop);
+    assert_eq!(end, RunEnd::Duration);
+    assert_eq!(c.stats.ticks, 200);
+    let rest: Vec<i32> = s
+        .rig
+        .servos
+        .iter()
+        .map(|m| m.angle_to_ticks(0.0).clamp(m.min_tick, m.max_tick))
+        .collect();
+    let goals: Vec<i32> =
+        s.vr.with(|t| t.chain().servos().iter().map(|v| v.goal_tick()).collect());
+    let off = s.vr.with(|t| t.chain().servos().iter().all(|v| !v.torque_on()));
+    assert!(off, "torque off at the end");
+    for (g, r) in goals.iter().zip(&rest) {
+        assert!((g - r).abs() <= 1, "goal {g}, rest {r}");
+    }
+}
