@@ -24,6 +24,64 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Stream a clip to the servos at a fixed rate (the control loop), SLERP-resampled.
+    Play {
+        /// The rig profile, e.g. firmware-profile/cmu-puppet.toml.
+        profile: PathBuf,
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Clip (.amc).
+        amc: PathBuf,
+        /// Start over at the end of the clip (stop with Ctrl-C or --duration).
+        #[arg(long = "loop")]
+        looping: bool,
+        /// Playback speed (1 = as captured).
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
+        /// Clip time to start at, seconds.
+        #[arg(long, default_value_t = 0.0)]
+        start: f64,
+        #[command(flatten)]
+        loop_args: crate::play_cli::LoopArgs,
+    },
+    /// Follow effector targets (file, stdin or UDP) with inverse kinematics at a fixed rate.
+    Follow {
+        /// The rig profile.
+        profile: PathBuf,
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Targets: a CSV or JSON-lines file, `-` for stdin, or udp://127.0.0.1:PORT.
+        #[arg(long)]
+        targets: String,
+        /// The effector bones (their tips follow the targets).
+        #[arg(long, value_delimiter = ',', default_value = "lradius,rradius,ltibia,rtibia")]
+        effectors: Vec<String>,
+        /// Start a target file over at its end.
+        #[arg(long = "loop")]
+        looping: bool,
+        #[command(flatten)]
+        loop_args: crate::play_cli::LoopArgs,
+    },
+    /// Write the effector paths of a clip as a target file for `follow`.
+    Targets {
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Clip (.amc).
+        amc: PathBuf,
+        /// The effector bones.
+        #[arg(long, value_delimiter = ',', default_value = "lradius,rradius,ltibia,rtibia")]
+        effectors: Vec<String>,
+        /// limb: each path relative to its limb's parent bone, placed on the rest pose (what a
+        /// rig with its other joints at rest can reach); root: as captured, in the root's frame.
+        #[arg(long, value_enum, default_value_t = FrameArg::Limb)]
+        frame: FrameArg,
+        /// File format.
+        #[arg(long, value_enum, default_value_t = crate::play_cli::TargetFormat::Csv)]
+        format: crate::play_cli::TargetFormat,
+        /// Output file.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Check a rig profile (TOML) and list its servos; with --asf, its bones too.
     Profile {
         /// The profile, e.g. firmware-profile/cmu-puppet.toml.
@@ -323,12 +381,85 @@ pub enum CliError {
     Output(#[from] io::Error),
 }
 
+/// Where `targets` puts the paths.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum FrameArg {
+    /// Relative to each limb's parent bone, on the rest pose.
+    Limb,
+    /// As captured, in the root's frame.
+    Root,
+}
+
 /// Runs the command line; the process exit code is 0 on `Ok`.
 ///
 /// # Errors
 /// [`CliError`], to be printed on one line.
 pub fn run(cli: Cli) -> Result<(), CliError> {
+    run_with(cli, None)
+}
+
+/// [`run`], with the counter of a counting global allocator (allocations so far on the calling
+/// thread) so the control loop can report `allocations_in_tick`.
+///
+/// # Errors
+/// [`CliError`], to be printed on one line.
+pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliError> {
     let result = match cli.command {
+        Command::Play {
+            profile,
+            asf,
+            amc,
+            looping,
+            speed,
+            start,
+            loop_args,
+        } => crate::play_cli::play_cmd(
+            &profile,
+            &asf,
+            &amc,
+            looping,
+            speed,
+            start,
+            &loop_args,
+            allocations,
+            &mut io::stdout().lock(),
+        ),
+        Command::Follow {
+            profile,
+            asf,
+            targets,
+            effectors,
+            looping,
+            loop_args,
+        } => crate::play_cli::follow_cmd(
+            &profile,
+            &asf,
+            &targets,
+            &effectors,
+            looping,
+            &loop_args,
+            allocations,
+            &mut io::stdout().lock(),
+        ),
+        Command::Targets {
+            asf,
+            amc,
+            effectors,
+            frame,
+            format,
+            output,
+        } => crate::play_cli::targets_cmd(
+            &asf,
+            &amc,
+            &effectors,
+            match frame {
+                FrameArg::Limb => crate::control::sources::TrackFrame::Limb,
+                FrameArg::Root => crate::control::sources::TrackFrame::Root,
+            },
+            format,
+            &output,
+            &mut io::stdout().lock(),
+        ),
         Command::Profile { profile, asf } => {
             crate::rig_cli::profile_cmd(&profile, asf.as_deref(), &mut io::stdout().lock())
         }

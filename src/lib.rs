@@ -62,6 +62,8 @@ pub mod ik_cli;
 #[cfg(feature = "std")]
 pub mod motion;
 #[cfg(feature = "std")]
+pub mod play_cli;
+#[cfg(feature = "std")]
 pub mod profile;
 #[cfg(feature = "std")]
 pub mod rig_cli;

@@ -12,6 +12,7 @@
 //! A host that stops altogether is covered by the servos' Bus Watchdog, armed at start-up.
 
 pub mod input;
+pub mod plot;
 pub mod rt;
 pub mod sources;
 pub mod stats;
@@ -322,7 +323,8 @@ pub struct Controller {
     read_buf: Vec<i32>,
     last_good: Vec<i32>,
     /// Goals of the previous tick's write: what the servos had a period to reach.
-    previous_goals: Option<Vec<i32>>,
+    previous_goals: Vec<i32>,
+    have_previous: bool,
     pose: Box<Pose64>,
     watch: [Option<usize>; 4],
     input: InputPort,
@@ -396,7 +398,8 @@ impl Controller {
             present: present.to_vec(),
             read_buf: vec![0; n],
             last_good: present.to_vec(),
-            previous_goals: None,
+            previous_goals: vec![0; n],
+            have_previous: false,
             pose: Box::default(),
             watch,
             input,
@@ -599,9 +602,14 @@ impl Controller {
                 }
                 // Tracking: the present position against the goal the servo had a period to
                 // reach (the one written a tick ago).
-                if let Some(prev) = &self.previous_goals {
+                if self.have_previous {
                     let mut sq = 0.0;
-                    for (s, (g, p)) in self.rig.servos.iter().zip(prev.iter().zip(&self.present)) {
+                    for (s, (g, p)) in self
+                        .rig
+                        .servos
+                        .iter()
+                        .zip(self.previous_goals.iter().zip(&self.present))
+                    {
                         let deg =
                             f64::from(g - p) * 360.0 / f64::from(TICKS_PER_TURN) / s.gear.abs().max(1e-9);
                         self.stats.tracking(deg);
@@ -622,10 +630,8 @@ impl Controller {
         }
 
         if written.is_ok() {
-            match &mut self.previous_goals {
-                Some(p) => p.copy_from_slice(&goals[..len]),
-                None => self.previous_goals = Some(goals[..len].to_vec()),
-            }
+            self.previous_goals.copy_from_slice(&goals[..len]);
+            self.have_previous = true;
         }
 
         // Telemetry and timing.

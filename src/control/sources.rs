@@ -154,8 +154,23 @@ pub struct ProducerReport {
     pub bad_lines: u64,
 }
 
-/// Runs `player` in a thread: sample `k` is due at tick `first_tick + k` of the loop's grid
-/// (`start_ns + tick·period_ns` on `clock`), sent up to the channel's capacity ahead.
+/// How far ahead of its due time a paced producer makes a message: long enough for a sleeping
+/// thread to wake, short enough for the input to be fresh.
+fn lead_ns(period_ns: u64) -> u64 {
+    (2 * period_ns).max(2_000_000)
+}
+
+/// Sleeps (plain sleep: producers do not spin) until `lead` before `due`.
+fn sleep_until_lead(clock: &mut SystemClock, due: u64, lead: u64) {
+    let at = due.saturating_sub(lead);
+    let now = clock.now_ns();
+    if at > now {
+        std::thread::sleep(Duration::from_nanos(at - now));
+    }
+}
+
+/// Runs `player` in a thread: sample `k` is due at tick `k` of the loop's grid
+/// (`start_ns + k·period_ns` on `clock`) and made shortly before (two periods, at least 2 ms).
 /// Commands arrive on `commands`. The thread ends with the clip (played once) or when the
 /// loop stops.
 ///
@@ -185,6 +200,7 @@ pub fn spawn_player(
                     break;
                 };
                 let due = start_ns + k * period_ns;
+                sleep_until_lead(&mut clock, due, lead_ns(period_ns));
                 let msg = Input::frame(k, due, clock.now_ns(), &frame[..n], t);
                 if tx.send_wait(msg).is_err() {
                     break;
@@ -398,6 +414,7 @@ pub fn spawn_track(
             for pass in 0u64.. {
                 for (t, targets) in &track.samples {
                     let due = start_ns + pass * pass_ns + ((t - t0) * 1e9) as u64;
+                    sleep_until_lead(&mut clock, due, 4_000_000);
                     let msg = Input {
                         seq,
                         due_ns: due,

@@ -37,7 +37,7 @@ const FONTS: &[&str] = &[
     "C:\\Windows\\Fonts\\arial.ttf",
 ];
 
-fn register_font() -> Result<(), String> {
+pub(crate) fn register_font() -> Result<(), String> {
     static FONT: std::sync::OnceLock<Option<&'static [u8]>> = std::sync::OnceLock::new();
     let font = FONT.get_or_init(|| {
         let env = std::env::var("MARIONETTE_FONT").ok();

@@ -1,0 +1,122 @@
+//! The latency picture of a run: one histogram curve per measured stage on a logarithmic time
+//! axis, with the period marked.
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::stats::{Histogram, LoopStats, Stage};
+use crate::cli::CliError;
+
+/// Draws the histograms of `stats` to `out` (`.svg` or `.png`).
+///
+/// # Errors
+/// [`CliError::Usage`] when the file type is not supported, no font is found, or drawing fails.
+pub fn histograms(stats: &LoopStats, out: &Path) -> Result<(), CliError> {
+    crate::motion::plot::register_font().map_err(CliError::Usage)?;
+    let ext = out
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let size = (1200, 700);
+    let r = match ext.as_str() {
+        "svg" => render(stats, SVGBackend::new(out, size).into_drawing_area()),
+        "png" => render(stats, BitMapBackend::new(out, size).into_drawing_area()),
+        _ => {
+            return Err(CliError::Usage(format!(
+                "{}: the histogram picture must be .svg or .png",
+                out.display()
+            )))
+        }
+    };
+    r.map_err(|e| CliError::Usage(format!("{}: {e}", out.display())))
+}
+
+fn render<DB: DrawingBackend>(
+    stats: &LoopStats,
+    area: DrawingArea<DB, plotters::coord::Shift>,
+) -> Result<(), String>
+where
+    DB::ErrorType: 'static,
+{
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    area.fill(&WHITE).map_err(|x| e(&x))?;
+    let period_us = 1e6 / stats.rate_hz;
+    let mut series: Vec<(&str, &Histogram)> = vec![
+        ("tick compute", &stats.tick_compute),
+        ("period error", &stats.period_error),
+    ];
+    for s in [Stage::Solve, Stage::Encode, Stage::BusWrite, Stage::BusRead] {
+        series.push((s.name(), stats.stage(s)));
+    }
+    let mut lo = f64::INFINITY;
+    let mut hi: f64 = period_us * 1.5;
+    let mut top = 1.0f64;
+    for (_, h) in &series {
+        for (v, c) in h.buckets() {
+            let us = (v as f64 / 1000.0).max(0.01);
+            lo = lo.min(us);
+            hi = hi.max(us);
+            top = top.max(f64::from(c) / h.count().max(1) as f64);
+        }
+    }
+    let lo = if lo.is_finite() { lo.max(0.01) * 0.8 } else { 0.01 };
+    let mut chart = ChartBuilder::on(&area)
+        .caption(
+            format!(
+                "loop at {} Hz: {} ticks, {} deadline misses — latency histograms",
+                stats.rate_hz, stats.ticks, stats.deadline_misses
+            ),
+            ("sans-serif", 22),
+        )
+        .margin(16)
+        .x_label_area_size(44)
+        .y_label_area_size(64)
+        .build_cartesian_2d((lo..hi * 1.2).log_scale(), 0.0..top * 1.1)
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("µs (log scale)")
+        .y_desc("fraction of ticks per bucket")
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
+    for ((name, h), colour) in series.iter().zip(colours) {
+        if h.count() == 0 {
+            continue;
+        }
+        let n = h.count() as f64;
+        let points: Vec<(f64, f64)> = h
+            .buckets()
+            .map(|(v, c)| ((v as f64 / 1000.0).max(lo), f64::from(c) / n))
+            .collect();
+        let p = h.summary_us();
+        chart
+            .draw_series(LineSeries::new(points, colour.stroke_width(2)))
+            .map_err(|x| e(&x))?
+            .label(format!(
+                "{name}: p50 {:.1} p99 {:.1} max {:.1} µs",
+                p.p50, p.p99, p.max
+            ))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+    }
+    chart
+        .draw_series(LineSeries::new(
+            vec![(period_us, 0.0), (period_us, top * 1.1)],
+            BLACK.mix(0.5).stroke_width(1),
+        ))
+        .map_err(|x| e(&x))?
+        .label(format!("period {period_us:.0} µs"))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.mix(0.5)));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|x| e(&x))?;
+    area.present().map_err(|x| e(&x))?;
+    Ok(())
+}

@@ -1,0 +1,626 @@
+//! `marionette play`, `follow` and `targets`: the control loop from the command line.
+//!
+//! The loop runs in its own thread on the machine clock ([`SystemClock`]: sleep, then spin to
+//! the deadline); producers (the clip player, target sources) and the status line run in other
+//! threads and talk to it over bounded channels only.
+
+use std::io::{IsTerminal, Write};
+use std::net::{SocketAddr, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use clap::{Args, ValueEnum};
+
+use crate::budget::plan;
+use crate::bus::dxl::Dynamixel2Bus;
+use crate::bus::start_up;
+use crate::bus::virtual_chain::{chain_for, PtyChain};
+use crate::cli::CliError;
+use crate::control::input::{input_channel, InputPort, InputSender};
+use crate::control::rt::RealTime;
+use crate::control::sources::{
+    clip_track, spawn_player, spawn_stdin, spawn_track, spawn_udp, write_csv, ClipPlayer, PlayerCommand,
+    ProducerReport, TargetTrack, TrackFrame,
+};
+use crate::control::stats::LoopStats;
+use crate::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode, Telemetry};
+use crate::formats::{amc, asf};
+use crate::profile::Profile;
+use crate::schedule::{Clock, Schedule, SystemClock};
+use crate::skeleton::Skeleton;
+
+/// What to do when a run ends (end of input, `--duration`, Ctrl-C).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum OnStop {
+    /// Ease to the rest pose (all joint angles 0) over --ramp seconds, then torque off.
+    Rest,
+    /// Hold the last command for --ramp seconds, then torque off.
+    Hold,
+}
+
+/// Options shared by `play` and `follow`.
+#[derive(Clone, Debug, Args)]
+pub struct LoopArgs {
+    /// The bus: `virtual` (a virtual servo chain on a pseudo-terminal, driven through the real
+    /// serial code), `sim` (MuJoCo, built with --features sim) or a serial port path.
+    #[arg(long, default_value = "virtual")]
+    pub bus: String,
+    /// Bit rate of a serial port (default: the profile's).
+    #[arg(long)]
+    pub baud: Option<u32>,
+    /// Loop rate, Hz.
+    #[arg(long, default_value_t = 120.0)]
+    pub rate: f64,
+    /// Stop after this many seconds.
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Write the statistics as JSON here.
+    #[arg(long)]
+    pub stats_json: Option<PathBuf>,
+    /// Draw the latency histograms (.svg or .png).
+    #[arg(long)]
+    pub histogram: Option<PathBuf>,
+    /// What happens at the end.
+    #[arg(long, value_enum, default_value_t = OnStop::Rest)]
+    pub on_stop: OnStop,
+    /// Seconds of the ramp to rest (or of the hold) at the end.
+    #[arg(long, default_value_t = 1.0)]
+    pub ramp: f64,
+    /// Consecutive failed reads after which the last good command is held.
+    #[arg(long, default_value_t = 3)]
+    pub hold_after: u32,
+    /// Milliseconds without a valid read after which torque goes off and the run stops.
+    #[arg(long, default_value_t = 100.0)]
+    pub torque_off_after: f64,
+    /// SCHED_FIFO priority of the loop thread (needs CAP_SYS_NICE or an rtprio limit).
+    #[arg(long)]
+    pub rt_priority: Option<i32>,
+    /// Pin the loop thread to this CPU.
+    #[arg(long)]
+    pub cpu: Option<usize>,
+    /// Lock the process's memory (mlockall).
+    #[arg(long)]
+    pub mlock: bool,
+    /// No live status line.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// The opened bus: the virtual chain (kept alive while the bus is used) or a port.
+struct OpenBus {
+    bus: Dynamixel2Bus,
+    _chain: Option<PtyChain>,
+    label: String,
+}
+
+fn check(args: &LoopArgs) -> Result<(), CliError> {
+    if !(args.rate.is_finite() && (1.0..=2000.0).contains(&args.rate)) {
+        return Err(CliError::Usage(format!(
+            "--rate must be between 1 and 2000 Hz, got {}",
+            args.rate
+        )));
+    }
+    if args.duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
+        return Err(CliError::Usage(
+            "--duration must be a positive number of seconds".into(),
+        ));
+    }
+    if !(args.ramp.is_finite() && (0.0..=60.0).contains(&args.ramp)) {
+        return Err(CliError::Usage("--ramp must be between 0 and 60 seconds".into()));
+    }
+    if !(args.torque_off_after.is_finite() && args.torque_off_after > 0.0) {
+        return Err(CliError::Usage(
+            "--torque-off-after must be a positive number of ms".into(),
+        ));
+    }
+    if args.hold_after == 0 {
+        return Err(CliError::Usage("--hold-after must be at least 1".into()));
+    }
+    Ok(())
+}
+
+fn open_bus(
+    args: &LoopArgs,
+    profile: &Profile,
+    rig: &crate::rig::Rig,
+    out: &mut dyn Write,
+) -> Result<OpenBus, CliError> {
+    match args.bus.as_str() {
+        "sim" => Err(CliError::Usage(
+            "--bus sim needs the MuJoCo simulator, which this build does not have (build with --features sim)".into(),
+        )),
+        "virtual" => {
+            // Servos powered up at their zero angle (inside their limits).
+            let rest: Vec<i32> = rig
+                .servos
+                .iter()
+                .map(|s| s.angle_to_ticks(0.0).clamp(s.min_tick, s.max_tick))
+                .collect();
+            let chain = PtyChain::serve(chain_for(profile, |k| rest[k]), None).map_err(CliError::Output)?;
+            let path = chain.path().to_string();
+            let baud = args.baud.unwrap_or(profile.bus.baud);
+            let bus = Dynamixel2Bus::open(&path, baud).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+            Ok(OpenBus {
+                bus,
+                label: format!("virtual chain of {} servos on {path}", profile.servos.len()),
+                _chain: Some(chain),
+            })
+        }
+        port => {
+            let baud = args.baud.unwrap_or(profile.bus.baud);
+            let mut cfg = profile.bus.clone();
+            cfg.baud = baud;
+            let b = plan(&cfg, profile.servos.len(), Some(args.rate));
+            if b.feasible == Some(false) {
+                writeln!(
+                    out,
+                    "warning: a bus cycle takes {:.0} µs ({:.0} % of the {:.0} µs period): expect deadline misses (`marionette budget`)",
+                    b.cycle_time_us,
+                    100.0 * b.utilisation.unwrap_or(0.0),
+                    1e6 / args.rate
+                )?;
+            }
+            let bus = Dynamixel2Bus::open(port, baud).map_err(|e| CliError::Usage(format!("{port}: {e}")))?;
+            Ok(OpenBus {
+                bus,
+                label: format!("{port} at {baud} bit/s"),
+                _chain: None,
+            })
+        }
+    }
+}
+
+/// What a run of the loop gives back.
+struct Outcome {
+    stats: LoopStats,
+    end: RunEnd,
+    producer: ProducerReport,
+}
+
+/// Starts the bus, the loop thread and the status line, and waits for the end.
+#[allow(clippy::too_many_arguments)]
+fn run_loop(
+    args: &LoopArgs,
+    profile: &Profile,
+    skeleton: Arc<Skeleton>,
+    solve: Solve,
+    port: InputPort,
+    start_producer: impl FnOnce(SystemClock, u64, u64) -> std::io::Result<JoinHandle<ProducerReport>>,
+    allocations: Option<fn() -> u64>,
+    out: &mut dyn Write,
+) -> Result<Outcome, CliError> {
+    check(args)?;
+    let rig = profile.rig(Some(&skeleton))?;
+    let OpenBus {
+        mut bus,
+        _chain,
+        label,
+    } = open_bus(args, profile, &rig, out)?;
+    let present = start_up(&mut bus, profile).map_err(|e| CliError::Usage(format!("start-up: {e}")))?;
+    writeln!(out, "{label}: {} servos up, torque on", present.len())?;
+    let config = LoopConfig {
+        rate_hz: args.rate,
+        hold_after: args.hold_after,
+        torque_off_after_ms: args.torque_off_after,
+        stop: match args.on_stop {
+            OnStop::Rest => StopMode::Rest { ramp_s: args.ramp },
+            OnStop::Hold => StopMode::Hold { hold_s: args.ramp },
+        },
+        max_ticks: args.duration.map(|d| (d * args.rate).round().max(1.0) as u64),
+        allocations,
+    };
+    let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
+    let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
+    controller.set_telemetry(ttx);
+    let period = controller.period_ns();
+    let mut clock = SystemClock::new(200_000);
+    // The first tick a little ahead, so the producer has filled the channel.
+    let start = clock.now_ns() + 50_000_000;
+    let producer = start_producer(clock, start, period).map_err(CliError::Output)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        // Only one handler per process; a second `run` in the same process keeps the first.
+        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed));
+    }
+    let rt = RealTime {
+        priority: args.rt_priority,
+        cpu: args.cpu,
+        lock_memory: args.mlock,
+    };
+    let stop_loop = Arc::clone(&stop);
+    let handle = std::thread::Builder::new()
+        .name("control-loop".into())
+        .spawn(move || {
+            let warnings = rt.apply();
+            let mut schedule = Schedule::new(start, period);
+            let end = controller.run(&mut schedule, &mut bus, &mut clock, &stop_loop);
+            (controller.stats, end, warnings)
+        })
+        .map_err(CliError::Output)?;
+    let status = status_line(&trx, args, &handle, period);
+    let (stats, end, warnings) = handle
+        .join()
+        .map_err(|_| CliError::Usage("the control loop thread panicked".into()))?;
+    if status {
+        eprintln!();
+    }
+    for w in warnings {
+        writeln!(out, "{w}")?;
+    }
+    let producer = producer.join().unwrap_or_default();
+    Ok(Outcome { stats, end, producer })
+}
+
+/// Prints a status line from the telemetry (on a terminal: rewritten in place four times a
+/// second; otherwise once a second) until the loop thread ends. Returns whether it printed.
+fn status_line<T>(
+    rx: &crossbeam_channel::Receiver<Telemetry>,
+    args: &LoopArgs,
+    handle: &JoinHandle<T>,
+    period_ns: u64,
+) -> bool {
+    let tty = std::io::stderr().is_terminal();
+    let every = if tty {
+        Duration::from_millis(250)
+    } else {
+        Duration::from_secs(1)
+    };
+    let mut window: Vec<Telemetry> = Vec::with_capacity(4096);
+    let mut last = Instant::now();
+    let (mut ticks, mut misses) = (0u64, 0u64);
+    let mut printed = false;
+    while !handle.is_finished() {
+        while let Ok(t) = rx.recv_timeout(Duration::from_millis(50)) {
+            ticks += 1;
+            misses += u64::from(t.missed);
+            window.push(t);
+            if last.elapsed() >= every {
+                break;
+            }
+        }
+        if last.elapsed() < every || window.is_empty() {
+            continue;
+        }
+        let secs = last.elapsed().as_secs_f64();
+        last = Instant::now();
+        if !args.quiet {
+            let mut compute: Vec<u64> = window.iter().map(|t| t.compute_ns).collect();
+            compute.sort_unstable();
+            let p99 = compute[(compute.len() * 99 / 100).min(compute.len() - 1)] as f64 / 1000.0;
+            let track: Vec<f64> = window
+                .iter()
+                .map(|t| t.tracking_rms_deg)
+                .filter(|x| x.is_finite())
+                .collect();
+            let rms = if track.is_empty() {
+                f64::NAN
+            } else {
+                (track.iter().map(|x| x * x).sum::<f64>() / track.len() as f64).sqrt()
+            };
+            let fails = window.iter().filter(|t| !t.read_ok).count();
+            let clip = window.last().map_or(f64::NAN, |t| t.clip_time);
+            let line = format!(
+                "{:>7.1} Hz  ticks {ticks:>7}  misses {misses:>4}  compute p99 {p99:>7.1} µs ({:.2} % of period)  tracking {rms:>6.3}°  failed reads {fails}{}",
+                window.len() as f64 / secs,
+                p99 * 1e3 / period_ns as f64 * 100.0,
+                if clip.is_finite() { format!("  clip {clip:6.2} s") } else { String::new() }
+            );
+            if tty {
+                eprint!("\r{line}");
+            } else {
+                eprintln!("{line}");
+            }
+            printed = tty;
+        }
+        window.clear();
+    }
+    printed
+}
+
+fn finish(
+    outcome: &Outcome,
+    args: &LoopArgs,
+    extra: serde_json::Map<String, serde_json::Value>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    writeln!(out, "{}", outcome.stats)?;
+    let end = match outcome.end {
+        RunEnd::InputEnded => "end of input",
+        RunEnd::Duration => "duration reached",
+        RunEnd::Interrupted => "interrupted",
+        RunEnd::ReadsFailed => "reads failed",
+    };
+    writeln!(out, "ended: {end}; torque off")?;
+    if let Some(path) = &args.stats_json {
+        let mut v =
+            serde_json::to_value(outcome.stats.report()).map_err(|e| CliError::Usage(e.to_string()))?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("end".into(), end.into());
+            o.insert("inputs_produced".into(), outcome.producer.sent.into());
+            o.insert(
+                "inputs_dropped_by_producer".into(),
+                outcome.producer.dropped.into(),
+            );
+            o.insert("bad_input_lines".into(), outcome.producer.bad_lines.into());
+            o.extend(extra);
+        }
+        let text = serde_json::to_string_pretty(&v).map_err(|e| CliError::Usage(e.to_string()))?;
+        std::fs::write(path, text + "\n").map_err(|e| crate::formats::FileError::io(path, e))?;
+        writeln!(out, "statistics written to {}", path.display())?;
+    }
+    if let Some(path) = &args.histogram {
+        crate::control::plot::histograms(&outcome.stats, path)?;
+        writeln!(out, "histograms drawn in {}", path.display())?;
+    }
+    if outcome.end == RunEnd::ReadsFailed {
+        return Err(CliError::Usage(format!(
+            "no valid read for {} ms: torque turned off on every servo",
+            args.torque_off_after
+        )));
+    }
+    Ok(())
+}
+
+/// `marionette play`.
+///
+/// # Errors
+/// [`CliError`].
+#[allow(clippy::too_many_arguments)]
+pub fn play_cmd(
+    profile_path: &Path,
+    asf_path: &Path,
+    amc_path: &Path,
+    looping: bool,
+    speed: f64,
+    start_at: f64,
+    args: &LoopArgs,
+    allocations: Option<fn() -> u64>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    if !(speed.is_finite() && speed > 0.0) {
+        return Err(CliError::Usage("--speed must be a positive number".into()));
+    }
+    let profile = Profile::load(profile_path)?;
+    let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
+    let motion = Arc::new(amc::load(&skeleton, amc_path)?);
+    if motion.is_empty() {
+        return Err(CliError::Usage(format!("{}: no frames", amc_path.display())));
+    }
+    if !(start_at.is_finite() && (0.0..=motion.duration()).contains(&start_at)) {
+        return Err(CliError::Usage(format!(
+            "--start must be within the clip's 0…{:.3} s",
+            motion.duration()
+        )));
+    }
+    check(args)?;
+    let mut player = ClipPlayer::new(Arc::clone(&skeleton), Arc::clone(&motion), args.rate, looping);
+    player.control(PlayerCommand::Speed(speed));
+    player.control(PlayerCommand::Seek(start_at));
+    let samples = player.samples_per_pass();
+    writeln!(
+        out,
+        "{}: {} frames at {} Hz ({:.2} s) → {samples} samples a pass at {} Hz{}",
+        amc_path.display(),
+        motion.len(),
+        motion.frame_rate,
+        motion.duration(),
+        args.rate,
+        if looping { ", looping" } else { "" }
+    )?;
+    let commands = keyboard_commands(out)?;
+    let (tx, port) = input_channel(4);
+    let outcome = run_loop(
+        args,
+        &profile,
+        skeleton,
+        Solve::Frames,
+        port,
+        move |clock, start, period| spawn_player(player, tx, clock, start, period, commands),
+        allocations,
+        out,
+    )?;
+    let all = outcome.producer.sent == outcome.stats.inputs_used;
+    writeln!(
+        out,
+        "samples: {} produced, {} used by the loop{}",
+        outcome.producer.sent,
+        outcome.stats.inputs_used,
+        if all {
+            " — every sample sent to the servos"
+        } else {
+            ""
+        }
+    )?;
+    let mut extra = serde_json::Map::new();
+    extra.insert("clip_frames".into(), motion.len().into());
+    extra.insert("samples_per_pass".into(), samples.into());
+    extra.insert("all_samples_sent".into(), all.into());
+    finish(&outcome, args, extra, out)
+}
+
+/// Player commands typed on a terminal: `p` pause/resume, `s SECONDS` seek, `x SPEED` speed.
+fn keyboard_commands(
+    out: &mut dyn Write,
+) -> Result<Option<crossbeam_channel::Receiver<PlayerCommand>>, CliError> {
+    if !std::io::stdin().is_terminal() {
+        return Ok(None);
+    }
+    writeln!(
+        out,
+        "keys (then Enter): p pause/resume · s SECONDS seek · x SPEED speed · Ctrl-C stop"
+    )?;
+    let (tx, rx) = crossbeam_channel::bounded(16);
+    std::thread::Builder::new()
+        .name("keyboard".into())
+        .spawn(move || {
+            for line in std::io::stdin().lines().map_while(Result::ok) {
+                let mut w = line.split_whitespace();
+                let cmd = match (w.next(), w.next().and_then(|x| x.parse::<f64>().ok())) {
+                    (Some("p"), _) => PlayerCommand::Toggle,
+                    (Some("s"), Some(t)) => PlayerCommand::Seek(t),
+                    (Some("x"), Some(s)) => PlayerCommand::Speed(s),
+                    _ => continue,
+                };
+                if tx.send(cmd).is_err() {
+                    break;
+                }
+            }
+        })
+        .map_err(CliError::Output)?;
+    Ok(Some(rx))
+}
+
+/// Where targets come from.
+enum TargetSource {
+    File(TargetTrack),
+    Stdin,
+    Udp(UdpSocket),
+}
+
+fn target_source(spec: &str, effectors: &[String]) -> Result<TargetSource, CliError> {
+    if spec == "-" {
+        return Ok(TargetSource::Stdin);
+    }
+    if let Some(addr) = spec.strip_prefix("udp://") {
+        let addr: SocketAddr = addr
+            .parse()
+            .map_err(|_| CliError::Usage(format!("--targets {spec}: expected udp://127.0.0.1:PORT")))?;
+        if !addr.ip().is_loopback() {
+            return Err(CliError::Usage(format!(
+                "--targets {spec}: only a loopback address is accepted (targets move servos; forward other hosts explicitly)"
+            )));
+        }
+        let socket = UdpSocket::bind(addr).map_err(|e| CliError::Usage(format!("--targets {spec}: {e}")))?;
+        return Ok(TargetSource::Udp(socket));
+    }
+    Ok(TargetSource::File(TargetTrack::load(Path::new(spec), effectors)?))
+}
+
+/// `marionette follow`.
+///
+/// # Errors
+/// [`CliError`].
+pub fn follow_cmd(
+    profile_path: &Path,
+    asf_path: &Path,
+    targets: &str,
+    effectors: &[String],
+    looping: bool,
+    args: &LoopArgs,
+    allocations: Option<fn() -> u64>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    let profile = Profile::load(profile_path)?;
+    let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
+    let follower =
+        Follower::new(&skeleton, effectors).map_err(|e| CliError::Usage(format!("--effectors: {e}")))?;
+    check(args)?;
+    let source = target_source(targets, effectors)?;
+    match &source {
+        TargetSource::File(t) => writeln!(
+            out,
+            "{targets}: {} samples over {:.2} s for {}{}",
+            t.samples.len(),
+            t.duration(),
+            effectors.join(", "),
+            if looping { ", looping" } else { "" }
+        )?,
+        TargetSource::Stdin => writeln!(
+            out,
+            "reading target lines from stdin for {}",
+            effectors.join(", ")
+        )?,
+        TargetSource::Udp(s) => writeln!(
+            out,
+            "listening for target lines on udp://{} for {}",
+            s.local_addr()
+                .map_or_else(|_| targets.to_string(), |a| a.to_string()),
+            effectors.join(", ")
+        )?,
+    }
+    let (tx, port): (InputSender, InputPort) = input_channel(4);
+    let names = effectors.to_vec();
+    let outcome = run_loop(
+        args,
+        &profile,
+        skeleton,
+        Solve::Follow(Box::new(follower)),
+        port,
+        move |clock, start, _period| match source {
+            TargetSource::File(track) => spawn_track(track, tx, clock, start, looping),
+            TargetSource::Stdin => spawn_stdin(names, tx, clock),
+            TargetSource::Udp(socket) => spawn_udp(socket, names, tx, clock),
+        },
+        allocations,
+        out,
+    )?;
+    writeln!(
+        out,
+        "targets: {} messages produced ({} dropped for newer, {} unreadable lines), {} used by the loop",
+        outcome.producer.sent,
+        outcome.producer.dropped,
+        outcome.producer.bad_lines,
+        outcome.stats.inputs_used
+    )?;
+    finish(&outcome, args, serde_json::Map::new(), out)
+}
+
+/// Output format of `targets`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum TargetFormat {
+    /// `t,effector,x,y,z` lines.
+    Csv,
+    /// One JSON object per line.
+    Jsonl,
+}
+
+/// `marionette targets`: effector paths of a clip as a target file.
+///
+/// # Errors
+/// [`CliError`].
+pub fn targets_cmd(
+    asf_path: &Path,
+    amc_path: &Path,
+    effectors: &[String],
+    frame: TrackFrame,
+    format: TargetFormat,
+    output: &Path,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    let skeleton = asf::load(asf_path)?.skeleton;
+    let motion = amc::load(&skeleton, amc_path)?;
+    let track = clip_track(&skeleton, &motion, effectors, frame).map_err(CliError::Usage)?;
+    let mut text = Vec::new();
+    match format {
+        TargetFormat::Csv => write_csv(&track, effectors, &mut text)?,
+        TargetFormat::Jsonl => {
+            for (t, targets) in &track.samples {
+                let list: Vec<serde_json::Value> = targets
+                    .iter()
+                    .map(|x| {
+                        serde_json::json!({
+                            "effector": effectors[x.effector],
+                            "position": [x.position.x, x.position.y, x.position.z],
+                        })
+                    })
+                    .collect();
+                writeln!(text, "{}", serde_json::json!({ "t": t, "targets": list }))?;
+            }
+        }
+    }
+    std::fs::write(output, text).map_err(|e| crate::formats::FileError::io(output, e))?;
+    writeln!(
+        out,
+        "{}: {} samples of {} ({:?} frame) written to {}",
+        amc_path.display(),
+        track.samples.len(),
+        effectors.join(", "),
+        frame,
+        output.display()
+    )?;
+    Ok(())
+}
