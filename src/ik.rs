@@ -205,6 +205,16 @@ pub enum Swivel {
     /// elbow or knee direction where the limits allow, and moves it continuously to the
     /// nearest legal one where they do not.
     Nearest(f64),
+    /// For streams: eq. 30 searched only within `window` radians of the previous swivel (9
+    /// samples and golden section instead of the whole circle), so the elbow cannot flip
+    /// between frames; the whole circle ([`Swivel::Auto`]) when that window holds no legal
+    /// swivel.
+    Track {
+        /// The previous frame's swivel.
+        previous: f64,
+        /// Half-width of the searched window, radians.
+        window: f64,
+    },
 }
 
 /// Samples of the swivel circle in the coarse scan before refinement (every 10°).
@@ -514,7 +524,16 @@ impl Limb {
     ) -> LimbSolution {
         // A non-finite swivel means none given.
         let swivel = match swivel {
-            Swivel::Fixed(p) | Swivel::Nearest(p) if !p.is_finite() => Swivel::Auto { previous: None },
+            Swivel::Fixed(p) | Swivel::Nearest(p) | Swivel::Track { previous: p, .. } if !p.is_finite() => {
+                Swivel::Auto { previous: None }
+            }
+            Swivel::Track { window, .. } if !(window.is_finite() && window > 0.0) => {
+                Swivel::Auto { previous: None }
+            }
+            Swivel::Track { previous, window } => Swivel::Track {
+                previous: libm::remainder(previous, core::f64::consts::TAU),
+                window: window.min(core::f64::consts::PI),
+            },
             Swivel::Nearest(p) => Swivel::Nearest(libm::remainder(p, core::f64::consts::TAU)),
             Swivel::Fixed(p) => Swivel::Fixed(libm::remainder(p, core::f64::consts::TAU)),
             Swivel::Auto { previous } => Swivel::Auto {
@@ -720,6 +739,46 @@ impl Limb {
                     match found {
                         Some((good, bad)) => to_boundary(good, bad),
                         None => golden(violation, least.1 - step, least.1 + step, 1e-10),
+                    }
+                }
+            }
+            Swivel::Track { previous, window } => {
+                const M: usize = 9;
+                let step = 2.0 * window / (M - 1) as f64;
+                let mut best = (f64::INFINITY, previous);
+                let mut best_legal: Option<(f64, f64)> = None;
+                for i in 0..M {
+                    let p = previous - window + step * i as f64;
+                    let (f, v) = eval(p, Some(previous));
+                    if f < best.0 {
+                        best = (f, p);
+                    }
+                    if legal(v) && best_legal.is_none_or(|(bf, _)| f < bf) {
+                        best_legal = Some((f, p));
+                    }
+                }
+                match best_legal {
+                    None => {
+                        return self.shoulder_for(
+                            theta,
+                            parent_world,
+                            to_target,
+                            present_dir,
+                            Swivel::Auto {
+                                previous: Some(previous),
+                            },
+                            reference,
+                        )
+                    }
+                    Some((_, inside)) => {
+                        let lo = (best.1 - step).max(previous - window);
+                        let hi = (best.1 + step).min(previous + window);
+                        let found = golden(|p| eval(p, Some(previous)).0, lo, hi, 1e-3);
+                        if legal(self.shoulder_angles(&local(found)).1) {
+                            found
+                        } else {
+                            to_boundary(inside, found)
+                        }
                     }
                 }
             }

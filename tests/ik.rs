@@ -173,7 +173,13 @@ fn limb_handles_unreachable_and_degenerate_targets() {
 fn limb_stream_is_continuous() {
     let skel = skeleton();
     let frames = walk_frames(&skel);
-    for (upper, lower) in [("lhumerus", "lradius"), ("rfemur", "rtibia")] {
+    // The whole-circle search with a continuity term, and the windowed search of streams.
+    for (upper, lower, windowed) in [
+        ("lhumerus", "lradius", false),
+        ("rfemur", "rtibia", false),
+        ("lhumerus", "lradius", true),
+        ("rfemur", "rtibia", true),
+    ] {
         let (u, l) = (skel.find(upper).unwrap(), skel.find(lower).unwrap());
         let limb = Limb::new(&skel, u, l, None).unwrap();
         let mut previous: Option<f64> = None;
@@ -192,7 +198,14 @@ fn limb_stream_is_continuous() {
                     }
                 }
             }
-            let s = limb.solve(&skel, &mut ch, target, Swivel::Auto { previous });
+            let swivel = match previous {
+                Some(p) if windowed => Swivel::Track {
+                    previous: p,
+                    window: 40f64.to_radians(),
+                },
+                _ => Swivel::Auto { previous },
+            };
+            let s = limb.solve(&skel, &mut ch, target, swivel);
             if let Some(p) = previous {
                 let step = (marionette::interp::wrap_near(s.swivel, p) - p).abs();
                 worst_swivel = worst_swivel.max(step);
@@ -208,7 +221,8 @@ fn limb_stream_is_continuous() {
             last = Some(ch);
         }
         println!(
-            "walk {lower} path: worst error {worst_err:.1e}, largest swivel step {:.2}°, largest joint step {:.2}°",
+            "walk {lower} path ({}): worst error {worst_err:.1e}, largest swivel step {:.2}°, largest joint step {:.2}°",
+            if windowed { "windowed search" } else { "whole circle" },
             worst_swivel.to_degrees(),
             worst_step.to_degrees()
         );
@@ -281,8 +295,20 @@ fn limb_never_returns_nan() {
                     }
                 }
             }
-            let swivel = match rng.below(4) {
+            let swivel = match rng.below(5) {
                 0 => Swivel::Auto { previous: None },
+                4 => Swivel::Track {
+                    previous: if rng.chance(0.5) {
+                        weird[rng.below(7) as usize]
+                    } else {
+                        uniform(&mut rng, -1e3, 1e3)
+                    },
+                    window: if rng.chance(0.2) {
+                        weird[rng.below(7) as usize]
+                    } else {
+                        uniform(&mut rng, 0.0, 4.0)
+                    },
+                },
                 1 => Swivel::Auto {
                     previous: Some(if rng.chance(0.5) {
                         weird[rng.below(7) as usize]

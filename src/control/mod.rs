@@ -34,6 +34,9 @@ use crate::skeleton::{Skeleton, MAX_BONES, MAX_CHANNELS};
 use input::{InputPort, Payload, Target, MAX_EFFECTORS};
 use stats::{LoopStats, Stage};
 
+/// Half-width of the swivel window searched around the previous frame's swivel (40°).
+const SWIVEL_WINDOW: f64 = 40.0 * core::f64::consts::PI / 180.0;
+
 /// How the loop ends a run that was not stopped by a fault.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum StopMode {
@@ -263,12 +266,16 @@ impl Follower {
             let Some(t) = self.targets[k] else { continue };
             let residual = match &mut e.solver {
                 EffectorSolver::Limb(limb) => {
-                    let s = limb.solve(
-                        skeleton,
-                        channels,
-                        t.position,
-                        Swivel::Auto { previous: e.swivel },
-                    );
+                    // The first solve searches the whole swivel circle, later ones a window
+                    // around the previous swivel (no elbow flips, a quarter of the work).
+                    let swivel = match e.swivel {
+                        Some(previous) => Swivel::Track {
+                            previous,
+                            window: SWIVEL_WINDOW,
+                        },
+                        None => Swivel::Auto { previous: None },
+                    };
+                    let s = limb.solve(skeleton, channels, t.position, swivel);
                     e.swivel = Some(s.swivel);
                     if !s.reachable {
                         stats.unreachable += 1;
