@@ -217,3 +217,105 @@ fn ik_solves_allocate_nothing() {
     assert_eq!(during, 0, "{during} allocations over {solved} solves");
     assert!(std::hint::black_box(ch).iter().all(|x| x.is_finite()));
 }
+
+/// Whole control-loop ticks allocate nothing: AMC playback and IK following (four limbs), with
+/// telemetry, over the virtual chain — counted inside the tick by the controller itself.
+#[test]
+fn control_loop_ticks_allocate_nothing() {
+    use marionette::bus::start_up;
+    use marionette::bus::virtual_chain::{chain_for, VirtualRig};
+    use marionette::control::input::{input_channel, Input, Payload};
+    use marionette::control::sources::{clip_track, ClipPlayer, TrackFrame};
+    use marionette::control::{Controller, Follower, LoopConfig, Solve, StopMode};
+    use marionette::profile::Profile;
+    use marionette::schedule::{Clock, Schedule};
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    let skel = Arc::new(asf::load(&common::data("16.asf")).unwrap().skeleton);
+    let motion = Arc::new(amc::load(&skel, &common::data("16_15.amc")).unwrap());
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml");
+    let profile = Profile::load(&path).unwrap();
+    let rig = profile.rig(Some(&skel)).unwrap();
+    let names: Vec<String> = ["lradius", "rradius", "ltibia", "rtibia"]
+        .iter()
+        .map(|s| (*s).to_string())
+        .collect();
+    let track = clip_track(&skel, &motion, &names, TrackFrame::Limb).unwrap();
+    for follow in [false, true] {
+        let mut vr = VirtualRig::new(
+            chain_for(&profile, |_| 2048),
+            profile.bus.baud,
+            Duration::from_millis(2),
+        );
+        let present = start_up(&mut vr, &profile).unwrap();
+        let (tx, port) = input_channel(4);
+        let solve = if follow {
+            Solve::Follow(Box::new(Follower::new(&skel, &names).unwrap()))
+        } else {
+            Solve::Frames
+        };
+        let config = LoopConfig {
+            rate_hz: 240.0,
+            stop: StopMode::Hold { hold_s: 0.0 },
+            allocations: Some(allocations),
+            ..LoopConfig::default()
+        };
+        let mut c = Controller::new(
+            Arc::clone(&skel),
+            rig.clone(),
+            profile.ids(),
+            &present,
+            port,
+            solve,
+            config,
+        );
+        let (ttx, trx) = crossbeam_channel::bounded(8);
+        c.set_telemetry(ttx);
+        let mut player = ClipPlayer::new(Arc::clone(&skel), Arc::clone(&motion), 240.0, false);
+        let mut buf = [0.0; MAX_CHANNELS];
+        let n = skel.channel_count();
+        let mut clock = vr.clone();
+        let period = c.period_ns();
+        let mut schedule = Schedule::new(clock.now_ns() + period, period);
+        let mut ticks = 0;
+        for k in 0..(2 * motion.len() as u64) {
+            let msg = if follow {
+                track.samples.get(k as usize / 2).map(|(_, t)| Input {
+                    seq: k,
+                    due_ns: schedule.deadline(k),
+                    made_ns: 0,
+                    payload: Payload::Targets(t.clone()),
+                })
+            } else {
+                player
+                    .next_sample(&mut buf[..n])
+                    .map(|t| Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
+            };
+            let Some(msg) = msg else { break };
+            tx.send_newest(msg).unwrap();
+            let tick = schedule.wait(&mut clock);
+            c.tick(&tick, &mut vr, &mut clock);
+            ticks += 1;
+            // The consumer keeps up with some of the records only: drops are counted, not waited for.
+            if k % 20 == 0 {
+                while trx.try_recv().is_ok() {}
+            }
+        }
+        let st = &c.stats;
+        println!(
+            "{} ticks ({}): {:?} allocations in ticks, {} telemetry records dropped",
+            ticks,
+            if follow { "follow, 4 limbs" } else { "play" },
+            st.allocations_in_tick,
+            st.telemetry_dropped
+        );
+        assert!(ticks > 900);
+        assert_eq!(st.commands_sent, ticks);
+        assert_eq!(st.allocations_in_tick, Some(0));
+        assert!(st.telemetry_dropped > 0, "the full-channel path was taken");
+        if follow {
+            assert_eq!(st.unreachable, 0);
+        }
+    }
+}
