@@ -455,10 +455,11 @@ impl Controller {
         self.input.finished()
     }
 
-    /// Takes the newest due input; returns whether a new one was used.
-    fn take_input(&mut self, now: u64) -> bool {
+    /// Takes the newest input due by `due_by`; returns whether a new one was used. The age is
+    /// measured at `now`.
+    fn take_input(&mut self, due_by: u64, now: u64) -> bool {
         let n = self.skeleton.channel_count();
-        let Some(msg) = self.input.take(now) else {
+        let Some(msg) = self.input.take(due_by) else {
             return false;
         };
         let age = now.saturating_sub(msg.made_ns);
@@ -520,8 +521,9 @@ impl Controller {
             self.last_valid_read_ns = start;
         }
 
-        // Input.
-        let fresh = self.take_input(start);
+        // Input: the newest one due in this tick's half-period window (inputs stamped with
+        // their ideal times, such as a 120 Hz file at 120 Hz, land on the nearest tick).
+        let fresh = self.take_input(tick.deadline_ns + self.period_ns / 2, start);
         if !fresh && self.have_input {
             self.stats.inputs_stale += 1;
         }

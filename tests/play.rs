@@ -1,0 +1,291 @@
+//! `marionette play`, `follow` and `targets` as a user runs them: over the virtual chain on a
+//! pseudo-terminal through `dynamixel2`, in real time. Timing figures are printed, not asserted
+//! (machines are noisy); what is asserted is what must hold anywhere.
+
+mod common;
+
+use std::io::Write;
+use std::net::UdpSocket;
+use std::process::{Output, Stdio};
+use std::time::{Duration, Instant};
+
+const PROFILE: &str = "firmware-profile/cmu-puppet.toml";
+const ASF: &str = "data/cmu/16.asf";
+const AMC: &str = "data/cmu/16_15.amc";
+
+fn run(args: &[&str]) -> Output {
+    common::bin()
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(Stdio::null())
+        .output()
+        .unwrap()
+}
+
+fn tempdir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("marionette-play-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn json(path: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+fn ok(o: &Output) -> String {
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success(),
+        "failed: {out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    out
+}
+
+/// The fields `--stats-json` promises, with sane values.
+fn check_stats(v: &serde_json::Value, rate: f64) {
+    assert_eq!(v["rate_hz"].as_f64(), Some(rate));
+    assert!(v["ticks"].as_u64().unwrap() > 0);
+    assert!(v["deadline_misses"].is_u64());
+    for key in ["tick_compute_us", "period_error_us"] {
+        for q in ["p50", "p99", "p999", "max"] {
+            let x = v[key][q].as_f64().unwrap_or(f64::NAN);
+            assert!(x.is_finite() && x >= 0.0, "{key}.{q} = {x}");
+        }
+        assert!(v[key]["p50"].as_f64() <= v[key]["p99"].as_f64());
+        assert!(v[key]["p99"].as_f64() <= v[key]["max"].as_f64());
+    }
+    assert_eq!(v["bus_errors"].as_u64(), Some(0));
+    assert_eq!(
+        v["allocations_in_tick"].as_u64(),
+        Some(0),
+        "the counting allocator saw none"
+    );
+    let t = v["tracking_rms_deg"].as_f64().unwrap();
+    assert!(t.is_finite() && t < 5.0, "tracking {t}");
+}
+
+#[test]
+fn play_streams_the_whole_clip_over_the_virtual_chain() {
+    let dir = tempdir("play");
+    for rate in ["120", "500"] {
+        let stats = dir.join(format!("stats-{rate}.json"));
+        let out = ok(&run(&[
+            "play",
+            PROFILE,
+            ASF,
+            AMC,
+            "--rate",
+            rate,
+            "--ramp",
+            "0.2",
+            "--stats-json",
+            stats.to_str().unwrap(),
+        ]));
+        println!("{out}");
+        assert!(out.contains("every sample sent to the servos"), "{out}");
+        assert!(out.contains("ended: end of input; torque off"));
+        let v = json(&stats);
+        check_stats(&v, rate.parse().unwrap());
+        assert_eq!(v["all_samples_sent"].as_bool(), Some(true));
+        assert_eq!(v["inputs_used"], v["samples_per_pass"]);
+        assert_eq!(v["commands_sent"], v["ticks"]);
+        let period_us = 1e6 / rate.parse::<f64>().unwrap();
+        println!(
+            "{rate} Hz: tick compute p99 {} µs = {:.2} % of the period",
+            v["tick_compute_us"]["p99"],
+            100.0 * v["tick_compute_us"]["p99"].as_f64().unwrap() / period_us
+        );
+    }
+}
+
+#[test]
+fn follow_drives_the_puppet_from_a_clips_wrist_and_ankle_paths() {
+    let dir = tempdir("follow");
+    let csv = dir.join("walk.csv");
+    let jsonl = dir.join("walk.jsonl");
+    ok(&run(&["targets", ASF, AMC, "-o", csv.to_str().unwrap()]));
+    ok(&run(&[
+        "targets",
+        ASF,
+        AMC,
+        "--format",
+        "jsonl",
+        "-o",
+        jsonl.to_str().unwrap(),
+    ]));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    assert!(text.starts_with("t,effector,x,y,z\n"));
+    assert_eq!(text.lines().count(), 1 + 4 * 471);
+    for (file, rate) in [(&csv, "120"), (&jsonl, "500")] {
+        let stats = dir.join(format!("follow-{rate}.json"));
+        let out = ok(&run(&[
+            "follow",
+            PROFILE,
+            ASF,
+            "--targets",
+            file.to_str().unwrap(),
+            "--rate",
+            rate,
+            "--ramp",
+            "0.2",
+            "--stats-json",
+            stats.to_str().unwrap(),
+        ]));
+        println!("{out}");
+        let v = json(&stats);
+        check_stats(&v, rate.parse().unwrap());
+        assert_eq!(v["inputs_used"].as_u64(), Some(471), "every target sample used");
+        assert_eq!(v["inputs_rejected"].as_u64(), Some(0));
+        assert_eq!(v["unreachable"].as_u64(), Some(0));
+        assert!(v["ik_error_max"].as_f64().unwrap() < 1e-6);
+    }
+}
+
+#[test]
+fn follow_reads_targets_from_stdin_and_udp() {
+    let dir = tempdir("live");
+    let csv = dir.join("walk.csv");
+    ok(&run(&["targets", ASF, AMC, "-o", csv.to_str().unwrap()]));
+    let lines: Vec<String> = std::fs::read_to_string(&csv)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .take(4 * 100)
+        .map(str::to_string)
+        .collect();
+    // Stdin: the run ends when the input does; one garbage line is counted, not fatal.
+    let stats = dir.join("stdin.json");
+    let mut child = common::bin()
+        .args([
+            "follow",
+            PROFILE,
+            ASF,
+            "--targets",
+            "-",
+            "--ramp",
+            "0.1",
+            "--duration",
+            "20",
+            "--stats-json",
+            stats.to_str().unwrap(),
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    {
+        let mut stdin = child.stdin.take().unwrap();
+        for (k, l) in lines.iter().enumerate() {
+            writeln!(stdin, "{l}").unwrap();
+            if k == 50 {
+                writeln!(stdin, "0,lradius,1,nan-ish,3").unwrap();
+            }
+            if k % 4 == 3 {
+                std::thread::sleep(Duration::from_millis(8));
+            }
+        }
+    }
+    let out = child.wait_with_output().unwrap();
+    let text = ok(&out);
+    assert!(text.contains("1 unreadable lines"), "{text}");
+    assert!(text.contains("ended: end of input"), "{text}");
+    let v = json(&stats);
+    check_stats(&v, 120.0);
+    assert!(v["inputs_used"].as_u64().unwrap() > 10);
+
+    // UDP on loopback: datagrams of four lines.
+    let port = UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let stats = dir.join("udp.json");
+    let child = common::bin()
+        .args([
+            "follow",
+            PROFILE,
+            ASF,
+            "--targets",
+            &format!("udp://127.0.0.1:{port}"),
+            "--ramp",
+            "0.1",
+            "--duration",
+            "2",
+            "--stats-json",
+            stats.to_str().unwrap(),
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let sender = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let t0 = Instant::now();
+    for chunk in lines.chunks(4).cycle() {
+        if t0.elapsed() > Duration::from_millis(1800) {
+            break;
+        }
+        let _ = sender.send_to(chunk.join("\n").as_bytes(), ("127.0.0.1", port));
+        std::thread::sleep(Duration::from_millis(8));
+    }
+    let out = child.wait_with_output().unwrap();
+    let text = ok(&out);
+    println!("{text}");
+    let v = json(&stats);
+    check_stats(&v, 120.0);
+    assert!(v["inputs_used"].as_u64().unwrap() > 20, "{}", v["inputs_used"]);
+    assert_eq!(v["end"].as_str(), Some("duration reached"));
+}
+
+#[test]
+fn bad_loop_arguments_give_one_line_errors() {
+    let dir = tempdir("bad");
+    let bad = dir.join("bad.csv");
+    std::fs::write(&bad, "t,effector,x,y,z\n0,lradius,1,2,3\n0.1,lhand,1,2,3\n").unwrap();
+    for (args, says) in [
+        (
+            vec!["play", PROFILE, ASF, AMC, "--rate", "0"],
+            "--rate must be between",
+        ),
+        (vec!["play", PROFILE, ASF, AMC, "--bus", "sim"], "--features sim"),
+        (vec!["play", PROFILE, ASF, AMC, "--duration=-1"], "--duration"),
+        (
+            vec!["play", PROFILE, ASF, AMC, "--start", "99"],
+            "--start must be within",
+        ),
+        (
+            vec![
+                "follow",
+                PROFILE,
+                ASF,
+                "--targets",
+                "x.csv",
+                "--effectors",
+                "lradius,nose",
+            ],
+            "no bone named 'nose'",
+        ),
+        (
+            vec!["follow", PROFILE, ASF, "--targets", "udp://10.1.2.3:5000"],
+            "only a loopback address",
+        ),
+        (
+            vec!["follow", PROFILE, ASF, "--targets", bad.to_str().unwrap()],
+            "bad.csv:3: effector 'lhand' is not one of",
+        ),
+        (
+            vec!["play", PROFILE, ASF, AMC, "--bus", "/dev/nonexistent-port"],
+            "/dev/nonexistent-port",
+        ),
+    ] {
+        let o = run(&args);
+        assert!(!o.status.success(), "{args:?} should fail");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: '{err}' should contain '{says}'");
+    }
+}
