@@ -504,6 +504,7 @@ fn target_source(spec: &str, effectors: &[String]) -> Result<TargetSource, CliEr
 ///
 /// # Errors
 /// [`CliError`].
+#[allow(clippy::too_many_arguments)]
 pub fn follow_cmd(
     profile_path: &Path,
     asf_path: &Path,

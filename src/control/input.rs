@@ -38,6 +38,9 @@ impl Target {
 }
 
 /// What a message carries.
+// Messages are plain values: a frame is copied into the channel's preallocated slot rather
+// than boxed, so neither side allocates.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq)]
 pub enum Payload {
     /// A full channel vector (radians for rotations, file units for translations).

@@ -471,14 +471,10 @@ impl Controller {
                     clip_time,
                 },
                 Solve::Frames,
-            ) => {
-                if *len >= n && channels[..n].iter().all(|v| v.is_finite()) {
-                    self.channels[..n].copy_from_slice(&channels[..n]);
-                    self.clip_time = *clip_time;
-                    true
-                } else {
-                    false
-                }
+            ) if *len >= n && channels[..n].iter().all(|v| v.is_finite()) => {
+                self.channels[..n].copy_from_slice(&channels[..n]);
+                self.clip_time = *clip_time;
+                true
             }
             (Payload::Targets(targets), Solve::Follow(f)) => {
                 let valid = targets
