@@ -194,6 +194,18 @@ fn run_loop(
 ) -> Result<Outcome, CliError> {
     check(args)?;
     let rig = profile.rig(Some(&skeleton))?;
+    if let Some(s) = profile
+        .servos
+        .iter()
+        .find(|s| matches!(s.drive, crate::profile::Drive::Joint(_)))
+    {
+        return Err(CliError::Usage(format!(
+            "{}: servo {} (`{}`) is driven by a robot joint, not a skeleton bone; play and follow need a profile whose servos follow the skeleton's bones",
+            profile.path.display(),
+            s.id,
+            s.name
+        )));
+    }
     let OpenBus {
         mut bus,
         _chain,

@@ -49,15 +49,15 @@ where
     for s in [Stage::Solve, Stage::Encode, Stage::BusWrite, Stage::BusRead] {
         series.push((s.name(), stats.stage(s)));
     }
+    let curves: Vec<Vec<(f64, f64)>> = series.iter().map(|(_, h)| rebin(h)).collect();
     let mut lo = f64::INFINITY;
     let mut hi: f64 = period_us * 1.5;
-    let mut top = 1.0f64;
-    for (_, h) in &series {
-        for (v, c) in h.buckets() {
-            let us = (v as f64 / 1000.0).max(0.01);
+    let mut top = 0.01f64;
+    for c in &curves {
+        for &(us, f) in c {
             lo = lo.min(us);
             hi = hi.max(us);
-            top = top.max(f64::from(c) / h.count().max(1) as f64);
+            top = top.max(f);
         }
     }
     let lo = if lo.is_finite() { lo.max(0.01) * 0.8 } else { 0.01 };
@@ -77,20 +77,15 @@ where
     chart
         .configure_mesh()
         .x_desc("µs (log scale)")
-        .y_desc("fraction of ticks per bucket")
+        .y_desc("fraction of ticks (8 bins per doubling)")
         .label_style(("sans-serif", 14))
         .draw()
         .map_err(|x| e(&x))?;
     let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
-    for ((name, h), colour) in series.iter().zip(colours) {
+    for (((name, h), colour), points) in series.iter().zip(colours).zip(curves) {
         if h.count() == 0 {
             continue;
         }
-        let n = h.count() as f64;
-        let points: Vec<(f64, f64)> = h
-            .buckets()
-            .map(|(v, c)| ((v as f64 / 1000.0).max(lo), f64::from(c) / n))
-            .collect();
         let p = h.summary_us();
         chart
             .draw_series(LineSeries::new(points, colour.stroke_width(2)))
@@ -119,4 +114,17 @@ where
         .map_err(|x| e(&x))?;
     area.present().map_err(|x| e(&x))?;
     Ok(())
+}
+
+/// The histogram in 8 bins per doubling (≥ 0.01 µs): (bin centre µs, fraction of the values).
+fn rebin(h: &Histogram) -> Vec<(f64, f64)> {
+    let n = h.count().max(1) as f64;
+    let mut bins: std::collections::BTreeMap<i64, u64> = std::collections::BTreeMap::new();
+    for (v, c) in h.buckets() {
+        let us = (v as f64 / 1000.0).max(0.01);
+        *bins.entry((us.log2() * 8.0).floor() as i64).or_default() += u64::from(c);
+    }
+    bins.into_iter()
+        .map(|(b, c)| (((b as f64 + 0.5) / 8.0).exp2(), c as f64 / n))
+        .collect()
 }
