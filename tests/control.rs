@@ -534,3 +534,98 @@ fn run_ramps_to_rest_then_turns_torque_off() {
         assert!((g - r).abs() <= 1, "goal {g}, rest {r}");
     }
 }
+
+/// Effectors that do not end a 2-bone limb are solved numerically, and a pointing direction
+/// turns the hand: both in the loop, from the capture's own hand positions and directions.
+#[test]
+fn follow_solves_numeric_effectors_and_pointing() {
+    let s = setup();
+    // The left wrist by the analytic limb with the left hand pointed; the right hand's tip
+    // numerically (rhand ends no 2-bone limb: its parent, rwrist, has one DOF).
+    let names = vec!["lradius".to_string(), "rhand".to_string()];
+    let follower = Follower::new(&s.skel, &names).unwrap();
+    let (tx, port) = input_channel(4);
+    let mut c = Controller::new(
+        Arc::clone(&s.skel),
+        s.rig.clone(),
+        s.profile.ids(),
+        &s.present,
+        port,
+        Solve::Follow(Box::new(follower)),
+        config(120.0),
+    );
+    let bone = |n: &str| s.skel.find(n).unwrap();
+    let (lr, lh, rh) = (bone("lradius"), bone("lhand"), bone("rhand"));
+    // Goals from the capture's arm channels on a rest body (root and spine at rest).
+    let arms: Vec<usize> = [
+        "lhumerus", "lradius", "lwrist", "lhand", "rhumerus", "rradius", "rwrist", "rhand",
+    ]
+    .iter()
+    .flat_map(|b| s.skel.bones()[bone(b)].channels())
+    .collect();
+    let mut pose = marionette::ik::Pose64::default();
+    let mut goals = Vec::new();
+    for f in (0..s.motion.len()).step_by(40) {
+        let full = marionette::motion::frame_to_radians(&s.skel, s.motion.frame(f));
+        let mut ch = vec![0.0; s.skel.channel_count()];
+        for &c in &arms {
+            ch[c] = full[c];
+        }
+        marionette::ik::fk64(&s.skel, &ch, &mut pose);
+        let dir = (pose.tip[lh] - pose.start[lh]).normalize();
+        goals.push((pose.tip[lr], dir, pose.tip[rh]));
+    }
+    let mut worst = (0.0f64, 0.0f64, 0.0f64);
+    let g = goals.clone();
+    run(
+        &mut c,
+        &mut s.vr.clone(),
+        tx,
+        |k, due, _| {
+            let (wrist, dir, hand) = *g.get(k as usize / 4)?;
+            let mut t = heapless::Vec::new();
+            let _ = t.push(marionette::control::input::Target {
+                effector: 0,
+                position: wrist,
+                direction: Some(dir),
+            });
+            let _ = t.push(marionette::control::input::Target {
+                effector: 1,
+                position: hand,
+                direction: None,
+            });
+            Some(Input {
+                seq: k,
+                due_ns: due,
+                made_ns: 0,
+                payload: Payload::Targets(t),
+            })
+        },
+        10_000,
+        |k, c, _| {
+            if k % 4 != 3 {
+                return;
+            }
+            let Some(&(wrist, dir, hand)) = goals.get(k as usize / 4) else {
+                return;
+            };
+            let mut pose = marionette::ik::Pose64::default();
+            marionette::ik::fk64(&s.skel, c.channels(), &mut pose);
+            let got = (pose.tip[lh] - pose.start[lh]).normalize();
+            worst.0 = worst.0.max((pose.tip[lr] - wrist).length());
+            worst.1 = worst.1.max(got.angle_between(dir).to_degrees());
+            worst.2 = worst.2.max((pose.tip[rh] - hand).length());
+        },
+    );
+    println!(
+        "{} goals: wrist {:.2e}, hand pointing {:.3}°, right hand (numeric) {:.2e}",
+        goals.len(),
+        worst.0,
+        worst.1,
+        worst.2
+    );
+    assert_eq!(c.stats.inputs_rejected, 0);
+    assert!(worst.0 < 1e-6, "wrist off by {}", worst.0);
+    assert!(worst.1 < 0.5, "pointing off by {}°", worst.1);
+    assert!(worst.2 < 0.01, "right hand off by {}", worst.2);
+}

@@ -138,7 +138,8 @@ pub enum Solve {
 enum EffectorSolver {
     /// Analytic 2-bone limb (help note §IV) with the swivel kept near the previous one.
     Limb(Box<Limb>),
-    /// Damped least squares over the bone and its two parents.
+    /// Damped least squares up the chain to six rotational DOFs (bones of analytic limbs left
+    /// out).
     Numeric(Box<Solver>),
 }
 
@@ -185,7 +186,9 @@ impl Follower {
         if names.len() > MAX_EFFECTORS {
             return Err(FollowError::TooMany);
         }
-        let mut effectors = Vec::new();
+        // Analytic limbs first: the bones they own are left out of numerical chains.
+        let mut owned = [false; MAX_BONES];
+        let mut limbs = Vec::new();
         for name in names {
             let bone = skeleton
                 .find(name)
@@ -194,15 +197,32 @@ impl Follower {
                 .parent()
                 .filter(|&p| skeleton.bones()[p].parent().is_some())
                 .ok_or_else(|| FollowError::TooHigh(name.clone()))?;
-            let solver = match Limb::new(skeleton, parent, bone, None) {
-                Ok(l) => EffectorSolver::Limb(Box::new(l)),
-                Err(_) => {
+            let limb = Limb::new(skeleton, parent, bone, None).ok();
+            if limb.is_some() {
+                owned[parent] = true;
+                owned[bone] = true;
+            }
+            limbs.push((bone, limb));
+        }
+        let mut effectors = Vec::new();
+        for (name, (bone, limb)) in names.iter().zip(limbs) {
+            let solver = match limb {
+                Some(l) => EffectorSolver::Limb(Box::new(l)),
+                None => {
+                    // Up the chain until six rotational DOFs (a position and some slack) or a
+                    // bone hanging from the root, skipping bones an analytic limb moves.
                     let mut mask = [false; MAX_BONES];
+                    let mut dofs = 0;
                     let mut i = Some(bone);
-                    let mut n = 0;
-                    while let Some(k) = i.filter(|&k| skeleton.bones()[k].parent().is_some() && n < 3) {
-                        mask[k] = true;
-                        n += 1;
+                    while let Some(k) = i.filter(|&k| skeleton.bones()[k].parent().is_some() && dofs < 6) {
+                        if !owned[k] {
+                            mask[k] = true;
+                            dofs += skeleton.bones()[k]
+                                .dofs()
+                                .iter()
+                                .filter(|d| d.is_rotation())
+                                .count();
+                        }
                         i = skeleton.bones()[k].parent();
                     }
                     EffectorSolver::Numeric(Box::new(Solver::new(skeleton, &mask, false)))
