@@ -69,7 +69,7 @@ pub struct LoopArgs {
     /// Seconds of the ramp to rest (or of the hold) at the end.
     #[arg(long, default_value_t = 1.0)]
     pub ramp: f64,
-    /// Consecutive failed reads after which the last good command is held.
+    /// Consecutive failed reads after which the last command sent is held.
     #[arg(long, default_value_t = 3)]
     pub hold_after: u32,
     /// Milliseconds without a valid read after which torque goes off and the run stops.

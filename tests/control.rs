@@ -629,3 +629,55 @@ fn follow_solves_numeric_effectors_and_pointing() {
     assert!(worst.1 < 0.5, "pointing off by {}°", worst.1);
     assert!(worst.2 < 0.01, "right hand off by {}", worst.2);
 }
+
+/// A short burst of failed reads: held after K = 3, then back to following, with no jump
+/// beyond the rate limits when the hold ends.
+#[test]
+fn a_burst_of_failed_reads_holds_then_resumes() {
+    let s = setup();
+    let (mut c, tx) = frames_controller(&s, 120.0);
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, false);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let limits: Vec<f64> = s
+        .rig
+        .servos
+        .iter()
+        .map(|m| m.max_velocity / 120.0 + 1.0)
+        .collect();
+    let mut last: Option<Vec<i32>> = None;
+    let mut worst_excess = 0.0f64;
+    let end = run(
+        &mut c,
+        &mut s.vr.clone(),
+        tx,
+        |k, due, vr| {
+            match k {
+                60 => vr.with(|t| t.injector = Some(FaultInjector::new(3, 1.0, &[Fault::Drop], 0))),
+                66 => vr.with(|t| t.injector = None),
+                _ => {}
+            }
+            let t = player.next_sample(&mut buf[..n])?;
+            Some(Input::frame(k, due, vr.now_ns(), &buf[..n], t))
+        },
+        10_000,
+        |_, _, vr| {
+            // What the servos were told, hold or not.
+            let now: Vec<i32> = vr.with(|t| t.chain().servos().iter().map(|v| v.goal_tick()).collect());
+            if let Some(prev) = &last {
+                for ((a, b), lim) in now.iter().zip(prev).zip(&limits) {
+                    worst_excess = worst_excess.max(f64::from((a - b).abs()) - lim);
+                }
+            }
+            last = Some(now);
+        },
+    );
+    let st = &c.stats;
+    assert_eq!(end, RunEnd::InputEnded);
+    assert_eq!(st.held_ticks, 4, "ticks 63–66 held");
+    assert!(
+        worst_excess <= 0.0,
+        "a step exceeded the velocity limit by {worst_excess} ticks"
+    );
+    assert!(s.vr.with(|t| t.chain().servos().iter().all(|v| v.torque_on())));
+}

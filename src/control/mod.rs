@@ -7,7 +7,7 @@
 //! virtual time.
 //!
 //! Fault policy: a failed or corrupt read is never used; after `hold_after` consecutive failed
-//! reads the last command written while reads were good is held; after `torque_off_after`
+//! reads the last command sent is held (new inputs are not acted on; no step back); after `torque_off_after`
 //! without a valid read every servo's torque is turned off and the loop stops with a fault.
 //! A host that stops altogether is covered by the servos' Bus Watchdog, armed at start-up.
 
@@ -58,7 +58,7 @@ pub enum StopMode {
 pub struct LoopConfig {
     /// Ticks per second (50 … 1000 in practice).
     pub rate_hz: f64,
-    /// Consecutive failed reads after which the last good command is held (K).
+    /// Consecutive failed reads after which the last command sent is held (K).
     pub hold_after: u32,
     /// Milliseconds without a valid read after which torque goes off (T).
     pub torque_off_after_ms: f64,
@@ -348,7 +348,6 @@ pub struct Controller {
     angles: Vec<f64>,
     present: Vec<i32>,
     read_buf: Vec<i32>,
-    last_good: Vec<i32>,
     /// Goals of the previous tick's write: what the servos had a period to reach.
     previous_goals: Vec<i32>,
     have_previous: bool,
@@ -424,7 +423,6 @@ impl Controller {
             angles,
             present: present.to_vec(),
             read_buf: vec![0; n],
-            last_good: present.to_vec(),
             previous_goals: vec![0; n],
             have_previous: false,
             pose: Box::default(),
@@ -574,7 +572,7 @@ impl Controller {
         let len = self.ids.len();
         if holding {
             self.stats.held_ticks += 1;
-            goals[..len].copy_from_slice(&self.last_good);
+            goals[..len].copy_from_slice(self.stage.last());
         } else if self.have_input {
             self.rig
                 .joint_angles(&self.skeleton, &self.channels[..n], &[], &mut self.angles);
@@ -622,8 +620,9 @@ impl Controller {
                 self.stats.reads_ok += 1;
                 self.failures = 0;
                 self.last_valid_read_ns = t_after;
-                if !holding {
-                    self.last_good.copy_from_slice(&goals[..len]);
+                if holding {
+                    // Back from a hold: the next command starts, at rest, from the one held.
+                    self.stage.start_from(&self.rig, &goals[..len]);
                 }
                 // Tracking: the present position against the goal the servo had a period to
                 // reach (the one written a tick ago).
