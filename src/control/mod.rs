@@ -101,7 +101,7 @@ pub struct Telemetry {
     pub missed: bool,
     /// Whether the read succeeded.
     pub read_ok: bool,
-    /// Whether the tick held the last good command.
+    /// Whether the tick held the last command.
     pub held: bool,
     /// RMS of commanded − present over the servos this tick, degrees (NaN without a read).
     pub tracking_rms_deg: f64,

@@ -244,7 +244,7 @@ pub struct LoopStats {
     pub rate_limited: u64,
     /// Effector targets out of reach (IK), summed over ticks.
     pub unreachable: u64,
-    /// Ticks that held the last good command after consecutive read failures.
+    /// Ticks that held the last command after consecutive read failures.
     pub held_ticks: u64,
     /// Telemetry records dropped because the consumer was behind.
     pub telemetry_dropped: u64,
