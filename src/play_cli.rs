@@ -32,6 +32,10 @@ use crate::profile::Profile;
 use crate::schedule::{Clock, Schedule, SystemClock};
 use crate::skeleton::Skeleton;
 
+/// Messages an input channel holds: paced producers run up to `LEAD_NS` (10 ms) ahead, which
+/// is 10 ticks at 1 kHz.
+const INPUT_CAPACITY: usize = 16;
+
 /// What to do when a run ends (end of input, `--duration`, Ctrl-C).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum OnStop {
@@ -424,7 +428,7 @@ pub fn play_cmd(
         if looping { ", looping" } else { "" }
     )?;
     let commands = keyboard_commands(out)?;
-    let (tx, port) = input_channel(4);
+    let (tx, port) = input_channel(INPUT_CAPACITY);
     let outcome = run_loop(
         args,
         &profile,
@@ -555,7 +559,7 @@ pub fn follow_cmd(
             effectors.join(", ")
         )?,
     }
-    let (tx, port): (InputSender, InputPort) = input_channel(4);
+    let (tx, port): (InputSender, InputPort) = input_channel(INPUT_CAPACITY);
     let names = effectors.to_vec();
     let outcome = run_loop(
         args,

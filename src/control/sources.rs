@@ -155,9 +155,12 @@ pub struct ProducerReport {
 }
 
 /// How far ahead of its due time a paced producer makes a message: long enough for a sleeping
-/// thread to wake, short enough for the input to be fresh.
+/// thread to wake and to ride out a few milliseconds of preemption on a loaded machine (a late
+/// sample would be passed over for the next), short enough for the input to be fresh.
+pub const LEAD_NS: u64 = 10_000_000;
+
 fn lead_ns(period_ns: u64) -> u64 {
-    (2 * period_ns).max(2_000_000)
+    (2 * period_ns).max(LEAD_NS)
 }
 
 /// Sleeps (plain sleep: producers do not spin) until `lead` before `due`.
@@ -170,7 +173,7 @@ fn sleep_until_lead(clock: &mut SystemClock, due: u64, lead: u64) {
 }
 
 /// Runs `player` in a thread: sample `k` is due at tick `k` of the loop's grid
-/// (`start_ns + k·period_ns` on `clock`) and made shortly before (two periods, at least 2 ms).
+/// (`start_ns + k·period_ns` on `clock`) and made shortly before (two periods, at least 10 ms).
 /// Commands arrive on `commands`. The thread ends with the clip (played once) or when the
 /// loop stops.
 ///
@@ -414,7 +417,7 @@ pub fn spawn_track(
             for pass in 0u64.. {
                 for (t, targets) in &track.samples {
                     let due = start_ns + pass * pass_ns + ((t - t0) * 1e9) as u64;
-                    sleep_until_lead(&mut clock, due, 4_000_000);
+                    sleep_until_lead(&mut clock, due, LEAD_NS);
                     let msg = Input {
                         seq,
                         due_ns: due,
