@@ -101,18 +101,29 @@ fn run(
     RunEnd::Duration
 }
 
-fn frames_controller(s: &Setup, rate: f64) -> (Controller, InputSender) {
-    let (tx, port) = input_channel(4);
+/// A loop over the setup's rig with an input channel of `capacity`.
+fn controller(s: &Setup, solve: Solve, config: LoopConfig, capacity: usize) -> (Controller, InputSender) {
+    let (tx, port) = input_channel(capacity);
     let c = Controller::new(
         Arc::clone(&s.skel),
         s.rig.clone(),
         s.profile.ids(),
         &s.present,
         port,
-        Solve::Frames,
-        config(rate),
+        solve,
+        config,
     );
     (c, tx)
+}
+
+fn frames_controller(s: &Setup, rate: f64) -> (Controller, InputSender) {
+    controller(s, Solve::Frames, config(rate), 4)
+}
+
+/// A 120 Hz follower of the named effectors.
+fn follow_controller(s: &Setup, names: &[String]) -> (Controller, InputSender) {
+    let follower = Follower::new(&s.skel, names).unwrap();
+    controller(s, Solve::Follow(Box::new(follower)), config(120.0), 4)
 }
 
 #[test]
@@ -206,17 +217,7 @@ fn follow_tracks_real_wrist_and_ankle_paths() {
     for frame in [TrackFrame::Limb, TrackFrame::Root] {
         let s = setup();
         let track = clip_track(&s.skel, &s.motion, &names, frame).unwrap();
-        let follower = Follower::new(&s.skel, &names).unwrap();
-        let (tx, port) = input_channel(4);
-        let mut c = Controller::new(
-            Arc::clone(&s.skel),
-            s.rig.clone(),
-            s.profile.ids(),
-            &s.present,
-            port,
-            Solve::Follow(Box::new(follower)),
-            config(120.0),
-        );
+        let (mut c, tx) = follow_controller(&s, &names);
         let samples = track.samples.clone();
         let mut ankle_gap = 0.0f64;
         let mut pose = marionette::ik::Pose64::default();
@@ -401,17 +402,7 @@ fn nan_inputs_never_reach_the_bus() {
     let s = setup();
     let names = effectors();
     let track = clip_track(&s.skel, &s.motion, &names, TrackFrame::Limb).unwrap();
-    let follower = Follower::new(&s.skel, &names).unwrap();
-    let (tx, port) = input_channel(4);
-    let mut c = Controller::new(
-        Arc::clone(&s.skel),
-        s.rig.clone(),
-        s.profile.ids(),
-        &s.present,
-        port,
-        Solve::Follow(Box::new(follower)),
-        config(120.0),
-    );
+    let (mut c, tx) = follow_controller(&s, &names);
     let limits: Vec<(i32, i32)> = s.rig.servos.iter().map(|m| (m.min_tick, m.max_tick)).collect();
     let samples = track.samples.clone();
     let poisoned = |k: u64| k % 7 == 3;
@@ -501,21 +492,12 @@ fn run_ramps_to_rest_then_turns_torque_off() {
     let period = 1_000_000_000 / 120;
     let mut schedule = Schedule::new(clock.now_ns() + period, period);
     // Frames due at each tick, queued ahead of time (a channel that holds them all).
-    let (tx2, port2) = input_channel(300);
+    let (mut c, tx2) = controller(&s, Solve::Frames, cfg, 300);
     for k in 0..250 {
         let t = player.next_sample(&mut buf[..n]).unwrap();
         tx2.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
             .unwrap();
     }
-    let mut c = Controller::new(
-        Arc::clone(&s.skel),
-        s.rig.clone(),
-        s.profile.ids(),
-        &s.present,
-        port2,
-        Solve::Frames,
-        cfg,
-    );
     let stop = AtomicBool::new(false);
     let end = c.run(&mut schedule, &mut s.vr.clone(), &mut clock, &stop);
     assert_eq!(end, RunEnd::Duration);
@@ -543,17 +525,7 @@ fn follow_solves_numeric_effectors_and_pointing() {
     // The left wrist by the analytic limb with the left hand pointed; the right hand's tip
     // numerically (rhand ends no 2-bone limb: its parent, rwrist, has one DOF).
     let names = vec!["lradius".to_string(), "rhand".to_string()];
-    let follower = Follower::new(&s.skel, &names).unwrap();
-    let (tx, port) = input_channel(4);
-    let mut c = Controller::new(
-        Arc::clone(&s.skel),
-        s.rig.clone(),
-        s.profile.ids(),
-        &s.present,
-        port,
-        Solve::Follow(Box::new(follower)),
-        config(120.0),
-    );
+    let (mut c, tx) = follow_controller(&s, &names);
     let bone = |n: &str| s.skel.find(n).unwrap();
     let (lr, lh, rh) = (bone("lradius"), bone("lhand"), bone("rhand"));
     // Goals from the capture's arm channels on a rest body (root and spine at rest).

@@ -75,6 +75,31 @@ fn check_stats(v: &serde_json::Value, rate: f64) {
     assert!(t.is_finite() && t < 5.0, "tracking {t}");
 }
 
+/// `follow … --targets TARGETS --ramp 0.1 --duration SECONDS --stats-json STATS` as a child
+/// process with piped stdout/stderr and the given stdin.
+fn spawn_follow(targets: &str, seconds: &str, stats: &std::path::Path, stdin: Stdio) -> std::process::Child {
+    common::bin()
+        .args([
+            "follow",
+            PROFILE,
+            ASF,
+            "--targets",
+            targets,
+            "--ramp",
+            "0.1",
+            "--duration",
+            seconds,
+            "--stats-json",
+            stats.to_str().unwrap(),
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(stdin)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 /// Whether the run kept its schedule. A loaded machine can overrun ticks (the deadlines passed
 /// over are counted as skipped); a sample due in a skipped tick is superseded by the next, so
 /// "every sample sent" is asserted only when no tick was skipped or overran — the virtual-time
@@ -188,26 +213,7 @@ fn follow_reads_targets_from_stdin_and_udp() {
         .collect();
     // Stdin: the run ends when the input does; one garbage line is counted, not fatal.
     let stats = dir.join("stdin.json");
-    let mut child = common::bin()
-        .args([
-            "follow",
-            PROFILE,
-            ASF,
-            "--targets",
-            "-",
-            "--ramp",
-            "0.1",
-            "--duration",
-            "20",
-            "--stats-json",
-            stats.to_str().unwrap(),
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = spawn_follow("-", "20", &stats, Stdio::piped());
     {
         let mut stdin = child.stdin.take().unwrap();
         for (k, l) in lines.iter().enumerate() {
@@ -235,26 +241,7 @@ fn follow_reads_targets_from_stdin_and_udp() {
         .unwrap()
         .port();
     let stats = dir.join("udp.json");
-    let child = common::bin()
-        .args([
-            "follow",
-            PROFILE,
-            ASF,
-            "--targets",
-            &format!("udp://127.0.0.1:{port}"),
-            "--ramp",
-            "0.1",
-            "--duration",
-            "2",
-            "--stats-json",
-            stats.to_str().unwrap(),
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = spawn_follow(&format!("udp://127.0.0.1:{port}"), "2", &stats, Stdio::null());
     let sender = UdpSocket::bind("127.0.0.1:0").unwrap();
     let t0 = Instant::now();
     for chunk in lines.chunks(4).cycle() {

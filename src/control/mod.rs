@@ -24,7 +24,7 @@ use crossbeam_channel::{Sender, TrySendError};
 use glam::DVec3;
 
 use crate::bus::{BusError, ServoBus};
-use crate::command::{CommandError, CommandStage};
+use crate::command::CommandStage;
 use crate::ik::{fk64, point_bone, Limb, Pose64, Swivel};
 use crate::ik_numeric::{Constraint, Settings, Solver};
 use crate::rig::{Rig, MAX_SERVOS};
@@ -411,9 +411,11 @@ impl Controller {
             .zip(present)
             .map(|(s, p)| s.ticks_to_angle(f64::from(*p)))
             .collect();
+        let mut stats = LoopStats::new(config.rate_hz);
+        stats.allocations_in_tick = config.allocations.map(|_| 0);
         Controller {
             skeleton,
-            stats: LoopStats::new(config.rate_hz),
+            stats,
             rig,
             ids,
             config,
@@ -582,11 +584,8 @@ impl Controller {
                     self.stats.clamped += limited.clamped as u64;
                     self.stats.rate_limited += limited.rate_limited as u64;
                 }
-                Err(
-                    CommandError::NotFinite { .. }
-                    | CommandError::WrongLength { .. }
-                    | CommandError::BadTimeStep,
-                ) => {
+                // Refused as a whole: the last command stands.
+                Err(_) => {
                     self.stats.commands_refused += 1;
                     goals[..len].copy_from_slice(self.stage.last());
                 }
@@ -688,7 +687,7 @@ impl Controller {
             }
         }
         if let (Some(f), Some(before)) = (self.config.allocations, allocs) {
-            *self.stats.allocations_in_tick.get_or_insert(0) += f() - before;
+            *self.stats.allocations_in_tick.get_or_insert(0) += f().saturating_sub(before);
         }
         if end.is_none() && self.input.finished() && !fresh {
             end = Some(RunEnd::InputEnded);
@@ -706,9 +705,6 @@ impl Controller {
         clock: &mut dyn Clock,
         stop: &AtomicBool,
     ) -> RunEnd {
-        if self.config.allocations.is_some() {
-            self.stats.allocations_in_tick = Some(0);
-        }
         let why = loop {
             let tick = schedule.wait(clock);
             if stop.load(Ordering::Relaxed) {
