@@ -1,0 +1,345 @@
+//! MuJoCo for marionette: load a rig model, step it, drive its position actuators and read its
+//! joints, bodies and sites.
+//!
+//! This crate is the one place that talks to MuJoCo (through `mujoco-rs`). It knows nothing of
+//! servos or profiles: `marionette`'s `sim` feature builds simulated servos on top of it.
+//! Indices are MuJoCo's own (actuator, joint, body and site ids).
+
+use std::fmt;
+use std::path::Path;
+
+use mujoco_rs::prelude::*;
+
+/// A model that failed to load: MuJoCo's own message (it names the element and line).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LoadError(pub String);
+
+impl fmt::Display for LoadError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for LoadError {}
+
+/// A MuJoCo model and its simulation state.
+pub struct World {
+    data: MjData<Box<MjModel>>,
+}
+
+impl fmt::Debug for World {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("World")
+            .field("nq", &self.model().nq())
+            .field("nu", &self.model().nu())
+            .field("time", &self.time())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Clone for World {
+    /// An independent copy of the model and its state (for kinematics at other poses).
+    fn clone(&self) -> World {
+        World {
+            data: self.data.clone(),
+        }
+    }
+}
+
+fn id(n: i32) -> Option<usize> {
+    usize::try_from(n).ok()
+}
+
+impl World {
+    /// Loads MJCF text (includes are resolved against the working directory).
+    ///
+    /// # Errors
+    /// [`LoadError`] with MuJoCo's message.
+    pub fn from_xml_str(xml: &str) -> Result<World, LoadError> {
+        let model = MjModel::from_xml_string(xml).map_err(|e| LoadError(e.to_string()))?;
+        Ok(World::with_model(model))
+    }
+
+    /// Loads an MJCF file (includes are resolved against its directory).
+    ///
+    /// # Errors
+    /// [`LoadError`] with the path and MuJoCo's message.
+    pub fn from_file(path: &Path) -> Result<World, LoadError> {
+        if !path.is_file() {
+            return Err(LoadError(format!("{}: no such file", path.display())));
+        }
+        let model = MjModel::from_xml(path).map_err(|e| LoadError(format!("{}: {e}", path.display())))?;
+        Ok(World::with_model(model))
+    }
+
+    fn with_model(model: MjModel) -> World {
+        let mut data = MjData::new(Box::new(model));
+        data.forward();
+        World { data }
+    }
+
+    fn model(&self) -> &MjModel {
+        self.data.model()
+    }
+
+    /// The physics time step, seconds.
+    #[must_use]
+    pub fn timestep(&self) -> f64 {
+        self.model().opt().timestep
+    }
+
+    /// Simulated time, seconds.
+    #[must_use]
+    pub fn time(&self) -> f64 {
+        self.data.time()
+    }
+
+    /// One physics step.
+    pub fn step(&mut self) {
+        self.data.step();
+    }
+
+    /// Recomputes positions, forces and sensors from the present state (no time passes).
+    pub fn forward(&mut self) {
+        self.data.forward();
+    }
+
+    /// Back to the model's initial state (time 0, `qpos0`, zero velocities and controls).
+    pub fn reset(&mut self) {
+        self.data.reset();
+        self.data.forward();
+    }
+
+    /// Number of actuators.
+    #[must_use]
+    pub fn actuator_count(&self) -> usize {
+        self.model().nu() as usize
+    }
+
+    /// The actuator with this name.
+    #[must_use]
+    pub fn actuator(&self, name: &str) -> Option<usize> {
+        self.model().name_to_id(MjtObjBase::mjOBJ_ACTUATOR, name)
+    }
+
+    /// An actuator's name.
+    #[must_use]
+    pub fn actuator_name(&self, actuator: usize) -> Option<&str> {
+        self.model().id_to_name(MjtObjBase::mjOBJ_ACTUATOR, actuator)
+    }
+
+    /// The joint an actuator drives, when its transmission is a joint.
+    #[must_use]
+    pub fn actuator_joint(&self, actuator: usize) -> Option<usize> {
+        let m = self.model();
+        if m.actuator_trntype().get(actuator)? != &MjtTrn::mjTRN_JOINT {
+            return None;
+        }
+        id(m.actuator_trnid().get(actuator)?[0])
+    }
+
+    /// An actuator's force limits (N·m for a hinge), when it has them.
+    #[must_use]
+    pub fn force_range(&self, actuator: usize) -> Option<(f64, f64)> {
+        let m = self.model();
+        if !*m.actuator_forcelimited().get(actuator)? {
+            return None;
+        }
+        let r = m.actuator_forcerange().get(actuator)?;
+        Some((r[0], r[1]))
+    }
+
+    /// Sets an actuator's control (the goal angle of a position actuator).
+    pub fn set_ctrl(&mut self, actuator: usize, value: f64) {
+        if let Some(c) = self.data.ctrl_mut().get_mut(actuator) {
+            *c = value;
+        }
+    }
+
+    /// An actuator's control.
+    #[must_use]
+    pub fn ctrl(&self, actuator: usize) -> f64 {
+        self.data.ctrl().get(actuator).copied().unwrap_or(f64::NAN)
+    }
+
+    /// The force an actuator applied in the last step (N·m for a hinge).
+    #[must_use]
+    pub fn actuator_force(&self, actuator: usize) -> f64 {
+        self.data.actuator_force().get(actuator).copied().unwrap_or(f64::NAN)
+    }
+
+    /// The joint with this name.
+    #[must_use]
+    pub fn joint(&self, name: &str) -> Option<usize> {
+        self.model().name_to_id(MjtObjBase::mjOBJ_JOINT, name)
+    }
+
+    /// A joint's name.
+    #[must_use]
+    pub fn joint_name(&self, joint: usize) -> Option<&str> {
+        self.model().id_to_name(MjtObjBase::mjOBJ_JOINT, joint)
+    }
+
+    /// A joint's limits, when it is limited.
+    #[must_use]
+    pub fn joint_range(&self, joint: usize) -> Option<(f64, f64)> {
+        let m = self.model();
+        if !*m.jnt_limited().get(joint)? {
+            return None;
+        }
+        let r = m.jnt_range().get(joint)?;
+        Some((r[0], r[1]))
+    }
+
+    fn qpos_address(&self, joint: usize) -> Option<usize> {
+        id(*self.model().jnt_qposadr().get(joint)?)
+    }
+
+    fn dof_address(&self, joint: usize) -> Option<usize> {
+        id(*self.model().jnt_dofadr().get(joint)?)
+    }
+
+    /// The first coordinate of a joint (the angle of a hinge), radians.
+    #[must_use]
+    pub fn joint_position(&self, joint: usize) -> f64 {
+        self.qpos_address(joint)
+            .and_then(|a| self.data.qpos().get(a).copied())
+            .unwrap_or(f64::NAN)
+    }
+
+    /// The first velocity of a joint, rad/s for a hinge.
+    #[must_use]
+    pub fn joint_velocity(&self, joint: usize) -> f64 {
+        self.dof_address(joint)
+            .and_then(|a| self.data.qvel().get(a).copied())
+            .unwrap_or(f64::NAN)
+    }
+
+    /// Places a hinge at an angle, at rest (call [`World::forward`] before reading positions).
+    pub fn set_joint_position(&mut self, joint: usize, angle: f64) {
+        if let Some(a) = self.qpos_address(joint) {
+            if let Some(q) = self.data.qpos_mut().get_mut(a) {
+                *q = angle;
+            }
+        }
+        if let Some(a) = self.dof_address(joint) {
+            if let Some(v) = self.data.qvel_mut().get_mut(a) {
+                *v = 0.0;
+            }
+        }
+    }
+
+    /// All generalised coordinates.
+    #[must_use]
+    pub fn qpos(&self) -> &[f64] {
+        self.data.qpos()
+    }
+
+    /// Sets all generalised coordinates (extra values ignored).
+    pub fn set_qpos(&mut self, qpos: &[f64]) {
+        for (q, v) in self.data.qpos_mut().iter_mut().zip(qpos) {
+            *q = *v;
+        }
+    }
+
+    /// The body with this name.
+    #[must_use]
+    pub fn body(&self, name: &str) -> Option<usize> {
+        self.model().name_to_id(MjtObjBase::mjOBJ_BODY, name)
+    }
+
+    /// A body frame's position in the world, metres.
+    #[must_use]
+    pub fn body_position(&self, body: usize) -> [f64; 3] {
+        self.data.xpos().get(body).copied().unwrap_or([f64::NAN; 3])
+    }
+
+    /// A body frame's orientation in the world, a row-major 3×3 matrix.
+    #[must_use]
+    pub fn body_rotation(&self, body: usize) -> [f64; 9] {
+        self.data.xmat().get(body).copied().unwrap_or([f64::NAN; 9])
+    }
+
+    /// Number of sites.
+    #[must_use]
+    pub fn site_count(&self) -> usize {
+        self.model().nsite() as usize
+    }
+
+    /// The site with this name.
+    #[must_use]
+    pub fn site(&self, name: &str) -> Option<usize> {
+        self.model().name_to_id(MjtObjBase::mjOBJ_SITE, name)
+    }
+
+    /// A site's name.
+    #[must_use]
+    pub fn site_name(&self, site: usize) -> Option<&str> {
+        self.model().id_to_name(MjtObjBase::mjOBJ_SITE, site)
+    }
+
+    /// A site's position in the world, metres.
+    #[must_use]
+    pub fn site_position(&self, site: usize) -> [f64; 3] {
+        self.data.site_xpos().get(site).copied().unwrap_or([f64::NAN; 3])
+    }
+
+    /// The model's total mass, kg.
+    #[must_use]
+    pub fn total_mass(&self) -> f64 {
+        self.model().totalmass()
+    }
+
+    /// Number of contacts in the present state.
+    #[must_use]
+    pub fn contact_count(&self) -> usize {
+        usize::try_from(self.data.ncon()).unwrap_or(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const PENDULUM: &str = r#"
+<mujoco>
+  <option timestep="0.001"/>
+  <worldbody>
+    <body name="arm">
+      <joint name="hinge" axis="0 1 0" damping="1.084" armature="0.045"/>
+      <geom type="capsule" fromto="0 0 0 0.1 0 0" size="0.01" mass="0.1"/>
+      <site name="tip" pos="0.1 0 0"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <position name="servo" joint="hinge" kp="21.1" forcerange="-5 5"/>
+  </actuator>
+</mujoco>"#;
+
+    #[test]
+    fn a_position_actuator_moves_its_hinge_to_the_goal() {
+        let mut w = World::from_xml_str(PENDULUM).unwrap();
+        let a = w.actuator("servo").unwrap();
+        let j = w.actuator_joint(a).unwrap();
+        assert_eq!(w.joint_name(j), Some("hinge"));
+        assert_eq!(w.force_range(a), Some((-5.0, 5.0)));
+        w.set_ctrl(a, 0.5);
+        for _ in 0..2000 {
+            w.step();
+        }
+        // Gravity pulls the arm down (+y rotation lowers +x): a small steady error remains.
+        let q = w.joint_position(j);
+        assert!((q - 0.5).abs() < 0.05, "{q}");
+        assert!((w.time() - 2.0).abs() < 1e-9);
+        let tip = w.site_position(w.site("tip").unwrap());
+        assert!((tip[0] - 0.1 * q.cos()).abs() < 1e-9 && (tip[2] + 0.1 * q.sin()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn bad_xml_is_an_error_with_mujocos_message() {
+        let e = World::from_xml_str("<mujoco><worldbody><body><joint type=\"nope\"/></body></worldbody></mujoco>")
+            .unwrap_err();
+        assert!(!e.0.is_empty());
+        assert!(World::from_file(Path::new("/nonexistent.xml")).is_err());
+    }
+}
