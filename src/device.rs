@@ -222,20 +222,7 @@ impl VirtualServo {
 
     /// Advances the servo `dt` seconds: watchdog, then motion towards the goal.
     pub fn step(&mut self, dt: f64) {
-        let wd = self.table[usize::from(addr::BUS_WATCHDOG)];
-        self.since_packet += dt;
-        if self.torque_on()
-            && !self.watchdog_expired
-            && (1..=127).contains(&wd)
-            && self.since_packet > f64::from(wd) * 0.020
-        {
-            // Expiry: stop where it is; the register reads −1 and goal writes fail.
-            self.watchdog_expired = true;
-            self.table[usize::from(addr::BUS_WATCHDOG)] = 0xFF;
-            let p = self.present_tick();
-            self.put(addr::GOAL_POSITION, 4, p as u32);
-            self.velocity = 0.0;
-        }
+        self.run_watchdog(dt);
         if self.torque_on() && !self.watchdog_expired {
             let goal = f64::from(self.goal_tick());
             let max_v = self.model.no_load_rpm / 60.0 * f64::from(TICKS_PER_TURN);
@@ -258,6 +245,40 @@ impl VirtualServo {
             self.velocity = 0.0;
         }
         self.refresh_present();
+    }
+
+    /// Advances the servo `dt` seconds with its horn moved by something else (a simulated
+    /// motor and load): the watchdog runs; position (ticks) and velocity (ticks/s) are what
+    /// that model measured.
+    pub fn step_driven(&mut self, dt: f64, position: f64, velocity: f64) {
+        self.run_watchdog(dt);
+        self.position = position;
+        self.velocity = velocity;
+        self.refresh_present();
+    }
+
+    /// What the motor holds: the goal tick while torque is on (after a watchdog expiry, the
+    /// position where it stopped), `None` when limp.
+    #[must_use]
+    pub fn drive_goal(&self) -> Option<i32> {
+        self.torque_on().then(|| self.goal_tick())
+    }
+
+    fn run_watchdog(&mut self, dt: f64) {
+        let wd = self.table[usize::from(addr::BUS_WATCHDOG)];
+        self.since_packet += dt;
+        if self.torque_on()
+            && !self.watchdog_expired
+            && (1..=127).contains(&wd)
+            && self.since_packet > f64::from(wd) * 0.020
+        {
+            // Expiry: stop where it is; the register reads −1 and goal writes fail.
+            self.watchdog_expired = true;
+            self.table[usize::from(addr::BUS_WATCHDOG)] = 0xFF;
+            let p = self.present_tick();
+            self.put(addr::GOAL_POSITION, 4, p as u32);
+            self.velocity = 0.0;
+        }
     }
 
     /// Applies a write; returns the status error number (0 = done).
@@ -379,6 +400,11 @@ impl Chain {
     #[must_use]
     pub fn servos(&self) -> &[VirtualServo] {
         &self.servos
+    }
+
+    /// The servos, mutable (for a simulator that moves their horns).
+    pub fn servos_mut(&mut self) -> &mut [VirtualServo] {
+        &mut self.servos
     }
 
     /// The servo with this id (the first, should ids be duplicated).

@@ -67,3 +67,5 @@ pub mod play_cli;
 pub mod profile;
 #[cfg(feature = "std")]
 pub mod rig_cli;
+#[cfg(feature = "std")]
+pub mod sim;

@@ -20,6 +20,7 @@ use crate::bus::start_up;
 use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::cli::CliError;
 use crate::control::input::{input_channel, InputPort, InputSender};
+use crate::control::lockstep::{LockstepSource, PlayerFeed, TrackFeed};
 use crate::control::rt::RealTime;
 use crate::control::sources::{
     clip_track, spawn_player, spawn_stdin, spawn_track, spawn_udp, write_csv, ClipPlayer, PlayerCommand,
@@ -91,6 +92,23 @@ pub struct LoopArgs {
     /// No live status line.
     #[arg(long, short)]
     pub quiet: bool,
+    /// With --bus sim: the MJCF model to simulate (default: the puppet generated from the
+    /// profile and the ASF skeleton).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// With --bus sim and a generated puppet: model metres per subject metre.
+    #[arg(long, default_value_t = 0.3)]
+    pub scale: f64,
+    /// With --bus sim: write the tracking report (per servo RMS, max, lag, saturation; per
+    /// effector error) as JSON here.
+    #[arg(long)]
+    pub sim_report: Option<PathBuf>,
+    /// With --bus sim: draw commanded vs simulated angles and the per-servo RMS (.png or .svg).
+    #[arg(long)]
+    pub sim_plot: Option<PathBuf>,
+    /// Servos drawn by --sim-plot (default: the four with the largest RMS).
+    #[arg(long, value_delimiter = ',')]
+    pub plot_servos: Vec<String>,
 }
 
 /// The opened bus: the virtual chain (kept alive while the bus is used) or a port.
@@ -133,9 +151,6 @@ fn open_bus(
     out: &mut dyn Write,
 ) -> Result<OpenBus, CliError> {
     match args.bus.as_str() {
-        "sim" => Err(CliError::Usage(
-            "--bus sim needs the MuJoCo simulator, which this build does not have (build with --features sim)".into(),
-        )),
         "virtual" => {
             // Servos powered up at their zero angle (inside their limits).
             let rest: Vec<i32> = rig
@@ -184,6 +199,138 @@ struct Outcome {
     producer: ProducerReport,
 }
 
+/// The input of a lockstep run (`--bus sim`): the sender and the source that feeds it in
+/// simulated time, made once the period is known. `None` for live sources.
+type Lockstep = Option<(InputSender, Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>)>;
+
+/// `--bus sim`: the loop in lockstep with MuJoCo, on simulated time, in this thread.
+#[cfg(not(feature = "sim"))]
+#[allow(clippy::too_many_arguments, clippy::needless_pass_by_value)]
+fn run_sim(
+    _args: &LoopArgs,
+    _profile: &Profile,
+    _skeleton: Arc<Skeleton>,
+    _rig: crate::rig::Rig,
+    _solve: Solve,
+    _port: InputPort,
+    _lockstep: Lockstep,
+    _allocations: Option<fn() -> u64>,
+    _out: &mut dyn Write,
+) -> Result<Outcome, CliError> {
+    Err(CliError::Usage(
+        "--bus sim needs the MuJoCo simulator, which this build does not have: eval \"$(sim/fetch-mujoco.sh)\" && cargo build --release --features sim".into(),
+    ))
+}
+
+/// `--bus sim`: the loop in lockstep with MuJoCo, on simulated time, in this thread; then the
+/// tracking report.
+#[cfg(feature = "sim")]
+#[allow(clippy::too_many_arguments)]
+fn run_sim(
+    args: &LoopArgs,
+    profile: &Profile,
+    skeleton: Arc<Skeleton>,
+    rig: crate::rig::Rig,
+    solve: Solve,
+    port: InputPort,
+    lockstep: Lockstep,
+    allocations: Option<fn() -> u64>,
+    out: &mut dyn Write,
+) -> Result<Outcome, CliError> {
+    use crate::control::lockstep::FeedingClock;
+    use crate::sim::{mjcf::PuppetOptions, plant, report};
+    let Some((tx, make_source)) = lockstep else {
+        return Err(CliError::Usage(
+            "--bus sim runs in simulated time: it takes a clip or a target file, not live input (stdin, UDP); serve the simulator on a pseudo-terminal instead (`marionette sim serve`)".into(),
+        ));
+    };
+    let options = PuppetOptions {
+        scale: args.scale,
+        ..PuppetOptions::default()
+    };
+    let world = plant::load_world(args.model.as_deref(), Some(&skeleton), profile, &rig, &options)
+        .map_err(CliError::Usage)?;
+    let mut bus = plant::sim_bus(world, profile, &rig).map_err(|e| CliError::Usage(e.to_string()))?;
+    let present = start_up(&mut bus, profile).map_err(|e| CliError::Usage(format!("start-up: {e}")))?;
+    writeln!(
+        out,
+        "MuJoCo: {} ({}), {} servos up, torque on; lockstep on simulated time",
+        args.model
+            .as_ref()
+            .map_or_else(|| "puppet generated from the skeleton".to_string(), |m| m.display().to_string()),
+        bus.with(|t| format!("time step {} ms", t.plant().world().timestep() * 1e3)),
+        present.len()
+    )?;
+    bus.with(|t| t.plant_mut().record(true));
+    let config = loop_config(args, allocations);
+    let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
+    let period = controller.period_ns();
+    let start = bus.now_ns() + period;
+    let mut clock = FeedingClock::new(bus.clone(), make_source(period), tx, start, period);
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed));
+    }
+    let mut schedule = Schedule::new(start, period);
+    let end = controller.run(&mut schedule, &mut bus, &mut clock, &stop);
+    let producer = clock.report();
+    let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
+    let tracking = bus.with(|t| {
+        let p = t.plant();
+        report::TrackingReport::new(p.samples(), &names, p.saturated_steps(), &p.site_names(), p.steps())
+    });
+    write!(out, "{tracking}")?;
+    if let Some(path) = &args.sim_report {
+        let text = serde_json::to_string_pretty(&tracking).map_err(|e| CliError::Usage(e.to_string()))?;
+        std::fs::write(path, text + "\n").map_err(|e| crate::formats::FileError::io(path, e))?;
+        writeln!(out, "tracking report written to {}", path.display())?;
+    }
+    if let Some(path) = &args.sim_plot {
+        let chosen = plot_choice(&args.plot_servos, &tracking)?;
+        bus.with(|t| report::draw(path, t.plant().samples(), &tracking, &chosen))?;
+        writeln!(out, "commanded vs simulated angles drawn in {}", path.display())?;
+    }
+    Ok(Outcome {
+        stats: controller.stats,
+        end,
+        producer,
+    })
+}
+
+/// The servos to draw: those named, else the four with the largest RMS.
+#[cfg(feature = "sim")]
+fn plot_choice(names: &[String], tracking: &crate::sim::report::TrackingReport) -> Result<Vec<usize>, CliError> {
+    if names.is_empty() {
+        let mut order: Vec<usize> = (0..tracking.servos.len()).collect();
+        order.sort_by(|a, b| tracking.servos[*b].rms_deg.total_cmp(&tracking.servos[*a].rms_deg));
+        order.truncate(4);
+        return Ok(order);
+    }
+    names
+        .iter()
+        .map(|n| {
+            tracking.servos.iter().position(|s| &s.name == n).ok_or_else(|| {
+                CliError::Usage(format!("--plot-servos: no servo named `{n}` in the profile"))
+            })
+        })
+        .collect()
+}
+
+fn loop_config(args: &LoopArgs, allocations: Option<fn() -> u64>) -> LoopConfig {
+    LoopConfig {
+        rate_hz: args.rate,
+        hold_after: args.hold_after,
+        torque_off_after_ms: args.torque_off_after,
+        stop: match args.on_stop {
+            OnStop::Rest => StopMode::Rest { ramp_s: args.ramp },
+            OnStop::Hold => StopMode::Hold { hold_s: args.ramp },
+        },
+        max_ticks: args.duration.map(|d| (d * args.rate).round().max(1.0) as u64),
+        allocations,
+    }
+}
+
 /// Starts the bus, the loop thread and the status line, and waits for the end.
 #[allow(clippy::too_many_arguments)]
 fn run_loop(
@@ -193,6 +340,7 @@ fn run_loop(
     solve: Solve,
     port: InputPort,
     start_producer: impl FnOnce(SystemClock, u64, u64) -> std::io::Result<JoinHandle<ProducerReport>>,
+    lockstep: Lockstep,
     allocations: Option<fn() -> u64>,
     out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
@@ -210,6 +358,9 @@ fn run_loop(
             s.name
         )));
     }
+    if args.bus == "sim" {
+        return run_sim(args, profile, skeleton, rig, solve, port, lockstep, allocations, out);
+    }
     let OpenBus {
         mut bus,
         _chain,
@@ -217,17 +368,7 @@ fn run_loop(
     } = open_bus(args, profile, &rig, out)?;
     let present = start_up(&mut bus, profile).map_err(|e| CliError::Usage(format!("start-up: {e}")))?;
     writeln!(out, "{label}: {} servos up, torque on", present.len())?;
-    let config = LoopConfig {
-        rate_hz: args.rate,
-        hold_after: args.hold_after,
-        torque_off_after_ms: args.torque_off_after,
-        stop: match args.on_stop {
-            OnStop::Rest => StopMode::Rest { ramp_s: args.ramp },
-            OnStop::Hold => StopMode::Hold { hold_s: args.ramp },
-        },
-        max_ticks: args.duration.map(|d| (d * args.rate).round().max(1.0) as u64),
-        allocations,
-    };
+    let config = loop_config(args, allocations);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
     let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
     controller.set_telemetry(ttx);
@@ -427,18 +568,36 @@ pub fn play_cmd(
         args.rate,
         if looping { ", looping" } else { "" }
     )?;
-    let commands = keyboard_commands(out)?;
     let (tx, port) = input_channel(INPUT_CAPACITY);
-    let outcome = run_loop(
-        args,
-        &profile,
-        skeleton,
-        Solve::Frames,
-        port,
-        move |clock, start, period| spawn_player(player, tx, clock, start, period, commands),
-        allocations,
-        out,
-    )?;
+    let outcome = if args.bus == "sim" {
+        let channels = skeleton.channel_count();
+        let feed: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>> =
+            Box::new(move |period| Box::new(PlayerFeed::new(player, period, channels)));
+        run_loop(
+            args,
+            &profile,
+            skeleton,
+            Solve::Frames,
+            port,
+            |_, _, _| Err(std::io::Error::other("lockstep")),
+            Some((tx, feed)),
+            allocations,
+            out,
+        )?
+    } else {
+        let commands = keyboard_commands(out)?;
+        run_loop(
+            args,
+            &profile,
+            skeleton,
+            Solve::Frames,
+            port,
+            move |clock, start, period| spawn_player(player, tx, clock, start, period, commands),
+            None,
+            allocations,
+            out,
+        )?
+    };
     let all = outcome.producer.sent == outcome.stats.inputs_used;
     writeln!(
         out,
@@ -561,20 +720,43 @@ pub fn follow_cmd(
     }
     let (tx, port): (InputSender, InputPort) = input_channel(INPUT_CAPACITY);
     let names = effectors.to_vec();
-    let outcome = run_loop(
-        args,
-        &profile,
-        skeleton,
-        Solve::Follow(Box::new(follower)),
-        port,
-        move |clock, start, _period| match source {
-            TargetSource::File(track) => spawn_track(track, tx, clock, start, looping),
-            TargetSource::Stdin => spawn_stdin(names, tx, clock),
-            TargetSource::Udp(socket) => spawn_udp(socket, names, tx, clock),
-        },
-        allocations,
-        out,
-    )?;
+    let outcome = match source {
+        TargetSource::File(track) if args.bus == "sim" => {
+            if looping {
+                return Err(CliError::Usage(
+                    "--loop with --bus sim would never end: give --duration instead of looping a simulated run".into(),
+                ));
+            }
+            let feed: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>> =
+                Box::new(move |_| Box::new(TrackFeed::new(track)));
+            run_loop(
+                args,
+                &profile,
+                skeleton,
+                Solve::Follow(Box::new(follower)),
+                port,
+                |_, _, _| Err(std::io::Error::other("lockstep")),
+                Some((tx, feed)),
+                allocations,
+                out,
+            )?
+        }
+        source => run_loop(
+            args,
+            &profile,
+            skeleton,
+            Solve::Follow(Box::new(follower)),
+            port,
+            move |clock, start, _period| match source {
+                TargetSource::File(track) => spawn_track(track, tx, clock, start, looping),
+                TargetSource::Stdin => spawn_stdin(names, tx, clock),
+                TargetSource::Udp(socket) => spawn_udp(socket, names, tx, clock),
+            },
+            None,
+            allocations,
+            out,
+        )?,
+    };
     writeln!(
         out,
         "targets: {} messages produced ({} dropped for newer, {} unreadable lines), {} used by the loop",

@@ -156,6 +156,29 @@ impl World {
         }
     }
 
+    /// A position actuator's gain `kp` (force = kp·(ctrl − q)), N·m/rad for a hinge.
+    #[must_use]
+    pub fn position_gain(&self, actuator: usize) -> f64 {
+        self.model().actuator_gainprm().get(actuator).map_or(f64::NAN, |g| g[0])
+    }
+
+    /// Sets a position actuator's gain (`gainprm[0] = kp`, `biasprm[1] = −kp`), as a servo's
+    /// firmware does when its position P gain is written. Ignored for a non-finite or negative
+    /// gain or an unknown actuator.
+    pub fn set_position_gain(&mut self, actuator: usize, kp: f64) {
+        if actuator >= self.actuator_count() || !(kp.is_finite() && kp >= 0.0) {
+            return;
+        }
+        // SAFETY: only two numbers of an existing actuator change (checked above); MuJoCo reads
+        // gain and bias parameters as plain numbers at every step, not as sizes or indices,
+        // and its documentation lists them among the fields safe to change between steps.
+        unsafe {
+            let m = self.data.model_mut();
+            m.actuator_gainprm_mut()[actuator][0] = kp;
+            m.actuator_biasprm_mut()[actuator][1] = -kp;
+        }
+    }
+
     /// An actuator's control.
     #[must_use]
     pub fn ctrl(&self, actuator: usize) -> f64 {
@@ -323,13 +346,17 @@ mod tests {
         let j = w.actuator_joint(a).unwrap();
         assert_eq!(w.joint_name(j), Some("hinge"));
         assert_eq!(w.force_range(a), Some((-5.0, 5.0)));
+        assert_eq!(w.position_gain(a), 21.1);
+        w.set_position_gain(a, 42.2);
+        assert_eq!(w.position_gain(a), 42.2);
         w.set_ctrl(a, 0.5);
         for _ in 0..2000 {
             w.step();
         }
-        // Gravity pulls the arm down (+y rotation lowers +x): a small steady error remains.
+        // Gravity pulls the tip down (+q about y lowers +x) by m·g·(L/2)·cos q / kp.
         let q = w.joint_position(j);
-        assert!((q - 0.5).abs() < 0.05, "{q}");
+        let sag = 0.1 * 9.81 * 0.05 * q.cos() / 42.2;
+        assert!((q - (0.5 + sag)).abs() < 2e-4, "{q}");
         assert!((w.time() - 2.0).abs() < 1e-9);
         let tip = w.site_position(w.site("tip").unwrap());
         assert!((tip[0] - 0.1 * q.cos()).abs() < 1e-9 && (tip[2] + 0.1 * q.sin()).abs() < 1e-9);

@@ -26,6 +26,23 @@ pub fn chain_for(profile: &Profile, position: impl Fn(usize) -> i32) -> Chain {
     chain
 }
 
+/// What moves a chain's servos as time passes.
+pub trait Plant {
+    /// Lets `dt` seconds pass for the servos of `chain`.
+    fn advance(&mut self, chain: &mut Chain, dt: f64);
+}
+
+/// The servos' own motion model ([`VirtualServo::step`]: profile velocity and acceleration,
+/// no load).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ServoMotion;
+
+impl Plant for ServoMotion {
+    fn advance(&mut self, chain: &mut Chain, dt: f64) {
+        chain.step(dt);
+    }
+}
+
 /// Runs one instruction through the chain and the injector: the byte chunks to send, each
 /// with its delay after the previous one.
 fn respond(
@@ -68,10 +85,11 @@ fn respond(
 
 /// The chain in-process, in virtual time: sending advances the clock by the wire time, replies
 /// arrive after their return delays and wire time, waiting advances the clock. No thread, no
-/// sleeping, deterministic. Step the servos with [`InProcess::advance`].
+/// sleeping, deterministic. Step the servos with [`InProcess::advance`]; the plant moves them.
 #[derive(Debug)]
-pub struct InProcess {
+pub struct InProcess<P: Plant = ServoMotion> {
     chain: Chain,
+    plant: P,
     baud: u32,
     clock: Duration,
     /// The time up to which the servos have moved.
@@ -85,11 +103,20 @@ pub struct InProcess {
 }
 
 impl InProcess {
-    /// A transport to `chain` at `baud`.
+    /// A transport to `chain` at `baud`, the servos moved by their own motion model.
     #[must_use]
     pub fn new(chain: Chain, baud: u32) -> InProcess {
+        InProcess::with_plant(chain, ServoMotion, baud)
+    }
+}
+
+impl<P: Plant> InProcess<P> {
+    /// A transport to `chain` at `baud`, the servos moved by `plant`.
+    #[must_use]
+    pub fn with_plant(chain: Chain, plant: P, baud: u32) -> InProcess<P> {
         InProcess {
             chain,
+            plant,
             baud,
             clock: Duration::ZERO,
             stepped: Duration::ZERO,
@@ -112,6 +139,17 @@ impl InProcess {
         &mut self.chain
     }
 
+    /// The plant.
+    #[must_use]
+    pub fn plant(&self) -> &P {
+        &self.plant
+    }
+
+    /// The plant, mutable.
+    pub fn plant_mut(&mut self) -> &mut P {
+        &mut self.plant
+    }
+
     /// Lets `dt` of virtual time pass: the servos move, bytes in flight arrive.
     pub fn advance(&mut self, dt: Duration) {
         self.clock += dt;
@@ -121,13 +159,14 @@ impl InProcess {
     /// Moves the servos up to the clock (time spent on the wire passes for them too).
     fn catch_up(&mut self) {
         if self.clock > self.stepped {
-            self.chain.step((self.clock - self.stepped).as_secs_f64());
+            self.plant
+                .advance(&mut self.chain, (self.clock - self.stepped).as_secs_f64());
             self.stepped = self.clock;
         }
     }
 }
 
-impl Transport for InProcess {
+impl<P: Plant> Transport for InProcess<P> {
     fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
         // Input already arrived is flushed; bytes still in flight are not.
         while self.pending.front().is_some_and(|(t, _)| *t <= self.clock) {
@@ -226,6 +265,19 @@ impl PtyChain {
     /// # Errors
     /// When no pseudo-terminal can be opened.
     pub fn serve(chain: Chain, injector: Option<FaultInjector>) -> io::Result<PtyChain> {
+        PtyChain::serve_with(chain, || ServoMotion, injector)
+    }
+
+    /// Serves `chain` on a new pseudo-terminal, its servos moved by the plant that
+    /// `make_plant` builds on the serving thread.
+    ///
+    /// # Errors
+    /// When no pseudo-terminal can be opened.
+    pub fn serve_with<P: Plant + 'static>(
+        chain: Chain,
+        make_plant: impl FnOnce() -> P + Send + 'static,
+        injector: Option<FaultInjector>,
+    ) -> io::Result<PtyChain> {
         let (mut device_end, client_end) = serialport::TTYPort::pair().map_err(io::Error::other)?;
         let path = serialport::SerialPort::name(&client_end)
             .ok_or_else(|| io::Error::other("pseudo-terminal without a name"))?;
@@ -240,7 +292,10 @@ impl PtyChain {
             let stop = Arc::clone(&stop);
             std::thread::Builder::new()
                 .name("virtual-chain".into())
-                .spawn(move || serve_loop(&mut device_end, &chain, &stop, &injector))?
+                .spawn(move || {
+                    let mut plant = make_plant();
+                    serve_loop(&mut device_end, &chain, &mut plant, &stop, &injector);
+                })?
         };
         Ok(PtyChain {
             path,
@@ -288,6 +343,7 @@ impl Drop for PtyChain {
 fn serve_loop(
     port: &mut serialport::TTYPort,
     chain: &Mutex<Chain>,
+    plant: &mut impl Plant,
     stop: &AtomicBool,
     injector: &Mutex<Option<FaultInjector>>,
 ) {
@@ -304,7 +360,7 @@ fn serve_loop(
         }
         let now = Instant::now();
         let mut chain = chain.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        chain.step((now - last).as_secs_f64());
+        plant.advance(&mut chain, (now - last).as_secs_f64());
         last = now;
         // Chunks without a pause between them go out in one write, as one burst.
         let mut sends: Vec<(Duration, Vec<u8>)> = Vec::new();
@@ -341,25 +397,41 @@ fn serve_loop(
 /// A virtual chain in virtual time as both the loop's bus and its clock: bus transactions take
 /// their wire time, waiting for a deadline lets the servos move until then. Clone the handle to
 /// pass it as both; deterministic, no threads.
-#[derive(Clone, Debug)]
-pub struct VirtualRig(std::rc::Rc<std::cell::RefCell<super::packet::PacketBus<InProcess>>>);
+#[derive(Debug)]
+pub struct VirtualRig<P: Plant = ServoMotion>(
+    std::rc::Rc<std::cell::RefCell<super::packet::PacketBus<InProcess<P>>>>,
+);
+
+impl<P: Plant> Clone for VirtualRig<P> {
+    fn clone(&self) -> Self {
+        VirtualRig(std::rc::Rc::clone(&self.0))
+    }
+}
 
 impl VirtualRig {
     /// A virtual rig of `chain` at `baud`, replies waited for up to `timeout`.
     #[must_use]
     pub fn new(chain: Chain, baud: u32, timeout: Duration) -> VirtualRig {
+        VirtualRig::with_plant(chain, ServoMotion, baud, timeout)
+    }
+}
+
+impl<P: Plant> VirtualRig<P> {
+    /// A virtual rig of `chain` moved by `plant`, at `baud`, replies waited for up to `timeout`.
+    #[must_use]
+    pub fn with_plant(chain: Chain, plant: P, baud: u32, timeout: Duration) -> VirtualRig<P> {
         VirtualRig(std::rc::Rc::new(std::cell::RefCell::new(
-            super::packet::PacketBus::new(InProcess::new(chain, baud), timeout),
+            super::packet::PacketBus::new(InProcess::with_plant(chain, plant, baud), timeout),
         )))
     }
 
-    /// Runs `f` on the transport (the chain, the injector, the clock).
-    pub fn with<R>(&self, f: impl FnOnce(&mut InProcess) -> R) -> R {
+    /// Runs `f` on the transport (the chain, the plant, the injector, the clock).
+    pub fn with<R>(&self, f: impl FnOnce(&mut InProcess<P>) -> R) -> R {
         f(self.0.borrow_mut().link_mut())
     }
 }
 
-impl super::ServoBus for VirtualRig {
+impl<P: Plant> super::ServoBus for VirtualRig<P> {
     fn ping(&mut self, id: u8) -> Result<super::PingInfo, super::BusError> {
         self.0.borrow_mut().ping(id)
     }
@@ -389,7 +461,7 @@ impl super::ServoBus for VirtualRig {
     }
 }
 
-impl crate::schedule::Clock for VirtualRig {
+impl<P: Plant> crate::schedule::Clock for VirtualRig<P> {
     fn now_ns(&mut self) -> u64 {
         u64::try_from(self.0.borrow().link().now().as_nanos()).unwrap_or(u64::MAX)
     }

@@ -12,6 +12,7 @@
 //! A host that stops altogether is covered by the servos' Bus Watchdog, armed at start-up.
 
 pub mod input;
+pub mod lockstep;
 pub mod plot;
 pub mod rt;
 pub mod sources;

@@ -1,0 +1,327 @@
+//! Simulated servos: a virtual chain whose horns are moved by MuJoCo.
+//!
+//! The chain keeps what a servo's firmware does (control table, torque, watchdog, status
+//! packets); each physics step the plant turns every servo's goal tick into its position
+//! actuator's control (through the rig's tick↔angle map), steps, and hands the hinge angle and
+//! velocity back as Present Position and Present Velocity. A limp servo (torque off) gets no
+//! actuator force. Time is whatever the transport lets pass — virtual in lockstep
+//! ([`SimBus`]), the wall clock on a pseudo-terminal.
+
+use std::path::Path;
+use std::time::Duration;
+
+use marionette_sim::World;
+
+use crate::bus::virtual_chain::{chain_for, Plant, VirtualRig};
+use crate::device::Chain;
+use crate::profile::Profile;
+use crate::rig::{Rig, ServoMap};
+
+/// Most physics samples kept by a recorder (an hour at 1 kHz would be too many to plot).
+const MAX_SAMPLES: usize = 2_000_000;
+
+/// One profiled servo in the simulated model.
+#[derive(Clone, Debug)]
+struct SimServo {
+    actuator: usize,
+    joint: usize,
+    map: ServoMap,
+    force_limit: f64,
+}
+
+/// Why a model does not fit a profile.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// MuJoCo refused the model.
+    #[error("MuJoCo: {0}")]
+    Load(#[from] marionette_sim::LoadError),
+    /// A servo has no actuator in the model.
+    #[error("servo {id} (`{name}`) has no actuator in the model (looked for an actuator named `{name}`{joint}); the model's actuators: {known}")]
+    NoActuator {
+        /// Id.
+        id: u8,
+        /// Servo name.
+        name: String,
+        /// `, or one driving joint …` when the servo follows a joint.
+        joint: String,
+        /// The actuators the model has.
+        known: String,
+    },
+    /// An actuator does not drive a joint directly.
+    #[error("actuator `{0}` does not drive a joint (tendon and site transmissions are not servos)")]
+    NotAJoint(String),
+}
+
+/// What was recorded at one physics sample.
+#[derive(Clone, Debug, Default)]
+pub struct Sample {
+    /// Simulated time, seconds.
+    pub time: f64,
+    /// Per servo: the commanded angle (the goal register), radians; NaN while limp.
+    pub commanded: Vec<f64>,
+    /// Per servo: the simulated hinge angle, radians.
+    pub simulated: Vec<f64>,
+    /// Per servo: the actuator torque, N·m.
+    pub torque: Vec<f64>,
+    /// Per effector site: distance between the simulated site and the site at the commanded
+    /// angles, metres.
+    pub effector_error: Vec<f64>,
+}
+
+/// The MuJoCo plant of a chain.
+pub struct SimPlant {
+    world: World,
+    /// A copy for kinematics at the commanded angles (effector error).
+    twin: World,
+    servos: Vec<SimServo>,
+    sites: Vec<usize>,
+    /// Time let pass but not yet stepped, seconds.
+    pending: f64,
+    steps: u64,
+    saturated: Vec<u64>,
+    record_every: u64,
+    recording: bool,
+    samples: Vec<Sample>,
+}
+
+impl std::fmt::Debug for SimPlant {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SimPlant")
+            .field("world", &self.world)
+            .field("servos", &self.servos.len())
+            .field("steps", &self.steps)
+            .finish_non_exhaustive()
+    }
+}
+
+impl SimPlant {
+    /// Maps each profiled servo to an actuator of `world`: the actuator named as the servo,
+    /// else (a joint-driven servo) the actuator that drives the joint of that name.
+    ///
+    /// # Errors
+    /// [`SimError`] for a servo without an actuator.
+    pub fn new(world: World, profile: &Profile, rig: &Rig) -> Result<SimPlant, SimError> {
+        let mut servos = Vec::with_capacity(profile.servos.len());
+        for (spec, map) in profile.servos.iter().zip(&rig.servos) {
+            let joint_name = match &spec.drive {
+                crate::profile::Drive::Joint(j) => Some(j.as_str()),
+                crate::profile::Drive::Bone { .. } => None,
+            };
+            let by_joint = || {
+                let j = world.joint(joint_name?)?;
+                (0..world.actuator_count()).find(|a| world.actuator_joint(*a) == Some(j))
+            };
+            let Some(actuator) = world.actuator(&spec.name).or_else(by_joint) else {
+                let known: Vec<&str> = (0..world.actuator_count())
+                    .filter_map(|a| world.actuator_name(a))
+                    .collect();
+                return Err(SimError::NoActuator {
+                    id: spec.id,
+                    name: spec.name.clone(),
+                    joint: joint_name.map_or(String::new(), |j| format!(", or one driving joint `{j}`")),
+                    known: known.join(" "),
+                });
+            };
+            let joint = world
+                .actuator_joint(actuator)
+                .ok_or_else(|| SimError::NotAJoint(world.actuator_name(actuator).unwrap_or("?").into()))?;
+            let force_limit = world
+                .force_range(actuator)
+                .map_or(f64::INFINITY, |(lo, hi)| lo.abs().min(hi.abs()));
+            servos.push(SimServo {
+                actuator,
+                joint,
+                map: *map,
+                force_limit,
+            });
+        }
+        let sites = (0..world.site_count()).collect();
+        let record_every = ((0.001 / world.timestep()).round() as u64).max(1);
+        let n = servos.len();
+        Ok(SimPlant {
+            twin: world.clone(),
+            world,
+            servos,
+            sites,
+            pending: 0.0,
+            steps: 0,
+            saturated: vec![0; n],
+            record_every,
+            recording: false,
+            samples: Vec::new(),
+        })
+    }
+
+    /// The servos' present ticks in the model's present state (for powering the chain up).
+    #[must_use]
+    pub fn present_ticks(&self) -> Vec<i32> {
+        self.servos
+            .iter()
+            .map(|s| s.map.angle_to_ticks(self.world.joint_position(s.joint)))
+            .collect()
+    }
+
+    /// Places every servo's hinge at a joint angle (radians), at rest, before a run.
+    pub fn set_angles(&mut self, angles: &[f64]) {
+        for (s, a) in self.servos.iter().zip(angles) {
+            self.world.set_joint_position(s.joint, *a);
+            self.world.set_ctrl(s.actuator, *a);
+        }
+        self.world.forward();
+    }
+
+    /// Starts (or stops) recording a sample every millisecond of simulated time.
+    pub fn record(&mut self, on: bool) {
+        self.recording = on;
+    }
+
+    /// The samples recorded so far.
+    #[must_use]
+    pub fn samples(&self) -> &[Sample] {
+        &self.samples
+    }
+
+    /// Physics steps taken.
+    #[must_use]
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Per servo: physics steps during which the actuator was at its torque limit.
+    #[must_use]
+    pub fn saturated_steps(&self) -> &[u64] {
+        &self.saturated
+    }
+
+    /// The effector sites' names (for reports).
+    #[must_use]
+    pub fn site_names(&self) -> Vec<String> {
+        self.sites
+            .iter()
+            .map(|s| self.world.site_name(*s).unwrap_or("?").to_string())
+            .collect()
+    }
+
+    /// The simulated world.
+    #[must_use]
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// One physics step with the chain's present goals.
+    fn step_physics(&mut self, chain: &Chain) {
+        for (s, servo) in self.servos.iter().zip(chain.servos()) {
+            let ctrl = match servo.drive_goal() {
+                Some(goal) => s.map.ticks_to_angle(f64::from(goal)),
+                // Limp: the actuator's spring is relaxed where the joint is.
+                None => self.world.joint_position(s.joint),
+            };
+            self.world.set_ctrl(s.actuator, ctrl);
+        }
+        self.world.step();
+        self.steps += 1;
+        for (k, s) in self.servos.iter().enumerate() {
+            if self.world.actuator_force(s.actuator).abs() >= s.force_limit * 0.999 {
+                self.saturated[k] += 1;
+            }
+        }
+        if self.recording && self.steps % self.record_every == 0 && self.samples.len() < MAX_SAMPLES {
+            self.sample(chain);
+        }
+    }
+
+    fn sample(&mut self, chain: &Chain) {
+        let mut s = Sample {
+            time: self.world.time(),
+            ..Sample::default()
+        };
+        self.twin.set_qpos(self.world.qpos());
+        for (servo, sim) in chain.servos().iter().zip(&self.servos) {
+            let q = self.world.joint_position(sim.joint);
+            let cmd = servo
+                .drive_goal()
+                .map_or(f64::NAN, |g| sim.map.ticks_to_angle(f64::from(g)));
+            s.commanded.push(cmd);
+            s.simulated.push(q);
+            s.torque.push(self.world.actuator_force(sim.actuator));
+            self.twin.set_joint_position(sim.joint, if cmd.is_finite() { cmd } else { q });
+        }
+        self.twin.forward();
+        for &site in &self.sites {
+            let a = self.world.site_position(site);
+            let b = self.twin.site_position(site);
+            let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+            s.effector_error.push(d);
+        }
+        self.samples.push(s);
+    }
+}
+
+impl Plant for SimPlant {
+    fn advance(&mut self, chain: &mut Chain, dt: f64) {
+        self.pending += dt;
+        let h = self.world.timestep();
+        // Whole physics steps only: the same bus traffic gives the same steps, every run.
+        while self.pending >= h * (1.0 - 1e-9) {
+            self.step_physics(chain);
+            self.pending -= h;
+        }
+        for (servo, s) in chain.servos_mut().iter_mut().zip(&self.servos) {
+            let q = self.world.joint_position(s.joint);
+            let v = self.world.joint_velocity(s.joint);
+            servo.step_driven(dt, s.map.angle_to_ticks_exact(q), v * s.map.ticks_per_radian());
+        }
+    }
+}
+
+/// Simulated servos in lockstep: the loop's bus and its clock. Bus transactions take their wire
+/// time and waiting for a deadline steps the physics until then — deterministic (the same
+/// inputs give the same bytes and the same physics, every run), no threads.
+pub type SimBus = VirtualRig<SimPlant>;
+
+/// A lockstep simulated rig powered up with every servo where the model rests (clamped into
+/// its limits), at the profile's baud rate; replies waited for up to 2 ms.
+///
+/// # Errors
+/// [`SimError`] when the model does not fit the profile.
+pub fn sim_bus(world: World, profile: &Profile, rig: &Rig) -> Result<SimBus, SimError> {
+    let mut plant = SimPlant::new(world, profile, rig)?;
+    let rest: Vec<f64> = rig
+        .servos
+        .iter()
+        .map(|m| {
+            let (lo, hi) = super::mjcf::angle_range(m);
+            0.0f64.clamp(lo, hi)
+        })
+        .collect();
+    plant.set_angles(&rest);
+    let present = plant.present_ticks();
+    let chain = chain_for(profile, |k| present[k]);
+    Ok(VirtualRig::with_plant(
+        chain,
+        plant,
+        profile.bus.baud,
+        Duration::from_millis(2),
+    ))
+}
+
+/// Loads a model: a given MJCF file, or the puppet generated from the skeleton and profile.
+///
+/// # Errors
+/// A message naming the file or the servo at fault.
+pub fn load_world(
+    model: Option<&Path>,
+    skeleton: Option<&crate::skeleton::Skeleton>,
+    profile: &Profile,
+    rig: &Rig,
+    options: &super::mjcf::PuppetOptions,
+) -> Result<World, String> {
+    match (model, skeleton) {
+        (Some(path), _) => World::from_file(path).map_err(|e| e.to_string()),
+        (None, Some(sk)) => {
+            let xml = super::mjcf::puppet(sk, profile, rig, options).map_err(|e| e.to_string())?;
+            World::from_xml_str(&xml).map_err(|e| format!("the generated model: {e}"))
+        }
+        (None, None) => Err("a model is needed: give an MJCF file (--model) or an ASF skeleton to generate one".into()),
+    }
+}

@@ -1,0 +1,314 @@
+//! How well simulated servos followed their commands: per-servo RMS, maximum and lag of the
+//! angle error, end-effector position error, torque saturation, and pictures of them.
+
+use std::path::Path;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use serde::Serialize;
+
+use super::plant::Sample;
+use crate::formats::FileError;
+
+/// Longest lag searched, seconds.
+const MAX_LAG_S: f64 = 0.3;
+
+/// One servo's tracking.
+#[derive(Clone, Debug, Serialize)]
+pub struct ServoTracking {
+    /// Servo name.
+    pub name: String,
+    /// RMS of simulated − commanded angle, degrees.
+    pub rms_deg: f64,
+    /// Largest |simulated − commanded|, degrees.
+    pub max_deg: f64,
+    /// The delay that best aligns the simulated angle with the commanded one, ms.
+    pub lag_ms: f64,
+    /// RMS once that delay is taken out, degrees.
+    pub rms_after_lag_deg: f64,
+    /// Range of the commanded angle over the run, degrees.
+    pub commanded_range_deg: f64,
+    /// Physics steps at the torque limit.
+    pub saturated_steps: u64,
+}
+
+/// One effector site's position error.
+#[derive(Clone, Debug, Serialize)]
+pub struct EffectorTracking {
+    /// Site name.
+    pub name: String,
+    /// RMS distance between the simulated site and the site at the commanded angles, mm.
+    pub rms_mm: f64,
+    /// Largest such distance, mm.
+    pub max_mm: f64,
+}
+
+/// The whole run's tracking.
+#[derive(Clone, Debug, Serialize)]
+pub struct TrackingReport {
+    /// Samples analysed (1 kHz of simulated time, while torque was on).
+    pub samples: usize,
+    /// Simulated seconds.
+    pub duration_s: f64,
+    /// Physics steps.
+    pub physics_steps: u64,
+    /// RMS over all servos and samples, degrees.
+    pub rms_deg: f64,
+    /// Largest error of any servo, degrees.
+    pub max_deg: f64,
+    /// Physics steps × servos at the torque limit, over all servos.
+    pub saturated_steps: u64,
+    /// Per servo.
+    pub servos: Vec<ServoTracking>,
+    /// Per effector site.
+    pub effectors: Vec<EffectorTracking>,
+}
+
+impl TrackingReport {
+    /// Analyses recorded samples. `names` and `saturated` are per servo, `sites` per effector.
+    #[must_use]
+    pub fn new(samples: &[Sample], names: &[String], saturated: &[u64], sites: &[String], steps: u64) -> TrackingReport {
+        let n = names.len();
+        let dt = match samples {
+            [a, b, ..] => b.time - a.time,
+            _ => 0.001,
+        };
+        let mut servos = Vec::with_capacity(n);
+        let (mut sum_sq, mut count, mut worst) = (0.0, 0usize, 0.0f64);
+        for (k, name) in names.iter().enumerate() {
+            let cmd: Vec<f64> = samples.iter().map(|s| s.commanded[k]).collect();
+            let sim: Vec<f64> = samples.iter().map(|s| s.simulated[k]).collect();
+            let (ss, c, mx) = error_stats(&cmd, &sim, 0);
+            sum_sq += ss;
+            count += c;
+            worst = worst.max(mx);
+            let max_shift = ((MAX_LAG_S / dt.max(1e-6)) as usize).min(samples.len() / 2);
+            let (best, best_ss, best_c) = (0..=max_shift)
+                .map(|d| {
+                    let (ss, c, _) = error_stats(&cmd, &sim, d);
+                    (d, ss, c)
+                })
+                .filter(|(_, _, c)| *c > 0)
+                .min_by(|a, b| (a.1 / a.2 as f64).total_cmp(&(b.1 / b.2 as f64)))
+                .unwrap_or((0, 0.0, 1));
+            let finite = cmd.iter().filter(|x| x.is_finite());
+            let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| (l.min(*x), h.max(*x)));
+            servos.push(ServoTracking {
+                name: name.clone(),
+                rms_deg: rms(ss, c).to_degrees(),
+                max_deg: mx.to_degrees(),
+                lag_ms: best as f64 * dt * 1e3,
+                rms_after_lag_deg: rms(best_ss, best_c).to_degrees(),
+                commanded_range_deg: if hi >= lo { (hi - lo).to_degrees() } else { 0.0 },
+                saturated_steps: saturated.get(k).copied().unwrap_or(0),
+            });
+        }
+        let effectors = sites
+            .iter()
+            .enumerate()
+            .map(|(j, name)| {
+                let e: Vec<f64> = samples
+                    .iter()
+                    .filter(|s| s.commanded.iter().all(|c| c.is_finite()))
+                    .map(|s| s.effector_error[j])
+                    .collect();
+                let ss: f64 = e.iter().map(|x| x * x).sum();
+                EffectorTracking {
+                    name: name.clone(),
+                    rms_mm: rms(ss, e.len()) * 1e3,
+                    max_mm: e.iter().copied().fold(0.0, f64::max) * 1e3,
+                }
+            })
+            .collect();
+        TrackingReport {
+            samples: samples.len(),
+            duration_s: samples.last().map_or(0.0, |s| s.time) - samples.first().map_or(0.0, |s| s.time),
+            physics_steps: steps,
+            rms_deg: rms(sum_sq, count).to_degrees(),
+            max_deg: worst.to_degrees(),
+            saturated_steps: saturated.iter().sum(),
+            servos,
+            effectors,
+        }
+    }
+}
+
+impl std::fmt::Display for TrackingReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "simulated tracking over {:.2} s ({} samples, {} physics steps): RMS {:.2}°, max {:.2}°, {} steps at a torque limit",
+            self.duration_s, self.samples, self.physics_steps, self.rms_deg, self.max_deg, self.saturated_steps
+        )?;
+        writeln!(
+            f,
+            "  {:<16} {:>8} {:>8} {:>8} {:>10} {:>9} {:>9}",
+            "servo", "rms °", "max °", "lag ms", "rms-lag °", "range °", "sat steps"
+        )?;
+        for s in &self.servos {
+            writeln!(
+                f,
+                "  {:<16} {:>8.2} {:>8.2} {:>8.0} {:>10.2} {:>9.1} {:>9}",
+                s.name, s.rms_deg, s.max_deg, s.lag_ms, s.rms_after_lag_deg, s.commanded_range_deg, s.saturated_steps
+            )?;
+        }
+        if !self.effectors.is_empty() {
+            let list: Vec<String> = self
+                .effectors
+                .iter()
+                .map(|e| format!("{} {:.1}/{:.1}", e.name, e.rms_mm, e.max_mm))
+                .collect();
+            writeln!(f, "  effector error rms/max mm: {}", list.join(", "))?;
+        }
+        Ok(())
+    }
+}
+
+fn rms(sum_sq: f64, count: usize) -> f64 {
+    if count == 0 {
+        0.0
+    } else {
+        (sum_sq / count as f64).sqrt()
+    }
+}
+
+/// Sum of squares, count and largest |sim(t) − cmd(t − shift)| over samples where both are
+/// finite.
+fn error_stats(cmd: &[f64], sim: &[f64], shift: usize) -> (f64, usize, f64) {
+    let (mut ss, mut c, mut mx) = (0.0, 0, 0.0f64);
+    for (i, s) in sim.iter().enumerate().skip(shift) {
+        let e = s - cmd[i - shift];
+        if e.is_finite() {
+            ss += e * e;
+            c += 1;
+            mx = mx.max(e.abs());
+        }
+    }
+    (ss, c, mx)
+}
+
+/// Draws commanded (dashed) and simulated (solid) angles over time for the chosen servos (by
+/// index), one panel each, and the per-servo RMS bar chart below. `.svg` or `.png`.
+///
+/// # Errors
+/// [`FileError`] when the picture cannot be written.
+pub fn draw(path: &Path, samples: &[Sample], report: &TrackingReport, chosen: &[usize]) -> Result<(), FileError> {
+    let svg = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("svg"));
+    let rows = chosen.len().max(1) as u32;
+    let size = (1200, 230 * rows + 380);
+    let result = if svg {
+        let root = SVGBackend::new(path, size).into_drawing_area();
+        paint(&root, samples, report, chosen).and_then(|()| root.present().map_err(|e| e.to_string()))
+    } else {
+        let root = BitMapBackend::new(path, size).into_drawing_area();
+        paint(&root, samples, report, chosen).and_then(|()| root.present().map_err(|e| e.to_string()))
+    };
+    result.map_err(|e| FileError::io(path, std::io::Error::other(e)))
+}
+
+fn paint<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    samples: &[Sample],
+    report: &TrackingReport,
+    chosen: &[usize],
+) -> Result<(), String> {
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    root.fill(&WHITE).map_err(err)?;
+    let (top, bottom) = root.split_vertically(230 * chosen.len().max(1) as u32);
+    let panels = top.split_evenly((chosen.len().max(1), 1));
+    let t0 = samples.first().map_or(0.0, |s| s.time);
+    let t1 = samples.last().map_or(1.0, |s| s.time).max(t0 + 1e-3);
+    for (panel, &k) in panels.iter().zip(chosen) {
+        let Some(s) = report.servos.get(k) else { continue };
+        let values = samples
+            .iter()
+            .flat_map(|x| [x.commanded[k], x.simulated[k]])
+            .filter(|v| v.is_finite())
+            .map(f64::to_degrees);
+        let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| (l.min(v), h.max(v)));
+        let (lo, hi) = if hi > lo { (lo - 2.0, hi + 2.0) } else { (-10.0, 10.0) };
+        let mut chart = ChartBuilder::on(panel)
+            .caption(
+                format!(
+                    "{}: RMS {:.2}°, max {:.2}°, lag {:.0} ms",
+                    s.name, s.rms_deg, s.max_deg, s.lag_ms
+                ),
+                ("sans-serif", 18),
+            )
+            .margin(8)
+            .x_label_area_size(28)
+            .y_label_area_size(50)
+            .build_cartesian_2d(t0..t1, lo..hi)
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .x_desc("simulated time, s")
+            .y_desc("angle, °")
+            .draw()
+            .map_err(err)?;
+        let cmd: Vec<(f64, f64)> = samples
+            .iter()
+            .filter(|x| x.commanded[k].is_finite())
+            .map(|x| (x.time, x.commanded[k].to_degrees()))
+            .collect();
+        chart
+            .draw_series(DashedLineSeries::new(cmd, 6, 4, RED.stroke_width(2)))
+            .map_err(err)?
+            .label("commanded")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
+        chart
+            .draw_series(LineSeries::new(
+                samples.iter().map(|x| (x.time, x.simulated[k].to_degrees())),
+                BLUE.stroke_width(2),
+            ))
+            .map_err(err)?
+            .label("simulated")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(err)?;
+    }
+    let n = report.servos.len();
+    let top_rms = report.servos.iter().map(|s| s.rms_deg).fold(0.5, f64::max) * 1.15;
+    let mut chart = ChartBuilder::on(&bottom)
+        .caption(
+            format!("RMS tracking error per servo (all: {:.2}°)", report.rms_deg),
+            ("sans-serif", 18),
+        )
+        .margin(8)
+        .x_label_area_size(90)
+        .y_label_area_size(50)
+        .build_cartesian_2d(-0.5..n as f64 - 0.5, 0.0..top_rms)
+        .map_err(err)?;
+    let names: Vec<String> = report.servos.iter().map(|s| s.name.clone()).collect();
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .y_desc("RMS, °")
+        .x_labels(n.max(1))
+        .x_label_style(
+            ("sans-serif", 12)
+                .into_font()
+                .transform(FontTransform::Rotate90),
+        )
+        .x_label_formatter(&|v| {
+            let i = v.round();
+            if (v - i).abs() < 0.01 && i >= 0.0 {
+                names.get(i as usize).cloned().unwrap_or_default()
+            } else {
+                String::new()
+            }
+        })
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(report.servos.iter().enumerate().map(|(i, s)| {
+            let x = i as f64;
+            Rectangle::new([(x - 0.35, 0.0), (x + 0.35, s.rms_deg)], BLUE.mix(0.6).filled())
+        }))
+        .map_err(err)?;
+    Ok(())
+}
