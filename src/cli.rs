@@ -90,6 +90,11 @@ enum Command {
         #[arg(long)]
         asf: Option<PathBuf>,
     },
+    /// The MuJoCo simulator: export a puppet model, serve simulated servos on a pseudo-terminal.
+    Sim {
+        #[command(subcommand)]
+        command: crate::sim_cli::SimCommand,
+    },
     /// Bus time per control cycle for a profile, and the highest loop rate it allows.
     Budget {
         /// The profile.
@@ -463,6 +468,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
         Command::Profile { profile, asf } => {
             crate::rig_cli::profile_cmd(&profile, asf.as_deref(), &mut io::stdout().lock())
         }
+        Command::Sim { command } => crate::sim_cli::sim_cmd(&command, &mut io::stdout().lock()),
         Command::Budget { profile, rate, json } => {
             crate::rig_cli::budget_cmd(&profile, rate, json, &mut io::stdout().lock())
         }

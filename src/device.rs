@@ -88,6 +88,7 @@ impl VirtualServo {
             *b = 0;
         }
         self.put(addr::STATUS_RETURN_LEVEL, 1, 2);
+        self.put(addr::POSITION_P_GAIN, 2, u32::from(self.model.position_p_gain));
         self.velocity = 0.0;
         self.watchdog_expired = false;
         self.since_packet = 0.0;
@@ -255,6 +256,12 @@ impl VirtualServo {
         self.position = position;
         self.velocity = velocity;
         self.refresh_present();
+    }
+
+    /// Position P Gain as last written (the model's factory value after power-on).
+    #[must_use]
+    pub fn position_p_gain(&self) -> u16 {
+        self.get(addr::POSITION_P_GAIN, 2) as u16
     }
 
     /// What the motor holds: the goal tick while torque is on (after a watchdog expiry, the

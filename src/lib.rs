@@ -69,3 +69,5 @@ pub mod profile;
 pub mod rig_cli;
 #[cfg(feature = "std")]
 pub mod sim;
+#[cfg(feature = "std")]
+pub mod sim_cli;

@@ -29,6 +29,7 @@
 //! max_deg = 90
 //! max_velocity_dps = 360
 //! max_acceleration_dps2 = 3600
+//! position_p_gain = 1600    # optional: Position P Gain written at start-up (factory value otherwise)
 //! ```
 
 use std::collections::HashMap;
@@ -153,6 +154,8 @@ pub struct ServoSpec {
     pub max_velocity_dps: f64,
     /// Most joint degrees per second².
     pub max_acceleration_dps2: f64,
+    /// Position P Gain written at start-up (`None`: the servo keeps its own).
+    pub position_p_gain: Option<u16>,
     /// Line of its `[[servo]]` entry.
     pub line: u32,
 }
@@ -272,6 +275,8 @@ struct RawServo {
     max_deg: Spanned<f64>,
     max_velocity_dps: Spanned<f64>,
     max_acceleration_dps2: Spanned<f64>,
+    #[serde(default)]
+    position_p_gain: Option<Spanned<i64>>,
 }
 
 /// Line and column (1-based) of a byte offset.
@@ -681,6 +686,18 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
             return Err(ck.at(v, format!("expected a positive max {what}, found {x}")));
         }
     }
+    let position_p_gain = match &s.position_p_gain {
+        None => None,
+        Some(g) => match u16::try_from(*g.get_ref()) {
+            Ok(v) if v <= 16383 => Some(v),
+            _ => {
+                return Err(ck.at(
+                    g,
+                    format!("expected a Position P Gain in 0…16383, found {}", g.get_ref()),
+                ))
+            }
+        },
+    };
     let spec = ServoSpec {
         id,
         name,
@@ -693,6 +710,7 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
         max_deg: hi,
         max_velocity_dps: *s.max_velocity_dps.get_ref(),
         max_acceleration_dps2: *s.max_acceleration_dps2.get_ref(),
+        position_p_gain,
         line: ck.line(raw),
     };
     // The software limits must map inside the servo's own range.

@@ -31,6 +31,8 @@ pub mod addr {
     pub const STATUS_RETURN_LEVEL: u16 = 68;
     /// Hardware error status, 1 byte.
     pub const HARDWARE_ERROR_STATUS: u16 = 70;
+    /// Position P Gain, 2 bytes (RAM): the position loop's gain, `K_P = value / 128`.
+    pub const POSITION_P_GAIN: u16 = 84;
     /// Bus watchdog, 1 byte, 20 ms units (1…127; 0 off; reads −1 after expiry).
     pub const BUS_WATCHDOG: u16 = 98;
     /// Profile acceleration, 4 bytes, 214.577 rev/min² units.
@@ -109,6 +111,8 @@ pub struct ServoModel {
     pub no_load_rpm: f64,
     /// Stall torque at the recommended voltage, N·m.
     pub stall_torque_nm: f64,
+    /// Factory Position P Gain (control-table units).
+    pub position_p_gain: u16,
 }
 
 impl ServoModel {
@@ -127,6 +131,7 @@ pub const MODELS: [ServoModel; 4] = [
         max_baud: 4_000_000,
         no_load_rpm: 103.0,
         stall_torque_nm: 0.52,
+        position_p_gain: 400,
     },
     ServoModel {
         name: "XL430-W250",
@@ -134,6 +139,7 @@ pub const MODELS: [ServoModel; 4] = [
         max_baud: 4_500_000,
         no_load_rpm: 57.0,
         stall_torque_nm: 1.4,
+        position_p_gain: 640,
     },
     ServoModel {
         name: "XM430-W350",
@@ -141,6 +147,7 @@ pub const MODELS: [ServoModel; 4] = [
         max_baud: 4_500_000,
         no_load_rpm: 46.0,
         stall_torque_nm: 4.1,
+        position_p_gain: 800,
     },
     ServoModel {
         name: "XH540-W270",
@@ -148,6 +155,7 @@ pub const MODELS: [ServoModel; 4] = [
         max_baud: 4_500_000,
         no_load_rpm: 30.0,
         stall_torque_nm: 10.6,
+        position_p_gain: 800,
     },
 ];
 

@@ -329,7 +329,7 @@ pub enum StartupError {
 /// Brings a profiled rig up safely and returns the present positions (ticks):
 /// scan; check every profiled id answers with the right model and no hardware error; torque
 /// off (EEPROM is writable only then); Return Delay Time, Status Return Level 2, the position
-/// limits and the Bus Watchdog; read present positions and copy them into the goals; only then
+/// limits, the profile's Position P Gain (when it gives one) and the Bus Watchdog; read present positions and copy them into the goals; only then
 /// torque on — so no servo jumps.
 ///
 /// # Errors
@@ -378,6 +378,9 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
         bus.write(s.id, addr::STATUS_RETURN_LEVEL, &[2])?;
         bus.write(s.id, addr::MAX_POSITION_LIMIT, &hi.to_le_bytes())?;
         bus.write(s.id, addr::MIN_POSITION_LIMIT, &lo.to_le_bytes())?;
+        if let Some(gain) = s.position_p_gain {
+            bus.write(s.id, addr::POSITION_P_GAIN, &gain.to_le_bytes())?;
+        }
         // Clear an expired watchdog (writing 0), then arm it.
         bus.write(s.id, addr::BUS_WATCHDOG, &[0])?;
     }

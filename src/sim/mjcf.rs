@@ -19,7 +19,8 @@ use crate::rig::{JointSource, Rig};
 use crate::servo::ServoModel;
 use crate::skeleton::Skeleton;
 
-/// How a servo model behaves as a MuJoCo position actuator on a hinge.
+/// How a servo model behaves as a MuJoCo position actuator on a hinge, at its factory
+/// Position P Gain (the simulated servo scales `kp` with the gain written to it).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ServoDynamics {
     /// Position gain, N·m/rad.

@@ -27,6 +27,10 @@ struct SimServo {
     joint: usize,
     map: ServoMap,
     force_limit: f64,
+    /// The model's gain, which stands for the servo's factory Position P Gain.
+    base_kp: f64,
+    /// The Position P Gain the actuator was last set for.
+    p_gain: u16,
 }
 
 /// Why a model does not fit a profile.
@@ -133,6 +137,8 @@ impl SimPlant {
                 joint,
                 map: *map,
                 force_limit,
+                base_kp: world.position_gain(actuator),
+                p_gain: spec.model.position_p_gain,
             });
         }
         let sites = (0..world.site_count()).collect();
@@ -208,8 +214,17 @@ impl SimPlant {
         &self.world
     }
 
-    /// One physics step with the chain's present goals.
+    /// One physics step with the chain's present goals. A written Position P Gain scales the
+    /// actuator's gain (the firmware's `K_P = gain / 128` is linear in it).
     fn step_physics(&mut self, chain: &Chain) {
+        for (s, servo) in self.servos.iter_mut().zip(chain.servos()) {
+            let gain = servo.position_p_gain();
+            if gain != s.p_gain {
+                s.p_gain = gain;
+                let factory = f64::from(servo.model().position_p_gain.max(1));
+                self.world.set_position_gain(s.actuator, s.base_kp * f64::from(gain) / factory);
+            }
+        }
         for (s, servo) in self.servos.iter().zip(chain.servos()) {
             let ctrl = match servo.drive_goal() {
                 Some(goal) => s.map.ticks_to_angle(f64::from(goal)),
