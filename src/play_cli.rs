@@ -161,7 +161,8 @@ fn open_bus(
             let chain = PtyChain::serve(chain_for(profile, |k| rest[k]), None).map_err(CliError::Output)?;
             let path = chain.path().to_string();
             let baud = args.baud.unwrap_or(profile.bus.baud);
-            let bus = Dynamixel2Bus::open(&path, baud).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+            let bus =
+                Dynamixel2Bus::open(&path, baud).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
             Ok(OpenBus {
                 bus,
                 label: format!("virtual chain of {} servos on {path}", profile.servos.len()),
@@ -255,9 +256,10 @@ fn run_sim(
     writeln!(
         out,
         "MuJoCo: {} ({}), {} servos up, torque on; lockstep on simulated time",
-        args.model
-            .as_ref()
-            .map_or_else(|| "puppet generated from the skeleton".to_string(), |m| m.display().to_string()),
+        args.model.as_ref().map_or_else(
+            || "puppet generated from the skeleton".to_string(),
+            |m| m.display().to_string()
+        ),
         bus.with(|t| format!("time step {} ms", t.plant().world().timestep() * 1e3)),
         present.len()
     )?;
@@ -278,7 +280,13 @@ fn run_sim(
     let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
     let tracking = bus.with(|t| {
         let p = t.plant();
-        report::TrackingReport::new(p.samples(), &names, p.saturated_steps(), &p.site_names(), p.steps())
+        report::TrackingReport::new(
+            p.samples(),
+            &names,
+            p.saturated_steps(),
+            &p.site_names(),
+            p.steps(),
+        )
     });
     write!(out, "{tracking}")?;
     if let Some(path) = &args.sim_report {
@@ -300,19 +308,28 @@ fn run_sim(
 
 /// The servos to draw: those named, else the four with the largest RMS.
 #[cfg(feature = "sim")]
-fn plot_choice(names: &[String], tracking: &crate::sim::report::TrackingReport) -> Result<Vec<usize>, CliError> {
+fn plot_choice(
+    names: &[String],
+    tracking: &crate::sim::report::TrackingReport,
+) -> Result<Vec<usize>, CliError> {
     if names.is_empty() {
         let mut order: Vec<usize> = (0..tracking.servos.len()).collect();
-        order.sort_by(|a, b| tracking.servos[*b].rms_deg.total_cmp(&tracking.servos[*a].rms_deg));
+        order.sort_by(|a, b| {
+            tracking.servos[*b]
+                .rms_deg
+                .total_cmp(&tracking.servos[*a].rms_deg)
+        });
         order.truncate(4);
         return Ok(order);
     }
     names
         .iter()
         .map(|n| {
-            tracking.servos.iter().position(|s| &s.name == n).ok_or_else(|| {
-                CliError::Usage(format!("--plot-servos: no servo named `{n}` in the profile"))
-            })
+            tracking
+                .servos
+                .iter()
+                .position(|s| &s.name == n)
+                .ok_or_else(|| CliError::Usage(format!("--plot-servos: no servo named `{n}` in the profile")))
         })
         .collect()
 }
@@ -359,7 +376,17 @@ fn run_loop(
         )));
     }
     if args.bus == "sim" {
-        return run_sim(args, profile, skeleton, rig, solve, port, lockstep, allocations, out);
+        return run_sim(
+            args,
+            profile,
+            skeleton,
+            rig,
+            solve,
+            port,
+            lockstep,
+            allocations,
+            out,
+        );
     }
     let OpenBus {
         mut bus,

@@ -69,11 +69,25 @@ pub fn sim_cmd(cmd: &SimCommand, out: &mut dyn Write) -> Result<(), CliError> {
             model,
             scale,
             duration,
-        } => serve(profile, asf_path.as_deref(), model.as_deref(), *scale, *duration, out),
+        } => serve(
+            profile,
+            asf_path.as_deref(),
+            model.as_deref(),
+            *scale,
+            *duration,
+            out,
+        ),
     }
 }
 
-fn export(profile_path: &Path, asf_path: &Path, output: &Path, scale: f64, timestep: f64, out: &mut dyn Write) -> Result<(), CliError> {
+fn export(
+    profile_path: &Path,
+    asf_path: &Path,
+    output: &Path,
+    scale: f64,
+    timestep: f64,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
     let profile = Profile::load(profile_path)?;
     let skeleton = asf::load(asf_path)?.skeleton;
     let rig = profile.rig(Some(&skeleton))?;
@@ -127,7 +141,9 @@ fn serve(
     use crate::sim::plant::{load_world, SimPlant};
 
     if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
-        return Err(CliError::Usage("--duration must be a positive number of seconds".into()));
+        return Err(CliError::Usage(
+            "--duration must be a positive number of seconds".into(),
+        ));
     }
     let profile = Profile::load(profile_path)?;
     let skeleton = match asf_path {
@@ -154,14 +170,22 @@ fn serve(
     let present = plant.present_ticks();
     let timestep = plant.world().timestep();
     // MuJoCo's model is built again on the serving thread (it is not shared across threads).
-    let (model, skeleton_again, profile_again) = (model.map(Path::to_path_buf), skeleton.clone(), profile.clone());
+    let (model, skeleton_again, profile_again) =
+        (model.map(Path::to_path_buf), skeleton.clone(), profile.clone());
     let make_plant = move || {
         let rig = profile_again
             .rig(skeleton_again.as_ref())
             .expect("checked before the thread started");
-        let world = load_world(model.as_deref(), skeleton_again.as_ref(), &profile_again, &rig, &options)
-            .expect("checked before the thread started");
-        let mut plant = SimPlant::new(world, &profile_again, &rig).expect("checked before the thread started");
+        let world = load_world(
+            model.as_deref(),
+            skeleton_again.as_ref(),
+            &profile_again,
+            &rig,
+            &options,
+        )
+        .expect("checked before the thread started");
+        let mut plant =
+            SimPlant::new(world, &profile_again, &rig).expect("checked before the thread started");
         plant.set_angles(&rest);
         plant
     };
@@ -187,6 +211,10 @@ fn serve(
         std::thread::sleep(Duration::from_millis(20));
     }
     let handled = chain.chain().instructions();
-    writeln!(out, "served {handled} instructions in {:.1} s", began.elapsed().as_secs_f64())?;
+    writeln!(
+        out,
+        "served {handled} instructions in {:.1} s",
+        began.elapsed().as_secs_f64()
+    )?;
     Ok(())
 }

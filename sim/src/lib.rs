@@ -159,7 +159,10 @@ impl World {
     /// A position actuator's gain `kp` (force = kp·(ctrl − q)), N·m/rad for a hinge.
     #[must_use]
     pub fn position_gain(&self, actuator: usize) -> f64 {
-        self.model().actuator_gainprm().get(actuator).map_or(f64::NAN, |g| g[0])
+        self.model()
+            .actuator_gainprm()
+            .get(actuator)
+            .map_or(f64::NAN, |g| g[0])
     }
 
     /// Sets a position actuator's gain (`gainprm[0] = kp`, `biasprm[1] = −kp`), as a servo's
@@ -188,7 +191,11 @@ impl World {
     /// The force an actuator applied in the last step (N·m for a hinge).
     #[must_use]
     pub fn actuator_force(&self, actuator: usize) -> f64 {
-        self.data.actuator_force().get(actuator).copied().unwrap_or(f64::NAN)
+        self.data
+            .actuator_force()
+            .get(actuator)
+            .copied()
+            .unwrap_or(f64::NAN)
     }
 
     /// The joint with this name.
@@ -364,8 +371,10 @@ mod tests {
 
     #[test]
     fn bad_xml_is_an_error_with_mujocos_message() {
-        let e = World::from_xml_str("<mujoco><worldbody><body><joint type=\"nope\"/></body></worldbody></mujoco>")
-            .unwrap_err();
+        let e = World::from_xml_str(
+            "<mujoco><worldbody><body><joint type=\"nope\"/></body></worldbody></mujoco>",
+        )
+        .unwrap_err();
         assert!(!e.0.is_empty());
         assert!(World::from_file(Path::new("/nonexistent.xml")).is_err());
     }

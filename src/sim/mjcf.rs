@@ -162,9 +162,17 @@ fn hinge(skeleton: &Skeleton, source: JointSource) -> Option<(usize, DVec3, usiz
 ///
 /// # Errors
 /// [`MjcfError`] for a servo driven by a robot joint or bad options.
-pub fn puppet(skeleton: &Skeleton, profile: &Profile, rig: &Rig, options: &PuppetOptions) -> Result<String, MjcfError> {
+pub fn puppet(
+    skeleton: &Skeleton,
+    profile: &Profile,
+    rig: &Rig,
+    options: &PuppetOptions,
+) -> Result<String, MjcfError> {
     if !(options.scale.is_finite() && options.scale > 0.0) {
-        return Err(MjcfError::Options(format!("scale must be positive, got {}", options.scale)));
+        return Err(MjcfError::Options(format!(
+            "scale must be positive, got {}",
+            options.scale
+        )));
     }
     if !(options.timestep.is_finite() && options.timestep > 0.0 && options.timestep <= 0.01) {
         return Err(MjcfError::Options(format!(
@@ -215,9 +223,16 @@ pub fn puppet(skeleton: &Skeleton, profile: &Profile, rig: &Rig, options: &Puppe
     );
     let _ = writeln!(x, "<mujoco model=\"{}\">", xml_escape(&profile.name));
     let _ = writeln!(x, "  <compiler angle=\"radian\" autolimits=\"true\"/>");
-    let _ = writeln!(x, "  <option timestep=\"{}\" integrator=\"implicitfast\"/>", f(options.timestep));
+    let _ = writeln!(
+        x,
+        "  <option timestep=\"{}\" integrator=\"implicitfast\"/>",
+        f(options.timestep)
+    );
     let _ = writeln!(x, "  <default>");
-    let _ = writeln!(x, "    <geom contype=\"0\" conaffinity=\"0\" rgba=\"0.75 0.6 0.4 1\"/>");
+    let _ = writeln!(
+        x,
+        "    <geom contype=\"0\" conaffinity=\"0\" rgba=\"0.75 0.6 0.4 1\"/>"
+    );
     let _ = writeln!(x, "    <site size=\"0.005\" rgba=\"1 0.2 0.2 1\"/>");
     let _ = writeln!(x, "  </default>");
     let _ = writeln!(x, "  <worldbody>");
@@ -240,9 +255,14 @@ pub fn puppet(skeleton: &Skeleton, profile: &Profile, rig: &Rig, options: &Puppe
         f(height),
         quat(up)
     );
-    let _ = writeln!(x, "      <geom type=\"sphere\" size=\"0.02\" mass=\"0.2\" rgba=\"0.4 0.4 0.4 1\"/>");
+    let _ = writeln!(
+        x,
+        "      <geom type=\"sphere\" size=\"0.02\" mass=\"0.2\" rgba=\"0.4 0.4 0.4 1\"/>"
+    );
     let mut text = x;
-    write_children(&mut text, skeleton, 0, 3, &hinges, profile, rig, &tip, &radius, options);
+    write_children(
+        &mut text, skeleton, 0, 3, &hinges, profile, rig, &tip, &radius, options,
+    );
     let _ = writeln!(text, "    </body>");
     let _ = writeln!(text, "  </worldbody>");
     let _ = writeln!(text, "  <actuator>");
@@ -321,7 +341,10 @@ fn write_children(
             );
         }
         // The servos of this bone's joints sit at its start.
-        let servo_mass: f64 = hinges[b].iter().map(|(k, _, _)| dynamics(profile.servos[*k].model).mass).sum();
+        let servo_mass: f64 = hinges[b]
+            .iter()
+            .map(|(k, _, _)| dynamics(profile.servos[*k].model).mass)
+            .sum();
         if servo_mass > 0.0 {
             let _ = writeln!(
                 x,
@@ -341,9 +364,25 @@ fn write_children(
             );
         }
         if skeleton.children(b).next().is_none() {
-            let _ = writeln!(x, "{pad}  <site name=\"{}\" pos=\"{}\"/>", xml_escape(bones[b].name()), v3(local_tip));
+            let _ = writeln!(
+                x,
+                "{pad}  <site name=\"{}\" pos=\"{}\"/>",
+                xml_escape(bones[b].name()),
+                v3(local_tip)
+            );
         }
-        write_children(x, skeleton, b, depth + 1, hinges, profile, rig, tip, radius, options);
+        write_children(
+            x,
+            skeleton,
+            b,
+            depth + 1,
+            hinges,
+            profile,
+            rig,
+            tip,
+            radius,
+            options,
+        );
         let _ = writeln!(x, "{pad}</body>");
     }
 }

@@ -222,7 +222,8 @@ impl SimPlant {
             if gain != s.p_gain {
                 s.p_gain = gain;
                 let factory = f64::from(servo.model().position_p_gain.max(1));
-                self.world.set_position_gain(s.actuator, s.base_kp * f64::from(gain) / factory);
+                self.world
+                    .set_position_gain(s.actuator, s.base_kp * f64::from(gain) / factory);
             }
         }
         for (s, servo) in self.servos.iter().zip(chain.servos()) {
@@ -259,7 +260,8 @@ impl SimPlant {
             s.commanded.push(cmd);
             s.simulated.push(q);
             s.torque.push(self.world.actuator_force(sim.actuator));
-            self.twin.set_joint_position(sim.joint, if cmd.is_finite() { cmd } else { q });
+            self.twin
+                .set_joint_position(sim.joint, if cmd.is_finite() { cmd } else { q });
         }
         self.twin.forward();
         for &site in &self.sites {
@@ -337,6 +339,8 @@ pub fn load_world(
             let xml = super::mjcf::puppet(sk, profile, rig, options).map_err(|e| e.to_string())?;
             World::from_xml_str(&xml).map_err(|e| format!("the generated model: {e}"))
         }
-        (None, None) => Err("a model is needed: give an MJCF file (--model) or an ASF skeleton to generate one".into()),
+        (None, None) => {
+            Err("a model is needed: give an MJCF file (--model) or an ASF skeleton to generate one".into())
+        }
     }
 }

@@ -67,7 +67,13 @@ pub struct TrackingReport {
 impl TrackingReport {
     /// Analyses recorded samples. `names` and `saturated` are per servo, `sites` per effector.
     #[must_use]
-    pub fn new(samples: &[Sample], names: &[String], saturated: &[u64], sites: &[String], steps: u64) -> TrackingReport {
+    pub fn new(
+        samples: &[Sample],
+        names: &[String],
+        saturated: &[u64],
+        sites: &[String],
+        steps: u64,
+    ) -> TrackingReport {
         let n = names.len();
         let dt = match samples {
             [a, b, ..] => b.time - a.time,
@@ -92,7 +98,9 @@ impl TrackingReport {
                 .min_by(|a, b| (a.1 / a.2 as f64).total_cmp(&(b.1 / b.2 as f64)))
                 .unwrap_or((0, 0.0, 1));
             let finite = cmd.iter().filter(|x| x.is_finite());
-            let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| (l.min(*x), h.max(*x)));
+            let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+                (l.min(*x), h.max(*x))
+            });
             servos.push(ServoTracking {
                 name: name.clone(),
                 rms_deg: rms(ss, c).to_degrees(),
@@ -149,7 +157,13 @@ impl std::fmt::Display for TrackingReport {
             writeln!(
                 f,
                 "  {:<16} {:>8.2} {:>8.2} {:>8.0} {:>10.2} {:>9.1} {:>9}",
-                s.name, s.rms_deg, s.max_deg, s.lag_ms, s.rms_after_lag_deg, s.commanded_range_deg, s.saturated_steps
+                s.name,
+                s.rms_deg,
+                s.max_deg,
+                s.lag_ms,
+                s.rms_after_lag_deg,
+                s.commanded_range_deg,
+                s.saturated_steps
             )?;
         }
         if !self.effectors.is_empty() {
@@ -192,8 +206,21 @@ fn error_stats(cmd: &[f64], sim: &[f64], shift: usize) -> (f64, usize, f64) {
 ///
 /// # Errors
 /// [`FileError`] when the picture cannot be written.
-pub fn draw(path: &Path, samples: &[Sample], report: &TrackingReport, chosen: &[usize]) -> Result<(), FileError> {
+pub fn draw(
+    path: &Path,
+    samples: &[Sample],
+    report: &TrackingReport,
+    chosen: &[usize],
+) -> Result<(), FileError> {
     let svg = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("svg"));
+    let png = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if !svg && !png {
+        return Err(FileError::io(
+            path,
+            std::io::Error::other("expected a .png or .svg file name"),
+        ));
+    }
+    crate::motion::plot::register_font().map_err(|e| FileError::io(path, std::io::Error::other(e)))?;
     let rows = chosen.len().max(1) as u32;
     let size = (1200, 230 * rows + 380);
     let result = if svg {
@@ -225,8 +252,14 @@ fn paint<DB: DrawingBackend>(
             .flat_map(|x| [x.commanded[k], x.simulated[k]])
             .filter(|v| v.is_finite())
             .map(f64::to_degrees);
-        let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| (l.min(v), h.max(v)));
-        let (lo, hi) = if hi > lo { (lo - 2.0, hi + 2.0) } else { (-10.0, 10.0) };
+        let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+            (l.min(v), h.max(v))
+        });
+        let (lo, hi) = if hi > lo {
+            (lo - 2.0, hi + 2.0)
+        } else {
+            (-10.0, 10.0)
+        };
         let mut chart = ChartBuilder::on(panel)
             .caption(
                 format!(
@@ -289,11 +322,7 @@ fn paint<DB: DrawingBackend>(
         .disable_x_mesh()
         .y_desc("RMS, °")
         .x_labels(n.max(1))
-        .x_label_style(
-            ("sans-serif", 12)
-                .into_font()
-                .transform(FontTransform::Rotate90),
-        )
+        .x_label_style(("sans-serif", 12).into_font().transform(FontTransform::Rotate90))
         .x_label_formatter(&|v| {
             let i = v.round();
             if (v - i).abs() < 0.01 && i >= 0.0 {

@@ -1,0 +1,359 @@
+//! The MuJoCo simulator in the loop (built with `--features sim`, MuJoCo from
+//! `sim/fetch-mujoco.sh`): the generated puppet against forward kinematics, the CMU walk
+//! streamed in lockstep (tracking, determinism), the ROBOTIS OP3 standing and moving its arms,
+//! and `play` over a pseudo-terminal served by `marionette sim serve`.
+#![cfg(feature = "sim")]
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::Stdio;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use glam::{DQuat, DVec3};
+use marionette::bus::{start_up, ServoBus};
+use marionette::control::input::input_channel;
+use marionette::control::lockstep::{FeedingClock, PlayerFeed};
+use marionette::control::sources::ClipPlayer;
+use marionette::control::{Controller, LoopConfig, RunEnd, Solve, StopMode};
+use marionette::formats::{amc, asf};
+use marionette::ik::{fk64, Pose64};
+use marionette::profile::Profile;
+use marionette::rig::JointSource;
+use marionette::schedule::{Clock, Schedule};
+use marionette::sim::mjcf::{puppet, PuppetOptions};
+use marionette::sim::plant::{sim_bus, SimBus};
+use marionette::sim::report::TrackingReport;
+use marionette_sim::World;
+
+fn repo(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+fn report(bus: &SimBus, profile: &Profile) -> TrackingReport {
+    let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
+    bus.with(|t| {
+        let p = t.plant();
+        TrackingReport::new(
+            p.samples(),
+            &names,
+            p.saturated_steps(),
+            &p.site_names(),
+            p.steps(),
+        )
+    })
+}
+
+/// The generated model's hinges reproduce the skeleton's forward kinematics: at a walk frame
+/// (DOFs without a servo at 0), every leaf bone's tip site sits where `fk64` puts that tip.
+#[test]
+fn generated_puppet_matches_forward_kinematics() {
+    let skel = asf::load(&common::data("16.asf")).unwrap().skeleton;
+    let motion = amc::load(&skel, &common::data("16_15.amc")).unwrap();
+    let profile = Profile::load(&repo("firmware-profile/cmu-puppet.toml")).unwrap();
+    let rig = profile.rig(Some(&skel)).unwrap();
+    let options = PuppetOptions::default();
+    let xml = puppet(&skel, &profile, &rig, &options).unwrap();
+    let mut world = World::from_xml_str(&xml).unwrap();
+    // Keep only the DOFs the puppet has: channels of served bones' DOFs, all of a re-decomposed bone.
+    let mut served = vec![false; skel.channel_count()];
+    for m in &rig.servos {
+        match m.source {
+            JointSource::Channel(c) => served[c] = true,
+            JointSource::Redecomposed { bone, .. } => {
+                for c in skel.bones()[bone].channels() {
+                    served[c] = true;
+                }
+            }
+            JointSource::Joint(_) => unreachable!(),
+        }
+    }
+    let unit = f64::from(skel.units().meters_per_unit()) * options.scale;
+    let up = DQuat::from_rotation_x(core::f64::consts::FRAC_PI_2);
+    let mut worst = 0.0f64;
+    for frame in [0, 150, 300, 470] {
+        let channels: Vec<f64> = motion
+            .frame(frame)
+            .iter()
+            .enumerate()
+            .map(|(c, v)| if served[c] { v.to_radians() } else { 0.0 })
+            .collect();
+        let mut angles = vec![0.0; rig.len()];
+        rig.joint_angles(&skel, &channels, &[], &mut angles);
+        for (spec, a) in profile.servos.iter().zip(&angles) {
+            let j = world.joint(&spec.name).unwrap();
+            world.set_joint_position(j, *a);
+        }
+        world.forward();
+        let mut pose = Pose64::default();
+        fk64(&skel, &channels, &mut pose);
+        let root = DVec3::from(world.body_position(world.body("root").unwrap()));
+        for s in 0..world.site_count() {
+            let name = world.site_name(s).unwrap().to_string();
+            let b = skel.find(&name).unwrap();
+            let want = root + up * ((pose.tip[b] - pose.start[0]) * unit);
+            let got = DVec3::from(world.site_position(s));
+            worst = worst.max((got - want).length());
+        }
+    }
+    println!("largest tip difference, MuJoCo vs fk64: {:.2e} m", worst);
+    assert!(worst < 1e-5, "{worst}");
+}
+
+/// Streams the bundled 16_15 walk at 120 Hz through the loop into the simulated puppet in
+/// lockstep; returns the tracking report, the final joint state and the loop's statistics.
+fn walk_in_lockstep() -> (TrackingReport, Vec<f64>, u64, RunEnd) {
+    let skel = Arc::new(asf::load(&common::data("16.asf")).unwrap().skeleton);
+    let motion = Arc::new(amc::load(&skel, &common::data("16_15.amc")).unwrap());
+    let profile = Profile::load(&repo("firmware-profile/cmu-puppet.toml")).unwrap();
+    let rig = profile.rig(Some(&skel)).unwrap();
+    let xml = puppet(&skel, &profile, &rig, &PuppetOptions::default()).unwrap();
+    let mut bus = sim_bus(World::from_xml_str(&xml).unwrap(), &profile, &rig).unwrap();
+    let present = start_up(&mut bus, &profile).unwrap();
+    bus.with(|t| t.plant_mut().record(true));
+    let (tx, port) = input_channel(16);
+    let config = LoopConfig {
+        rate_hz: 120.0,
+        stop: StopMode::Hold { hold_s: 0.0 },
+        ..LoopConfig::default()
+    };
+    let mut c = Controller::new(
+        Arc::clone(&skel),
+        rig,
+        profile.ids(),
+        &present,
+        port,
+        Solve::Frames,
+        config,
+    );
+    let period = c.period_ns();
+    let start = bus.now_ns() + period;
+    let player = ClipPlayer::new(Arc::clone(&skel), motion, 120.0, false);
+    let feed = PlayerFeed::new(player, period, skel.channel_count());
+    let mut clock = FeedingClock::new(bus.clone(), feed, tx, start, period);
+    let mut schedule = Schedule::new(start, period);
+    let end = c.run(&mut schedule, &mut bus, &mut clock, &AtomicBool::new(false));
+    assert_eq!(clock.report().sent, 471);
+    let qpos = bus.with(|t| t.plant().world().qpos().to_vec());
+    (report(&bus, &profile), qpos, c.stats.inputs_used, end)
+}
+
+#[test]
+fn puppet_tracks_the_walk_in_lockstep_within_3_degrees_and_repeats_exactly() {
+    let (a, qpos_a, used, end) = walk_in_lockstep();
+    print!("{a}");
+    assert_eq!(end, RunEnd::InputEnded);
+    assert_eq!(used, 471, "every sample of the walk reached the servos");
+    assert!(
+        a.samples > 3800,
+        "{} samples (1 kHz over the 3.92 s clip)",
+        a.samples
+    );
+    assert!(a.rms_deg <= 3.0, "tracking RMS over all servos {:.2}°", a.rms_deg);
+    // The servos really moved with the walk (knees through tens of degrees).
+    let knee = a.servos.iter().find(|s| s.name == "ltibia_rx").unwrap();
+    assert!(knee.commanded_range_deg > 50.0, "{}", knee.commanded_range_deg);
+    let (b, qpos_b, _, _) = walk_in_lockstep();
+    assert_eq!(
+        qpos_a, qpos_b,
+        "the same run twice ends in the same state, bit for bit"
+    );
+    assert_eq!(a.rms_deg.to_bits(), b.rms_deg.to_bits());
+    assert_eq!(a.saturated_steps, b.saturated_steps);
+    for (x, y) in a.servos.iter().zip(&b.servos) {
+        assert_eq!(x.rms_deg.to_bits(), y.rms_deg.to_bits(), "{}", x.name);
+    }
+}
+
+/// The OP3 on the floor, every servo up through the real start-up sequence, goals sent at the
+/// OP3's own 125 Hz: `script(t)` gives the joint angles (radians, profile order) at time t.
+fn op3_run(seconds: f64, script: impl Fn(f64, &str) -> f64) -> (SimBus, Profile, Vec<(f64, f64, f64)>) {
+    let profile = Profile::load(&repo("firmware-profile/robotis-op3.toml")).unwrap();
+    let rig = profile.rig(None).unwrap();
+    let world = World::from_file(&repo("sim/models/robotis_op3/scene.xml")).unwrap();
+    let mut bus = sim_bus(world, &profile, &rig).unwrap();
+    start_up(&mut bus, &profile).unwrap();
+    bus.with(|t| t.plant_mut().record(true));
+    let ids = profile.ids();
+    let torso = bus.with(|t| t.plant().world().site("torso").unwrap());
+    let body = bus.with(|t| t.plant().world().body("body_link").unwrap());
+    let period = 8_000_000u64;
+    let start = bus.now_ns() + period;
+    let mut trace = Vec::new();
+    let mut present = vec![0i32; ids.len()];
+    for k in 0..(seconds * 125.0) as u64 {
+        bus.wait_until(start + k * period);
+        let t = k as f64 * 0.008;
+        let goals: Vec<i32> = profile
+            .servos
+            .iter()
+            .zip(&rig.servos)
+            .map(|(s, m)| m.angle_to_ticks(script(t, &s.name)).clamp(m.min_tick, m.max_tick))
+            .collect();
+        bus.write_goals(&ids, &goals).unwrap();
+        bus.read_positions(&ids, &mut present).unwrap();
+        let (height, tilt) = bus.with(|tr| {
+            let w = tr.plant().world();
+            let r = w.body_rotation(body);
+            // The body's z axis against the world's: r is row-major, column 2 is (r[2], r[5], r[8]).
+            (
+                w.site_position(torso)[2],
+                r[8].clamp(-1.0, 1.0).acos().to_degrees(),
+            )
+        });
+        trace.push((t, height, tilt));
+    }
+    (bus, profile, trace)
+}
+
+#[test]
+fn op3_stands_upright_for_5_seconds() {
+    let (_, _, trace) = op3_run(5.0, |_, _| 0.0);
+    let (min_h, max_tilt) = trace
+        .iter()
+        .skip(63) // after half a second of settling onto the floor
+        .fold((f64::INFINITY, 0.0f64), |(h, a), x| (h.min(x.1), a.max(x.2)));
+    let last = trace.last().unwrap();
+    println!(
+        "OP3 standing 5 s: torso height min {min_h:.3} m, last {:.3} m; tilt max {max_tilt:.2}°, last {:.2}°",
+        last.1, last.2
+    );
+    assert!(min_h > 0.25, "torso height {min_h}");
+    assert!(max_tilt < 5.0, "tilt {max_tilt}°");
+}
+
+#[test]
+fn op3_tracks_a_scripted_arm_motion_within_3_degrees() {
+    // Shoulders and elbows wave (0.25 Hz), legs hold the standing pose.
+    let wave = |t: f64, name: &str| {
+        let s = (core::f64::consts::TAU * 0.25 * t).sin();
+        let ramp = (t / 1.0).min(1.0);
+        ramp * match name {
+            "r_sho_pitch" | "l_sho_pitch" => 0.7 * s,
+            "r_sho_roll" => -0.3 - 0.3 * s,
+            "l_sho_roll" => 0.3 + 0.3 * s,
+            "r_el" | "l_el" => 0.5 * s,
+            _ => 0.0,
+        }
+    };
+    let (bus, profile, trace) = op3_run(8.0, wave);
+    let r = report(&bus, &profile);
+    print!("{r}");
+    let arms = [
+        "r_sho_pitch",
+        "l_sho_pitch",
+        "r_sho_roll",
+        "l_sho_roll",
+        "r_el",
+        "l_el",
+    ];
+    let arm: Vec<_> = r
+        .servos
+        .iter()
+        .filter(|s| arms.contains(&s.name.as_str()))
+        .collect();
+    assert_eq!(arm.len(), 6);
+    let rms = (arm.iter().map(|s| s.rms_deg * s.rms_deg).sum::<f64>() / 6.0).sqrt();
+    println!("arm tracking RMS {rms:.2}°");
+    for s in &arm {
+        assert!(
+            s.commanded_range_deg > 30.0,
+            "{} moved {}°",
+            s.name,
+            s.commanded_range_deg
+        );
+    }
+    assert!(rms <= 3.0, "arm tracking RMS {rms:.2}°");
+    let max_tilt = trace.iter().skip(63).map(|x| x.2).fold(0.0f64, f64::max);
+    assert!(
+        max_tilt < 10.0,
+        "the robot stayed up while waving: tilt {max_tilt}°"
+    );
+}
+
+/// `marionette sim serve` puts the simulated puppet on a pseudo-terminal; `marionette play`
+/// drives it there through `dynamixel2`, in real time, and prints the loop's statistics.
+#[test]
+fn play_drives_the_simulator_served_on_a_pty() {
+    let mut serve = common::bin()
+        .args(["sim", "serve"])
+        .arg(repo("firmware-profile/cmu-puppet.toml"))
+        .arg(common::data("16.asf"))
+        .args(["--duration", "30"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(serve.stdout.take().unwrap()).lines();
+    let first = lines.next().unwrap().unwrap();
+    assert!(first.contains("28 simulated servos"), "{first}");
+    let path = lines.next().unwrap().unwrap();
+    assert!(path.starts_with("/dev/"), "{path}");
+    let out = common::bin()
+        .arg("play")
+        .arg(repo("firmware-profile/cmu-puppet.toml"))
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .args(["--bus", &path, "--rate", "120", "-q", "--ramp", "0.2"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let _ = serve.kill();
+    let _ = serve.wait();
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success());
+    assert!(text.contains("28 servos up, torque on"), "{text}");
+    assert!(text.contains("tick compute"), "{text}");
+    assert!(text.contains("tracking        rms"), "{text}");
+    assert!(text.contains("ended: end of input; torque off"), "{text}");
+}
+
+/// `play --bus sim`: lockstep from the command line, with the tracking report and the picture.
+#[test]
+fn play_bus_sim_writes_the_report_and_the_picture() {
+    let dir = std::env::temp_dir().join(format!("marionette-sim-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("tracking.json");
+    let svg = dir.join("tracking.svg");
+    let out = common::bin()
+        .arg("play")
+        .arg(repo("firmware-profile/cmu-puppet.toml"))
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .args(["--bus", "sim", "--rate", "120", "-q"])
+        .arg("--sim-report")
+        .arg(&json)
+        .arg("--sim-plot")
+        .arg(&svg)
+        .args(["--plot-servos", "ltibia_rx,lfemur_rx"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success());
+    assert!(text.contains("lockstep on simulated time"), "{text}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["servos"].as_array().unwrap().len(), 28);
+    assert!(v["rms_deg"].as_f64().unwrap() <= 3.0);
+    let picture = std::fs::read_to_string(&svg).unwrap();
+    assert!(picture.contains("ltibia_rx") && picture.contains("RMS tracking error per servo"));
+    // A profile of robot joints with a model it does not fit: a one-line error, exit 1.
+    let bad = common::bin()
+        .arg("play")
+        .arg(repo("firmware-profile/cmu-puppet.toml"))
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .args(["--bus", "sim", "--model"])
+        .arg(repo("sim/models/robotis_op3/scene.xml"))
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(1), "{err}");
+    assert!(err.contains("has no actuator in the model"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
