@@ -198,7 +198,7 @@ pub fn puppet(
         hinges[bone].push((k, axis, slot));
     }
     for h in &mut hinges {
-        h.sort_by(|a, b| b.2.cmp(&a.2));
+        h.sort_by_key(|x| core::cmp::Reverse(x.2));
     }
     let unit = f64::from(skeleton.units().meters_per_unit()) * options.scale;
     let tip = |b: usize| bones[b].direction().as_dvec3() * f64::from(bones[b].length()) * unit;
