@@ -138,7 +138,7 @@ fn serve(
     use std::time::{Duration, Instant};
 
     use crate::bus::virtual_chain::{chain_for, PtyChain};
-    use crate::sim::plant::{load_world, SimPlant};
+    use crate::sim::plant::{load_world, rest_angles, SimPlant};
 
     if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
         return Err(CliError::Usage(
@@ -158,14 +158,7 @@ fn serve(
     // Check the model and the mapping here, so errors reach the user before the thread starts.
     let world = load_world(model, skeleton.as_ref(), &profile, &rig, &options).map_err(CliError::Usage)?;
     let mut plant = SimPlant::new(world, &profile, &rig).map_err(|e| CliError::Usage(e.to_string()))?;
-    let rest: Vec<f64> = rig
-        .servos
-        .iter()
-        .map(|m| {
-            let (lo, hi) = crate::sim::mjcf::angle_range(m);
-            0.0f64.clamp(lo, hi)
-        })
-        .collect();
+    let rest = rest_angles(&rig);
     plant.set_angles(&rest);
     let present = plant.present_ticks();
     let timestep = plant.world().timestep();

@@ -291,6 +291,18 @@ impl Plant for SimPlant {
     }
 }
 
+/// Where simulated servos power up: joint angle 0, clamped into each servo's limits.
+#[must_use]
+pub fn rest_angles(rig: &Rig) -> Vec<f64> {
+    rig.servos
+        .iter()
+        .map(|m| {
+            let (lo, hi) = super::mjcf::angle_range(m);
+            0.0f64.clamp(lo, hi)
+        })
+        .collect()
+}
+
 /// Simulated servos in lockstep: the loop's bus and its clock. Bus transactions take their wire
 /// time and waiting for a deadline steps the physics until then — deterministic (the same
 /// inputs give the same bytes and the same physics, every run), no threads.
@@ -303,15 +315,7 @@ pub type SimBus = VirtualRig<SimPlant>;
 /// [`SimError`] when the model does not fit the profile.
 pub fn sim_bus(world: World, profile: &Profile, rig: &Rig) -> Result<SimBus, SimError> {
     let mut plant = SimPlant::new(world, profile, rig)?;
-    let rest: Vec<f64> = rig
-        .servos
-        .iter()
-        .map(|m| {
-            let (lo, hi) = super::mjcf::angle_range(m);
-            0.0f64.clamp(lo, hi)
-        })
-        .collect();
-    plant.set_angles(&rest);
+    plant.set_angles(&rest_angles(rig));
     let present = plant.present_ticks();
     let chain = chain_for(profile, |k| present[k]);
     Ok(VirtualRig::with_plant(
