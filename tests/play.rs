@@ -270,7 +270,23 @@ fn bad_loop_arguments_give_one_line_errors() {
             vec!["play", PROFILE, ASF, AMC, "--rate", "0"],
             "--rate must be between",
         ),
-        (vec!["play", PROFILE, ASF, AMC, "--bus", "sim"], "--features sim"),
+        // Without the simulator `--bus sim` says how to get it; with it, live input is refused.
+        if cfg!(feature = "sim") {
+            (
+                vec![
+                    "follow",
+                    PROFILE,
+                    ASF,
+                    "--targets",
+                    "udp://127.0.0.1:0",
+                    "--bus",
+                    "sim",
+                ],
+                "not live input",
+            )
+        } else {
+            (vec!["play", PROFILE, ASF, AMC, "--bus", "sim"], "--features sim")
+        },
         (vec!["play", PROFILE, ASF, AMC, "--duration=-1"], "--duration"),
         (
             vec!["play", PROFILE, ASF, AMC, "--start", "99"],
