@@ -138,6 +138,18 @@ fn check(args: &LoopArgs) -> Result<(), CliError> {
             "--torque-off-after must be a positive number of ms".into(),
         ));
     }
+    if let Some(p) = &args.sim_plot {
+        let ext = p
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if !matches!(ext.as_deref(), Some("png" | "svg")) {
+            return Err(CliError::Usage(format!(
+                "--sim-plot {}: expected a .png or .svg file name",
+                p.display()
+            )));
+        }
+    }
     if args.hold_after == 0 {
         return Err(CliError::Usage("--hold-after must be at least 1".into()));
     }
@@ -200,9 +212,14 @@ struct Outcome {
     producer: ProducerReport,
 }
 
-/// The input of a lockstep run (`--bus sim`): the sender and the source that feeds it in
-/// simulated time, made once the period is known. `None` for live sources.
-type Lockstep = Option<(InputSender, Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>)>;
+/// Where a run's input comes from.
+enum Producer {
+    /// A thread paced by the machine clock, started with (clock, first tick, period).
+    Thread(Box<dyn FnOnce(SystemClock, u64, u64) -> std::io::Result<JoinHandle<ProducerReport>>>),
+    /// A source fed in simulated time (`--bus sim`) into the sender, made once the period is
+    /// known.
+    Lockstep(InputSender, Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>),
+}
 
 /// `--bus sim`: the loop in lockstep with MuJoCo, on simulated time, in this thread.
 #[cfg(not(feature = "sim"))]
@@ -214,13 +231,12 @@ fn run_sim(
     _rig: crate::rig::Rig,
     _solve: Solve,
     _port: InputPort,
-    _lockstep: Lockstep,
+    _tx: InputSender,
+    _make_source: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>,
     _allocations: Option<fn() -> u64>,
     _out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
-    Err(CliError::Usage(
-        "--bus sim needs the MuJoCo simulator, which this build does not have: eval \"$(sim/fetch-mujoco.sh)\" && cargo build --release --features sim".into(),
-    ))
+    Err(CliError::Usage(format!("--bus sim {}", crate::sim::NOT_BUILT)))
 }
 
 /// `--bus sim`: the loop in lockstep with MuJoCo, on simulated time, in this thread; then the
@@ -234,17 +250,13 @@ fn run_sim(
     rig: crate::rig::Rig,
     solve: Solve,
     port: InputPort,
-    lockstep: Lockstep,
+    tx: InputSender,
+    make_source: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>,
     allocations: Option<fn() -> u64>,
     out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
     use crate::control::lockstep::FeedingClock;
     use crate::sim::{mjcf::PuppetOptions, plant, report};
-    let Some((tx, make_source)) = lockstep else {
-        return Err(CliError::Usage(
-            "--bus sim runs in simulated time: it takes a clip or a target file, not live input (stdin, UDP); serve the simulator on a pseudo-terminal instead (`marionette sim serve`)".into(),
-        ));
-    };
     let options = PuppetOptions {
         scale: args.scale,
         ..PuppetOptions::default()
@@ -359,8 +371,7 @@ fn run_loop(
     skeleton: Arc<Skeleton>,
     solve: Solve,
     port: InputPort,
-    start_producer: impl FnOnce(SystemClock, u64, u64) -> std::io::Result<JoinHandle<ProducerReport>>,
-    lockstep: Lockstep,
+    producer: Producer,
     allocations: Option<fn() -> u64>,
     out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
@@ -378,19 +389,17 @@ fn run_loop(
             s.name
         )));
     }
-    if args.bus == "sim" {
-        return run_sim(
-            args,
-            profile,
-            skeleton,
-            rig,
-            solve,
-            port,
-            lockstep,
-            allocations,
-            out,
-        );
-    }
+    let start_producer = match producer {
+        Producer::Lockstep(tx, make_source) => {
+            return run_sim(args, profile, skeleton, rig, solve, port, tx, make_source, allocations, out)
+        }
+        Producer::Thread(_) if args.bus == "sim" => {
+            return Err(CliError::Usage(
+                "--bus sim runs in simulated time: it takes a clip or a target file, not live input (stdin, UDP); serve the simulator on a pseudo-terminal instead (`marionette sim serve`)".into(),
+            ))
+        }
+        Producer::Thread(start) => start,
+    };
     let OpenBus {
         mut bus,
         _chain,
@@ -599,35 +608,28 @@ pub fn play_cmd(
         if looping { ", looping" } else { "" }
     )?;
     let (tx, port) = input_channel(INPUT_CAPACITY);
-    let outcome = if args.bus == "sim" {
+    let producer = if args.bus == "sim" {
         let channels = skeleton.channel_count();
-        let feed: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>> =
-            Box::new(move |period| Box::new(PlayerFeed::new(player, period, channels)));
-        run_loop(
-            args,
-            &profile,
-            skeleton,
-            Solve::Frames,
-            port,
-            |_, _, _| Err(std::io::Error::other("lockstep")),
-            Some((tx, feed)),
-            allocations,
-            out,
-        )?
+        Producer::Lockstep(
+            tx,
+            Box::new(move |period| Box::new(PlayerFeed::new(player, period, channels))),
+        )
     } else {
         let commands = keyboard_commands(out)?;
-        run_loop(
-            args,
-            &profile,
-            skeleton,
-            Solve::Frames,
-            port,
-            move |clock, start, period| spawn_player(player, tx, clock, start, period, commands),
-            None,
-            allocations,
-            out,
-        )?
+        Producer::Thread(Box::new(move |clock, start, period| {
+            spawn_player(player, tx, clock, start, period, commands)
+        }))
     };
+    let outcome = run_loop(
+        args,
+        &profile,
+        skeleton,
+        Solve::Frames,
+        port,
+        producer,
+        allocations,
+        out,
+    )?;
     let all = outcome.producer.sent == outcome.stats.inputs_used;
     writeln!(
         out,
@@ -750,43 +752,31 @@ pub fn follow_cmd(
     }
     let (tx, port): (InputSender, InputPort) = input_channel(INPUT_CAPACITY);
     let names = effectors.to_vec();
-    let outcome = match source {
+    let producer = match source {
         TargetSource::File(track) if args.bus == "sim" => {
             if looping {
                 return Err(CliError::Usage(
                     "--loop with --bus sim would never end: give --duration instead of looping a simulated run".into(),
                 ));
             }
-            let feed: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>> =
-                Box::new(move |_| Box::new(TrackFeed::new(track)));
-            run_loop(
-                args,
-                &profile,
-                skeleton,
-                Solve::Follow(Box::new(follower)),
-                port,
-                |_, _, _| Err(std::io::Error::other("lockstep")),
-                Some((tx, feed)),
-                allocations,
-                out,
-            )?
+            Producer::Lockstep(tx, Box::new(move |_| Box::new(TrackFeed::new(track))))
         }
-        source => run_loop(
-            args,
-            &profile,
-            skeleton,
-            Solve::Follow(Box::new(follower)),
-            port,
-            move |clock, start, _period| match source {
-                TargetSource::File(track) => spawn_track(track, tx, clock, start, looping),
-                TargetSource::Stdin => spawn_stdin(names, tx, clock),
-                TargetSource::Udp(socket) => spawn_udp(socket, names, tx, clock),
-            },
-            None,
-            allocations,
-            out,
-        )?,
+        source => Producer::Thread(Box::new(move |clock, start, _period| match source {
+            TargetSource::File(track) => spawn_track(track, tx, clock, start, looping),
+            TargetSource::Stdin => spawn_stdin(names, tx, clock),
+            TargetSource::Udp(socket) => spawn_udp(socket, names, tx, clock),
+        })),
     };
+    let outcome = run_loop(
+        args,
+        &profile,
+        skeleton,
+        Solve::Follow(Box::new(follower)),
+        port,
+        producer,
+        allocations,
+        out,
+    )?;
     writeln!(
         out,
         "targets: {} messages produced ({} dropped for newer, {} unreadable lines), {} used by the loop",

@@ -119,9 +119,7 @@ fn serve(
     _duration: Option<f64>,
     _out: &mut dyn Write,
 ) -> Result<(), CliError> {
-    Err(CliError::Usage(
-        "sim serve needs the MuJoCo simulator, which this build does not have: eval \"$(sim/fetch-mujoco.sh)\" && cargo build --release --features sim".into(),
-    ))
+    Err(CliError::Usage(format!("sim serve {}", crate::sim::NOT_BUILT)))
 }
 
 #[cfg(feature = "sim")]
@@ -155,35 +153,13 @@ fn serve(
         scale,
         ..PuppetOptions::default()
     };
-    // Check the model and the mapping here, so errors reach the user before the thread starts.
     let world = load_world(model, skeleton.as_ref(), &profile, &rig, &options).map_err(CliError::Usage)?;
     let mut plant = SimPlant::new(world, &profile, &rig).map_err(|e| CliError::Usage(e.to_string()))?;
-    let rest = rest_angles(&rig);
-    plant.set_angles(&rest);
+    plant.set_angles(&rest_angles(&rig));
     let present = plant.present_ticks();
     let timestep = plant.world().timestep();
-    // MuJoCo's model is built again on the serving thread (it is not shared across threads).
-    let (model, skeleton_again, profile_again) =
-        (model.map(Path::to_path_buf), skeleton.clone(), profile.clone());
-    let make_plant = move || {
-        let rig = profile_again
-            .rig(skeleton_again.as_ref())
-            .expect("checked before the thread started");
-        let world = load_world(
-            model.as_deref(),
-            skeleton_again.as_ref(),
-            &profile_again,
-            &rig,
-            &options,
-        )
-        .expect("checked before the thread started");
-        let mut plant =
-            SimPlant::new(world, &profile_again, &rig).expect("checked before the thread started");
-        plant.set_angles(&rest);
-        plant
-    };
-    let chain = PtyChain::serve_with(chain_for(&profile, |k| present[k]), make_plant, None)
-        .map_err(CliError::Output)?;
+    let chain =
+        PtyChain::serve_with(chain_for(&profile, |k| present[k]), plant, None).map_err(CliError::Output)?;
     writeln!(
         out,
         "{}: {} simulated servos (MuJoCo, time step {} ms) on {}",

@@ -265,17 +265,17 @@ impl PtyChain {
     /// # Errors
     /// When no pseudo-terminal can be opened.
     pub fn serve(chain: Chain, injector: Option<FaultInjector>) -> io::Result<PtyChain> {
-        PtyChain::serve_with(chain, || ServoMotion, injector)
+        PtyChain::serve_with(chain, ServoMotion, injector)
     }
 
-    /// Serves `chain` on a new pseudo-terminal, its servos moved by the plant that
-    /// `make_plant` builds on the serving thread.
+    /// Serves `chain` on a new pseudo-terminal, its servos moved by `plant` on the serving
+    /// thread.
     ///
     /// # Errors
     /// When no pseudo-terminal can be opened.
-    pub fn serve_with<P: Plant + 'static>(
+    pub fn serve_with<P: Plant + Send + 'static>(
         chain: Chain,
-        make_plant: impl FnOnce() -> P + Send + 'static,
+        mut plant: P,
         injector: Option<FaultInjector>,
     ) -> io::Result<PtyChain> {
         let (mut device_end, client_end) = serialport::TTYPort::pair().map_err(io::Error::other)?;
@@ -292,10 +292,7 @@ impl PtyChain {
             let stop = Arc::clone(&stop);
             std::thread::Builder::new()
                 .name("virtual-chain".into())
-                .spawn(move || {
-                    let mut plant = make_plant();
-                    serve_loop(&mut device_end, &chain, &mut plant, &stop, &injector);
-                })?
+                .spawn(move || serve_loop(&mut device_end, &chain, &mut plant, &stop, &injector))?
         };
         Ok(PtyChain {
             path,

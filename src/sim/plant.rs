@@ -225,8 +225,6 @@ impl SimPlant {
                 self.world
                     .set_position_gain(s.actuator, s.base_kp * f64::from(gain) / factory);
             }
-        }
-        for (s, servo) in self.servos.iter().zip(chain.servos()) {
             let ctrl = match servo.drive_goal() {
                 Some(goal) => s.map.ticks_to_angle(f64::from(goal)),
                 // Limp: the actuator's spring is relaxed where the joint is.
