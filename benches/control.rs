@@ -7,13 +7,14 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use marionette::bus::{BusError, PingInfo, ServoBus};
+use marionette::clock::SystemClock;
 use marionette::control::input::{input_channel, Input, Payload};
 use marionette::control::sources::{clip_track, ClipPlayer, TrackFrame};
 use marionette::control::{Controller, Follower, LoopConfig, Solve};
 use marionette::formats::{amc, asf};
 use marionette::profile::Profile;
 use marionette::protocol::{encode, instruction, BROADCAST_ID};
-use marionette::schedule::{Clock, SystemClock, Tick};
+use marionette::schedule::{Clock, Tick};
 use marionette::skeleton::MAX_CHANNELS;
 use std::path::Path;
 use std::sync::Arc;

@@ -8,8 +8,9 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
 use marionette::bus::faults::Rng;
+use marionette::fk::{fk64, Pose64};
 use marionette::formats::{amc, asf};
-use marionette::ik::{fk64, Limb, Pose64, Swivel};
+use marionette::ik::{Limb, Swivel};
 use marionette::ik_numeric::{chain_mask, Constraint, Method, Settings, Solver};
 use marionette::skeleton::Skeleton;
 use std::hint::black_box;

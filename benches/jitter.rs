@@ -8,8 +8,9 @@
 //! `cargo bench --bench jitter` (env `MARIONETTE_JITTER_SECONDS`, default 3;
 //! `MARIONETTE_JITTER_HZ`, default 1000).
 
+use marionette::clock::SystemClock;
 use marionette::control::stats::Histogram;
-use marionette::schedule::{Clock, Schedule, SystemClock};
+use marionette::schedule::{Clock, Schedule};
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 

@@ -17,8 +17,9 @@ use std::time::Instant;
 use glam::DVec3;
 use k::nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use marionette::bus::faults::Rng;
+use marionette::fk::{fk64, Pose64};
 use marionette::formats::asf;
-use marionette::ik::{fk64, Limb, Pose64, Swivel};
+use marionette::ik::{Limb, Swivel};
 use marionette::ik_numeric::{chain_mask, Constraint, Method, Settings, Solver};
 use marionette::skeleton::Skeleton;
 

@@ -40,7 +40,8 @@ use toml::Spanned;
 
 use crate::formats::{read_text, FileError, TextError};
 use crate::math::EulerOrder;
-use crate::rig::{JointSource, Rig, ServoMap, MAX_SERVOS};
+use crate::rig::{JointSource, Rig, ServoMap};
+use crate::servo::MAX_SERVOS;
 use crate::servo::{self, ServoModel, MAX_TICK};
 use crate::skeleton::{Dof, Skeleton};
 

@@ -3,40 +3,13 @@
 
 mod common;
 
+use marionette::alloc_count::{allocations, Counting};
 use marionette::fk::{forward_kinematics, Pose};
 use marionette::formats::{amc, asf};
 use marionette::skeleton::MAX_CHANNELS;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
-struct Counting;
-
-thread_local! {
-    // Per thread, so that other tests running in parallel do not count.
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-#[allow(unsafe_code)]
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
-
-fn allocations() -> u64 {
-    ALLOCATIONS.with(Cell::get)
-}
 
 #[test]
 fn counter_sees_allocations() {
@@ -143,7 +116,8 @@ fn rig_and_bus_cycle_allocates_nothing() {
 #[test]
 fn ik_solves_allocate_nothing() {
     use glam::DVec3;
-    use marionette::ik::{fk64, Limb, Pose64, Swivel};
+    use marionette::fk::{fk64, Pose64};
+    use marionette::ik::{Limb, Swivel};
     use marionette::ik_numeric::{chain_mask, Constraint, JacobianKind, Method, Settings, Solver};
     let skel = asf::load(&common::data("16.asf")).unwrap().skeleton;
     let motion = amc::load(&skel, &common::data("16_15.amc")).unwrap();

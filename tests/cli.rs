@@ -5,13 +5,7 @@ mod common;
 use std::io::Read;
 use std::process::{Output, Stdio};
 
-fn run(args: &[&str]) -> Output {
-    common::bin()
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .unwrap()
-}
+use common::run;
 
 fn stdout(o: &Output) -> String {
     String::from_utf8(o.stdout.clone()).unwrap()
@@ -110,7 +104,7 @@ fn bad_input_gives_one_line_errors_and_nonzero_exit() {
         &run(&["convert", "data/cmu/16.asf", "/tmp/x.txt"]),
         "unknown output type",
     );
-    let dir = tempdir();
+    let dir = common::tempdir("cli");
     let bad = dir.join("bad.amc");
     std::fs::write(&bad, "1\nroot 0 0 0 0 0\n").unwrap();
     one_line_error(
@@ -126,19 +120,9 @@ fn bad_input_gives_one_line_errors_and_nonzero_exit() {
     );
 }
 
-fn tempdir() -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "marionette-cli-{}-{:?}",
-        std::process::id(),
-        std::thread::current().id()
-    ));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 #[test]
 fn convert_bvh_to_asf_amc_and_back() {
-    let d = tempdir();
+    let d = common::tempdir("cli");
     let amc_out = d.join("walk.amc");
     let o = run(&["convert", "data/cmu/16_15.bvh", amc_out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -177,7 +161,7 @@ fn closed_pipe_is_not_an_error() {
 }
 
 fn tmp(name: &str) -> std::path::PathBuf {
-    tempdir().join(name)
+    common::tempdir("cli").join(name)
 }
 
 fn frames_of(amc_path: &std::path::Path) -> usize {

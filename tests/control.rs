@@ -220,7 +220,7 @@ fn follow_tracks_real_wrist_and_ankle_paths() {
         let (mut c, tx) = follow_controller(&s, &names);
         let samples = track.samples.clone();
         let mut ankle_gap = 0.0f64;
-        let mut pose = marionette::ik::Pose64::default();
+        let mut pose = marionette::fk::Pose64::default();
         let end = run(
             &mut c,
             &mut s.vr.clone(),
@@ -240,7 +240,7 @@ fn follow_tracks_real_wrist_and_ankle_paths() {
                 let Some((_, targets)) = samples.get(k as usize) else {
                     return;
                 };
-                marionette::ik::fk64(&s.skel, c.channels(), &mut pose);
+                marionette::fk::fk64(&s.skel, c.channels(), &mut pose);
                 for (e, name) in names.iter().enumerate().skip(2) {
                     let b = s.skel.find(name).unwrap();
                     ankle_gap = ankle_gap.max((pose.tip[b] - targets[e].position).length());
@@ -535,7 +535,7 @@ fn follow_solves_numeric_effectors_and_pointing() {
     .iter()
     .flat_map(|b| s.skel.bones()[bone(b)].channels())
     .collect();
-    let mut pose = marionette::ik::Pose64::default();
+    let mut pose = marionette::fk::Pose64::default();
     let mut goals = Vec::new();
     for f in (0..s.motion.len()).step_by(40) {
         let full = marionette::motion::frame_to_radians(&s.skel, s.motion.frame(f));
@@ -543,7 +543,7 @@ fn follow_solves_numeric_effectors_and_pointing() {
         for &c in &arms {
             ch[c] = full[c];
         }
-        marionette::ik::fk64(&s.skel, &ch, &mut pose);
+        marionette::fk::fk64(&s.skel, &ch, &mut pose);
         let dir = (pose.tip[lh] - pose.start[lh]).normalize();
         goals.push((pose.tip[lr], dir, pose.tip[rh]));
     }
@@ -581,8 +581,8 @@ fn follow_solves_numeric_effectors_and_pointing() {
             let Some(&(wrist, dir, hand)) = goals.get(k as usize / 4) else {
                 return;
             };
-            let mut pose = marionette::ik::Pose64::default();
-            marionette::ik::fk64(&s.skel, c.channels(), &mut pose);
+            let mut pose = marionette::fk::Pose64::default();
+            marionette::fk::fk64(&s.skel, c.channels(), &mut pose);
             let got = (pose.tip[lh] - pose.start[lh]).normalize();
             worst.0 = worst.0.max((pose.tip[lr] - wrist).length());
             worst.1 = worst.1.max(got.angle_between(dir).to_degrees());

@@ -4,9 +4,10 @@ mod common;
 
 use glam::DVec3;
 use marionette::bus::faults::Rng;
+use marionette::fk::{fk64, Pose64};
 use marionette::fk::{forward_kinematics, Pose};
 use marionette::formats::{amc, asf};
-use marionette::ik::{fk64, Limb, Pose64, Swivel};
+use marionette::ik::{Limb, Swivel};
 use marionette::ik_numeric::{chain_mask, Constraint, JacobianKind, Method, Settings, Solver};
 use marionette::skeleton::{Skeleton, MAX_CHANNELS};
 
@@ -207,7 +208,7 @@ fn limb_stream_is_continuous() {
             };
             let s = limb.solve(&skel, &mut ch, target, swivel);
             if let Some(p) = previous {
-                let step = (marionette::interp::wrap_near(s.swivel, p) - p).abs();
+                let step = (marionette::math::wrap_near(s.swivel, p) - p).abs();
                 worst_swivel = worst_swivel.max(step);
             }
             previous = Some(s.swivel);

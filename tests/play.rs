@@ -23,20 +23,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-fn run(args: &[&str]) -> Output {
-    common::bin()
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .stdin(Stdio::null())
-        .output()
-        .unwrap()
-}
-
-fn tempdir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("marionette-play-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+use common::{run, tempdir};
 
 fn json(path: &std::path::Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
@@ -265,10 +252,14 @@ fn bad_loop_arguments_give_one_line_errors() {
     let dir = tempdir("bad");
     let bad = dir.join("bad.csv");
     std::fs::write(&bad, "t,effector,x,y,z\n0,lradius,1,2,3\n0.1,lhand,1,2,3\n").unwrap();
-    for (args, says) in [
+    // Exit codes: 2 for arguments that are wrong, 1 for what fails at run time.
+    const USAGE: i32 = 2;
+    const RUNTIME: i32 = 1;
+    for (args, says, code) in [
         (
             vec!["play", PROFILE, ASF, AMC, "--rate", "0"],
             "--rate must be between",
+            USAGE,
         ),
         // Without the simulator `--bus sim` says how to get it; with it, live input is refused.
         if cfg!(feature = "sim") {
@@ -283,14 +274,24 @@ fn bad_loop_arguments_give_one_line_errors() {
                     "sim",
                 ],
                 "not live input",
+                USAGE,
             )
         } else {
-            (vec!["play", PROFILE, ASF, AMC, "--bus", "sim"], "--features sim")
+            (
+                vec!["play", PROFILE, ASF, AMC, "--bus", "sim"],
+                "--features sim",
+                RUNTIME,
+            )
         },
-        (vec!["play", PROFILE, ASF, AMC, "--duration=-1"], "--duration"),
+        (
+            vec!["play", PROFILE, ASF, AMC, "--duration=-1"],
+            "--duration",
+            USAGE,
+        ),
         (
             vec!["play", PROFILE, ASF, AMC, "--start", "99"],
             "--start must be within",
+            USAGE,
         ),
         (
             vec![
@@ -303,22 +304,30 @@ fn bad_loop_arguments_give_one_line_errors() {
                 "lradius,nose",
             ],
             "no bone named 'nose'",
+            USAGE,
         ),
         (
             vec!["follow", PROFILE, ASF, "--targets", "udp://10.1.2.3:5000"],
             "only a loopback address",
+            USAGE,
         ),
         (
             vec!["follow", PROFILE, ASF, "--targets", bad.to_str().unwrap()],
             "bad.csv:3: effector 'lhand' is not one of",
+            RUNTIME,
         ),
         (
             vec!["play", PROFILE, ASF, AMC, "--bus", "/dev/nonexistent-port"],
             "/dev/nonexistent-port",
+            RUNTIME,
         ),
     ] {
         let o = run(&args);
-        assert!(!o.status.success(), "{args:?} should fail");
+        assert_eq!(
+            o.status.code(),
+            Some(code),
+            "{args:?} should fail with exit code {code}"
+        );
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
         assert!(err.contains(says), "{args:?}: '{err}' should contain '{says}'");

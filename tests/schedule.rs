@@ -84,7 +84,7 @@ fn overrun_skips_whole_periods() {
 /// not asserted (machines are noisy).
 #[test]
 fn system_clock_never_wakes_early() {
-    use marionette::schedule::SystemClock;
+    use marionette::clock::SystemClock;
     let mut clock = SystemClock::new(200_000);
     let start = clock.now_ns() + 1_000_000;
     let mut s = Schedule::new(start, 1_000_000);

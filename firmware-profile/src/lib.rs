@@ -12,11 +12,11 @@
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
 
-pub use marionette::asf::{parse_asf, AsfError};
-pub use marionette::fk::{forward_kinematics, Pose, ShortFrame};
-pub use marionette::skeleton::{Skeleton, MAX_CHANNELS};
+pub use marionette_core::asf::{parse_asf, AsfError};
+pub use marionette_core::fk::{forward_kinematics, Pose, ShortFrame};
+pub use marionette_core::skeleton::{Skeleton, MAX_CHANNELS};
 
-pub use marionette::device::{Chain, Received, Receiver, Replies, VirtualServo};
+pub use marionette_core::device::{Chain, Received, Receiver, Replies, VirtualServo};
 
 /// The OP3's servo ids, 1…20, in `robotis-op3.toml` order (all XM430-W350).
 pub const OP3_IDS: core::ops::RangeInclusive<u8> = 1..=20;
@@ -24,7 +24,7 @@ pub const OP3_IDS: core::ops::RangeInclusive<u8> = 1..=20;
 /// The ROBOTIS OP3's servos as a virtual chain, every horn at tick 2048.
 #[must_use]
 pub fn virtual_op3() -> Chain {
-    let model = marionette::servo::model_by_name("XM430-W350");
+    let model = marionette_core::servo::model_by_name("XM430-W350");
     let mut chain = Chain::new();
     if let Some(model) = model {
         for id in OP3_IDS {
@@ -40,13 +40,13 @@ pub fn virtual_op3() -> Chain {
 pub fn serve(chain: &mut Chain, rx: &mut Receiver, input: &[u8], out: &mut [u8]) -> usize {
     rx.push(input);
     let mut used = 0;
-    let mut packet = [0u8; marionette::device::MAX_PACKET];
+    let mut packet = [0u8; marionette_core::device::MAX_PACKET];
     let mut replies = Replies::new();
     while let Received::Packet(raw) = rx.next_packet() {
         let n = raw.len();
         packet[..n].copy_from_slice(raw);
         rx.consume(n);
-        let mut buf = [0u8; 2 * marionette::device::MAX_PACKET];
+        let mut buf = [0u8; 2 * marionette_core::device::MAX_PACKET];
         if chain.handle(&packet[..n], &mut buf, &mut replies).is_ok() {
             for r in &replies {
                 if used + r.len <= out.len() {
@@ -98,7 +98,7 @@ mod tests {
 
     #[test]
     fn virtual_op3_answers_a_sync_read_split_across_reads() {
-        use marionette::protocol::{decode, encode, instruction, BROADCAST_ID};
+        use marionette_core::protocol::{decode, encode, instruction, BROADCAST_ID};
         let mut chain = virtual_op3();
         let mut rx = Receiver::default();
         let mut request = [0u8; 64];

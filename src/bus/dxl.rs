@@ -12,7 +12,7 @@ use std::time::Duration;
 use dynamixel2::{InvalidMessage, ReadError, TransferError, WriteError};
 
 use super::{invalid_request, BusError, PingInfo, ServoBus};
-use crate::rig::MAX_SERVOS;
+use crate::servo::MAX_SERVOS;
 
 /// Read/write buffer size: a Sync Write to 64 servos with 4 bytes each is 14 + 5·64 bytes.
 const BUFFER: usize = 4096;

@@ -243,15 +243,15 @@ pub trait ServoBus {
     /// # Errors
     /// [`BusError`].
     fn write_goals(&mut self, ids: &[u8], ticks: &[i32]) -> Result<(), BusError> {
-        let mut data = [0u8; 4 * crate::rig::MAX_SERVOS];
+        let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
         for (k, t) in ticks
             .iter()
             .enumerate()
-            .take(ids.len().min(crate::rig::MAX_SERVOS))
+            .take(ids.len().min(crate::servo::MAX_SERVOS))
         {
             data[4 * k..4 * k + 4].copy_from_slice(&t.to_le_bytes());
         }
-        let n = ids.len().min(crate::rig::MAX_SERVOS);
+        let n = ids.len().min(crate::servo::MAX_SERVOS);
         self.sync_write(addr::GOAL_POSITION, 4, &ids[..n], &data[..4 * n])
     }
 
@@ -260,8 +260,8 @@ pub trait ServoBus {
     /// # Errors
     /// [`BusError`]; `out` is untouched then.
     fn read_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), BusError> {
-        let n = ids.len().min(crate::rig::MAX_SERVOS).min(out.len());
-        let mut data = [0u8; 4 * crate::rig::MAX_SERVOS];
+        let n = ids.len().min(crate::servo::MAX_SERVOS).min(out.len());
+        let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
         self.sync_read(addr::PRESENT_POSITION, 4, &ids[..n], &mut data[..4 * n])?;
         for (k, o) in out.iter_mut().enumerate().take(n) {
             *o = i32::from_le_bytes([data[4 * k], data[4 * k + 1], data[4 * k + 2], data[4 * k + 3]]);

@@ -16,7 +16,7 @@ use crate::profile::Profile;
 /// A chain with one servo per profiled id, each at `position` (or 2048).
 ///
 /// # Panics
-/// Never: profiles hold at most [`crate::rig::MAX_SERVOS`] servos.
+/// Never: profiles hold at most [`crate::servo::MAX_SERVOS`] servos.
 #[must_use]
 pub fn chain_for(profile: &Profile, position: impl Fn(usize) -> i32) -> Chain {
     let mut chain = Chain::new();

@@ -26,10 +26,12 @@ use glam::DVec3;
 
 use crate::bus::{BusError, ServoBus};
 use crate::command::CommandStage;
-use crate::ik::{fk64, point_bone, Limb, Pose64, Swivel};
+use crate::fk::{fk64, Pose64};
+use crate::ik::{point_bone, Limb, Swivel};
 use crate::ik_numeric::{Constraint, Settings, Solver};
-use crate::rig::{Rig, MAX_SERVOS};
+use crate::rig::Rig;
 use crate::schedule::{Clock, Schedule, Tick};
+use crate::servo::MAX_SERVOS;
 use crate::servo::{addr, TICKS_PER_TURN};
 use crate::skeleton::{Skeleton, MAX_BONES, MAX_CHANNELS};
 use input::{InputPort, Payload, Target, MAX_EFFECTORS};

@@ -1,41 +1,27 @@
 //! The latency picture of a run: one histogram curve per measured stage on a logarithmic time
 //! axis, with the period marked.
 
-use std::path::Path;
-
+use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::stats::{Histogram, LoopStats, Stage};
-use crate::cli::CliError;
+use crate::plot::{Area, Picture, Rendered};
 
-/// Draws the histograms of `stats` to `out` (`.svg` or `.png`).
-///
-/// # Errors
-/// [`CliError::Usage`] when the file type is not supported, no font is found, or drawing fails.
-pub fn histograms(stats: &LoopStats, out: &Path) -> Result<(), CliError> {
-    crate::motion::plot::register_font().map_err(CliError::Usage)?;
-    let ext = out
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    let size = (1200, 700);
-    let r = match ext.as_str() {
-        "svg" => render(stats, SVGBackend::new(out, size).into_drawing_area()),
-        "png" => render(stats, BitMapBackend::new(out, size).into_drawing_area()),
-        _ => {
-            return Err(CliError::Usage(format!(
-                "{}: the histogram picture must be .svg or .png",
-                out.display()
-            )))
-        }
-    };
-    r.map_err(|e| CliError::Usage(format!("{}: {e}", out.display())))
+/// The latency histograms of a run's statistics, drawn with [`crate::plot::draw`].
+pub struct Histograms<'a>(pub &'a LoopStats);
+
+impl Histograms<'_> {
+    /// Width and height of the picture, pixels.
+    pub const SIZE: (u32, u32) = (1200, 700);
 }
 
-fn render<DB: DrawingBackend>(
-    stats: &LoopStats,
-    area: DrawingArea<DB, plotters::coord::Shift>,
-) -> Result<(), String>
+impl Picture for Histograms<'_> {
+    fn render<DB: DrawingBackend<ErrorType: 'static>>(&self, area: &Area<DB>) -> Rendered {
+        Ok(render(self.0, area)?)
+    }
+}
+
+fn render<DB: DrawingBackend>(stats: &LoopStats, area: &DrawingArea<DB, Shift>) -> Result<(), String>
 where
     DB::ErrorType: 'static,
 {
@@ -61,7 +47,7 @@ where
         }
     }
     let lo = if lo.is_finite() { lo.max(0.01) * 0.8 } else { 0.01 };
-    let mut chart = ChartBuilder::on(&area)
+    let mut chart = ChartBuilder::on(area)
         .caption(
             format!(
                 "loop at {} Hz: {} ticks, {} deadline misses — latency histograms",
@@ -112,7 +98,6 @@ where
         .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(|x| e(&x))?;
-    area.present().map_err(|x| e(&x))?;
     Ok(())
 }
 

@@ -20,10 +20,11 @@ use crossbeam_channel::Receiver;
 use glam::DVec3;
 
 use super::input::{Input, InputSender, Payload, Target, MAX_EFFECTORS};
+use crate::clock::SystemClock;
 use crate::formats::{read_text, FileError, TextError};
 use crate::interp::interpolate_frames;
 use crate::motion::Motion;
-use crate::schedule::{Clock, SystemClock};
+use crate::schedule::Clock;
 use crate::skeleton::{Skeleton, MAX_CHANNELS};
 
 /// A clip sampled at the loop's rate: each call gives the frame at the next tick's clip time,
@@ -571,9 +572,9 @@ pub fn clip_track(
     if bones.len() > MAX_EFFECTORS {
         return Err(format!("at most {MAX_EFFECTORS} effectors"));
     }
-    let mut pose = crate::ik::Pose64::default();
-    let mut rest = crate::ik::Pose64::default();
-    crate::ik::fk64(skeleton, &vec![0.0; skeleton.channel_count()], &mut rest);
+    let mut pose = crate::fk::Pose64::default();
+    let mut rest = crate::fk::Pose64::default();
+    crate::fk::fk64(skeleton, &vec![0.0; skeleton.channel_count()], &mut rest);
     let limb_parent = |b: usize| {
         let up = skeleton.bones()[b].parent()?;
         skeleton.bones()[up].parent()
@@ -586,7 +587,7 @@ pub fn clip_track(
                 ch[c] = 0.0;
             }
         }
-        crate::ik::fk64(skeleton, &ch, &mut pose);
+        crate::fk::fk64(skeleton, &ch, &mut pose);
         let mut targets = heapless::Vec::new();
         for (k, &b) in bones.iter().enumerate() {
             let position = match (frame, limb_parent(b)) {

@@ -320,17 +320,14 @@ impl LoopStats {
     /// The JSON summary.
     #[must_use]
     pub fn report(&self) -> Report {
-        let mut bus_errors = serde_json::Map::new();
-        for (k, n) in ErrorKind::ALL.iter().zip(self.bus_errors) {
-            bus_errors.insert(k.name().to_string(), n.into());
-        }
-        let mut stages = serde_json::Map::new();
-        for s in Stage::ALL {
-            stages.insert(
-                format!("{}_us", s.name()),
-                serde_json::to_value(self.stage(s).summary_us()).unwrap_or_default(),
-            );
-        }
+        let [timeout, crc, wrong_id, servo, malformed, io] = self.bus_errors;
+        let stages = StageReport {
+            input_age_us: self.stage(Stage::InputAge).summary_us(),
+            solve_us: self.stage(Stage::Solve).summary_us(),
+            encode_us: self.stage(Stage::Encode).summary_us(),
+            bus_write_us: self.stage(Stage::BusWrite).summary_us(),
+            bus_read_us: self.stage(Stage::BusRead).summary_us(),
+        };
         Report {
             rate_hz: self.rate_hz,
             ticks: self.ticks,
@@ -342,7 +339,14 @@ impl LoopStats {
             wake_late_us: self.wake_late.summary_us(),
             stages,
             bus_errors: self.bus_error_total(),
-            bus_errors_by_kind: bus_errors,
+            bus_errors_by_kind: BusErrorCounts {
+                timeout,
+                crc,
+                wrong_id,
+                servo,
+                malformed,
+                io,
+            },
             allocations_in_tick: self.allocations_in_tick,
             tracking_rms_deg: self.tracking_rms_deg(),
             tracking_max_deg: self.tracking_max_deg,
@@ -387,11 +391,11 @@ pub struct Report {
     /// Wake-up lateness, µs.
     pub wake_late_us: Quantiles,
     /// Per-stage quantiles, µs.
-    pub stages: serde_json::Map<String, serde_json::Value>,
+    pub stages: StageReport,
     /// All bus errors.
     pub bus_errors: u64,
     /// Bus errors by kind.
-    pub bus_errors_by_kind: serde_json::Map<String, serde_json::Value>,
+    pub bus_errors_by_kind: BusErrorCounts,
     /// Heap allocations inside ticks (null without a counting allocator).
     pub allocations_in_tick: Option<u64>,
     /// RMS of commanded − present over servos and reads, degrees.
@@ -424,6 +428,69 @@ pub struct Report {
     pub ik_error_rms: f64,
     /// Largest IK residual, file units.
     pub ik_error_max: f64,
+}
+
+/// Per-stage latency quantiles of a run, µs (the stages of [`Stage`], by [`Stage::name`]).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct StageReport {
+    /// [`Stage::InputAge`].
+    pub input_age_us: Quantiles,
+    /// [`Stage::Solve`].
+    pub solve_us: Quantiles,
+    /// [`Stage::Encode`].
+    pub encode_us: Quantiles,
+    /// [`Stage::BusWrite`].
+    pub bus_write_us: Quantiles,
+    /// [`Stage::BusRead`].
+    pub bus_read_us: Quantiles,
+}
+
+/// Bus errors of a run by [`ErrorKind`] (named by [`ErrorKind::name`]).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct BusErrorCounts {
+    /// [`ErrorKind::Timeout`].
+    pub timeout: u64,
+    /// [`ErrorKind::Crc`].
+    pub crc: u64,
+    /// [`ErrorKind::WrongId`].
+    pub wrong_id: u64,
+    /// [`ErrorKind::Servo`].
+    pub servo: u64,
+    /// [`ErrorKind::Malformed`].
+    pub malformed: u64,
+    /// [`ErrorKind::Io`].
+    pub io: u64,
+}
+
+/// What `--stats-json` writes: the loop's [`Report`], how the run ended, what the input
+/// producer did, and what the command adds (`play`: the clip's figures).
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport<X: Serialize> {
+    /// The loop's statistics.
+    #[serde(flatten)]
+    pub stats: Report,
+    /// How the run ended.
+    pub end: &'static str,
+    /// Inputs the producer made.
+    pub inputs_produced: u64,
+    /// Inputs the producer dropped (the loop's channel was full).
+    pub inputs_dropped_by_producer: u64,
+    /// Input lines that were refused.
+    pub bad_input_lines: u64,
+    /// The command's own fields.
+    #[serde(flatten)]
+    pub extra: X,
+}
+
+/// `play`'s fields of a [`RunReport`].
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ClipFigures {
+    /// Frames in the clip.
+    pub clip_frames: usize,
+    /// Loop samples in one pass of the clip.
+    pub samples_per_pass: u64,
+    /// Whether every sample of every pass reached the loop.
+    pub all_samples_sent: bool,
 }
 
 impl fmt::Display for LoopStats {

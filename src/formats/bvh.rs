@@ -17,7 +17,9 @@ use super::asf::AsfFile;
 use super::{exact, read_text, FileError, TextError};
 use crate::math::{Axis, EulerOrder};
 use crate::motion::Motion;
-use crate::skeleton::{BoneName, BoneSpec, Dof, Limit, RootSpec, Skeleton, SkeletonError, Units, MAX_BONES};
+use crate::skeleton::{
+    dof_rotation, BoneName, BoneSpec, Dof, Limit, RootSpec, Skeleton, SkeletonError, Units, MAX_BONES,
+};
 use glam::{DMat3, DVec3, Vec3};
 use std::io::{self, Write};
 use std::path::Path;
@@ -413,15 +415,7 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
         degrees: true,
     };
     let skeleton = Skeleton::new(root_spec, units, &specs, &parents).map_err(|e| {
-        let i = match e {
-            SkeletonError::DuplicateName(i)
-            | SkeletonError::Detached(i)
-            | SkeletonError::BadParent(i)
-            | SkeletonError::BadDirection(i)
-            | SkeletonError::BadLength(i)
-            | SkeletonError::BadChannels(i) => i,
-            SkeletonError::TooManyBones => usize::MAX,
-        };
+        let i = e.bone().unwrap_or(usize::MAX);
         let name = specs.get(i).map_or("", |s| s.name.as_str());
         let j = joints.iter().find(|j| j.name == name);
         TextError::new(
@@ -547,17 +541,6 @@ pub enum ExportError {
     Io(#[from] io::Error),
 }
 
-/// The channel rotation `M` of a bone in f64, from file values (degrees).
-fn rotation_f64(dofs: &[Dof], values: &[f64]) -> DMat3 {
-    let mut m = DMat3::IDENTITY;
-    for (d, v) in dofs.iter().zip(values) {
-        if let (true, Some(a)) = (d.is_rotation(), d.axis()) {
-            m = a.rotation_f64(v.to_radians()) * m;
-        }
-    }
-    m
-}
-
 /// Writes a skeleton and motion as BVH (pose-exact; see the module docs).
 ///
 /// # Errors
@@ -634,7 +617,7 @@ pub fn write(skeleton: &Skeleton, motion: &Motion, mut w: impl Write) -> Result<
         line.clear();
         for (i, b) in bones.iter().enumerate() {
             let values = &frame[b.channels()];
-            let m = rotation_f64(b.dofs(), values);
+            let m = dof_rotation(b.dofs(), values.iter().map(|v| v.to_radians()));
             let q = if i == 0 {
                 let mut t = root.position.as_dvec3();
                 for (d, v) in b.dofs().iter().zip(values) {

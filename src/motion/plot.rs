@@ -3,10 +3,11 @@
 
 use super::clip::heading;
 use super::Motion;
+use crate::plot::{Area, Picture, Rendered};
 use crate::skeleton::Skeleton;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::ops::Range;
-use std::path::Path;
 
 /// What to draw.
 pub struct ConnectionPlot<'a> {
@@ -26,37 +27,6 @@ pub struct ConnectionPlot<'a> {
     pub best: usize,
 }
 
-/// Font files tried for text (plotters draws text itself).
-const FONTS: &[&str] = &[
-    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
-    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-    "/usr/share/fonts/liberation/LiberationSans-Regular.ttf",
-    "/System/Library/Fonts/Supplemental/Arial.ttf",
-    "C:\\Windows\\Fonts\\arial.ttf",
-];
-
-pub(crate) fn register_font() -> Result<(), String> {
-    static FONT: std::sync::OnceLock<Option<&'static [u8]>> = std::sync::OnceLock::new();
-    let font = FONT.get_or_init(|| {
-        let env = std::env::var("MARIONETTE_FONT").ok();
-        let paths = env.iter().map(String::as_str).chain(FONTS.iter().copied());
-        for p in paths {
-            if let Ok(bytes) = std::fs::read(p) {
-                let leaked: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                if plotters::style::register_font("sans-serif", FontStyle::Normal, leaked).is_ok() {
-                    return Some(leaked);
-                }
-            }
-        }
-        None
-    });
-    font.map(|_| ()).ok_or_else(|| {
-        "no TrueType font found for the picture's text (set MARIONETTE_FONT to a .ttf file)".to_string()
-    })
-}
-
 fn path(skeleton: &Skeleton, m: &Motion) -> Vec<(f64, f64)> {
     (0..m.len())
         .map(|i| {
@@ -66,23 +36,23 @@ fn path(skeleton: &Skeleton, m: &Motion) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// Draws the picture to `out` (`.svg` or `.png`).
-///
-/// # Errors
-/// A message when the file type is not supported, no font is found, or drawing fails.
-pub fn draw(skeleton: &Skeleton, plot: &ConnectionPlot<'_>, out: &Path) -> Result<(), String> {
-    register_font()?;
-    let ext = out
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    let size = (1400, 640);
-    let result = match ext.as_str() {
-        "svg" => render(skeleton, plot, SVGBackend::new(out, size).into_drawing_area()),
-        "png" => render(skeleton, plot, BitMapBackend::new(out, size).into_drawing_area()),
-        _ => return Err(format!("{}: the picture must be .svg or .png", out.display())),
-    };
-    result.map_err(|e| format!("{}: {e}", out.display()))
+/// A [`ConnectionPlot`] over its skeleton, drawn with [`crate::plot::draw`].
+pub struct ConnectionPicture<'a> {
+    /// The clips' skeleton.
+    pub skeleton: &'a Skeleton,
+    /// What to draw.
+    pub plot: &'a ConnectionPlot<'a>,
+}
+
+impl ConnectionPicture<'_> {
+    /// Width and height of the picture, pixels.
+    pub const SIZE: (u32, u32) = (1400, 640);
+}
+
+impl Picture for ConnectionPicture<'_> {
+    fn render<DB: DrawingBackend<ErrorType: 'static>>(&self, area: &Area<DB>) -> Rendered {
+        render(self.skeleton, self.plot, area)
+    }
 }
 
 fn bounds(points: impl Iterator<Item = (f64, f64)>) -> ((f64, f64), (f64, f64)) {
@@ -103,7 +73,7 @@ fn bounds(points: impl Iterator<Item = (f64, f64)>) -> ((f64, f64), (f64, f64)) 
 fn render<DB: DrawingBackend>(
     skeleton: &Skeleton,
     plot: &ConnectionPlot<'_>,
-    root: DrawingArea<DB, plotters::coord::Shift>,
+    root: &DrawingArea<DB, Shift>,
 ) -> Result<(), Box<dyn std::error::Error>>
 where
     DB::ErrorType: 'static,
@@ -203,6 +173,5 @@ where
             .border_style(BLACK)
             .draw()?;
     }
-    root.present()?;
     Ok(())
 }

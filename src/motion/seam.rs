@@ -2,7 +2,8 @@
 //! angle, any bone, the root included), the root's displacement and its facing change.
 
 use super::Motion;
-use crate::interp::{facing_angle, largest_joint_change, root_position, root_rotation, wrap_near};
+use crate::interp::{facing_angle, largest_joint_change, root_position, root_rotation};
+use crate::math::wrap_near;
 use crate::skeleton::Skeleton;
 use std::ops::Range;
 

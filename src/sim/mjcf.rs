@@ -116,10 +116,6 @@ pub enum MjcfError {
     Options(String),
 }
 
-fn mat(m: glam::Mat3) -> DMat3 {
-    DMat3::from_cols(m.x_axis.as_dvec3(), m.y_axis.as_dvec3(), m.z_axis.as_dvec3())
-}
-
 fn v3(v: DVec3) -> String {
     format!("{} {} {}", f(v.x), f(v.y), f(v.z))
 }
@@ -311,10 +307,10 @@ fn write_children(
     let c_parent = if parent == 0 {
         DMat3::IDENTITY
     } else {
-        mat(bones[parent].axis_rotation())
+        bones[parent].axis_rotation_f64()
     };
     for b in skeleton.children(parent) {
-        let c = mat(bones[b].axis_rotation());
+        let c = bones[b].axis_rotation_f64();
         let pos = c_parent.transpose() * tip(parent);
         let rel = DQuat::from_mat3(&(c_parent.transpose() * c)).normalize();
         let _ = writeln!(

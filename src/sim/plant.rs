@@ -54,6 +54,18 @@ pub enum SimError {
     /// An actuator does not drive a joint directly.
     #[error("actuator `{0}` does not drive a joint (tendon and site transmissions are not servos)")]
     NotAJoint(String),
+    /// The puppet model could not be generated.
+    #[error(transparent)]
+    Puppet(#[from] super::mjcf::MjcfError),
+    /// A model file could not be read or MuJoCo refused it.
+    #[error(transparent)]
+    ModelFile(marionette_sim::LoadError),
+    /// MuJoCo refused the generated puppet.
+    #[error("the generated model: {0}")]
+    Generated(marionette_sim::LoadError),
+    /// Neither a model file nor a skeleton to generate one from.
+    #[error("a model is needed: give an MJCF file (--model) or an ASF skeleton to generate one")]
+    NoModel,
 }
 
 /// What was recorded at one physics sample.
@@ -327,22 +339,20 @@ pub fn sim_bus(world: World, profile: &Profile, rig: &Rig) -> Result<SimBus, Sim
 /// Loads a model: a given MJCF file, or the puppet generated from the skeleton and profile.
 ///
 /// # Errors
-/// A message naming the file or the servo at fault.
+/// [`SimError`] naming the file or the servo at fault.
 pub fn load_world(
     model: Option<&Path>,
     skeleton: Option<&crate::skeleton::Skeleton>,
     profile: &Profile,
     rig: &Rig,
     options: &super::mjcf::PuppetOptions,
-) -> Result<World, String> {
+) -> Result<World, SimError> {
     match (model, skeleton) {
-        (Some(path), _) => World::from_file(path).map_err(|e| e.to_string()),
+        (Some(path), _) => World::from_file(path).map_err(SimError::ModelFile),
         (None, Some(sk)) => {
-            let xml = super::mjcf::puppet(sk, profile, rig, options).map_err(|e| e.to_string())?;
-            World::from_xml_str(&xml).map_err(|e| format!("the generated model: {e}"))
+            let xml = super::mjcf::puppet(sk, profile, rig, options)?;
+            World::from_xml_str(&xml).map_err(SimError::Generated)
         }
-        (None, None) => {
-            Err("a model is needed: give an MJCF file (--model) or an ASF skeleton to generate one".into())
-        }
+        (None, None) => Err(SimError::NoModel),
     }
 }

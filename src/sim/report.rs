@@ -1,14 +1,12 @@
 //! How well simulated servos followed their commands: per-servo RMS, maximum and lag of the
 //! angle error, end-effector position error, torque saturation, and pictures of them.
 
-use std::path::Path;
-
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
 use super::plant::Sample;
-use crate::formats::FileError;
+use crate::plot::{Area, Picture, Rendered};
 
 /// Longest lag searched, seconds.
 const MAX_LAG_S: f64 = 0.3;
@@ -201,36 +199,30 @@ fn error_stats(cmd: &[f64], sim: &[f64], shift: usize) -> (f64, usize, f64) {
     (ss, c, mx)
 }
 
-/// Draws commanded (dashed) and simulated (solid) angles over time for the chosen servos (by
-/// index), one panel each, and the per-servo RMS bar chart below. `.svg` or `.png`.
-///
-/// # Errors
-/// [`FileError`] when the picture cannot be written.
-pub fn draw(
-    path: &Path,
-    samples: &[Sample],
-    report: &TrackingReport,
-    chosen: &[usize],
-) -> Result<(), FileError> {
-    let svg = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("svg"));
-    let png = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
-    if !svg && !png {
-        return Err(FileError::io(
-            path,
-            std::io::Error::other("expected a .png or .svg file name"),
-        ));
+/// Commanded (dashed) and simulated (solid) angles over time for the chosen servos (by
+/// index), one panel each, and the per-servo RMS bar chart below; drawn with
+/// [`crate::plot::draw`].
+pub struct TrackingPicture<'a> {
+    /// The recorded samples.
+    pub samples: &'a [Sample],
+    /// The report of the same run.
+    pub report: &'a TrackingReport,
+    /// Servo indices to draw.
+    pub chosen: &'a [usize],
+}
+
+impl TrackingPicture<'_> {
+    /// Width and height of the picture, pixels: a panel per chosen servo above the bars.
+    #[must_use]
+    pub fn size(&self) -> (u32, u32) {
+        (1200, 230 * self.chosen.len().max(1) as u32 + 380)
     }
-    crate::motion::plot::register_font().map_err(|e| FileError::io(path, std::io::Error::other(e)))?;
-    let rows = chosen.len().max(1) as u32;
-    let size = (1200, 230 * rows + 380);
-    let result = if svg {
-        let root = SVGBackend::new(path, size).into_drawing_area();
-        paint(&root, samples, report, chosen).and_then(|()| root.present().map_err(|e| e.to_string()))
-    } else {
-        let root = BitMapBackend::new(path, size).into_drawing_area();
-        paint(&root, samples, report, chosen).and_then(|()| root.present().map_err(|e| e.to_string()))
-    };
-    result.map_err(|e| FileError::io(path, std::io::Error::other(e)))
+}
+
+impl Picture for TrackingPicture<'_> {
+    fn render<DB: DrawingBackend<ErrorType: 'static>>(&self, area: &Area<DB>) -> Rendered {
+        Ok(paint(area, self.samples, self.report, self.chosen)?)
+    }
 }
 
 fn paint<DB: DrawingBackend>(

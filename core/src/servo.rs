@@ -89,6 +89,8 @@ pub mod status_error {
     pub const ALERT: u8 = 0x80;
 }
 
+/// Most servos on one bus or in one rig.
+pub const MAX_SERVOS: usize = 64;
 /// Ticks per output-shaft turn.
 pub const TICKS_PER_TURN: u32 = 4096;
 /// Highest position in position-control mode.
@@ -173,4 +175,28 @@ pub fn model_by_name(name: &str) -> Option<&'static ServoModel> {
 #[must_use]
 pub fn model_by_number(number: u16) -> Option<&'static ServoModel> {
     MODELS.iter().find(|m| m.model_number == number)
+}
+
+/// One step of a velocity- and acceleration-limited follower: the velocity that would reach
+/// `target` this step, bounded by `vmax`, by the speed from which `amax` can still stop at the
+/// target (`√(2·amax·d)`), and by `amax·dt` of change from the last velocity.
+#[must_use]
+pub fn step_towards(position: f64, velocity: f64, target: f64, vmax: f64, amax: f64, dt: f64) -> (f64, f64) {
+    let d = target - position;
+    let mut v = d / dt;
+    let vmax = if vmax > 0.0 { vmax } else { f64::INFINITY };
+    v = v.clamp(-vmax, vmax);
+    if amax > 0.0 && amax.is_finite() {
+        // Braking: from speed v we need v²/(2a) to stop; never go faster than that allows.
+        let brake = libm::sqrt(2.0 * amax * d.abs());
+        v = v.clamp(-brake.max(amax * dt), brake.max(amax * dt));
+        let dv = amax * dt;
+        v = v.clamp(velocity - dv, velocity + dv);
+    }
+    // Never step past the target.
+    let step = v * dt;
+    if (d >= 0.0 && step > d) || (d <= 0.0 && step < d) {
+        return (target, d / dt);
+    }
+    (position + step, v)
 }

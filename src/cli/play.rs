@@ -14,23 +14,26 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
+use super::CliError;
 use crate::budget::plan;
 use crate::bus::dxl::Dynamixel2Bus;
 use crate::bus::start_up;
 use crate::bus::virtual_chain::{chain_for, PtyChain};
-use crate::cli::CliError;
+use crate::clock::SystemClock;
 use crate::control::input::{input_channel, InputPort, InputSender};
 use crate::control::lockstep::{LockstepSource, PlayerFeed, TrackFeed};
+use crate::control::plot::Histograms;
 use crate::control::rt::RealTime;
 use crate::control::sources::{
     clip_track, spawn_player, spawn_stdin, spawn_track, spawn_udp, write_csv, ClipPlayer, PlayerCommand,
     ProducerReport, TargetTrack, TrackFrame,
 };
-use crate::control::stats::LoopStats;
+use crate::control::stats::{ClipFigures, LoopStats, RunReport};
 use crate::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode, Telemetry};
 use crate::formats::{amc, asf};
+use crate::plot::{draw, Format};
 use crate::profile::Profile;
-use crate::schedule::{Clock, Schedule, SystemClock};
+use crate::schedule::{Clock, Schedule};
 use crate::skeleton::Skeleton;
 
 /// Messages an input channel holds: paced producers run up to `LEAD_NS` (10 ms) ahead, which
@@ -46,13 +49,40 @@ pub enum OnStop {
     Hold,
 }
 
+/// `--bus sim` with stdin or UDP targets.
+const SIM_TAKES_NO_LIVE_INPUT: &str = "--bus sim runs in simulated time: it takes a clip or a target file, not live input (stdin, UDP); serve the simulator on a pseudo-terminal instead (`marionette sim serve`)";
+
+/// What `--bus` names.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum BusArg {
+    /// A virtual servo chain on a pseudo-terminal.
+    Virtual,
+    /// The MuJoCo simulator in lockstep.
+    Sim,
+    /// A serial port.
+    Port(String),
+}
+
+impl std::str::FromStr for BusArg {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<BusArg, String> {
+        match s {
+            "" => Err("give `virtual`, `sim` or a serial port path".into()),
+            "virtual" => Ok(BusArg::Virtual),
+            "sim" => Ok(BusArg::Sim),
+            port => Ok(BusArg::Port(port.to_string())),
+        }
+    }
+}
+
 /// Options shared by `play` and `follow`.
 #[derive(Clone, Debug, Args)]
 pub struct LoopArgs {
     /// The bus: `virtual` (a virtual servo chain on a pseudo-terminal, driven through the real
     /// serial code), `sim` (MuJoCo, built with --features sim) or a serial port path.
     #[arg(long, default_value = "virtual")]
-    pub bus: String,
+    pub bus: BusArg,
     /// Bit rate of a serial port (default: the profile's).
     #[arg(long)]
     pub baud: Option<u32>,
@@ -138,16 +168,9 @@ fn check(args: &LoopArgs) -> Result<(), CliError> {
             "--torque-off-after must be a positive number of ms".into(),
         ));
     }
-    if let Some(p) = &args.sim_plot {
-        let ext = p
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase);
-        if !matches!(ext.as_deref(), Some("png" | "svg")) {
-            return Err(CliError::Usage(format!(
-                "--sim-plot {}: expected a .png or .svg file name",
-                p.display()
-            )));
+    for (option, picture) in [("--sim-plot", &args.sim_plot), ("--histogram", &args.histogram)] {
+        if let Some(Err(e)) = picture.as_deref().map(Format::of) {
+            return Err(CliError::Usage(format!("{option} {e}")));
         }
     }
     if args.hold_after == 0 {
@@ -162,8 +185,8 @@ fn open_bus(
     rig: &crate::rig::Rig,
     out: &mut dyn Write,
 ) -> Result<OpenBus, CliError> {
-    match args.bus.as_str() {
-        "virtual" => {
+    match &args.bus {
+        BusArg::Virtual => {
             // Servos powered up at their zero angle (inside their limits).
             let rest: Vec<i32> = rig
                 .servos
@@ -173,15 +196,19 @@ fn open_bus(
             let chain = PtyChain::serve(chain_for(profile, |k| rest[k]), None).map_err(CliError::Output)?;
             let path = chain.path().to_string();
             let baud = args.baud.unwrap_or(profile.bus.baud);
-            let bus =
-                Dynamixel2Bus::open(&path, baud).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+            let bus = Dynamixel2Bus::open(&path, baud).map_err(|source| CliError::Port {
+                port: path.clone(),
+                source,
+            })?;
             Ok(OpenBus {
                 bus,
                 label: format!("virtual chain of {} servos on {path}", profile.servos.len()),
                 _chain: Some(chain),
             })
         }
-        port => {
+        // Clips and target files reach the simulator in lockstep (`run_sim`) before this.
+        BusArg::Sim => Err(CliError::Usage(SIM_TAKES_NO_LIVE_INPUT.into())),
+        BusArg::Port(port) => {
             let baud = args.baud.unwrap_or(profile.bus.baud);
             let mut cfg = profile.bus.clone();
             cfg.baud = baud;
@@ -195,7 +222,10 @@ fn open_bus(
                     1e6 / args.rate
                 )?;
             }
-            let bus = Dynamixel2Bus::open(port, baud).map_err(|e| CliError::Usage(format!("{port}: {e}")))?;
+            let bus = Dynamixel2Bus::open(port, baud).map_err(|source| CliError::Port {
+                port: port.clone(),
+                source,
+            })?;
             Ok(OpenBus {
                 bus,
                 label: format!("{port} at {baud} bit/s"),
@@ -236,7 +266,7 @@ fn run_sim(
     _allocations: Option<fn() -> u64>,
     _out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
-    Err(CliError::Usage(format!("--bus sim {}", crate::sim::NOT_BUILT)))
+    Err(CliError::NoSimulator("--bus sim"))
 }
 
 /// `--bus sim`: the loop in lockstep with MuJoCo, on simulated time, in this thread; then the
@@ -261,10 +291,9 @@ fn run_sim(
         scale: args.scale,
         ..PuppetOptions::default()
     };
-    let world = plant::load_world(args.model.as_deref(), Some(&skeleton), profile, &rig, &options)
-        .map_err(CliError::Usage)?;
-    let mut bus = plant::sim_bus(world, profile, &rig).map_err(|e| CliError::Usage(e.to_string()))?;
-    let present = start_up(&mut bus, profile).map_err(|e| CliError::Usage(format!("start-up: {e}")))?;
+    let world = plant::load_world(args.model.as_deref(), Some(&skeleton), profile, &rig, &options)?;
+    let mut bus = plant::sim_bus(world, profile, &rig)?;
+    let present = start_up(&mut bus, profile)?;
     writeln!(
         out,
         "MuJoCo: {} ({}), {} servos up, torque on; lockstep on simulated time",
@@ -305,13 +334,20 @@ fn run_sim(
     });
     write!(out, "{tracking}")?;
     if let Some(path) = &args.sim_report {
-        let text = serde_json::to_string_pretty(&tracking).map_err(|e| CliError::Usage(e.to_string()))?;
+        let text = serde_json::to_string_pretty(&tracking)?;
         std::fs::write(path, text + "\n").map_err(|e| crate::formats::FileError::io(path, e))?;
         writeln!(out, "tracking report written to {}", path.display())?;
     }
     if let Some(path) = &args.sim_plot {
         let chosen = plot_choice(&args.plot_servos, &tracking)?;
-        bus.with(|t| report::draw(path, t.plant().samples(), &tracking, &chosen))?;
+        bus.with(|t| {
+            let picture = report::TrackingPicture {
+                samples: t.plant().samples(),
+                report: &tracking,
+                chosen: &chosen,
+            };
+            draw(&picture, picture.size(), path)
+        })?;
         writeln!(out, "commanded vs simulated angles drawn in {}", path.display())?;
     }
     Ok(Outcome {
@@ -382,21 +418,26 @@ fn run_loop(
         .iter()
         .find(|s| matches!(s.drive, crate::profile::Drive::Joint(_)))
     {
-        return Err(CliError::Usage(format!(
-            "{}: servo {} (`{}`) is driven by a robot joint, not a skeleton bone; play and follow need a profile whose servos follow the skeleton's bones",
-            profile.path.display(),
-            s.id,
-            s.name
-        )));
+        return Err(CliError::JointDriven {
+            profile: profile.path.clone(),
+            id: s.id,
+            name: s.name.clone(),
+        });
     }
     let start_producer = match producer {
         Producer::Lockstep(tx, make_source) => {
-            return run_sim(args, profile, skeleton, rig, solve, port, tx, make_source, allocations, out)
-        }
-        Producer::Thread(_) if args.bus == "sim" => {
-            return Err(CliError::Usage(
-                "--bus sim runs in simulated time: it takes a clip or a target file, not live input (stdin, UDP); serve the simulator on a pseudo-terminal instead (`marionette sim serve`)".into(),
-            ))
+            return run_sim(
+                args,
+                profile,
+                skeleton,
+                rig,
+                solve,
+                port,
+                tx,
+                make_source,
+                allocations,
+                out,
+            )
         }
         Producer::Thread(start) => start,
     };
@@ -405,7 +446,7 @@ fn run_loop(
         _chain,
         label,
     } = open_bus(args, profile, &rig, out)?;
-    let present = start_up(&mut bus, profile).map_err(|e| CliError::Usage(format!("start-up: {e}")))?;
+    let present = start_up(&mut bus, profile)?;
     writeln!(out, "{label}: {} servos up, torque on", present.len())?;
     let config = loop_config(args, allocations);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
@@ -438,9 +479,7 @@ fn run_loop(
         })
         .map_err(CliError::Output)?;
     let status = status_line(&trx, args, &handle, period);
-    let (stats, end, warnings) = handle
-        .join()
-        .map_err(|_| CliError::Usage("the control loop thread panicked".into()))?;
+    let (stats, end, warnings) = handle.join().map_err(|_| CliError::LoopPanicked)?;
     if status {
         eprintln!();
     }
@@ -517,10 +556,14 @@ fn status_line<T>(
     printed
 }
 
+/// `follow` adds nothing to the [`RunReport`].
+#[derive(serde::Serialize)]
+struct NoFigures {}
+
 fn finish(
     outcome: &Outcome,
     args: &LoopArgs,
-    extra: serde_json::Map<String, serde_json::Value>,
+    extra: impl serde::Serialize,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
     writeln!(out, "{}", outcome.stats)?;
@@ -532,31 +575,26 @@ fn finish(
     };
     writeln!(out, "ended: {end}; torque off")?;
     if let Some(path) = &args.stats_json {
-        let mut v =
-            serde_json::to_value(outcome.stats.report()).map_err(|e| CliError::Usage(e.to_string()))?;
-        if let Some(o) = v.as_object_mut() {
-            o.insert("end".into(), end.into());
-            o.insert("inputs_produced".into(), outcome.producer.sent.into());
-            o.insert(
-                "inputs_dropped_by_producer".into(),
-                outcome.producer.dropped.into(),
-            );
-            o.insert("bad_input_lines".into(), outcome.producer.bad_lines.into());
-            o.extend(extra);
-        }
-        let text = serde_json::to_string_pretty(&v).map_err(|e| CliError::Usage(e.to_string()))?;
+        let report = RunReport {
+            stats: outcome.stats.report(),
+            end,
+            inputs_produced: outcome.producer.sent,
+            inputs_dropped_by_producer: outcome.producer.dropped,
+            bad_input_lines: outcome.producer.bad_lines,
+            extra,
+        };
+        let text = serde_json::to_string_pretty(&report)?;
         std::fs::write(path, text + "\n").map_err(|e| crate::formats::FileError::io(path, e))?;
         writeln!(out, "statistics written to {}", path.display())?;
     }
     if let Some(path) = &args.histogram {
-        crate::control::plot::histograms(&outcome.stats, path)?;
+        draw(&Histograms(&outcome.stats), Histograms::SIZE, path)?;
         writeln!(out, "histograms drawn in {}", path.display())?;
     }
     if outcome.end == RunEnd::ReadsFailed {
-        return Err(CliError::Usage(format!(
-            "no valid read for {} ms: torque turned off on every servo",
-            args.torque_off_after
-        )));
+        return Err(CliError::ServosSilent {
+            ms: args.torque_off_after,
+        });
     }
     Ok(())
 }
@@ -584,7 +622,7 @@ pub fn play_cmd(
     let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
     let motion = Arc::new(amc::load(&skeleton, amc_path)?);
     if motion.is_empty() {
-        return Err(CliError::Usage(format!("{}: no frames", amc_path.display())));
+        return Err(CliError::EmptyClip(amc_path.to_path_buf()));
     }
     if !(start_at.is_finite() && (0.0..=motion.duration()).contains(&start_at)) {
         return Err(CliError::Usage(format!(
@@ -608,7 +646,7 @@ pub fn play_cmd(
         if looping { ", looping" } else { "" }
     )?;
     let (tx, port) = input_channel(INPUT_CAPACITY);
-    let producer = if args.bus == "sim" {
+    let producer = if args.bus == BusArg::Sim {
         let channels = skeleton.channel_count();
         Producer::Lockstep(
             tx,
@@ -642,11 +680,12 @@ pub fn play_cmd(
             ""
         }
     )?;
-    let mut extra = serde_json::Map::new();
-    extra.insert("clip_frames".into(), motion.len().into());
-    extra.insert("samples_per_pass".into(), samples.into());
-    extra.insert("all_samples_sent".into(), all.into());
-    finish(&outcome, args, extra, out)
+    let figures = ClipFigures {
+        clip_frames: motion.len(),
+        samples_per_pass: samples,
+        all_samples_sent: all,
+    };
+    finish(&outcome, args, figures, out)
 }
 
 /// Player commands typed on a terminal: `p` pause/resume, `s SECONDS` seek, `x SPEED` speed.
@@ -701,7 +740,10 @@ fn target_source(spec: &str, effectors: &[String]) -> Result<TargetSource, CliEr
                 "--targets {spec}: only a loopback address is accepted (targets move servos; forward other hosts explicitly)"
             )));
         }
-        let socket = UdpSocket::bind(addr).map_err(|e| CliError::Usage(format!("--targets {spec}: {e}")))?;
+        let socket = UdpSocket::bind(addr).map_err(|source| CliError::Port {
+            port: format!("--targets {spec}"),
+            source,
+        })?;
         return Ok(TargetSource::Udp(socket));
     }
     Ok(TargetSource::File(TargetTrack::load(Path::new(spec), effectors)?))
@@ -753,7 +795,7 @@ pub fn follow_cmd(
     let (tx, port): (InputSender, InputPort) = input_channel(INPUT_CAPACITY);
     let names = effectors.to_vec();
     let producer = match source {
-        TargetSource::File(track) if args.bus == "sim" => {
+        TargetSource::File(track) if args.bus == BusArg::Sim => {
             if looping {
                 return Err(CliError::Usage(
                     "--loop with --bus sim would never end: give --duration instead of looping a simulated run".into(),
@@ -785,7 +827,7 @@ pub fn follow_cmd(
         outcome.producer.bad_lines,
         outcome.stats.inputs_used
     )?;
-    finish(&outcome, args, serde_json::Map::new(), out)
+    finish(&outcome, args, NoFigures {}, out)
 }
 
 /// Output format of `targets`.

@@ -5,9 +5,10 @@ use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
 
-use crate::cli::CliError;
+use super::CliError;
+use crate::fk::{fk64, Pose64};
 use crate::formats::{amc, asf};
-use crate::ik::{fk64, Limb, Pose64, Swivel};
+use crate::ik::{Limb, Swivel};
 use crate::ik_numeric::{chain_mask, Constraint, Method, Settings, Solver};
 use crate::motion::{frame_to_radians, radians_to_frame, Motion, CMU_FRAME_RATE};
 
@@ -54,10 +55,10 @@ pub struct IkArgs<'a> {
     pub frame: Option<i64>,
     /// Effector bone (its tip reaches the target).
     pub effector: &'a str,
-    /// Target, file units.
-    pub target: DVec3,
-    /// Pointing direction of the bone after the effector (the hand, the foot).
-    pub point_dir: Option<DVec3>,
+    /// Target `X,Y,Z`, file units.
+    pub target: &'a str,
+    /// Pointing direction `X,Y,Z` of the bone after the effector (the hand, the foot).
+    pub point_dir: Option<&'a str>,
     /// Roll about the pointing direction, degrees.
     pub roll: Option<f64>,
     /// Method.
@@ -68,6 +69,16 @@ pub struct IkArgs<'a> {
 
 /// Runs `marionette ik`.
 pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
+    let target = parse_vec3(args.target, "--target")?;
+    let point_dir = args.point_dir.map(|p| parse_vec3(p, "--point-dir")).transpose()?;
+    if point_dir.is_some_and(|d| d.length() < 1e-12) {
+        return Err(CliError::Usage("--point-dir must not be zero".into()));
+    }
+    if args.roll.is_some_and(|r| !r.is_finite()) {
+        return Err(CliError::Usage(
+            "--roll must be a finite number of degrees".into(),
+        ));
+    }
     let file = asf::load(args.asf)?;
     let skel = &file.skeleton;
     let mut channels = vec![0.0; skel.channel_count()];
@@ -120,7 +131,7 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
         }
         at = skel.children(c).next();
     }
-    let orient = match (args.point_dir, hand) {
+    let orient = match (point_dir, hand) {
         (Some(dir), Some(h)) => {
             let hand_bone = &skel.bones()[h];
             let rest = hand_bone.direction().as_dvec3().normalize();
@@ -153,7 +164,7 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
             let Some(limb) = &limb else {
                 unreachable!("checked above")
             };
-            let s = limb.solve(skel, &mut channels, args.target, Swivel::Auto { previous: None });
+            let s = limb.solve(skel, &mut channels, target, Swivel::Auto { previous: None });
             report.push_str(&format!(
                 "analytic limb {}→{}: swivel {:.2}°, {}\n",
                 skel.bones()[limb.upper].name(),
@@ -191,7 +202,7 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
                 skel,
                 &[Constraint {
                     bone: eff,
-                    position: args.target,
+                    position: target,
                     axes: None,
                 }],
                 &mut channels,
@@ -211,15 +222,22 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
     let three_dofs = |b: usize| skel.bones()[b].dofs().iter().filter(|d| d.is_rotation()).count() == 3;
     let closed = orient.filter(|o| three_dofs(o.0));
     if let Some((h, dir, goal_frame, with_roll)) = closed {
-        let mut p = crate::ik::point_bone(skel, &mut channels, h, dir, 0.0)
-            .map_err(|e| CliError::Usage(format!("cannot point '{}': {e:?}", skel.bones()[h].name())))?;
+        let mut p =
+            crate::ik::point_bone(skel, &mut channels, h, dir, 0.0).map_err(|source| CliError::Point {
+                bone: skel.bones()[h].name().to_string(),
+                source,
+            })?;
         if with_roll {
             fk64(skel, &channels, &mut pose);
             let (axis, angle) = DQuat::from_mat3(&(pose.frame[h].transpose() * goal_frame)).to_axis_angle();
             let local = skel.bones()[h].local_direction().as_dvec3();
             let roll = if axis.dot(local) < 0.0 { -angle } else { angle };
-            p = crate::ik::point_bone(skel, &mut channels, h, dir, roll)
-                .map_err(|e| CliError::Usage(format!("cannot point '{}': {e:?}", skel.bones()[h].name())))?;
+            p = crate::ik::point_bone(skel, &mut channels, h, dir, roll).map_err(|source| {
+                CliError::Point {
+                    bone: skel.bones()[h].name().to_string(),
+                    source,
+                }
+            })?;
         }
         report.push_str(&format!(
             "  {} points {:.4}° off the asked direction (closed form, eq. 31–34){}\n",
@@ -281,7 +299,7 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
         limits_met &= solver.within_limits(&channels);
     }
     fk64(skel, &channels, &mut pose);
-    let err = (pose.tip[eff] - args.target).length();
+    let err = (pose.tip[eff] - target).length();
     writeln!(
         out,
         "{report}residual {err:.6} units ({:.6} m); joint limits {}",
@@ -366,7 +384,7 @@ pub fn ik_edit_cmd(args: &IkEditArgs<'_>, out: &mut dyn Write) -> Result<(), Cli
     let skel = &file.skeleton;
     let mut motion = amc::load(skel, args.amc)?;
     if motion.is_empty() {
-        return Err(CliError::Usage(format!("{} has no frames", args.amc.display())));
+        return Err(CliError::EmptyClip(args.amc.to_path_buf()));
     }
     let first = motion.first_frame;
     let last = first + motion.len() as i64 - 1;
@@ -483,7 +501,7 @@ pub fn ik_edit_cmd(args: &IkEditArgs<'_>, out: &mut dyn Write) -> Result<(), Cli
                 PinSolver::Limb(limb) => {
                     let captured = limb.swivel_of(skel, &ch);
                     let s = limb.solve(skel, &mut ch, target, Swivel::Nearest(captured));
-                    if (crate::interp::wrap_near(s.swivel, captured) - captured).abs() > 1e-9 {
+                    if (crate::math::wrap_near(s.swivel, captured) - captured).abs() > 1e-9 {
                         pin.swivel_moved += 1;
                     }
                     s.upper_within_limits && s.elbow_within_limits

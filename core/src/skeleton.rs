@@ -6,7 +6,7 @@
 //! channels are radians inside the library (files hold degrees), translations are file units.
 
 use crate::math::{Axis, EulerOrder};
-use glam::{Mat3, Vec3};
+use glam::{DMat3, DQuat, DVec3, Mat3, Vec3};
 
 /// Most bones a skeleton holds, the root included.
 pub const MAX_BONES: usize = 64;
@@ -91,6 +91,30 @@ impl Dof {
             Dof::L => None,
         }
     }
+}
+
+/// The channel rotation `M = R(last)·…·R(first)` of a bone's rotation DOFs (help note eq. 2),
+/// in f64. `angles` holds one value per DOF, radians for rotations; the values of translation
+/// and length DOFs are skipped.
+#[must_use]
+pub fn dof_rotation(dofs: &[Dof], angles: impl IntoIterator<Item = f64>) -> DMat3 {
+    let mut m = DMat3::IDENTITY;
+    for (d, a) in dofs.iter().zip(angles) {
+        if let (true, Some(axis)) = (d.is_rotation(), d.axis()) {
+            m = axis.rotation_f64(a) * m;
+        }
+    }
+    m
+}
+
+/// The rotation DOFs as an Euler order, when there are all three.
+#[must_use]
+pub fn dof_order(dofs: &[Dof]) -> Option<EulerOrder> {
+    let mut axes = heapless::Vec::<_, 3>::new();
+    for d in dofs.iter().filter(|d| d.is_rotation()) {
+        axes.push(d.axis()?).ok()?;
+    }
+    EulerOrder::from_axes(axes.into_array().ok()?)
 }
 
 /// The legal range of one channel: radians for rotations, file units otherwise. Either end
@@ -259,11 +283,23 @@ impl Bone {
     pub fn local_direction(&self) -> Vec3 {
         self.local_direction
     }
+    /// `C` in f64, re-orthonormalised: the skeleton stores it in f32, and a slightly skewed `C`
+    /// would make `Cᵀ·Q·C` no rotation, which Euler extraction amplifies near gimbal lock.
+    #[must_use]
+    pub fn axis_rotation_f64(&self) -> DMat3 {
+        DMat3::from_quat(DQuat::from_mat3(&self.axis_rotation.as_dmat3()).normalize())
+    }
+    /// The rest direction (global) in f64, unit length (zero for a zero direction).
+    #[must_use]
+    pub fn direction_f64(&self) -> DVec3 {
+        self.spec.direction.as_dvec3().normalize_or_zero()
+    }
 }
 
 /// Why a set of bones does not make a skeleton. Indices refer to the `bones` slice given to
 /// [`Skeleton::new`]; `usize::MAX` means the root.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum SkeletonError {
     /// More than [`MAX_BONES`] bones (root included).
     TooManyBones,
@@ -280,6 +316,22 @@ pub enum SkeletonError {
     /// Channels and limits differ in number, a channel is repeated, or a limit is
     /// inverted or NaN.
     BadChannels(usize),
+}
+
+impl SkeletonError {
+    /// The index of the bone at fault (`usize::MAX`: the root), `None` when no one bone is.
+    #[must_use]
+    pub fn bone(&self) -> Option<usize> {
+        match *self {
+            SkeletonError::TooManyBones => None,
+            SkeletonError::DuplicateName(i)
+            | SkeletonError::Detached(i)
+            | SkeletonError::BadParent(i)
+            | SkeletonError::BadDirection(i)
+            | SkeletonError::BadLength(i)
+            | SkeletonError::BadChannels(i) => Some(i),
+        }
+    }
 }
 
 impl core::fmt::Display for SkeletonError {

@@ -2,119 +2,14 @@
 //! search inside quaternion joint-limit regions, and numerical solvers (CCD, Jacobian
 //! transpose, pseudoinverse, damped least squares, conjugate gradient) on fixed-size buffers.
 //!
-//! Frames follow [`crate::fk`]: a bone's world rotation is `Wᵢ = Wₚ·Qᵢ` with `Qᵢ = C·M·Cᵀ`;
+//! FK in f64 is [`crate::fk::fk64`]. Frames follow [`crate::fk`]: a bone's world rotation is `Wᵢ = Wₚ·Qᵢ` with `Qᵢ = C·M·Cᵀ`;
 //! channel vectors hold radians for rotations and file units for translations.
 
 use glam::{DMat3, DQuat, DVec3};
 
-use crate::interp::euler_near;
-use crate::math::{quat_distance_fast, EulerOrder};
-use crate::rig::dof_order;
-use crate::skeleton::{Dof, Skeleton, MAX_BONES};
-
-/// Global state of every bone, f64.
-#[derive(Clone, Debug)]
-pub struct Pose64 {
-    /// Joint (start) positions.
-    pub start: [DVec3; MAX_BONES],
-    /// Tip positions.
-    pub tip: [DVec3; MAX_BONES],
-    /// Local frames in world coordinates, `Fᵢ = Wₚ·C·M`.
-    pub frame: [DMat3; MAX_BONES],
-    /// World rotations of rest vectors, `Wᵢ = Fᵢ·Cᵀ`.
-    pub world: [DMat3; MAX_BONES],
-}
-
-impl Default for Pose64 {
-    fn default() -> Self {
-        Pose64 {
-            start: [DVec3::ZERO; MAX_BONES],
-            tip: [DVec3::ZERO; MAX_BONES],
-            frame: [DMat3::IDENTITY; MAX_BONES],
-            world: [DMat3::IDENTITY; MAX_BONES],
-        }
-    }
-}
-
-/// A bone's rest frame `C` in f64, re-orthonormalised (the skeleton stores it in f32, and a
-/// slightly skewed `C` would make `Cᵀ·Q·C` no rotation, which Euler extraction amplifies near
-/// gimbal lock).
-fn c64(m: glam::Mat3) -> DMat3 {
-    DMat3::from_quat(DQuat::from_mat3(&m.as_dmat3()).normalize())
-}
-
-/// A bone's rest direction (world) in f64, unit length.
-fn dir64(bone: &crate::skeleton::Bone) -> DVec3 {
-    bone.direction().as_dvec3().normalize_or_zero()
-}
-
-/// Forward kinematics in f64, eq. (1)–(5). Missing channels count as 0.
-pub fn fk64(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64) {
-    for i in 0..skeleton.bones().len() {
-        fk64_bone(skeleton, channels, pose, i);
-    }
-}
-
-/// [`fk64`] for the listed bones only (ascending, each after its parent — e.g. from
-/// [`ancestors`]); the other entries of `pose` are left as they were.
-pub fn fk64_bones(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, bones: &[usize]) {
-    for &i in bones {
-        fk64_bone(skeleton, channels, pose, i);
-    }
-}
-
-/// The bones from the root down to `bone` (ascending; bones are stored parents first).
-#[must_use]
-pub fn ancestors(skeleton: &Skeleton, bone: usize) -> heapless::Vec<usize, MAX_BONES> {
-    let mut v = heapless::Vec::new();
-    let mut b = Some(bone);
-    while let Some(i) = b {
-        let _ = v.push(i);
-        b = skeleton.bones().get(i).and_then(crate::skeleton::Bone::parent);
-    }
-    v.reverse();
-    v
-}
-
-/// One bone of [`fk64`], its parent already computed.
-fn fk64_bone(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, i: usize) {
-    let bone = &skeleton.bones()[i];
-    let mut m = DMat3::IDENTITY;
-    let mut t = DVec3::ZERO;
-    let mut l = 0.0;
-    for (d, c) in bone.dofs().iter().zip(bone.channels()) {
-        let v = channels.get(c).copied().unwrap_or(0.0);
-        match d {
-            Dof::Rx => m = DMat3::from_rotation_x(v) * m,
-            Dof::Ry => m = DMat3::from_rotation_y(v) * m,
-            Dof::Rz => m = DMat3::from_rotation_z(v) * m,
-            Dof::Tx => t.x = v,
-            Dof::Ty => t.y = v,
-            Dof::Tz => t.z = v,
-            Dof::L => l = v,
-        }
-    }
-    let c = c64(bone.axis_rotation());
-    match bone.parent() {
-        None => {
-            let w = c * m;
-            let p = skeleton.root().position.as_dvec3() + t;
-            pose.frame[i] = w;
-            pose.world[i] = w;
-            pose.start[i] = p;
-            pose.tip[i] = p;
-        }
-        Some(p) => {
-            let axes = pose.world[p] * c;
-            let f = axes * m;
-            let start = pose.tip[p] + axes * t;
-            pose.frame[i] = f;
-            pose.world[i] = f * c.transpose();
-            pose.start[i] = start;
-            pose.tip[i] = start + pose.world[i] * (dir64(bone) * (f64::from(bone.length()) + l));
-        }
-    }
-}
+use crate::fk::{ancestors, fk64, fk64_bones, Pose64};
+use crate::math::{euler_near, quat_distance_fast, wrap_near, EulerOrder};
+use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
 
 /// The world axis of a bone's rotation DOF number `k` (index into its DOF list), eq. (43)'s `uᵢ`:
 /// `Wₚ·C·R(last)…R(k+1)·e_k`. For a translation DOF, the translation axis (eq. 46).
@@ -122,7 +17,7 @@ fn fk64_bone(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, i: usize)
 pub fn dof_axis(skeleton: &Skeleton, pose: &Pose64, bone: usize, k: usize, channels: &[f64]) -> DVec3 {
     let b = &skeleton.bones()[bone];
     let parent_world = b.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
-    let c = c64(b.axis_rotation());
+    let c = b.axis_rotation_f64();
     let dofs = b.dofs();
     let first = b.first_channel();
     if !dofs[k].is_rotation() {
@@ -162,6 +57,7 @@ fn rotation_between(a: DVec3, b: DVec3) -> DQuat {
 
 /// Why a limb cannot be set up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum LimbError {
     /// The lower bone is not a child of the upper bone.
     NotAChain,
@@ -315,10 +211,10 @@ impl Limb {
         if l1 <= 1e-9 || l2 <= 1e-9 {
             return Err(LimbError::ZeroLength);
         }
-        let d1 = dir64(u);
-        let d2 = dir64(lo);
+        let d1 = u.direction_f64();
+        let d2 = lo.direction_f64();
         let lr = rot_dofs(lo.dofs());
-        let c_lower = c64(lo.axis_rotation());
+        let c_lower = lo.axis_rotation_f64();
         let (elbow_axis, elbow) = match lr.len() {
             1 => {
                 let axis = lo.dofs()[lr[0]].axis().map_or(DVec3::X, |a| a.unit().as_dvec3());
@@ -391,7 +287,7 @@ impl Limb {
             center,
             limits,
             elbow_limit,
-            c_upper: DQuat::from_mat3(&c64(u.axis_rotation())).normalize(),
+            c_upper: DQuat::from_mat3(&u.axis_rotation_f64()).normalize(),
             swivel_reference: {
                 let rest = (d1 * l1 + d2 * l2).normalize_or_zero();
                 if rest.dot(DVec3::Y).abs() <= rest.dot(DVec3::Z).abs() {
@@ -489,7 +385,7 @@ impl Limb {
         match self.elbow {
             Elbow::One(k) => channels[lo.first_channel() + k] = theta,
             Elbow::Three(order, ks) => {
-                let c = c64(lo.axis_rotation());
+                let c = lo.axis_rotation_f64();
                 let m = c.transpose() * self.elbow_rotation(theta) * c;
                 let prev = ks.map(|k| channels[lo.first_channel() + k]);
                 let a = euler_near(order, &m, prev);
@@ -635,7 +531,7 @@ impl Limb {
         LimbSolution {
             reachable: reachable && error.is_finite(),
             error: if error.is_finite() { error } else { f64::INFINITY },
-            swivel: crate::interp::wrap_near(phi, 0.0),
+            swivel: wrap_near(phi, 0.0),
             upper_within_limits: inside,
             elbow_within_limits: elbow_ok,
             violation,
@@ -702,7 +598,7 @@ impl Limb {
             // Eq. (30): summed distance (eq. 27–28) to the corners of the limit region.
             let spread: f64 = self.corners.iter().map(|c| quat_distance_fast(quat, *c)).sum();
             let keep = previous.map_or(0.0, |p| {
-                let d = crate::interp::wrap_near(phi, p) - p;
+                let d = wrap_near(phi, p) - p;
                 0.5 * d * d
             });
             // Inside the limits first (eq. 30's centrality among legal swivels), else least
@@ -858,7 +754,7 @@ fn legal_euler(
     for cand in [a, [a[0] + pi, b2, a[2] + pi]] {
         let (mut w, mut v, mut off) = ([0.0; 3], 0.0, 0.0);
         for k in 0..3 {
-            w[k] = crate::interp::wrap_near(cand[k], centre[k]);
+            w[k] = wrap_near(cand[k], centre[k]);
             v += (limits[k].0 - w[k]).max(0.0) + (w[k] - limits[k].1).max(0.0);
             off += (w[k] - reference[k]).abs();
         }
@@ -881,6 +777,7 @@ pub struct Pointing {
 
 /// Why [`point_bone`] cannot point a bone.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum PointError {
     /// The bone does not have three rotation DOFs (use the numerical solvers).
     Needs3Dofs,
@@ -889,6 +786,18 @@ pub enum PointError {
     /// The asked direction is zero or not finite.
     BadDirection,
 }
+
+impl core::fmt::Display for PointError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            PointError::Needs3Dofs => "the bone needs rx ry rz to be pointed (use a numerical method)",
+            PointError::NoDirection => "the bone has zero length or no direction",
+            PointError::BadDirection => "the direction is zero or not finite",
+        })
+    }
+}
+
+impl core::error::Error for PointError {}
 
 /// Eq. (31)–(34): turns a 3-DOF bone (a wrist, a neck) so that it points along `direction`
 /// (world) rolled by `roll` radians about it. With `A = Wₚ·C` (parent world times the bone's
@@ -913,7 +822,7 @@ pub fn point_bone(
     if ks.len() != 3 {
         return Err(PointError::Needs3Dofs);
     }
-    let rest = dir64(b);
+    let rest = b.direction_f64();
     if rest == DVec3::ZERO || b.length() <= 0.0 {
         return Err(PointError::NoDirection);
     }
@@ -923,7 +832,7 @@ pub fn point_bone(
     let mut pose = Pose64::default();
     fk64_bones(skeleton, channels, &mut pose, &ancestors(skeleton, bone));
     let parent_world = b.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
-    let c = c64(b.axis_rotation());
+    let c = b.axis_rotation_f64();
     let a = parent_world * c;
     let v_h = c.transpose() * rest;
     let wanted = (a.transpose() * direction.normalize()).normalize();

@@ -7,21 +7,15 @@
 //! interpolation; Euler angles written back are chosen continuous with a reference so that
 //! edited channels never jump by 360°.
 
-use crate::math::{Axis, EulerOrder};
-use crate::skeleton::{Bone, Dof, Skeleton};
-use core::f64::consts::{FRAC_PI_2, PI, TAU};
+use crate::math::{euler_near, wrap_near, Axis, EulerOrder};
+use crate::skeleton::{dof_rotation, Bone, Dof, Skeleton};
+use core::f64::consts::{FRAC_PI_2, PI};
 use glam::{DMat3, DQuat, DVec3};
 
 /// The rotation of a bone's rotation channels, `M` (radians from file degrees).
 #[must_use]
 pub fn channel_rotation(bone: &Bone, frame: &[f64]) -> DMat3 {
-    let mut m = DMat3::IDENTITY;
-    for (d, c) in bone.dofs().iter().zip(bone.channels()) {
-        if let (true, Some(a)) = (d.is_rotation(), d.axis()) {
-            m = a.rotation_f64(frame[c].to_radians()) * m;
-        }
-    }
-    m
+    dof_rotation(bone.dofs(), frame[bone.channels()].iter().map(|v| v.to_radians()))
 }
 
 /// The root's global rotation `W₀ = O·M₀`.
@@ -120,45 +114,6 @@ pub fn set_channel_rotation(bone: &Bone, frame: &mut [f64], m: &DMat3) {
             }
         }
     }
-}
-
-/// `angle + 2πk` closest to `reference`.
-#[must_use]
-pub fn wrap_near(angle: f64, reference: f64) -> f64 {
-    let d = reference - angle;
-    // The common case (within a turn or two) without libm's software `round`.
-    if d.abs() <= 2.5 * TAU {
-        let mut a = angle;
-        while reference - a > core::f64::consts::PI {
-            a += TAU;
-        }
-        while a - reference > core::f64::consts::PI {
-            a -= TAU;
-        }
-        return a;
-    }
-    angle + TAU * libm::round(d / TAU)
-}
-
-/// Euler angles of `m` in `order`, of the two equivalent solutions and all 2π shifts the
-/// one closest to `reference` (radians).
-#[must_use]
-pub fn euler_near(order: EulerOrder, m: &DMat3, reference: [f64; 3]) -> [f64; 3] {
-    let a = order.from_mat3_f64(m);
-    // The other solution: (a + π, π − b, c + π) for Tait–Bryan, (a + π, −b, c + π) proper.
-    let b2 = if order.is_proper() { -a[1] } else { PI - a[1] };
-    let candidates = [a, [a[0] + PI, b2, a[2] + PI]];
-    let mut best = a;
-    let mut best_cost = f64::INFINITY;
-    for cand in candidates {
-        let w = [0, 1, 2].map(|k| wrap_near(cand[k], reference[k]));
-        let cost: f64 = (0..3).map(|k| libm::fabs(w[k] - reference[k])).sum();
-        if cost < best_cost {
-            best_cost = cost;
-            best = w;
-        }
-    }
-    best
 }
 
 /// Spherical linear interpolation on the shorter arc, eq. (12): `q₂` is negated when
@@ -264,18 +219,5 @@ mod tests {
         for f in 0..10 {
             assert!((ease_weight(f, 10) + ease_weight(9 - f, 10) - 1.0).abs() < 1e-12);
         }
-    }
-
-    #[test]
-    fn euler_near_picks_the_continuous_solution() {
-        let order = EulerOrder::XYZ;
-        let want = [3.0, 0.2, -3.0];
-        let m = order.to_mat3_f64(want);
-        let got = euler_near(order, &m, [3.05, 0.25, -3.05]);
-        for k in 0..3 {
-            assert!((got[k] - want[k]).abs() < 1e-9, "{got:?}");
-        }
-        let shifted = euler_near(order, &m, [3.0 + TAU, 0.2, -3.0 - TAU]);
-        assert!((shifted[0] - (3.0 + TAU)).abs() < 1e-9 && (shifted[2] + 3.0 + TAU).abs() < 1e-9);
     }
 }

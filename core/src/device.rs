@@ -7,10 +7,11 @@
 //! delay before it; [`Receiver`] cuts a byte stream into packets. Everything is fixed-size, so
 //! the chain also runs in the embedded build.
 
-use crate::command::step_towards;
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
-use crate::rig::MAX_SERVOS;
-use crate::servo::{addr, hardware_error, status_error, ServoModel, MAX_TICK, RPM2_PER_ACCELERATION_UNIT};
+use crate::servo::{
+    addr, hardware_error, status_error, step_towards, ServoModel, MAX_SERVOS, MAX_TICK,
+    RPM2_PER_ACCELERATION_UNIT,
+};
 use crate::servo::{RPM_PER_VELOCITY_UNIT, TICKS_PER_TURN};
 
 /// Bytes of control table each virtual servo keeps (addresses 0…255).
@@ -387,6 +388,14 @@ pub struct Chain {
 /// The chain is full ([`MAX_SERVOS`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ChainFull;
+
+impl core::fmt::Display for ChainFull {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "the chain is full ({MAX_SERVOS} servos)")
+    }
+}
+
+impl core::error::Error for ChainFull {}
 
 impl Chain {
     /// An empty chain.

@@ -7,13 +7,9 @@
 
 use glam::DMat3;
 
-use crate::interp::euler_near;
-use crate::math::EulerOrder;
-use crate::servo::{ServoModel, TICKS_PER_TURN};
-use crate::skeleton::{Dof, Skeleton};
-
-/// Most servos in one rig.
-pub const MAX_SERVOS: usize = 64;
+use crate::math::{euler_near, EulerOrder};
+use crate::servo::{ServoModel, MAX_SERVOS, TICKS_PER_TURN};
+use crate::skeleton::{dof_rotation, Skeleton};
 
 /// What drives a servo.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -155,13 +151,10 @@ impl Rig {
 #[must_use]
 pub fn bone_rotation(skeleton: &Skeleton, bone: usize, channels: &[f64]) -> Option<DMat3> {
     let b = skeleton.bones().get(bone)?;
-    let mut m = DMat3::IDENTITY;
-    for (d, c) in b.dofs().iter().zip(b.channels()) {
-        if let (true, Some(axis)) = (d.is_rotation(), d.axis()) {
-            m = axis.rotation_f64(*channels.get(c)?) * m;
-        }
-    }
-    Some(m)
+    Some(dof_rotation(
+        b.dofs(),
+        channels.get(b.channels())?.iter().copied(),
+    ))
 }
 
 /// Re-writes angles given in `from` order as angles in `to` order (the same rotation), the
@@ -169,14 +162,4 @@ pub fn bone_rotation(skeleton: &Skeleton, bone: usize, channels: &[f64]) -> Opti
 #[must_use]
 pub fn redecompose(from: EulerOrder, angles: [f64; 3], to: EulerOrder, reference: [f64; 3]) -> [f64; 3] {
     euler_near(to, &from.to_mat3_f64(angles), reference)
-}
-
-/// The bone's rotation DOFs as an Euler order, when it has all three.
-#[must_use]
-pub fn dof_order(dofs: &[Dof]) -> Option<EulerOrder> {
-    let mut axes = heapless::Vec::<_, 3>::new();
-    for d in dofs.iter().filter(|d| d.is_rotation()) {
-        axes.push(d.axis()?).ok()?;
-    }
-    EulerOrder::from_axes(axes.into_array().ok()?)
 }

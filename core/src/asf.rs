@@ -39,6 +39,7 @@ pub struct AsfError<'a> {
 
 /// What is wrong in an ASF file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum AsfErrorKind<'a> {
     /// Something else stood where `expected` should have (`found` is empty at end of line).
     Expected {

@@ -5,7 +5,8 @@
 
 use glam::{DMat3, DVec3};
 
-use crate::ik::{dof_axis, fk64_bones, Pose64};
+use crate::fk::{fk64_bones, Pose64};
+use crate::ik::dof_axis;
 use crate::skeleton::{Skeleton, MAX_BONES};
 
 /// Most constraints solved together.

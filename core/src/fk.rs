@@ -10,9 +10,12 @@
 //!
 //! The root: `W₀ = O · M₀` where `O` is the `:root orientation` (rotating the whole skeleton)
 //! and `M₀` its rotation channels; position = `:root position` + translation channels.
+//!
+//! [`forward_kinematics`] works in f32 on file frames (the display and the f32 pose);
+//! [`fk64`] in f64 on channel vectors in radians (what IK and the control loop use).
 
-use crate::skeleton::{Dof, Skeleton, MAX_BONES};
-use glam::{Mat3, Vec3};
+use crate::skeleton::{dof_rotation, Bone, Dof, Skeleton, MAX_BONES};
+use glam::{DMat3, DVec3, Mat3, Vec3};
 
 /// Global state of every bone for one frame.
 #[derive(Clone, Debug)]
@@ -125,4 +128,94 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
         }
     }
     Ok(())
+}
+
+/// Global state of every bone, f64.
+#[derive(Clone, Debug)]
+pub struct Pose64 {
+    /// Joint (start) positions.
+    pub start: [DVec3; MAX_BONES],
+    /// Tip positions.
+    pub tip: [DVec3; MAX_BONES],
+    /// Local frames in world coordinates, `Fᵢ = Wₚ·C·M`.
+    pub frame: [DMat3; MAX_BONES],
+    /// World rotations of rest vectors, `Wᵢ = Fᵢ·Cᵀ`.
+    pub world: [DMat3; MAX_BONES],
+}
+
+impl Default for Pose64 {
+    fn default() -> Self {
+        Pose64 {
+            start: [DVec3::ZERO; MAX_BONES],
+            tip: [DVec3::ZERO; MAX_BONES],
+            frame: [DMat3::IDENTITY; MAX_BONES],
+            world: [DMat3::IDENTITY; MAX_BONES],
+        }
+    }
+}
+
+/// Forward kinematics in f64, eq. (1)–(5). Missing channels count as 0.
+pub fn fk64(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64) {
+    for i in 0..skeleton.bones().len() {
+        fk64_bone(skeleton, channels, pose, i);
+    }
+}
+
+/// [`fk64`] for the listed bones only (ascending, each after its parent — e.g. from
+/// [`ancestors`]); the other entries of `pose` are left as they were.
+pub fn fk64_bones(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, bones: &[usize]) {
+    for &i in bones {
+        fk64_bone(skeleton, channels, pose, i);
+    }
+}
+
+/// The bones from the root down to `bone` (ascending; bones are stored parents first).
+#[must_use]
+pub fn ancestors(skeleton: &Skeleton, bone: usize) -> heapless::Vec<usize, MAX_BONES> {
+    let mut v = heapless::Vec::new();
+    let mut b = Some(bone);
+    while let Some(i) = b {
+        let _ = v.push(i);
+        b = skeleton.bones().get(i).and_then(Bone::parent);
+    }
+    v.reverse();
+    v
+}
+
+/// One bone of [`fk64`], its parent already computed.
+fn fk64_bone(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, i: usize) {
+    let bone = &skeleton.bones()[i];
+    let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
+    let m = dof_rotation(bone.dofs(), bone.channels().map(value));
+    let mut t = DVec3::ZERO;
+    let mut l = 0.0;
+    for (d, c) in bone.dofs().iter().zip(bone.channels()) {
+        match d {
+            Dof::Tx => t.x = value(c),
+            Dof::Ty => t.y = value(c),
+            Dof::Tz => t.z = value(c),
+            Dof::L => l = value(c),
+            Dof::Rx | Dof::Ry | Dof::Rz => {}
+        }
+    }
+    let c = bone.axis_rotation_f64();
+    match bone.parent() {
+        None => {
+            let w = c * m;
+            let p = skeleton.root().position.as_dvec3() + t;
+            pose.frame[i] = w;
+            pose.world[i] = w;
+            pose.start[i] = p;
+            pose.tip[i] = p;
+        }
+        Some(p) => {
+            let axes = pose.world[p] * c;
+            let f = axes * m;
+            let start = pose.tip[p] + axes * t;
+            pose.frame[i] = f;
+            pose.world[i] = f * c.transpose();
+            pose.start[i] = start;
+            pose.tip[i] = start + pose.world[i] * (bone.direction_f64() * (f64::from(bone.length()) + l));
+        }
+    }
 }

@@ -3,11 +3,11 @@
 use std::io::Write;
 use std::path::Path;
 
+use super::CliError;
 use crate::budget::plan;
 use crate::bus::dxl::Dynamixel2Bus;
 use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::bus::ServoBus;
-use crate::cli::CliError;
 use crate::formats::asf;
 use crate::profile::{Drive, Profile};
 use crate::rig::JointSource;
@@ -83,7 +83,7 @@ pub fn budget_cmd(path: &Path, rate: Option<f64>, json: bool, out: &mut dyn Writ
     }
     let budget = plan(&profile.bus, profile.servos.len(), rate);
     if json {
-        let text = serde_json::to_string_pretty(&budget).map_err(|e| CliError::Usage(e.to_string()))?;
+        let text = serde_json::to_string_pretty(&budget)?;
         writeln!(out, "{text}")?;
     } else {
         write!(out, "{}: {budget}", profile.name)?;
@@ -106,8 +106,7 @@ pub fn latency_timer_ms(port: &str) -> Option<u32> {
 
 /// `marionette ports`.
 pub fn ports_cmd(out: &mut dyn Write) -> Result<(), CliError> {
-    let ports =
-        serialport::available_ports().map_err(|e| CliError::Usage(format!("listing serial ports: {e}")))?;
+    let ports = serialport::available_ports()?;
     if ports.is_empty() {
         writeln!(
             out,
@@ -173,8 +172,14 @@ pub fn scan_cmd(
             ))
         }
     };
-    let mut bus = Dynamixel2Bus::open(&path, baud).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
-    let found = bus.scan().map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+    let mut bus = Dynamixel2Bus::open(&path, baud).map_err(|source| CliError::Port {
+        port: path.clone(),
+        source,
+    })?;
+    let found = bus.scan().map_err(|source| CliError::Bus {
+        port: path.clone(),
+        source,
+    })?;
     writeln!(out, "{path} at {baud} bit/s: {} servo(s)", found.len())?;
     for p in &found {
         write!(out, "{p}")?;

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Subcommand;
 
-use crate::cli::CliError;
+use super::CliError;
 use crate::formats::asf;
 use crate::profile::Profile;
 use crate::sim::mjcf::{puppet, PuppetOptions};
@@ -96,7 +96,7 @@ fn export(
         timestep,
         ..PuppetOptions::default()
     };
-    let xml = puppet(&skeleton, &profile, &rig, &options).map_err(|e| CliError::Usage(e.to_string()))?;
+    let xml = puppet(&skeleton, &profile, &rig, &options)?;
     std::fs::write(output, &xml).map_err(|e| crate::formats::FileError::io(output, e))?;
     writeln!(
         out,
@@ -119,7 +119,7 @@ fn serve(
     _duration: Option<f64>,
     _out: &mut dyn Write,
 ) -> Result<(), CliError> {
-    Err(CliError::Usage(format!("sim serve {}", crate::sim::NOT_BUILT)))
+    Err(CliError::NoSimulator("sim serve"))
 }
 
 #[cfg(feature = "sim")]
@@ -153,8 +153,8 @@ fn serve(
         scale,
         ..PuppetOptions::default()
     };
-    let world = load_world(model, skeleton.as_ref(), &profile, &rig, &options).map_err(CliError::Usage)?;
-    let mut plant = SimPlant::new(world, &profile, &rig).map_err(|e| CliError::Usage(e.to_string()))?;
+    let world = load_world(model, skeleton.as_ref(), &profile, &rig, &options)?;
+    let mut plant = SimPlant::new(world, &profile, &rig)?;
     plant.set_angles(&rest_angles(&rig));
     let present = plant.present_ticks();
     let timestep = plant.world().timestep();

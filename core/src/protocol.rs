@@ -73,6 +73,7 @@ pub fn crc16(data: &[u8]) -> u16 {
 
 /// Why a packet cannot be written or read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum CodecError {
     /// The output buffer is too small.
     BufferFull,

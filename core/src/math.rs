@@ -5,6 +5,7 @@
 //! (first = innermost). `EulerOrder::XYZ` with angles `[a, b, c]` is `Rz(c)·Ry(b)·Rx(a)`, the
 //! ASF `axis … XYZ` convention (help note eq. 3). Angles are radians.
 
+use core::f64::consts::{PI, TAU};
 use glam::{DMat3, DQuat, DVec3, Mat3, Quat, Vec3};
 
 /// A principal axis.
@@ -414,6 +415,45 @@ pub fn rad_to_deg(r: f32) -> f32 {
     r * (180.0 / core::f32::consts::PI)
 }
 
+/// `angle + 2πk` closest to `reference`.
+#[must_use]
+pub fn wrap_near(angle: f64, reference: f64) -> f64 {
+    let d = reference - angle;
+    // The common case (within a turn or two) without libm's software `round`.
+    if d.abs() <= 2.5 * TAU {
+        let mut a = angle;
+        while reference - a > PI {
+            a += TAU;
+        }
+        while a - reference > PI {
+            a -= TAU;
+        }
+        return a;
+    }
+    angle + TAU * libm::round(d / TAU)
+}
+
+/// Euler angles of `m` in `order`, of the two equivalent solutions and all 2π shifts the
+/// one closest to `reference` (radians).
+#[must_use]
+pub fn euler_near(order: EulerOrder, m: &DMat3, reference: [f64; 3]) -> [f64; 3] {
+    let a = order.from_mat3_f64(m);
+    // The other solution: (a + π, π − b, c + π) for Tait–Bryan, (a + π, −b, c + π) proper.
+    let b2 = if order.is_proper() { -a[1] } else { PI - a[1] };
+    let candidates = [a, [a[0] + PI, b2, a[2] + PI]];
+    let mut best = a;
+    let mut best_cost = f64::INFINITY;
+    for cand in candidates {
+        let w = [0, 1, 2].map(|k| wrap_near(cand[k], reference[k]));
+        let cost: f64 = (0..3).map(|k| libm::fabs(w[k] - reference[k])).sum();
+        if cost < best_cost {
+            best_cost = cost;
+            best = w;
+        }
+    }
+    best
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -514,5 +554,18 @@ mod tests {
         assert_eq!(quat_distance(b, b), 0.0);
         let far = Quat::from_rotation_x(3.0);
         assert!((quat_distance(Quat::IDENTITY, far) - 1.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn euler_near_picks_the_continuous_solution() {
+        let order = EulerOrder::XYZ;
+        let want = [3.0, 0.2, -3.0];
+        let m = order.to_mat3_f64(want);
+        let got = euler_near(order, &m, [3.05, 0.25, -3.05]);
+        for k in 0..3 {
+            assert!((got[k] - want[k]).abs() < 1e-9, "{got:?}");
+        }
+        let shifted = euler_near(order, &m, [3.0 + TAU, 0.2, -3.0 - TAU]);
+        assert!((shifted[0] - (3.0 + TAU)).abs() < 1e-9 && (shifted[2] + 3.0 + TAU).abs() < 1e-9);
     }
 }

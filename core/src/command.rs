@@ -5,10 +5,12 @@
 //! acceleration per servo (braking early enough to stop at the target), and remembers what it
 //! sent. Positions are kept in fractional ticks so slow motions are not lost to rounding.
 
-use crate::rig::{Rig, MAX_SERVOS};
+use crate::rig::Rig;
+use crate::servo::{step_towards, MAX_SERVOS};
 
 /// Why a command was refused. Nothing is sent; the last command stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum CommandError {
     /// The angle of servo index `servo` was NaN or infinite.
     NotFinite {
@@ -147,28 +149,4 @@ impl CommandStage {
         }
         Ok((&self.ticks[..self.len], limited))
     }
-}
-
-/// One step of a velocity- and acceleration-limited follower: the velocity that would reach
-/// `target` this step, bounded by `vmax`, by the speed from which `amax` can still stop at the
-/// target (`√(2·amax·d)`), and by `amax·dt` of change from the last velocity.
-#[must_use]
-pub fn step_towards(position: f64, velocity: f64, target: f64, vmax: f64, amax: f64, dt: f64) -> (f64, f64) {
-    let d = target - position;
-    let mut v = d / dt;
-    let vmax = if vmax > 0.0 { vmax } else { f64::INFINITY };
-    v = v.clamp(-vmax, vmax);
-    if amax > 0.0 && amax.is_finite() {
-        // Braking: from speed v we need v²/(2a) to stop; never go faster than that allows.
-        let brake = libm::sqrt(2.0 * amax * d.abs());
-        v = v.clamp(-brake.max(amax * dt), brake.max(amax * dt));
-        let dv = amax * dt;
-        v = v.clamp(velocity - dv, velocity + dv);
-    }
-    // Never step past the target.
-    let step = v * dt;
-    if (d >= 0.0 && step > d) || (d <= 0.0 && step < d) {
-        return (target, d / dt);
-    }
-    (position + step, v)
 }

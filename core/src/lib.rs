@@ -1,0 +1,61 @@
+//! marionette's core: everything a control tick needs, `no_std`, without a heap.
+//!
+//! Modules are layers, listed here from the bottom up; each imports only modules above it in
+//! this list (checked by `tests/layers.rs`):
+//!
+//! * [`math`] — axes, the 12 Euler orders, Euler angles near a reference, angle wrapping,
+//!   quaternion distance (help note eq. 27–28).
+//! * [`skeleton`] — fixed-capacity bones, channel layout, limits, a bone's channel rotation
+//!   `M` (eq. 2).
+//! * [`asf`] — the ASF text reader: text to skeleton, without allocation (file loading with
+//!   paths lives in the std edge, `marionette::formats`).
+//! * [`fk`] — forward kinematics, eq. (1)–(5): f32 into a [`fk::Pose`], f64 into a
+//!   [`fk::Pose64`].
+//! * [`interp`] — per-frame editing maths in f64: facing (eq. 6–7), SLERP (eq. 12), ease
+//!   weights (eq. 13), frame interpolation.
+//! * [`ik`] — the analytic limb solver with swivel search (help note §IV) and closed-form
+//!   pointing; [`ik_numeric`] — CCD, Jacobian transpose, pseudoinverse, DLS, conjugate gradient.
+//! * [`servo`] — X-series servo models, control-table addresses, the velocity- and
+//!   acceleration-limited step, [`servo::MAX_SERVOS`].
+//! * [`rig`] — joint sources and angle ↔ tick mapping, Euler re-decomposition.
+//! * [`command`] — the command stage: finite check, position, velocity and acceleration limits.
+//! * [`protocol`] — Dynamixel Protocol 2.0 packets: CRC-16, byte stuffing, encode/decode.
+//! * [`device`] — the device side of Protocol 2.0: a chain of virtual servos.
+//! * [`schedule`] — the absolute-deadline fixed-rate schedule over a [`schedule::Clock`] that
+//!   the caller supplies (time is an argument; the std edge has the system clock).
+//!
+//! Maths uses `glam` with `libm` (bit-identical across platforms); capacities are named
+//! constants ([`skeleton::MAX_BONES`], [`servo::MAX_SERVOS`]) and `heapless` containers; a full
+//! container is an error, never a panic.
+#![no_std]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+#[cfg(test)]
+extern crate std;
+
+pub mod math;
+
+pub mod skeleton;
+
+pub mod asf;
+
+pub mod fk;
+
+pub mod interp;
+
+pub mod ik;
+
+pub mod ik_numeric;
+
+pub mod servo;
+
+pub mod rig;
+
+pub mod command;
+
+pub mod protocol;
+
+pub mod device;
+
+pub mod schedule;

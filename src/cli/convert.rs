@@ -1,0 +1,89 @@
+//! `marionette convert`: BVH ⇄ ASF/AMC.
+
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use super::args::{extension, BvhUnit};
+use super::CliError;
+use crate::formats::asf::AsfFile;
+use crate::formats::{amc, asf, bvh, FileError};
+
+/// The ASF beside an AMC: `<stem>.asf`, then `<subject>.asf` for CMU names like `16_15.amc`.
+fn find_asf(amc_path: &Path) -> Option<PathBuf> {
+    let stem = amc_path.file_stem()?.to_string_lossy().to_string();
+    let dir = amc_path.parent().unwrap_or(Path::new(""));
+    let mut candidates = vec![dir.join(format!("{stem}.asf"))];
+    if let Some((subject, _)) = stem.split_once('_') {
+        candidates.push(dir.join(format!("{subject}.asf")));
+    }
+    candidates.into_iter().find(|p| p.is_file())
+}
+
+pub(super) fn convert(
+    input: &Path,
+    output: &Path,
+    asf_in: Option<&Path>,
+    asf_out: Option<&Path>,
+    unit: BvhUnit,
+) -> Result<(), CliError> {
+    let (file, motion) = match extension(input).as_str() {
+        "bvh" => {
+            let (a, m) = bvh::load(input, unit.inches())?;
+            (a, Some(m))
+        }
+        "amc" => {
+            let asf_path = match asf_in {
+                Some(p) => p.to_path_buf(),
+                None => find_asf(input).ok_or_else(|| {
+                    CliError::Usage(format!(
+                        "{}: an AMC file needs its skeleton: pass --asf <FILE>",
+                        input.display()
+                    ))
+                })?,
+            };
+            let a = asf::load(&asf_path)?;
+            let m = amc::load(&a.skeleton, input)?;
+            (a, Some(m))
+        }
+        "asf" => (asf::load(input)?, None),
+        other => {
+            return Err(CliError::Usage(format!(
+                "{}: unknown input type '.{other}' (expected .bvh, .amc or .asf)",
+                input.display()
+            )))
+        }
+    };
+    let need_motion = || {
+        motion
+            .as_ref()
+            .ok_or_else(|| CliError::Usage(format!("{} holds no motion to write", input.display())))
+    };
+    match extension(output).as_str() {
+        "bvh" => bvh::save(&file.skeleton, need_motion()?, output)?,
+        "amc" => {
+            let m = need_motion()?;
+            let skel_path = asf_out.map_or_else(|| output.with_extension("asf"), Path::to_path_buf);
+            if skel_path == input {
+                return Err(CliError::Usage("refusing to overwrite the input skeleton".into()));
+            }
+            save_asf(&file, &skel_path)?;
+            amc::save(&file.skeleton, m, output)?;
+        }
+        "asf" => save_asf(&file, output)?,
+        other => {
+            return Err(CliError::Usage(format!(
+                "{}: unknown output type '.{other}' (expected .bvh, .amc or .asf)",
+                output.display()
+            )))
+        }
+    }
+    Ok(())
+}
+
+fn save_asf(file: &AsfFile, path: &Path) -> Result<(), FileError> {
+    let f = std::fs::File::create(path).map_err(|e| FileError::io(path, e))?;
+    let mut w = BufWriter::new(f);
+    asf::write(file, &mut w)
+        .and_then(|()| w.flush())
+        .map_err(|e| FileError::io(path, e))
+}

@@ -1,0 +1,261 @@
+//! The motion-editing commands: `connect`, `loop`, `transform`, `blend` (help note §III).
+
+use std::io::{self, Write};
+use std::path::Path;
+
+use super::args::extension;
+use super::CliError;
+use crate::formats::asf::AsfFile;
+use crate::formats::{amc, asf};
+use crate::motion::clip::{heading, transform};
+use crate::motion::connect::{blend, connect, loop_clip, ConnectParams, Direction, Method};
+use crate::motion::matching::MatchParams;
+use crate::motion::plot::{ConnectionPicture, ConnectionPlot};
+use crate::motion::seam::seam_report;
+use crate::motion::Motion;
+use crate::plot::{draw, Format};
+use crate::skeleton::Skeleton;
+
+fn load_clip(asf_path: &Path, amc_paths: &[&Path]) -> Result<(AsfFile, Vec<Motion>), CliError> {
+    let file = asf::load(asf_path)?;
+    let motions = amc_paths
+        .iter()
+        .map(|p| amc::load(&file.skeleton, p))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((file, motions))
+}
+
+fn save_clip(file: &AsfFile, motion: &Motion, output: &Path) -> Result<(), CliError> {
+    if extension(output) != "amc" {
+        return Err(CliError::Usage(format!(
+            "{}: the output must be an .amc file",
+            output.display()
+        )));
+    }
+    amc::save(&file.skeleton, motion, output)?;
+    Ok(())
+}
+
+fn stem(p: &Path) -> String {
+    p.file_stem()
+        .map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().to_string())
+}
+
+/// Draws a connection picture and says so.
+fn draw_connection(
+    w: &mut impl Write,
+    skeleton: &Skeleton,
+    plot: &ConnectionPlot<'_>,
+    path: &Path,
+) -> Result<(), CliError> {
+    let picture = ConnectionPicture { skeleton, plot };
+    draw(&picture, ConnectionPicture::SIZE, path)?;
+    writeln!(w, "drew      {}", path.display())?;
+    Ok(())
+}
+
+/// Refuses a `--plot` file type before any work is done.
+fn check_plot(plot: Option<&Path>) -> Result<(), CliError> {
+    match plot.map(Format::of) {
+        Some(Err(e)) => Err(CliError::Usage(format!("--plot {e}"))),
+        _ => Ok(()),
+    }
+}
+
+pub(super) fn connect_cmd(
+    asf_path: &Path,
+    a_path: &Path,
+    b_path: &Path,
+    params: &ConnectParams,
+    output: &Path,
+    plot: Option<&Path>,
+) -> Result<(), CliError> {
+    check_plot(plot)?;
+    let (file, clips) = load_clip(asf_path, &[a_path, b_path])?;
+    let (s, a, b) = (&file.skeleton, &clips[0], &clips[1]);
+    let c = connect(s, a, b, params)?;
+    let mut out = c.motion.clone();
+    out.first_frame = 1;
+    save_clip(&file, &out, output)?;
+    let (searched, kept_whole) = match params.direction {
+        Direction::Forward => ("B", "A"),
+        Direction::Backward => ("A", "B"),
+    };
+    let mut w = io::stdout().lock();
+    writeln!(
+        w,
+        "matched   {:?} matching, window {} frames, metric {:?}: best window of {searched} starts at its frame {} (distance {:.4}); {kept_whole} kept whole",
+        params.direction,
+        params.matching.window,
+        params.matching.metric,
+        c.matching.best + 1,
+        c.matching.best_distance
+    )?;
+    let how = match params.method {
+        Method::Interpolate => "interpolated",
+        Method::Blend => "blended",
+    };
+    writeln!(
+        w,
+        "result    {} frames: A {}..{}, {} {how}, B {}..{}",
+        out.len(),
+        c.a_kept.start + 1,
+        c.a_kept.end,
+        c.seam.len(),
+        c.b_kept.start + 1,
+        c.b_kept.end
+    )?;
+    write_seam(&mut w, &seam_report(s, &[a, b], &out, c.seam.clone()))?;
+    writeln!(w, "wrote     {}", output.display())?;
+    if let Some(p) = plot {
+        let plot = ConnectionPlot {
+            title: format!(
+                "connect {} → {} ({how}, {:?} matching)",
+                stem(a_path),
+                stem(b_path),
+                params.direction
+            ),
+            inputs: vec![("A", a), ("B", b)],
+            result: &out,
+            seam: c.seam.clone(),
+            distances: &c.matching.distances,
+            distance_axis: format!("start frame of the window in {searched} (0-based)"),
+            best: c.matching.best,
+        };
+        draw_connection(&mut w, s, &plot, p)?;
+    }
+    Ok(())
+}
+
+pub(super) fn write_seam(w: &mut impl Write, r: &crate::motion::seam::SeamReport) -> io::Result<()> {
+    writeln!(w, "seam      {r}")
+}
+
+pub(super) fn loop_cmd(
+    asf_path: &Path,
+    input: &Path,
+    matching: &MatchParams,
+    cycles: usize,
+    output: &Path,
+    plot: Option<&Path>,
+) -> Result<(), CliError> {
+    check_plot(plot)?;
+    if cycles == 0 {
+        return Err(CliError::Usage("--cycles must be at least 1".into()));
+    }
+    let (file, clips) = load_clip(asf_path, &[input])?;
+    let (s, a) = (&file.skeleton, &clips[0]);
+    let l = loop_clip(s, a, matching, cycles)?;
+    save_clip(&file, &l.motion, output)?;
+    let mut w = io::stdout().lock();
+    writeln!(
+        w,
+        "matched   the last {} frames against the clip: best window starts at frame {} (distance {:.4})",
+        matching.window,
+        l.start + 1,
+        l.matching.best_distance
+    )?;
+    writeln!(
+        w,
+        "cycle     frames {}..{} with the end blended back, {} frames = {:.3} s; {} cycles = {} frames",
+        l.start + matching.window + 1,
+        a.len(),
+        l.period,
+        l.period as f64 / a.frame_rate,
+        cycles,
+        l.motion.len()
+    )?;
+    // The wrap from one cycle into the next.
+    let wrap = if cycles > 1 {
+        l.period..l.period
+    } else {
+        l.seam.clone()
+    };
+    write_seam(&mut w, &seam_report(s, &[a], &l.motion, wrap.clone()))?;
+    writeln!(w, "wrote     {}", output.display())?;
+    if let Some(p) = plot {
+        let plot = ConnectionPlot {
+            title: format!("loop {} ({} cycles)", stem(input), cycles),
+            inputs: vec![("clip", a)],
+            result: &l.motion,
+            seam: l.seam.clone(),
+            distances: &l.matching.distances,
+            distance_axis: "start frame of the window (0-based)".into(),
+            best: l.matching.best,
+        };
+        draw_connection(&mut w, s, &plot, p)?;
+    }
+    Ok(())
+}
+
+pub(super) fn transform_cmd(
+    asf_path: &Path,
+    input: &Path,
+    facing: f64,
+    start: Option<&str>,
+    output: &Path,
+) -> Result<(), CliError> {
+    if !facing.is_finite() {
+        return Err(CliError::Usage("--facing must be a number of degrees".into()));
+    }
+    let start = match start {
+        None => None,
+        Some(t) => {
+            let bad = || CliError::Usage(format!("--start must look like X,Z, got '{t}'"));
+            let (x, z) = t.split_once(',').ok_or_else(bad)?;
+            let x: f64 = x.trim().parse().map_err(|_| bad())?;
+            let z: f64 = z.trim().parse().map_err(|_| bad())?;
+            if !(x.is_finite() && z.is_finite()) {
+                return Err(bad());
+            }
+            Some((x, z))
+        }
+    };
+    let (file, clips) = load_clip(asf_path, &[input])?;
+    let s = &file.skeleton;
+    let out = transform(s, &clips[0], facing.to_radians(), start);
+    save_clip(&file, &out, output)?;
+    let (f0, p0) = heading(s, &clips[0], 0);
+    let (f1, p1) = heading(s, &out, 0);
+    let mut w = io::stdout().lock();
+    writeln!(
+        w,
+        "first frame: facing {:.3}° → {:.3}°, root ({:.4}, {:.4}, {:.4}) → ({:.4}, {:.4}, {:.4})",
+        f0.to_degrees(),
+        f1.to_degrees(),
+        p0.x,
+        p0.y,
+        p0.z,
+        p1.x,
+        p1.y,
+        p1.z
+    )?;
+    writeln!(w, "wrote {} ({} frames)", output.display(), out.len())?;
+    Ok(())
+}
+
+pub(super) fn blend_cmd(
+    asf_path: &Path,
+    a_path: &Path,
+    b_path: &Path,
+    weight: f64,
+    output: &Path,
+) -> Result<(), CliError> {
+    if !(0.0..=1.0).contains(&weight) {
+        return Err(CliError::Usage(format!(
+            "--weight must be between 0 and 1, got {weight}"
+        )));
+    }
+    let (file, clips) = load_clip(asf_path, &[a_path, b_path])?;
+    let out = blend(&file.skeleton, &clips[0], &clips[1], weight);
+    save_clip(&file, &out, output)?;
+    writeln!(
+        io::stdout().lock(),
+        "wrote {} ({} frames, {:.0}% A + {:.0}% B)",
+        output.display(),
+        out.len(),
+        (1.0 - weight) * 100.0,
+        weight * 100.0
+    )?;
+    Ok(())
+}

@@ -1,0 +1,113 @@
+//! Why a command failed: [`CliError`], printed as one line, with the process exit code.
+
+use std::io;
+use std::path::PathBuf;
+
+use crate::bus::{BusError, StartupError};
+use crate::fk::ShortFrame;
+use crate::formats::FileError;
+use crate::ik::PointError;
+use crate::motion::connect::ConnectError;
+use crate::plot::PlotError;
+use crate::sim::mjcf::MjcfError;
+
+/// Why a command failed; printed as one line. [`CliError::exit_code`]: 2 for a usage error
+/// (the arguments are wrong or do not fit the inputs they name), 1 for the rest.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CliError {
+    /// The arguments are wrong or do not fit together or with the files they name.
+    #[error("{0}")]
+    Usage(String),
+    /// A file could not be read, parsed or written.
+    #[error(transparent)]
+    File(#[from] FileError),
+    /// Writing the output failed.
+    #[error("writing output: {0}")]
+    Output(#[from] io::Error),
+    /// A serial port could not be opened.
+    #[error("{port}: {source}")]
+    Port {
+        /// The port.
+        port: String,
+        /// What the system said.
+        source: io::Error,
+    },
+    /// The serial ports could not be listed.
+    #[error("listing serial ports: {0}")]
+    Ports(#[from] serialport::Error),
+    /// A bus transaction failed outside the loop (scanning).
+    #[error("{port}: {source}")]
+    Bus {
+        /// The port.
+        port: String,
+        /// What failed.
+        source: BusError,
+    },
+    /// The servos could not be started as the profile says.
+    #[error("start-up: {0}")]
+    StartUp(#[from] StartupError),
+    /// No valid read for the given time: the run was stopped with torque off.
+    #[error("no valid read for {ms} ms: torque turned off on every servo")]
+    ServosSilent {
+        /// The `--torque-off-after` time, milliseconds.
+        ms: f64,
+    },
+    /// The control loop's thread ended by a panic.
+    #[error("the control loop thread panicked")]
+    LoopPanicked,
+    /// A profile whose servos follow robot joints, given to a command that drives bones.
+    #[error("{}: servo {id} (`{name}`) is driven by a robot joint, not a skeleton bone; play and follow need a profile whose servos follow the skeleton's bones", profile.display())]
+    JointDriven {
+        /// The profile.
+        profile: PathBuf,
+        /// The servo's id.
+        id: u8,
+        /// The servo's name.
+        name: String,
+    },
+    /// A clip without frames.
+    #[error("{}: no frames", .0.display())]
+    EmptyClip(PathBuf),
+    /// Two clips cannot be connected (or a clip looped).
+    #[error(transparent)]
+    Connect(#[from] ConnectError),
+    /// A bone cannot be pointed.
+    #[error("cannot point '{bone}': {source}")]
+    Point {
+        /// The bone.
+        bone: String,
+        /// Why.
+        source: PointError,
+    },
+    /// A frame shorter than its skeleton.
+    #[error(transparent)]
+    Frame(#[from] ShortFrame),
+    /// A picture was not drawn.
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+    /// A puppet model could not be generated.
+    #[error(transparent)]
+    Mjcf(#[from] MjcfError),
+    /// The simulator failed (model, actuators).
+    #[cfg(feature = "sim")]
+    #[error(transparent)]
+    Sim(#[from] crate::sim::plant::SimError),
+    /// The simulator was asked for in a build without it.
+    #[error("{0} {not_built}", not_built = crate::sim::NOT_BUILT)]
+    NoSimulator(&'static str),
+    /// A report could not be written as JSON.
+    #[error("JSON: {0}")]
+    Json(#[from] serde_json::Error),
+}
+
+impl CliError {
+    /// The process exit code: 2 for [`CliError::Usage`], 1 otherwise.
+    #[must_use]
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            CliError::Usage(_) => 2,
+            _ => 1,
+        }
+    }
+}
