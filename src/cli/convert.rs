@@ -4,7 +4,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use super::args::{extension, BvhUnit};
-use super::CliError;
+use super::error::CliError;
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf, bvh, FileError};
 

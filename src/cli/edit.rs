@@ -4,7 +4,7 @@ use std::io::{self, Write};
 use std::path::Path;
 
 use super::args::extension;
-use super::CliError;
+use super::error::CliError;
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf};
 use crate::motion::clip::{heading, transform};

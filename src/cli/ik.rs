@@ -5,7 +5,7 @@ use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
 
-use super::CliError;
+use super::error::CliError;
 use crate::fk::{fk64, Pose64};
 use crate::formats::{amc, asf};
 use crate::ik::{Limb, Swivel};

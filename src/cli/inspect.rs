@@ -4,7 +4,7 @@ use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
 use super::args::{extension, BvhUnit, Format};
-use super::CliError;
+use super::error::CliError;
 use crate::fk::{forward_kinematics, Pose};
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf, bvh};

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
-use super::CliError;
+use super::error::CliError;
 use crate::budget::plan;
 use crate::bus::dxl::Dynamixel2Bus;
 use crate::bus::start_up;

@@ -3,7 +3,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use super::CliError;
+use super::error::CliError;
 use crate::budget::plan;
 use crate::bus::dxl::Dynamixel2Bus;
 use crate::bus::virtual_chain::{chain_for, PtyChain};

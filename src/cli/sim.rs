@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Subcommand;
 
-use super::CliError;
+use super::error::CliError;
 use crate::formats::asf;
 use crate::profile::Profile;
 use crate::sim::mjcf::{puppet, PuppetOptions};
