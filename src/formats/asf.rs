@@ -1,4 +1,5 @@
-//! ASF files: loading (through the core reader) and writing.
+//! ASF files at the std edge: [`load`] reads a path through the core's text reader
+//! ([`crate::asf`]) and reports `file:line:column`; [`write()`] writes a skeleton as ASF text.
 
 use super::{read_text, tidy, FileError, TextError};
 use crate::skeleton::{Dof, Skeleton};
