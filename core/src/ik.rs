@@ -2,8 +2,9 @@
 //! search inside quaternion joint-limit regions, and numerical solvers (CCD, Jacobian
 //! transpose, pseudoinverse, damped least squares, conjugate gradient) on fixed-size buffers.
 //!
-//! FK in f64 is [`crate::fk::fk64`]. Frames follow [`crate::fk`]: a bone's world rotation is `Wᵢ = Wₚ·Qᵢ` with `Qᵢ = C·M·Cᵀ`;
-//! channel vectors hold radians for rotations and file units for translations.
+//! FK in f64 is [`crate::fk::fk64`]. Frames follow [`crate::fk`]: a bone's world rotation is
+//! `Wᵢ = Wₚ·Qᵢ` with `Qᵢ = C·M·Cᵀ`; channel vectors hold radians for rotations and file units for
+//! translations.
 
 use glam::{DMat3, DQuat, DVec3};
 

@@ -4,8 +4,9 @@ use std::path::Path;
 
 use clap::ValueEnum;
 
+/// How `fk` writes its table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum Format {
+pub enum TableFormat {
     Csv,
     Json,
 }

@@ -102,6 +102,14 @@ pub enum CliError {
 }
 
 impl CliError {
+    /// Makes a [`CliError::Port`] for `port` out of what the system said.
+    pub(super) fn at_port(port: &str) -> impl FnOnce(io::Error) -> CliError + '_ {
+        move |source| CliError::Port {
+            port: port.to_string(),
+            source,
+        }
+    }
+
     /// The process exit code: 2 for [`CliError::Usage`], 1 otherwise.
     #[must_use]
     pub fn exit_code(&self) -> u8 {

@@ -222,22 +222,17 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
     let three_dofs = |b: usize| skel.bones()[b].dofs().iter().filter(|d| d.is_rotation()).count() == 3;
     let closed = orient.filter(|o| three_dofs(o.0));
     if let Some((h, dir, goal_frame, with_roll)) = closed {
-        let mut p =
-            crate::ik::point_bone(skel, &mut channels, h, dir, 0.0).map_err(|source| CliError::Point {
-                bone: skel.bones()[h].name().to_string(),
-                source,
-            })?;
+        let cannot_point = |source| CliError::Point {
+            bone: skel.bones()[h].name().to_string(),
+            source,
+        };
+        let mut p = crate::ik::point_bone(skel, &mut channels, h, dir, 0.0).map_err(cannot_point)?;
         if with_roll {
             fk64(skel, &channels, &mut pose);
             let (axis, angle) = DQuat::from_mat3(&(pose.frame[h].transpose() * goal_frame)).to_axis_angle();
             let local = skel.bones()[h].local_direction().as_dvec3();
             let roll = if axis.dot(local) < 0.0 { -angle } else { angle };
-            p = crate::ik::point_bone(skel, &mut channels, h, dir, roll).map_err(|source| {
-                CliError::Point {
-                    bone: skel.bones()[h].name().to_string(),
-                    source,
-                }
-            })?;
+            p = crate::ik::point_bone(skel, &mut channels, h, dir, roll).map_err(cannot_point)?;
         }
         report.push_str(&format!(
             "  {} points {:.4}° off the asked direction (closed form, eq. 31–34){}\n",

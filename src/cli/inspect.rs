@@ -3,7 +3,7 @@
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
-use super::args::{extension, BvhUnit, Format};
+use super::args::{extension, BvhUnit, TableFormat};
 use super::error::CliError;
 use crate::fk::{forward_kinematics, Pose};
 use crate::formats::asf::AsfFile;
@@ -200,7 +200,7 @@ pub(super) fn fk(
     every: usize,
     frames: Option<&str>,
     meters: bool,
-    format: Format,
+    format: TableFormat,
 ) -> Result<(), CliError> {
     let file = asf::load(asf_path)?;
     let s = &file.skeleton;
@@ -212,8 +212,8 @@ pub(super) fn fk(
     let mut channels = [0.0f32; MAX_CHANNELS];
     let mut pose = Pose::new();
     match format {
-        Format::Csv => writeln!(w, "frame,bone,x,y,z")?,
-        Format::Json => {
+        TableFormat::Csv => writeln!(w, "frame,bone,x,y,z")?,
+        TableFormat::Json => {
             write!(
                 w,
                 "{{\"units\":\"{}\",\"frame_rate\":{},\"bones\":[",
@@ -232,13 +232,13 @@ pub(super) fn fk(
         forward_kinematics(s, &channels, &mut pose)?;
         let number = motion.first_frame + i as i64;
         match format {
-            Format::Csv => {
+            TableFormat::Csv => {
                 for (b, bone) in s.bones().iter().enumerate() {
                     let p = pose.tip[b] * scale;
                     writeln!(w, "{number},{},{:.6},{:.6},{:.6}", bone.name(), p.x, p.y, p.z)?;
                 }
             }
-            Format::Json => {
+            TableFormat::Json => {
                 let sep = if k == 0 { "" } else { "," };
                 write!(w, "{sep}{{\"frame\":{number},\"tips\":[")?;
                 for b in 0..s.len() {
@@ -250,7 +250,7 @@ pub(super) fn fk(
             }
         }
     }
-    if format == Format::Json {
+    if format == TableFormat::Json {
         writeln!(w, "]}}")?;
     }
     w.flush()?;

@@ -16,7 +16,7 @@ pub use error::CliError;
 use crate::motion::connect::{ConnectParams, Direction, Method};
 use crate::motion::matching::{MatchParams, Metric};
 use crate::motion::CMU_FRAME_RATE;
-use args::{BvhUnit, Format};
+use args::{BvhUnit, TableFormat};
 use clap::{Parser, Subcommand, ValueEnum};
 use std::io;
 use std::path::PathBuf;
@@ -206,8 +206,8 @@ enum Command {
         #[arg(long)]
         meters: bool,
         /// Output format.
-        #[arg(long, value_enum, default_value_t = Format::Csv)]
-        format: Format,
+        #[arg(long, value_enum, default_value_t = TableFormat::Csv)]
+        format: TableFormat,
     },
     /// Convert between BVH and ASF/AMC: IN.bvh → OUT.amc (+ OUT.asf) or IN.amc → OUT.bvh.
     Convert {

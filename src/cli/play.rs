@@ -196,10 +196,7 @@ fn open_bus(
             let chain = PtyChain::serve(chain_for(profile, |k| rest[k]), None).map_err(CliError::Output)?;
             let path = chain.path().to_string();
             let baud = args.baud.unwrap_or(profile.bus.baud);
-            let bus = Dynamixel2Bus::open(&path, baud).map_err(|source| CliError::Port {
-                port: path.clone(),
-                source,
-            })?;
+            let bus = Dynamixel2Bus::open(&path, baud).map_err(CliError::at_port(&path))?;
             Ok(OpenBus {
                 bus,
                 label: format!("virtual chain of {} servos on {path}", profile.servos.len()),
@@ -222,10 +219,7 @@ fn open_bus(
                     1e6 / args.rate
                 )?;
             }
-            let bus = Dynamixel2Bus::open(port, baud).map_err(|source| CliError::Port {
-                port: port.clone(),
-                source,
-            })?;
+            let bus = Dynamixel2Bus::open(port, baud).map_err(CliError::at_port(port))?;
             Ok(OpenBus {
                 bus,
                 label: format!("{port} at {baud} bit/s"),
@@ -740,10 +734,7 @@ fn target_source(spec: &str, effectors: &[String]) -> Result<TargetSource, CliEr
                 "--targets {spec}: only a loopback address is accepted (targets move servos; forward other hosts explicitly)"
             )));
         }
-        let socket = UdpSocket::bind(addr).map_err(|source| CliError::Port {
-            port: format!("--targets {spec}"),
-            source,
-        })?;
+        let socket = UdpSocket::bind(addr).map_err(CliError::at_port(&format!("--targets {spec}")))?;
         return Ok(TargetSource::Udp(socket));
     }
     Ok(TargetSource::File(TargetTrack::load(Path::new(spec), effectors)?))

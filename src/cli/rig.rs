@@ -172,10 +172,7 @@ pub fn scan_cmd(
             ))
         }
     };
-    let mut bus = Dynamixel2Bus::open(&path, baud).map_err(|source| CliError::Port {
-        port: path.clone(),
-        source,
-    })?;
+    let mut bus = Dynamixel2Bus::open(&path, baud).map_err(CliError::at_port(&path))?;
     let found = bus.scan().map_err(|source| CliError::Bus {
         port: path.clone(),
         source,

@@ -1,7 +1,6 @@
 //! The latency picture of a run: one histogram curve per measured stage on a logarithmic time
 //! axis, with the period marked.
 
-use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::stats::{Histogram, LoopStats, Stage};
@@ -17,16 +16,12 @@ impl Histograms<'_> {
 
 impl Picture for Histograms<'_> {
     fn render<DB: DrawingBackend<ErrorType: 'static>>(&self, area: &Area<DB>) -> Rendered {
-        Ok(render(self.0, area)?)
+        render(self.0, area)
     }
 }
 
-fn render<DB: DrawingBackend>(stats: &LoopStats, area: &DrawingArea<DB, Shift>) -> Result<(), String>
-where
-    DB::ErrorType: 'static,
-{
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    area.fill(&WHITE).map_err(|x| e(&x))?;
+fn render<DB: DrawingBackend<ErrorType: 'static>>(stats: &LoopStats, area: &Area<DB>) -> Rendered {
+    area.fill(&WHITE)?;
     let period_us = 1e6 / stats.rate_hz;
     let mut series: Vec<(&str, &Histogram)> = vec![
         ("tick compute", &stats.tick_compute),
@@ -58,15 +53,13 @@ where
         .margin(16)
         .x_label_area_size(44)
         .y_label_area_size(64)
-        .build_cartesian_2d((lo..hi * 1.2).log_scale(), 0.0..top * 1.1)
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d((lo..hi * 1.2).log_scale(), 0.0..top * 1.1)?;
     chart
         .configure_mesh()
         .x_desc("µs (log scale)")
         .y_desc("fraction of ticks (8 bins per doubling)")
         .label_style(("sans-serif", 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
     for (((name, h), colour), points) in series.iter().zip(colours).zip(curves) {
         if h.count() == 0 {
@@ -74,8 +67,7 @@ where
         }
         let p = h.summary_us();
         chart
-            .draw_series(LineSeries::new(points, colour.stroke_width(2)))
-            .map_err(|x| e(&x))?
+            .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
             .label(format!(
                 "{name}: p50 {:.1} p99 {:.1} max {:.1} µs",
                 p.p50, p.p99, p.max
@@ -86,8 +78,7 @@ where
         .draw_series(LineSeries::new(
             vec![(period_us, 0.0), (period_us, top * 1.1)],
             BLACK.mix(0.5).stroke_width(1),
-        ))
-        .map_err(|x| e(&x))?
+        ))?
         .label(format!("period {period_us:.0} µs"))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.mix(0.5)));
     chart
@@ -96,8 +87,7 @@ where
         .border_style(BLACK)
         .label_font(("sans-serif", 14))
         .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     Ok(())
 }
 

@@ -5,7 +5,6 @@ use super::clip::heading;
 use super::Motion;
 use crate::plot::{Area, Picture, Rendered};
 use crate::skeleton::Skeleton;
-use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::ops::Range;
 
@@ -70,14 +69,11 @@ fn bounds(points: impl Iterator<Item = (f64, f64)>) -> ((f64, f64), (f64, f64)) 
     ((cx - half, cx + half), (cy - half, cy + half))
 }
 
-fn render<DB: DrawingBackend>(
+fn render<DB: DrawingBackend<ErrorType: 'static>>(
     skeleton: &Skeleton,
     plot: &ConnectionPlot<'_>,
-    root: &DrawingArea<DB, Shift>,
-) -> Result<(), Box<dyn std::error::Error>>
-where
-    DB::ErrorType: 'static,
-{
+    root: &Area<DB>,
+) -> Rendered {
     root.fill(&WHITE)?;
     let root = root.titled(&plot.title, ("sans-serif", 22))?;
     let (left, right) = root.split_horizontally(640);

@@ -1,7 +1,6 @@
 //! How well simulated servos followed their commands: per-servo RMS, maximum and lag of the
 //! angle error, end-effector position error, torque saturation, and pictures of them.
 
-use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
@@ -221,18 +220,17 @@ impl TrackingPicture<'_> {
 
 impl Picture for TrackingPicture<'_> {
     fn render<DB: DrawingBackend<ErrorType: 'static>>(&self, area: &Area<DB>) -> Rendered {
-        Ok(paint(area, self.samples, self.report, self.chosen)?)
+        paint(area, self.samples, self.report, self.chosen)
     }
 }
 
-fn paint<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
+fn paint<DB: DrawingBackend<ErrorType: 'static>>(
+    root: &Area<DB>,
     samples: &[Sample],
     report: &TrackingReport,
     chosen: &[usize],
-) -> Result<(), String> {
-    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    root.fill(&WHITE).map_err(err)?;
+) -> Rendered {
+    root.fill(&WHITE)?;
     let (top, bottom) = root.split_vertically(230 * chosen.len().max(1) as u32);
     let panels = top.split_evenly((chosen.len().max(1), 1));
     let t0 = samples.first().map_or(0.0, |s| s.time);
@@ -263,38 +261,33 @@ fn paint<DB: DrawingBackend>(
             .margin(8)
             .x_label_area_size(28)
             .y_label_area_size(50)
-            .build_cartesian_2d(t0..t1, lo..hi)
-            .map_err(err)?;
+            .build_cartesian_2d(t0..t1, lo..hi)?;
         chart
             .configure_mesh()
             .x_desc("simulated time, s")
             .y_desc("angle, °")
-            .draw()
-            .map_err(err)?;
+            .draw()?;
         let cmd: Vec<(f64, f64)> = samples
             .iter()
             .filter(|x| x.commanded[k].is_finite())
             .map(|x| (x.time, x.commanded[k].to_degrees()))
             .collect();
         chart
-            .draw_series(DashedLineSeries::new(cmd, 6, 4, RED.stroke_width(2)))
-            .map_err(err)?
+            .draw_series(DashedLineSeries::new(cmd, 6, 4, RED.stroke_width(2)))?
             .label("commanded")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
         chart
             .draw_series(LineSeries::new(
                 samples.iter().map(|x| (x.time, x.simulated[k].to_degrees())),
                 BLUE.stroke_width(2),
-            ))
-            .map_err(err)?
+            ))?
             .label("simulated")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
-            .draw()
-            .map_err(err)?;
+            .draw()?;
     }
     let n = report.servos.len();
     let top_rms = report.servos.iter().map(|s| s.rms_deg).fold(0.5, f64::max) * 1.15;
@@ -306,8 +299,7 @@ fn paint<DB: DrawingBackend>(
         .margin(8)
         .x_label_area_size(90)
         .y_label_area_size(50)
-        .build_cartesian_2d(-0.5..n as f64 - 0.5, 0.0..top_rms)
-        .map_err(err)?;
+        .build_cartesian_2d(-0.5..n as f64 - 0.5, 0.0..top_rms)?;
     let names: Vec<String> = report.servos.iter().map(|s| s.name.clone()).collect();
     chart
         .configure_mesh()
@@ -323,13 +315,10 @@ fn paint<DB: DrawingBackend>(
                 String::new()
             }
         })
-        .draw()
-        .map_err(err)?;
-    chart
-        .draw_series(report.servos.iter().enumerate().map(|(i, s)| {
-            let x = i as f64;
-            Rectangle::new([(x - 0.35, 0.0), (x + 0.35, s.rms_deg)], BLUE.mix(0.6).filled())
-        }))
-        .map_err(err)?;
+        .draw()?;
+    chart.draw_series(report.servos.iter().enumerate().map(|(i, s)| {
+        let x = i as f64;
+        Rectangle::new([(x - 0.35, 0.0), (x + 0.35, s.rms_deg)], BLUE.mix(0.6).filled())
+    }))?;
     Ok(())
 }
