@@ -16,6 +16,7 @@
 //! * [`bus`] — servo buses (serial through `dynamixel2`, the virtual chain on a pseudo-terminal,
 //!   fault injection).
 //! * [`control`] — the fixed-rate loop, its inputs, statistics and fault policy.
+//! * [`signals`] — termination signals as the loop's stop requests.
 //! * [`sim`] — MuJoCo models of rigs and simulated servos (the simulator itself needs the
 //!   `sim` feature).
 //! * [`plot`] — pictures (SVG or PNG by the file's extension).
@@ -42,6 +43,8 @@ pub mod budget;
 pub mod bus;
 
 pub mod control;
+
+pub mod signals;
 
 pub mod sim;
 

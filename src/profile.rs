@@ -321,8 +321,13 @@ impl Profile {
     /// [`TextError`] with the line of the offending entry.
     pub fn parse(text: &str, path: &Path) -> Result<Profile, TextError> {
         let raw: RawProfile = toml::from_str(text).map_err(|e| {
-            let (l, c) = e.span().map_or((0, 0), |s| line_col(text, s.start));
-            TextError::new(l, c, e.message().trim().to_string())
+            let (l, c) = e.span().map_or((1, 0), |s| line_col(text, s.start));
+            let message = e.message().trim();
+            let message = match message.strip_prefix("missing field ") {
+                Some(field) => format!("expected {field} here, found none"),
+                None => message.to_string(),
+            };
+            TextError::new(l, c, message)
         })?;
         let ck = Checker { text };
         let bus = check_bus(&ck, &raw.bus)?;
@@ -344,7 +349,11 @@ impl Profile {
             bone_orders.push((name, order, ck.line(b)));
         }
         if raw.servo.is_empty() {
-            return Err(TextError::new(0, 0, "the profile has no [[servo]] entries"));
+            return Err(TextError::new(
+                crate::formats::last_line(text),
+                0,
+                "expected [[servo]] entries, found none",
+            ));
         }
         if raw.servo.len() > MAX_SERVOS {
             return Err(ck.at(&raw.servo[MAX_SERVOS], format!("more than {MAX_SERVOS} servos")));

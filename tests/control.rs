@@ -4,7 +4,6 @@
 
 mod common;
 
-use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -14,7 +13,7 @@ use marionette::bus::virtual_chain::{chain_for, VirtualRig};
 use marionette::bus::{start_up, ServoBus};
 use marionette::control::input::{input_channel, Input, InputSender, Payload};
 use marionette::control::sources::{clip_track, ClipPlayer, TrackFrame};
-use marionette::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode};
+use marionette::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode, StopRequests};
 use marionette::formats::{amc, asf};
 use marionette::motion::Motion;
 use marionette::profile::Profile;
@@ -498,7 +497,7 @@ fn run_ramps_to_rest_then_turns_torque_off() {
         tx2.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
             .unwrap();
     }
-    let stop = AtomicBool::new(false);
+    let stop = StopRequests::new();
     let end = c.run(&mut schedule, &mut s.vr.clone(), &mut clock, &stop);
     assert_eq!(end, RunEnd::Duration);
     assert_eq!(c.stats.ticks, 200);

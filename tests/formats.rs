@@ -423,7 +423,7 @@ fn amc_errors_name_file_line_and_what_was_expected() {
     );
     assert_eq!(
         amc_err(":DEGREES\n"),
-        "16_15.amc: expected at least one frame, found none"
+        "16_15.amc:1: expected at least one frame (a frame number, then a line per bone), found none"
     );
     assert_eq!(
         amc_err(":FOO\n"),
@@ -454,4 +454,18 @@ fn bvh_errors_name_line_and_what_was_expected() {
         e("HIERARCHY\nROOT a\n{\nJOINT b\n{\nCHANNELS 3 Xposition Yposition Zposition\n}\n}\n")
             .contains("only the root may")
     );
+}
+
+/// Found by the `asf` fuzz target: a byte-order mark shifted the documentation's offsets
+/// (a panic when a line of it held a multi-byte character).
+#[test]
+fn asf_with_a_byte_order_mark_keeps_its_documentation() {
+    let text = format!("\u{feff}{}", common::read("16.asf"));
+    let plain = asf::parse(&common::read("16.asf")).unwrap();
+    let with_bom = asf::parse(&text).unwrap();
+    assert_eq!(with_bom.documentation, plain.documentation);
+    let accented = text.replacen(":documentation\r\n", ":documentation\r\n  Señor Ωmega\r\n", 1);
+    assert_ne!(accented, text, "16.asf has a :documentation line");
+    let doc = asf::parse(&accented).unwrap().documentation;
+    assert!(doc.starts_with("Señor Ωmega\n"), "{doc:?}");
 }

@@ -248,7 +248,7 @@ proptest! {
         if let Ok(text) = text_from_bytes(bytes) {
             match amc::parse(s, &text) {
                 Ok(m) => assert_fk_finite(s, Some(&m)),
-                Err(e) => prop_assert!(!e.message.is_empty()),
+                Err(e) => prop_assert!(!e.message.is_empty() && e.line > 0, "{e:?}"),
             }
         }
     }
@@ -263,7 +263,7 @@ proptest! {
         if let Ok(text) = text_from_bytes(bytes) {
             match bvh::parse(&text, 1.0 / 2.54) {
                 Ok((f, m)) => assert_fk_finite(&f.skeleton, Some(&m)),
-                Err(e) => prop_assert!(!e.message.is_empty()),
+                Err(e) => prop_assert!(!e.message.is_empty() && e.line > 0, "{e:?}"),
             }
         }
     }
@@ -275,4 +275,40 @@ fn fixtures_parse_unmutated() {
     assert!(asf::parse(asf_text).is_ok());
     assert_eq!(amc::parse(s, amc_text).unwrap().len(), 20);
     assert_eq!(bvh::parse(bvh_text, 1.0 / 2.54).unwrap().1.len(), 20);
+}
+
+/// Empty, blank and header-only files: every reader names a line (an empty file: line 1;
+/// a file that ends too early: its last line), and the message says what was expected.
+#[test]
+fn files_that_end_early_name_their_last_line() {
+    use marionette::control::sources::TargetTrack;
+    use marionette::profile::Profile;
+    let (_, s, _, _) = fixtures();
+    let effectors = vec!["lradius".to_string()];
+    let cases: [(&str, &str, u32); 12] = [
+        ("asf", "", 1),
+        ("asf", "\n\n", 1),
+        ("amc", "", 1),
+        ("amc", ":FULLY-SPECIFIED\r\n:DEGREES\r\n", 2),
+        ("bvh", "", 1),
+        ("bvh", "HIERARCHY\n", 1),
+        ("profile", "", 1),
+        ("profile", "[rig]\nname = \"x\"\n[bus]\nbaud = 1000000\n", 4),
+        ("targets", "", 1),
+        ("targets", "t,effector,x,y,z\n# nothing yet\n", 2),
+        ("targets", "0,lradius,1,2,inf\n", 1),
+        ("amc", "1\nroot 0 0 0 0 0 1e300\n", 2),
+    ];
+    for (kind, text, line) in cases {
+        let e = match kind {
+            "asf" => asf::parse(text).err(),
+            "amc" => amc::parse(s, text).err(),
+            "bvh" => bvh::parse(text, 1.0).err(),
+            "profile" => Profile::parse(text, std::path::Path::new("p.toml")).err(),
+            _ => TargetTrack::parse(text, &effectors).err(),
+        }
+        .unwrap_or_else(|| panic!("{kind} {text:?} must not load"));
+        assert!(e.line >= line && e.line > 0, "{kind} {text:?}: {e:?}");
+        assert!(e.message.contains("expected"), "{kind} {text:?}: {e:?}");
+    }
 }

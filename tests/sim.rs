@@ -9,7 +9,6 @@ mod common;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::Stdio;
-use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use glam::{DQuat, DVec3};
@@ -17,7 +16,7 @@ use marionette::bus::{start_up, ServoBus};
 use marionette::control::input::input_channel;
 use marionette::control::lockstep::{FeedingClock, PlayerFeed};
 use marionette::control::sources::ClipPlayer;
-use marionette::control::{Controller, LoopConfig, RunEnd, Solve, StopMode};
+use marionette::control::{Controller, LoopConfig, RunEnd, Solve, StopMode, StopRequests};
 use marionette::fk::{fk64, Pose64};
 use marionette::formats::{amc, asf};
 use marionette::profile::Profile;
@@ -134,7 +133,7 @@ fn walk_in_lockstep() -> (TrackingReport, Vec<f64>, u64, RunEnd) {
     let feed = PlayerFeed::new(player, period, skel.channel_count());
     let mut clock = FeedingClock::new(bus.clone(), feed, tx, start, period);
     let mut schedule = Schedule::new(start, period);
-    let end = c.run(&mut schedule, &mut bus, &mut clock, &AtomicBool::new(false));
+    let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
     assert_eq!(clock.report().sent, 471);
     let qpos = bus.with(|t| t.plant().world().qpos().to_vec());
     (report(&bus, &profile), qpos, c.stats.inputs_used, end)

@@ -327,6 +327,8 @@ struct RawBone<'a> {
 /// # Errors
 /// [`AsfError`] with the line and column of the first problem.
 pub fn parse_asf(text: &str) -> Result<Asf<'_>, AsfError<'_>> {
+    // Offsets into the text (the documentation) count from after a byte-order mark.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = Lines::new(text);
     let mut version = "";
     let mut name = "";

@@ -111,6 +111,16 @@ impl VirtualServo {
         self.table[a..a + n].copy_from_slice(&v.to_le_bytes()[..n]);
     }
 
+    /// A little-endian register of 1, 2 or 4 bytes from the control table (0 past its end).
+    #[must_use]
+    pub fn register(&self, address: u16, size: usize) -> u32 {
+        let (a, n) = (usize::from(address), size.min(4));
+        if a + n > TABLE_LEN {
+            return 0;
+        }
+        self.get(address, n)
+    }
+
     /// Bus id.
     #[must_use]
     pub fn id(&self) -> u8 {

@@ -122,6 +122,20 @@ fn servo_error_text(e: u8) -> &'static str {
 }
 
 impl BusError {
+    /// What went wrong, when the port itself failed (the adapter unplugged, the device gone:
+    /// EIO, ENXIO, a hang-up) rather than one transaction; `None` otherwise. Time-outs and
+    /// requests the caller got wrong are not port failures.
+    #[must_use]
+    pub fn port_failure(&self) -> Option<String> {
+        use std::io::ErrorKind as K;
+        match self {
+            BusError::Io(e) if !matches!(e.kind(), K::TimedOut | K::Interrupted | K::WouldBlock | K::InvalidInput) => {
+                Some(e.to_string())
+            }
+            _ => None,
+        }
+    }
+
     /// Its kind.
     #[must_use]
     pub fn kind(&self) -> ErrorKind {

@@ -12,6 +12,7 @@ use super::faults::FaultInjector;
 use super::packet::{wire_time, Transport};
 use crate::device::{Chain, Received, Receiver, Replies, VirtualServo, MAX_PACKET};
 use crate::profile::Profile;
+use crate::servo::MAX_SERVOS;
 
 /// A chain with one servo per profiled id, each at `position` (or 2048).
 ///
@@ -240,11 +241,23 @@ impl<P: Plant> Transport for InProcess<P> {
     }
 }
 
+/// A servo's torque switched on or off by an instruction, as the serving thread saw it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TorqueEvent {
+    /// When the instruction was handled.
+    pub at: Instant,
+    /// The servo.
+    pub id: u8,
+    /// Torque on after it.
+    pub on: bool,
+}
+
 /// A chain served on a pseudo-terminal by a thread, in real time: the servos move with the
 /// wall clock, replies wait their return delay. Clients open [`PtyChain::path`].
 pub struct PtyChain {
     path: String,
     chain: Arc<Mutex<Chain>>,
+    torque_log: Arc<Mutex<Vec<TorqueEvent>>>,
     injector: Arc<Mutex<Option<FaultInjector>>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
@@ -279,24 +292,29 @@ impl PtyChain {
         injector: Option<FaultInjector>,
     ) -> io::Result<PtyChain> {
         let (mut device_end, client_end) = serialport::TTYPort::pair().map_err(io::Error::other)?;
+        close_on_exec(&device_end)?;
+        close_on_exec(&client_end)?;
         let path = serialport::SerialPort::name(&client_end)
             .ok_or_else(|| io::Error::other("pseudo-terminal without a name"))?;
         serialport::SerialPort::set_timeout(&mut device_end, Duration::from_millis(1))
             .map_err(io::Error::other)?;
         let chain = Arc::new(Mutex::new(chain));
         let injector = Arc::new(Mutex::new(injector));
+        let torque_log = Arc::new(Mutex::new(Vec::new()));
         let stop = Arc::new(AtomicBool::new(false));
         let thread = {
             let chain = Arc::clone(&chain);
             let injector = Arc::clone(&injector);
+            let log = Arc::clone(&torque_log);
             let stop = Arc::clone(&stop);
             std::thread::Builder::new()
                 .name("virtual-chain".into())
-                .spawn(move || serve_loop(&mut device_end, &chain, &mut plant, &stop, &injector))?
+                .spawn(move || serve_loop(&mut device_end, &chain, &mut plant, &stop, &injector, &log))?
         };
         Ok(PtyChain {
             path,
             chain,
+            torque_log,
             injector,
             stop,
             thread: Some(thread),
@@ -315,6 +333,16 @@ impl PtyChain {
         self.injector
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Every torque switch the served instructions made, in order (the chain's own record of
+    /// when each servo was turned on and off).
+    #[must_use]
+    pub fn torque_log(&self) -> Vec<TorqueEvent> {
+        self.torque_log
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
     }
 
     /// The chain (locked; keep the guard short).
@@ -337,12 +365,27 @@ impl Drop for PtyChain {
     }
 }
 
+/// Keeps a pseudo-terminal's descriptor out of child processes (as std does for every file it
+/// opens): a child holding the device end would keep the line up after the chain closed it.
+#[allow(unsafe_code)]
+fn close_on_exec(port: &serialport::TTYPort) -> io::Result<()> {
+    use std::os::fd::AsRawFd;
+    let fd = port.as_raw_fd();
+    // SAFETY: fcntl on a descriptor this value owns, with integer arguments only.
+    let flags = unsafe { libc::fcntl(fd, libc::F_GETFD) };
+    if flags < 0 || unsafe { libc::fcntl(fd, libc::F_SETFD, flags | libc::FD_CLOEXEC) } < 0 {
+        return Err(io::Error::last_os_error());
+    }
+    Ok(())
+}
+
 fn serve_loop(
     port: &mut serialport::TTYPort,
     chain: &Mutex<Chain>,
     plant: &mut impl Plant,
     stop: &AtomicBool,
     injector: &Mutex<Option<FaultInjector>>,
+    torque_log: &Mutex<Vec<TorqueEvent>>,
 ) {
     let mut rx = Receiver::default();
     let mut out = vec![0u8; 8 * MAX_PACKET];
@@ -370,6 +413,7 @@ fn serve_loop(
             let n = raw.len();
             let packet = raw.to_vec();
             rx.consume(n);
+            let before: heapless::Vec<bool, MAX_SERVOS> = chain.servos().iter().map(|s| s.torque_on()).collect();
             respond(
                 &mut chain,
                 &packet,
@@ -378,6 +422,19 @@ fn serve_loop(
                 &mut replies,
                 &mut push,
             );
+            let at = Instant::now();
+            for (s, was) in chain.servos().iter().zip(before) {
+                if s.torque_on() != was {
+                    torque_log
+                        .lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .push(TorqueEvent {
+                            at,
+                            id: s.id(),
+                            on: s.torque_on(),
+                        });
+                }
+            }
         }
         drop(inj);
         drop(chain);

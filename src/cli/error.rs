@@ -53,6 +53,15 @@ pub enum CliError {
         /// The `--torque-off-after` time, milliseconds.
         ms: f64,
     },
+    /// The port failed mid-run (adapter unplugged): nothing more was commanded, one torque-off
+    /// was tried.
+    #[error("{port} went away mid-run ({reason}): servos held, one torque-off tried; check the adapter and the cable")]
+    PortLost {
+        /// The port.
+        port: String,
+        /// The operating system's error.
+        reason: String,
+    },
     /// The control loop's thread ended by a panic.
     #[error("the control loop thread panicked")]
     LoopPanicked,

@@ -7,7 +7,6 @@
 use std::io::{IsTerminal, Write};
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -29,7 +28,7 @@ use crate::control::sources::{
     ProducerReport, TargetTrack, TrackFrame,
 };
 use crate::control::stats::{ClipFigures, LoopStats, RunReport};
-use crate::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode, Telemetry};
+use crate::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode, StopRequests, Telemetry};
 use crate::formats::{amc, asf};
 use crate::plot::{draw, Format};
 use crate::profile::Profile;
@@ -234,6 +233,8 @@ struct Outcome {
     stats: LoopStats,
     end: RunEnd,
     producer: ProducerReport,
+    /// Why the port failed ([`RunEnd::PortLost`]).
+    port_error: Option<String>,
 }
 
 /// Where a run's input comes from.
@@ -258,6 +259,7 @@ fn run_sim(
     _tx: InputSender,
     _make_source: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>,
     _allocations: Option<fn() -> u64>,
+    _stop: &StopRequests,
     _out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
     Err(CliError::NoSimulator("--bus sim"))
@@ -277,6 +279,7 @@ fn run_sim(
     tx: InputSender,
     make_source: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>,
     allocations: Option<fn() -> u64>,
+    stop: &StopRequests,
     out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
     use crate::control::lockstep::FeedingClock;
@@ -307,13 +310,8 @@ fn run_sim(
     let period = controller.period_ns();
     let start = bus.now_ns() + period;
     let mut clock = FeedingClock::new(bus.clone(), make_source(period), tx, start, period);
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = Arc::clone(&stop);
-        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed));
-    }
     let mut schedule = Schedule::new(start, period);
-    let end = controller.run(&mut schedule, &mut bus, &mut clock, &stop);
+    let end = controller.run(&mut schedule, &mut bus, &mut clock, stop);
     let producer = clock.report();
     let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
     let tracking = bus.with(|t| {
@@ -348,6 +346,7 @@ fn run_sim(
         stats: controller.stats,
         end,
         producer,
+        port_error: controller.port_error,
     })
 }
 
@@ -406,6 +405,8 @@ fn run_loop(
     out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
     check(args)?;
+    // From here on a signal stops the run safely (during start-up too).
+    let stop = crate::signals::stop_requests().map_err(CliError::Output)?;
     let rig = profile.rig(Some(&skeleton))?;
     if let Some(s) = profile
         .servos
@@ -430,6 +431,7 @@ fn run_loop(
                 tx,
                 make_source,
                 allocations,
+                &stop,
                 out,
             )
         }
@@ -451,29 +453,22 @@ fn run_loop(
     // The first tick a little ahead, so the producer has filled the channel.
     let start = clock.now_ns() + 50_000_000;
     let producer = start_producer(clock, start, period).map_err(CliError::Output)?;
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = Arc::clone(&stop);
-        // Only one handler per process; a second `run` in the same process keeps the first.
-        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed));
-    }
     let rt = RealTime {
         priority: args.rt_priority,
         cpu: args.cpu,
         lock_memory: args.mlock,
     };
-    let stop_loop = Arc::clone(&stop);
     let handle = std::thread::Builder::new()
         .name("control-loop".into())
         .spawn(move || {
             let warnings = rt.apply();
             let mut schedule = Schedule::new(start, period);
-            let end = controller.run(&mut schedule, &mut bus, &mut clock, &stop_loop);
-            (controller.stats, end, warnings)
+            let end = controller.run(&mut schedule, &mut bus, &mut clock, &stop);
+            (controller.stats, end, controller.port_error, warnings)
         })
         .map_err(CliError::Output)?;
     let status = status_line(&trx, args, &handle, period);
-    let (stats, end, warnings) = handle.join().map_err(|_| CliError::LoopPanicked)?;
+    let (stats, end, port_error, warnings) = handle.join().map_err(|_| CliError::LoopPanicked)?;
     if status {
         eprintln!();
     }
@@ -481,7 +476,12 @@ fn run_loop(
         writeln!(out, "{w}")?;
     }
     let producer = producer.join().unwrap_or_default();
-    Ok(Outcome { stats, end, producer })
+    Ok(Outcome {
+        stats,
+        end,
+        producer,
+        port_error,
+    })
 }
 
 /// Prints a status line from the telemetry (on a terminal: rewritten in place four times a
@@ -560,14 +560,15 @@ fn finish(
     extra: impl serde::Serialize,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
-    writeln!(out, "{}", outcome.stats)?;
     let end = match outcome.end {
         RunEnd::InputEnded => "end of input",
         RunEnd::Duration => "duration reached",
         RunEnd::Interrupted => "interrupted",
         RunEnd::ReadsFailed => "reads failed",
+        RunEnd::PortLost => "port lost",
     };
-    writeln!(out, "ended: {end}; torque off")?;
+    // Files first: after a hang-up (the terminal closed) printing may fail, the files not.
+    let mut written = Vec::new();
     if let Some(path) = &args.stats_json {
         let report = RunReport {
             stats: outcome.stats.report(),
@@ -579,18 +580,39 @@ fn finish(
         };
         let text = serde_json::to_string_pretty(&report)?;
         std::fs::write(path, text + "\n").map_err(|e| crate::formats::FileError::io(path, e))?;
-        writeln!(out, "statistics written to {}", path.display())?;
+        written.push(format!("statistics written to {}", path.display()));
     }
     if let Some(path) = &args.histogram {
         draw(&Histograms(&outcome.stats), Histograms::SIZE, path)?;
-        writeln!(out, "histograms drawn in {}", path.display())?;
+        written.push(format!("histograms drawn in {}", path.display()));
     }
-    if outcome.end == RunEnd::ReadsFailed {
-        return Err(CliError::ServosSilent {
+    writeln!(out, "{}", outcome.stats)?;
+    let servos = outcome.stats.torque_off_acknowledged;
+    match outcome.end {
+        RunEnd::PortLost => writeln!(out, "ended: {end}; one torque-off Sync Write tried")?,
+        _ => writeln!(
+            out,
+            "ended: {end}; torque off, acknowledged by {} servos",
+            servos.unwrap_or(0)
+        )?,
+    }
+    for line in written {
+        writeln!(out, "{line}")?;
+    }
+    match outcome.end {
+        RunEnd::ReadsFailed => Err(CliError::ServosSilent {
             ms: args.torque_off_after,
-        });
+        }),
+        RunEnd::PortLost => Err(CliError::PortLost {
+            port: match &args.bus {
+                BusArg::Port(p) => p.clone(),
+                BusArg::Virtual => "the virtual chain".into(),
+                BusArg::Sim => "the simulator".into(),
+            },
+            reason: outcome.port_error.clone().unwrap_or_default(),
+        }),
+        _ => Ok(()),
     }
-    Ok(())
 }
 
 /// `marionette play`.

@@ -131,8 +131,6 @@ fn serve(
     duration: Option<f64>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
-    use std::sync::atomic::{AtomicBool, Ordering};
-    use std::sync::Arc;
     use std::time::{Duration, Instant};
 
     use crate::bus::virtual_chain::{chain_for, PtyChain};
@@ -170,13 +168,9 @@ fn serve(
     )?;
     writeln!(out, "{}", chain.path())?;
     out.flush()?;
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = Arc::clone(&stop);
-        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed));
-    }
+    let stop = crate::signals::stop_requests().map_err(CliError::Output)?;
     let began = Instant::now();
-    while !stop.load(Ordering::Relaxed) && duration.is_none_or(|d| began.elapsed().as_secs_f64() < d) {
+    while stop.made() == 0 && duration.is_none_or(|d| began.elapsed().as_secs_f64() < d) {
         std::thread::sleep(Duration::from_millis(20));
     }
     let handled = chain.chain().instructions();

@@ -10,6 +10,11 @@
 //! reads the last command sent is held (new inputs are not acted on; no step back); after `torque_off_after`
 //! without a valid read every servo's torque is turned off and the loop stops with a fault.
 //! A host that stops altogether is covered by the servos' Bus Watchdog, armed at start-up.
+//! The port itself failing (a USB adapter unplugged: reads and writes fail with EIO) ends the
+//! run at once: nothing more is commanded, one torque-off Sync Write is tried.
+//!
+//! Stopping: [`StopRequests`] are counted. The first ends the loop with the ramp to rest (or the
+//! hold); a second during the ramp cuts it short and turns torque off at once.
 
 pub mod input;
 pub mod lockstep;
@@ -18,7 +23,7 @@ pub mod rt;
 pub mod sources;
 pub mod stats;
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
 use crossbeam_channel::{Sender, TrySendError};
@@ -121,10 +126,48 @@ pub enum RunEnd {
     InputEnded,
     /// The tick count (`--duration`) was reached.
     Duration,
-    /// Stopped from outside (Ctrl-C).
+    /// Stopped from outside (a signal, Ctrl-C).
     Interrupted,
     /// No valid read for the torque-off time: torque was turned off.
     ReadsFailed,
+    /// The port failed (I/O error: the adapter went away); one torque-off was tried.
+    PortLost,
+}
+
+/// Requests to stop the loop (from signal handlers, a user interface, a test), counted from
+/// the moment the value was made: the loop ends at the first; a second during the ramp to
+/// rest cuts it short and turns torque off at once.
+#[derive(Clone, Debug, Default)]
+pub struct StopRequests {
+    count: Arc<AtomicUsize>,
+    base: usize,
+}
+
+impl StopRequests {
+    /// Requests on their own counter, none yet.
+    #[must_use]
+    pub fn new() -> StopRequests {
+        StopRequests::default()
+    }
+
+    /// Requests on a shared counter (e.g. one a signal handler increments), counted from its
+    /// present value.
+    #[must_use]
+    pub fn counting_from_now(count: Arc<AtomicUsize>) -> StopRequests {
+        let base = count.load(Ordering::SeqCst);
+        StopRequests { count, base }
+    }
+
+    /// Asks the loop to stop (again).
+    pub fn request(&self) {
+        self.count.fetch_add(1, Ordering::SeqCst);
+    }
+
+    /// Requests made since this value was made.
+    #[must_use]
+    pub fn made(&self) -> usize {
+        self.count.load(Ordering::SeqCst).saturating_sub(self.base)
+    }
 }
 
 /// What the loop does with the input.
@@ -364,6 +407,8 @@ pub struct Controller {
     have_input: bool,
     clip_time: f64,
     failures: u32,
+    /// Why the port failed, when a run ended with [`RunEnd::PortLost`].
+    pub port_error: Option<String>,
     last_valid_read_ns: u64,
     last_tick: Option<(u64, u64)>,
 }
@@ -438,6 +483,7 @@ impl Controller {
             have_input: false,
             clip_time: f64::NAN,
             failures: 0,
+            port_error: None,
             last_valid_read_ns: 0,
             last_tick: None,
         }
@@ -606,6 +652,7 @@ impl Controller {
             Ok(()) => self.stats.commands_sent += 1,
             Err(e) => self.stats.bus_error(e.kind()),
         }
+        let mut lost = written.as_ref().err().and_then(BusError::port_failure);
         let t_read = clock.now_ns();
         self.stats.stage_mut(Stage::BusWrite).record(t_read - t_write);
 
@@ -647,12 +694,22 @@ impl Controller {
             Err(e) => {
                 self.stats.bus_error(e.kind());
                 self.failures = self.failures.saturating_add(1);
+                lost = lost.or_else(|| e.port_failure());
                 let silent_ms = (t_after.saturating_sub(self.last_valid_read_ns)) as f64 * 1e-6;
-                if silent_ms >= self.config.torque_off_after_ms {
-                    let _ = torque_off(bus, &self.ids);
+                if lost.is_none() && silent_ms >= self.config.torque_off_after_ms {
+                    self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
                     end = Some(RunEnd::ReadsFailed);
                 }
             }
+        }
+        if let Some(why) = lost {
+            // The port is gone: command nothing more; one torque-off Sync Write is all that
+            // can be tried (it needs no replies).
+            self.port_error = Some(why);
+            let zeros = [0u8; MAX_SERVOS];
+            let _ = bus.sync_write(addr::TORQUE_ENABLE, 1, &self.ids, &zeros[..len]);
+            self.stats.torque_off_acknowledged = Some(0);
+            end = Some(RunEnd::PortLost);
         }
 
         if written.is_ok() {
@@ -698,19 +755,22 @@ impl Controller {
         end
     }
 
-    /// Runs ticks on `schedule` until the input ends, `max_ticks` pass, `stop` is set or reads
-    /// fail for the torque-off time; then (except after a fault) ramps to rest or holds, and
-    /// turns torque off.
+    /// Runs ticks on `schedule` until the input ends, `max_ticks` pass, a stop is requested,
+    /// reads fail for the torque-off time or the port fails; then (except after a fault) ramps
+    /// to rest or holds, and turns torque off.
     pub fn run(
         &mut self,
         schedule: &mut Schedule,
         bus: &mut dyn ServoBus,
         clock: &mut dyn Clock,
-        stop: &AtomicBool,
+        stop: &StopRequests,
     ) -> RunEnd {
         let why = loop {
+            if stop.made() > 0 {
+                break RunEnd::Interrupted;
+            }
             let tick = schedule.wait(clock);
-            if stop.load(Ordering::Relaxed) {
+            if stop.made() > 0 {
                 break RunEnd::Interrupted;
             }
             if self.config.max_ticks.is_some_and(|m| self.stats.ticks >= m) {
@@ -721,28 +781,31 @@ impl Controller {
             }
         };
         self.input.stop_producers();
-        if why != RunEnd::ReadsFailed {
+        if !matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
             self.finish(schedule, bus, clock, stop);
         }
         why
     }
 
-    /// The end of a run: ramp to the rest pose (or hold), then torque off. A second stop
-    /// request cuts the ramp short.
+    /// The end of a run: ramp to the rest pose (or hold), then torque off. A stop request
+    /// made during the ramp (the second, when a request ended the loop) cuts it short; so does
+    /// the port failing.
     fn finish(
         &mut self,
         schedule: &mut Schedule,
         bus: &mut dyn ServoBus,
         clock: &mut dyn Clock,
-        stop: &AtomicBool,
+        stop: &StopRequests,
     ) {
         let (ticks, to_rest) = match self.config.stop {
+            // Nothing was commanded yet: the servos stand where they started.
+            _ if !self.have_input => (0, false),
             StopMode::Rest { ramp_s } => ((ramp_s.max(0.0) * self.config.rate_hz).ceil() as usize, true),
             StopMode::Hold { hold_s } => ((hold_s.max(0.0) * self.config.rate_hz).ceil() as usize, false),
         };
         let from: Vec<f64> = self.angles.clone();
         let dt = self.period_ns as f64 * 1e-9;
-        let interrupted_at_start = stop.load(Ordering::Relaxed);
+        let requests_at_start = stop.made();
         // After the ramp, up to two more seconds for the rate limits to arrive at rest.
         let extra = if to_rest {
             (2.0 * self.config.rate_hz).ceil() as usize
@@ -751,7 +814,7 @@ impl Controller {
         };
         for k in 1..=ticks + extra {
             let _ = schedule.wait(clock);
-            if !interrupted_at_start && stop.load(Ordering::Relaxed) {
+            if stop.made() > requests_at_start {
                 break;
             }
             if k > ticks && !to_rest {
@@ -771,7 +834,11 @@ impl Controller {
             } else {
                 self.stage.last().to_vec()
             };
-            let _ = bus.write_goals(&self.ids, &goals);
+            let written = bus.write_goals(&self.ids, &goals);
+            if let Some(why) = written.as_ref().err().and_then(BusError::port_failure) {
+                self.port_error = Some(why);
+                break;
+            }
             if bus.read_positions(&self.ids, &mut self.read_buf).is_ok() {
                 self.present.copy_from_slice(&self.read_buf);
             }
@@ -779,25 +846,37 @@ impl Controller {
                 break;
             }
         }
-        let _ = torque_off(bus, &self.ids);
+        self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
     }
 }
 
+/// What a torque-off achieved.
+#[derive(Debug)]
+pub struct TorqueOff {
+    /// Servos that acknowledged their torque-off write.
+    pub acknowledged: usize,
+    /// The first error, if any.
+    pub error: Option<BusError>,
+}
+
 /// Torque off on every servo: one Sync Write (no replies needed, so it gets through a bus whose
-/// reads fail), then each servo on its own (acknowledged). The first error is returned.
-///
-/// # Errors
-/// [`BusError`].
-pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> Result<(), BusError> {
+/// reads fail), then each servo on its own (acknowledged) — unless the port itself failed.
+pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> TorqueOff {
     let zeros = [0u8; MAX_SERVOS];
     let n = ids.len().min(MAX_SERVOS);
-    let mut first = bus
+    let mut error = bus
         .sync_write(addr::TORQUE_ENABLE, 1, &ids[..n], &zeros[..n])
         .err();
-    for &id in ids {
-        if let Err(e) = bus.set_torque(id, false) {
-            first.get_or_insert(e);
+    let mut acknowledged = 0;
+    if error.as_ref().and_then(BusError::port_failure).is_none() {
+        for &id in &ids[..n] {
+            match bus.set_torque(id, false) {
+                Ok(()) => acknowledged += 1,
+                Err(e) => {
+                    error.get_or_insert(e);
+                }
+            }
         }
     }
-    first.map_or(Ok(()), Err)
+    TorqueOff { acknowledged, error }
 }

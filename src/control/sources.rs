@@ -267,9 +267,9 @@ impl TargetTrack {
         }
         if track.samples.is_empty() {
             return Err(TextError::new(
+                crate::formats::last_line(text),
                 0,
-                0,
-                "no targets (expected `t,effector,x,y,z` lines or JSON lines)",
+                "expected `t,effector,x,y,z` lines or JSON lines, found no targets",
             ));
         }
         Ok(track)
@@ -366,13 +366,14 @@ pub fn parse_target_line(
         ));
     }
     let num = |k: usize, what: &str| -> Result<f64, String> {
-        fields[k].parse::<f64>().map_err(|_| {
-            format!(
-                "field {} ({what}): expected a number, found '{}'",
+        match fields[k].parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            _ => Err(format!(
+                "field {} ({what}): expected a finite number, found '{}'",
                 k + 1,
                 fields[k]
-            )
-        })
+            )),
+        }
     };
     let t = num(0, "t")?;
     let position = DVec3::new(num(2, "x")?, num(3, "y")?, num(4, "z")?);
@@ -671,7 +672,7 @@ mod tests {
                 "three numbers",
             ),
             ("{t:0}\n", 1, "JSON"),
-            ("# nothing\n", 0, "no targets"),
+            ("# nothing\n", 1, "no targets"),
         ] {
             let e = TargetTrack::parse(text, &names()).unwrap_err();
             assert_eq!(e.line, line, "{text:?}: {e:?}");

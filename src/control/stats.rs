@@ -250,6 +250,8 @@ pub struct LoopStats {
     pub telemetry_dropped: u64,
     /// Heap allocations inside ticks (`None` without a counting allocator).
     pub allocations_in_tick: Option<u64>,
+    /// Servos that acknowledged the torque-off at the end (`None` before the end).
+    pub torque_off_acknowledged: Option<usize>,
     tracking_sq: f64,
     tracking_n: u64,
     tracking_max_deg: f64,
@@ -348,6 +350,7 @@ impl LoopStats {
                 io,
             },
             allocations_in_tick: self.allocations_in_tick,
+            torque_off_acknowledged: self.torque_off_acknowledged,
             tracking_rms_deg: self.tracking_rms_deg(),
             tracking_max_deg: self.tracking_max_deg,
             commands_sent: self.commands_sent,
@@ -398,6 +401,8 @@ pub struct Report {
     pub bus_errors_by_kind: BusErrorCounts,
     /// Heap allocations inside ticks (null without a counting allocator).
     pub allocations_in_tick: Option<u64>,
+    /// Servos that acknowledged the torque-off at the end.
+    pub torque_off_acknowledged: Option<usize>,
     /// RMS of commanded − present over servos and reads, degrees.
     pub tracking_rms_deg: f64,
     /// Largest |commanded − present|, degrees.

@@ -117,26 +117,30 @@ pub fn parse(skeleton: &Skeleton, text: &str) -> Result<Motion, TextError> {
             ));
         }
         for ((c, t), (k, dof)) in toks.zip(bone.dofs().iter().enumerate()) {
+            let radians = dof.is_rotation() && !degrees;
+            // Kept in degrees: the bound holds for what is stored (and written back).
             let v: f64 = match t.parse::<f64>() {
-                Ok(v) if v.is_finite() && v.abs() <= MAX_VALUE => v,
+                Ok(v) if radians && v.to_degrees().abs() <= MAX_VALUE => v.to_degrees(),
+                Ok(v) if !radians && v.is_finite() && v.abs() <= MAX_VALUE => v,
                 Ok(_) => {
+                    let range = if radians { "-1.7e7 and 1.7e7 radians" } else { "-1e9 and 1e9" };
                     return Err(TextError::new(
                         n,
                         c,
-                        format!("expected a value between -1e9 and 1e9, found '{t}'"),
-                    ))
+                        format!("expected a value between {range}, found '{t}'"),
+                    ));
                 }
                 Err(_) => return Err(TextError::new(n, c, format!("expected a number, found '{t}'"))),
             };
-            frame[bone.first_channel() + k] = if dof.is_rotation() && !degrees {
-                v.to_degrees()
-            } else {
-                v
-            };
+            frame[bone.first_channel() + k] = v;
         }
     }
     if motion.is_empty() {
-        return Err(TextError::new(0, 0, "expected at least one frame, found none"));
+        return Err(TextError::new(
+            super::last_line(text),
+            0,
+            "expected at least one frame (a frame number, then a line per bone), found none",
+        ));
     }
     Ok(motion)
 }

@@ -30,6 +30,12 @@ impl TextError {
     }
 }
 
+/// The line an error found at the end of `text` points at: its last line (1 for an empty file).
+#[must_use]
+pub fn last_line(text: &str) -> u32 {
+    u32::try_from(text.lines().count().max(1)).unwrap_or(u32::MAX)
+}
+
 impl From<crate::asf::AsfError<'_>> for TextError {
     fn from(e: crate::asf::AsfError<'_>) -> Self {
         TextError::new(e.line, e.column, e.kind.to_string())

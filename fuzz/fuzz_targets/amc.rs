@@ -1,0 +1,39 @@
+//! AMC reader against the bundled skeleton of subject 16: any bytes; a motion that loads runs
+//! FK on every frame and writes back to AMC that loads again with the same frames.
+#![no_main]
+
+use std::sync::OnceLock;
+
+use libfuzzer_sys::fuzz_target;
+use marionette::fk::{fk64, Pose64};
+use marionette::formats::{amc, asf, text_from_bytes};
+use marionette::motion::frame_to_radians;
+use marionette::skeleton::Skeleton;
+
+fn skeleton() -> &'static Skeleton {
+    static SKELETON: OnceLock<Skeleton> = OnceLock::new();
+    SKELETON.get_or_init(|| {
+        asf::parse(include_str!("../../data/cmu/16.asf"))
+            .expect("the bundled skeleton loads")
+            .skeleton
+    })
+}
+
+fuzz_target!(|data: &[u8]| {
+    let Ok(text) = text_from_bytes(data.to_vec()) else {
+        return;
+    };
+    let skeleton = skeleton();
+    let Ok(motion) = amc::parse(skeleton, &text) else {
+        return;
+    };
+    let mut pose = Pose64::default();
+    for frame in motion.frames() {
+        fk64(skeleton, &frame_to_radians(skeleton, frame), &mut pose);
+    }
+    let mut written = Vec::new();
+    amc::write(skeleton, &motion, &mut written).expect("writing to memory");
+    let again = amc::parse(skeleton, std::str::from_utf8(&written).expect("AMC is written as UTF-8"))
+        .unwrap_or_else(|e| panic!("a written motion must read back: {e}"));
+    assert_eq!(again.len(), motion.len());
+});

@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# Coverage-guided fuzzing (cargo fuzz, libFuzzer) of marionette's readers and wire.
+#   fuzz/run.sh [SECONDS] [TARGET...]     default: 600 s for each of the seven targets
+# Seeds come from the bundled data (data/cmu, firmware-profile, a clip's targets, the real
+# traffic of each bus transaction); libFuzzer keeps what it finds in fuzz/corpus/TARGET and a
+# crashing input in fuzz/artifacts/TARGET. Prints one line per target: executions, corpus size,
+# crashes. Needs the nightly toolchain and cargo-fuzz (`cargo install cargo-fuzz`).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+seconds=${1:-600}
+shift || true
+targets=("$@")
+if [ ${#targets[@]} -eq 0 ]; then
+    targets=(asf amc bvh profile targets wire_host wire_device)
+fi
+
+seeds=fuzz/seeds
+rm -rf "$seeds"
+mkdir -p "$seeds"/{asf,amc,bvh,profile,targets}
+cp data/cmu/*.asf "$seeds/asf/"
+# AMC and BVH: the header and the first frames of each bundled clip (short inputs fuzz faster).
+for f in data/cmu/*.amc; do
+    awk '/^[0-9]+\r?$/ { n++ } n > 6 { exit } { print }' "$f" >"$seeds/amc/$(basename "$f")"
+done
+for f in data/cmu/*.bvh; do
+    awk '/^Frames:/ { print "Frames: 4"; next } /^Frame Time/ { print; body = 1; next }
+         body { if (++n > 4) exit } { print }' "$f" >"$seeds/bvh/$(basename "$f")"
+done
+cp firmware-profile/*.toml "$seeds/profile/"
+bin=target/debug/marionette
+[ -x "$bin" ] || cargo build -q --bin marionette
+for format in csv jsonl; do
+    "$bin" targets data/cmu/16.asf data/cmu/16_15.amc --format "$format" --output "$seeds/targets/all.$format" >/dev/null
+    head -n 40 "$seeds/targets/all.$format" >"$seeds/targets/16_15.$format"
+    rm "$seeds/targets/all.$format"
+done
+cargo run -q --example wire_seeds -- "$seeds"
+
+cd fuzz
+cargo +nightly fuzz build -O
+status=0
+for t in "${targets[@]}"; do
+    mkdir -p "corpus/$t"
+    log=$(mktemp)
+    if cargo +nightly fuzz run -O "$t" "corpus/$t" "seeds/$t" -- \
+        -max_total_time="$seconds" -seed=1 -timeout=10 -max_len=16384 -rss_limit_mb=4096 \
+        -print_final_stats=1 >"$log" 2>&1; then
+        crashes=0
+    else
+        crashes=1
+        status=1
+        tail -n 40 "$log"
+    fi
+    runs=$(awk '/stat::number_of_executed_units:/ { print $2 }' "$log")
+    corpus=$(find "corpus/$t" -type f | wc -l)
+    printf 'fuzz %-12s %6s s  %12s executions  corpus %6s  crashes %s\n' "$t" "$seconds" "${runs:-?}" "$corpus" "$crashes"
+    rm -f "$log"
+done
+exit $status
