@@ -652,3 +652,196 @@ fn a_burst_of_failed_reads_holds_then_resumes() {
     );
     assert!(s.vr.with(|t| t.chain().servos().iter().all(|v| v.torque_on())));
 }
+
+/// A clock that asks the loop to stop at given waits (tick deadlines, ramp ticks included).
+struct StoppingClock {
+    inner: VirtualRig,
+    stop: StopRequests,
+    waits: u64,
+    at: Vec<u64>,
+}
+
+impl Clock for StoppingClock {
+    fn now_ns(&mut self) -> u64 {
+        self.inner.now_ns()
+    }
+    fn wait_until(&mut self, deadline_ns: u64) {
+        self.waits += 1;
+        if self.at.contains(&self.waits) {
+            self.stop.request();
+        }
+        self.inner.wait_until(deadline_ns);
+    }
+}
+
+/// Runs a looping clip at 120 Hz with a 2 s ramp to rest, stop requests made at the waits in
+/// `at`; returns why it ended, the ticks run and the goal writes of one servo.
+fn run_with_stops(s: &Setup, at: Vec<u64>) -> (RunEnd, u64, u32) {
+    let mut cfg = config(120.0);
+    cfg.stop = StopMode::Rest { ramp_s: 2.0 };
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let period = 1_000_000_000 / 120;
+    let mut vr = s.vr.clone();
+    let stop = StopRequests::new();
+    let mut clock = StoppingClock {
+        inner: vr.clone(),
+        stop: stop.clone(),
+        waits: 0,
+        at,
+    };
+    let mut schedule = Schedule::new(clock.now_ns() + period, period);
+    let (mut c, tx) = controller(s, Solve::Frames, cfg, 400);
+    for k in 0..400 {
+        let t = player.next_sample(&mut buf[..n]).unwrap();
+        tx.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
+            .unwrap();
+    }
+    let writes_before = vr.with(|t| t.chain().servos()[0].goal_writes());
+    let end = c.run(&mut schedule, &mut vr, &mut clock, &stop);
+    let writes = vr.with(|t| t.chain().servos()[0].goal_writes()) - writes_before;
+    let off = vr.with(|t| t.chain().servos().iter().all(|v| !v.torque_on()));
+    assert!(off, "torque off at the end");
+    assert_eq!(c.stats.torque_off_acknowledged, Some(28));
+    (end, c.stats.ticks, writes)
+}
+
+#[test]
+fn a_stop_request_ramps_to_rest_and_a_second_cuts_the_ramp() {
+    let s = setup();
+    // One request at tick 100: 99 ticks, then the whole 2 s ramp (240 ticks) and more.
+    let (end, ticks, writes) = run_with_stops(&s, vec![100]);
+    assert_eq!(end, RunEnd::Interrupted);
+    assert_eq!(ticks, 99);
+    assert!(writes >= 99 + 240, "{writes} goal writes");
+    // A second request 10 ticks into the ramp: torque off at once.
+    let (end, ticks, writes) = run_with_stops(&s, vec![100, 110]);
+    assert_eq!(end, RunEnd::Interrupted);
+    assert_eq!(ticks, 99);
+    assert_eq!(writes, 99 + 9, "the ramp stopped at the second request");
+}
+
+/// A bus whose port fails for good after a number of transactions, as an unplugged adapter
+/// does (every call then fails with EIO), counting what is tried afterwards.
+struct Unplugged {
+    inner: VirtualRig,
+    left: u32,
+    goal_writes_after: u32,
+    torque_writes_after: u32,
+    other_after: u32,
+}
+
+impl Unplugged {
+    fn gone(&mut self) -> bool {
+        if self.left == 0 {
+            return true;
+        }
+        self.left -= 1;
+        false
+    }
+}
+
+fn eio() -> marionette::bus::BusError {
+    std::io::Error::from_raw_os_error(5).into()
+}
+
+impl ServoBus for Unplugged {
+    fn ping(&mut self, id: u8) -> Result<marionette::bus::PingInfo, marionette::bus::BusError> {
+        self.inner.ping(id)
+    }
+    fn scan(&mut self) -> Result<Vec<marionette::bus::PingInfo>, marionette::bus::BusError> {
+        self.inner.scan()
+    }
+    fn read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), marionette::bus::BusError> {
+        if self.gone() {
+            self.other_after += 1;
+            return Err(eio());
+        }
+        self.inner.read(id, address, out)
+    }
+    fn write(&mut self, id: u8, address: u16, data: &[u8]) -> Result<(), marionette::bus::BusError> {
+        if self.gone() {
+            self.other_after += 1;
+            return Err(eio());
+        }
+        self.inner.write(id, address, data)
+    }
+    fn sync_write(
+        &mut self,
+        address: u16,
+        len: u16,
+        ids: &[u8],
+        data: &[u8],
+    ) -> Result<(), marionette::bus::BusError> {
+        if self.gone() {
+            match address {
+                marionette::servo::addr::GOAL_POSITION => self.goal_writes_after += 1,
+                marionette::servo::addr::TORQUE_ENABLE => self.torque_writes_after += 1,
+                _ => self.other_after += 1,
+            }
+            return Err(eio());
+        }
+        self.inner.sync_write(address, len, ids, data)
+    }
+    fn sync_read(
+        &mut self,
+        address: u16,
+        len: u16,
+        ids: &[u8],
+        out: &mut [u8],
+    ) -> Result<(), marionette::bus::BusError> {
+        if self.gone() {
+            self.other_after += 1;
+            return Err(eio());
+        }
+        self.inner.sync_read(address, len, ids, out)
+    }
+    fn reboot(&mut self, id: u8) -> Result<(), marionette::bus::BusError> {
+        self.inner.reboot(id)
+    }
+}
+
+#[test]
+fn an_unplugged_port_ends_the_run_with_one_torque_off_try() {
+    let s = setup();
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let period = 1_000_000_000 / 120;
+    let mut clock = s.vr.clone();
+    // Two transactions a tick (Sync Write, Sync Read): the port goes at tick 50, mid-tick
+    // (after its write), then at tick 80 before its write.
+    for (left, tick) in [(99, 50), (158, 80)] {
+        let mut bus = Unplugged {
+            inner: s.vr.clone(),
+            left,
+            goal_writes_after: 0,
+            torque_writes_after: 0,
+            other_after: 0,
+        };
+        let (mut c2, tx2) = controller(&s, Solve::Frames, config(120.0), 400);
+        let start = clock.now_ns() + period;
+        for k in 0..400 {
+            let t = player.next_sample(&mut buf[..n]).unwrap();
+            tx2.send_newest(Input::frame(k, start + k * period, 0, &buf[..n], t))
+                .unwrap();
+        }
+        let mut schedule = Schedule::new(start, period);
+        let end = c2.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
+        assert_eq!(end, RunEnd::PortLost, "port gone at tick {tick}");
+        assert_eq!(c2.stats.ticks, tick, "the run ended in the tick the port failed");
+        assert!(c2.port_error.is_some());
+        assert_eq!(bus.torque_writes_after, 1, "one torque-off Sync Write");
+        assert!(
+            bus.goal_writes_after <= 1,
+            "no command after the failure: {}",
+            bus.goal_writes_after
+        );
+        assert!(
+            bus.other_after <= 1,
+            "only the tick's own read failed: {}",
+            bus.other_after
+        );
+    }
+}

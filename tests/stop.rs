@@ -94,7 +94,10 @@ fn signal(child: &Child, name: &str) {
 
 /// Waits for the child to exit (killing it after a minute); returns its output and the moment
 /// its exit was seen.
-fn finish(mut child: Child, rx: &mpsc::Receiver<String>) -> (std::process::ExitStatus, String, String, Instant) {
+fn finish(
+    mut child: Child,
+    rx: &mpsc::Receiver<String>,
+) -> (std::process::ExitStatus, String, String, Instant) {
     let began = Instant::now();
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
@@ -123,10 +126,22 @@ fn finish(mut child: Child, rx: &mpsc::Receiver<String>) -> (std::process::ExitS
 fn assert_torque_went_off_before(log: &[TorqueEvent], profile: &Profile, exited: Instant) {
     for s in &profile.servos {
         let events: Vec<&TorqueEvent> = log.iter().filter(|e| e.id == s.id).collect();
-        assert!(events.first().is_some_and(|e| e.on), "servo {}: never turned on: {events:?}", s.id);
+        assert!(
+            events.first().is_some_and(|e| e.on),
+            "servo {}: never turned on: {events:?}",
+            s.id
+        );
         let last = events.last().unwrap();
-        assert!(!last.on, "servo {} ({}): torque still on at the end", s.id, s.name);
-        assert!(last.at < exited, "servo {}: torque off only after the process exited", s.id);
+        assert!(
+            !last.on,
+            "servo {} ({}): torque still on at the end",
+            s.id, s.name
+        );
+        assert!(
+            last.at < exited,
+            "servo {}: torque off only after the process exited",
+            s.id
+        );
     }
 }
 
@@ -156,7 +171,12 @@ fn every_termination_signal_eases_to_rest_and_turns_torque_off() {
         let rig = profile.rig(Some(&skeleton)).unwrap();
         for (v, r) in chain.chain().servos().iter().zip(&rig.servos) {
             let rest = r.angle_to_ticks(0.0).clamp(r.min_tick, r.max_tick);
-            assert!((v.goal_tick() - rest).abs() <= 1, "SIG{sig}: servo {} goal {} rest {rest}", v.id(), v.goal_tick());
+            assert!(
+                (v.goal_tick() - rest).abs() <= 1,
+                "SIG{sig}: servo {} goal {} rest {rest}",
+                v.id(),
+                v.goal_tick()
+            );
         }
     }
 }
@@ -186,7 +206,13 @@ fn a_second_signal_during_the_ramp_turns_torque_off_at_once() {
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
     assert_eq!(v["end"], "interrupted");
     assert_eq!(v["torque_off_acknowledged"], 28);
-    let writes: u32 = chain.chain().servos().iter().map(|s| s.goal_writes()).max().unwrap();
+    let writes: u32 = chain
+        .chain()
+        .servos()
+        .iter()
+        .map(|s| s.goal_writes())
+        .max()
+        .unwrap();
     let ticks = v["ticks"].as_u64().unwrap();
     assert!(
         u64::from(writes) < ticks + 1500,
@@ -226,7 +252,10 @@ fn follow_stops_on_sigterm_with_torque_off() {
     let (status, stdout, stderr, exited) = finish(child, &rx);
     println!("{stdout}{stderr}");
     assert!(status.success(), "{status:?}\n{stderr}");
-    assert!(stdout.contains("ended: interrupted; torque off, acknowledged by 28 servos"), "{stdout}");
+    assert!(
+        stdout.contains("ended: interrupted; torque off, acknowledged by 28 servos"),
+        "{stdout}"
+    );
     assert_torque_went_off_before(&chain.torque_log(), &profile, exited);
 }
 
@@ -251,5 +280,8 @@ fn the_port_vanishing_mid_run_ends_with_one_line_naming_it() {
         "{}",
         errors[0]
     );
-    assert!(stdout.contains("ended: port lost; one torque-off Sync Write tried"), "{stdout}");
+    assert!(
+        stdout.contains("ended: port lost; one torque-off Sync Write tried"),
+        "{stdout}"
+    );
 }

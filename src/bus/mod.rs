@@ -124,13 +124,22 @@ fn servo_error_text(e: u8) -> &'static str {
 impl BusError {
     /// What went wrong, when the port itself failed (the adapter unplugged, the device gone:
     /// EIO, ENXIO, a hang-up) rather than one transaction; `None` otherwise. Time-outs and
-    /// requests the caller got wrong are not port failures.
+    /// requests the caller got wrong are not port failures. Allocates nothing (it is asked
+    /// inside the tick).
     #[must_use]
-    pub fn port_failure(&self) -> Option<String> {
+    pub fn port_failure(&self) -> Option<std::io::Error> {
         use std::io::ErrorKind as K;
         match self {
-            BusError::Io(e) if !matches!(e.kind(), K::TimedOut | K::Interrupted | K::WouldBlock | K::InvalidInput) => {
-                Some(e.to_string())
+            BusError::Io(e)
+                if !matches!(
+                    e.kind(),
+                    K::TimedOut | K::Interrupted | K::WouldBlock | K::InvalidInput
+                ) =>
+            {
+                Some(
+                    e.raw_os_error()
+                        .map_or_else(|| e.kind().into(), std::io::Error::from_raw_os_error),
+                )
             }
             _ => None,
         }

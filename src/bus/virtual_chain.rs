@@ -413,7 +413,8 @@ fn serve_loop(
             let n = raw.len();
             let packet = raw.to_vec();
             rx.consume(n);
-            let before: heapless::Vec<bool, MAX_SERVOS> = chain.servos().iter().map(|s| s.torque_on()).collect();
+            let before: heapless::Vec<bool, MAX_SERVOS> =
+                chain.servos().iter().map(|s| s.torque_on()).collect();
             respond(
                 &mut chain,
                 &packet,

@@ -234,7 +234,7 @@ struct Outcome {
     end: RunEnd,
     producer: ProducerReport,
     /// Why the port failed ([`RunEnd::PortLost`]).
-    port_error: Option<String>,
+    port_error: Option<std::io::Error>,
 }
 
 /// Where a run's input comes from.
@@ -609,7 +609,10 @@ fn finish(
                 BusArg::Virtual => "the virtual chain".into(),
                 BusArg::Sim => "the simulator".into(),
             },
-            reason: outcome.port_error.clone().unwrap_or_default(),
+            reason: outcome
+                .port_error
+                .as_ref()
+                .map_or_else(|| "I/O error".to_string(), ToString::to_string),
         }),
         _ => Ok(()),
     }

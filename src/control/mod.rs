@@ -408,7 +408,7 @@ pub struct Controller {
     clip_time: f64,
     failures: u32,
     /// Why the port failed, when a run ended with [`RunEnd::PortLost`].
-    pub port_error: Option<String>,
+    pub port_error: Option<std::io::Error>,
     last_valid_read_ns: u64,
     last_tick: Option<(u64, u64)>,
 }

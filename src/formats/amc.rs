@@ -123,7 +123,11 @@ pub fn parse(skeleton: &Skeleton, text: &str) -> Result<Motion, TextError> {
                 Ok(v) if radians && v.to_degrees().abs() <= MAX_VALUE => v.to_degrees(),
                 Ok(v) if !radians && v.is_finite() && v.abs() <= MAX_VALUE => v,
                 Ok(_) => {
-                    let range = if radians { "-1.7e7 and 1.7e7 radians" } else { "-1e9 and 1e9" };
+                    let range = if radians {
+                        "-1.7e7 and 1.7e7 radians"
+                    } else {
+                        "-1e9 and 1e9"
+                    };
                     return Err(TextError::new(
                         n,
                         c,
