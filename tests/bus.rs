@@ -592,3 +592,79 @@ fn virtual_servos_move_with_limited_speed() {
     }
     assert_eq!(bus.read_value(1, addr::PRESENT_POSITION, 4).unwrap() as i32, to);
 }
+
+/// A line that answers each instruction with scripted bytes, all at once.
+struct Scripted {
+    replies: std::collections::VecDeque<Vec<u8>>,
+    pending: Vec<u8>,
+    clock: Duration,
+}
+
+impl Transport for Scripted {
+    fn send(&mut self, _bytes: &[u8]) -> std::io::Result<()> {
+        self.pending = self.replies.pop_front().unwrap_or_default();
+        Ok(())
+    }
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize> {
+        let n = self.pending.len().min(buf.len());
+        buf[..n].copy_from_slice(&self.pending[..n]);
+        self.pending.drain(..n);
+        self.clock += if n == 0 {
+            timeout
+        } else {
+            Duration::from_micros(10)
+        };
+        Ok(n)
+    }
+    fn now(&self) -> Duration {
+        self.clock
+    }
+    fn baud(&self) -> u32 {
+        1_000_000
+    }
+}
+
+/// A status packet from `id` carrying a present position.
+fn position_reply(id: u8, ticks: i32) -> Vec<u8> {
+    let mut params = vec![0u8];
+    params.extend_from_slice(&ticks.to_le_bytes());
+    let mut out = [0u8; 64];
+    let n = marionette::protocol::encode(id, marionette::protocol::instruction::STATUS, &params, &mut out)
+        .unwrap();
+    out[..n].to_vec()
+}
+
+/// Found by the soak: a reply cut short, then a whole older reply of the same servo (valid CRC,
+/// right id, stale data). The cut packet's header bytes were thrown away before the old one:
+/// the read must fail, not return the old position. Line noise that cannot start a header
+/// before a reply is still skipped.
+#[test]
+fn a_valid_reply_after_a_broken_one_is_not_trusted() {
+    let old = position_reply(1, 1000);
+    let fresh = position_reply(1, 2000);
+    for cut in 1..old.len() - 1 {
+        let mut bytes = fresh[..cut].to_vec();
+        bytes.extend_from_slice(&old);
+        let line = Scripted {
+            replies: [bytes].into(),
+            pending: Vec::new(),
+            clock: Duration::ZERO,
+        };
+        let mut bus = PacketBus::new(line, Duration::from_millis(1));
+        let got = bus.read_value(1, addr::PRESENT_POSITION, 4);
+        assert!(
+            !matches!(got, Ok(1000)),
+            "cut after {cut} bytes: the old position was taken"
+        );
+        assert!(got.is_err(), "cut after {cut} bytes: {got:?}");
+    }
+    let mut noisy = vec![0x00, 0x13, 0xFE, 0x7F];
+    noisy.extend_from_slice(&fresh);
+    let line = Scripted {
+        replies: [noisy].into(),
+        pending: Vec::new(),
+        clock: Duration::ZERO,
+    };
+    let mut bus = PacketBus::new(line, Duration::from_millis(1));
+    assert_eq!(bus.read_value(1, addr::PRESENT_POSITION, 4).unwrap(), 2000);
+}

@@ -40,6 +40,7 @@ pub struct VirtualServo {
     torque_jumps: u32,
     write_count: u32,
     velocity_report: Option<i32>,
+    reported_position: Option<i32>,
 }
 
 impl VirtualServo {
@@ -56,6 +57,7 @@ impl VirtualServo {
             torque_jumps: 0,
             write_count: 0,
             velocity_report: None,
+            reported_position: None,
         };
         s.factory_defaults(id);
         s
@@ -119,6 +121,21 @@ impl VirtualServo {
             return 0;
         }
         self.get(address, n)
+    }
+
+    /// The present position (ticks) this servo's last reply that carried it reported: what a
+    /// host that read it correctly must have (the chain's record, for fault soaks).
+    #[must_use]
+    pub fn reported_position(&self) -> Option<i32> {
+        self.reported_position
+    }
+
+    /// Notes the present position a reply with `n` bytes from `a` carries.
+    fn note_reply(&mut self, a: u16, n: usize) {
+        let (start, p) = (usize::from(a), usize::from(addr::PRESENT_POSITION));
+        if start <= p && p + 4 <= start + n && start + n <= TABLE_LEN {
+            self.reported_position = Some(self.get(addr::PRESENT_POSITION, 4) as i32);
+        }
     }
 
     /// Bus id.
@@ -495,17 +512,20 @@ impl Chain {
                 }
             }
             instruction::READ if !broadcast => {
-                let Some(s) = self.servos.iter().find(|s| s.id() == id) else {
+                let Some(s) = self.servos.iter_mut().find(|s| s.id() == id) else {
                     return;
                 };
                 if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
                     return;
                 }
                 match (params.len() == 4).then(|| (le16(&params[0..]), usize::from(le16(&params[2..])))) {
-                    Some((a, n)) => match s.read(a, n) {
-                        Some(data) => w.status(s, 0, data),
-                        None => w.status(s, status_error::DATA_RANGE, &[]),
-                    },
+                    Some((a, n)) => {
+                        s.note_reply(a, n);
+                        match s.read(a, n) {
+                            Some(data) => w.status(s, 0, data),
+                            None => w.status(s, status_error::DATA_RANGE, &[]),
+                        }
+                    }
                     None => w.status(s, status_error::DATA_LENGTH, &[]),
                 }
             }
@@ -557,10 +577,11 @@ impl Chain {
             instruction::SYNC_READ if broadcast && params.len() >= 4 => {
                 let (a, n) = (le16(params), usize::from(le16(&params[2..])));
                 for &sid in &params[4..] {
-                    for s in self.servos.iter().filter(|s| s.id() == sid) {
+                    for s in self.servos.iter_mut().filter(|s| s.id() == sid) {
                         if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
                             continue;
                         }
+                        s.note_reply(a, n);
                         match s.read(a, n) {
                             Some(data) => w.status(s, 0, data),
                             None => w.status(s, status_error::DATA_RANGE, &[]),
@@ -571,7 +592,8 @@ impl Chain {
             instruction::BULK_READ if broadcast => {
                 for item in params.chunks_exact(5) {
                     let (sid, a, n) = (item[0], le16(&item[1..]), usize::from(le16(&item[3..])));
-                    for s in self.servos.iter().filter(|s| s.id() == sid) {
+                    for s in self.servos.iter_mut().filter(|s| s.id() == sid) {
+                        s.note_reply(a, n);
                         match s.read(a, n) {
                             Some(data) => w.status(s, 0, data),
                             None => w.status(s, status_error::DATA_RANGE, &[]),
@@ -648,6 +670,7 @@ impl Writer<'_, '_> {
 pub struct Receiver {
     buf: [u8; MAX_PACKET],
     len: usize,
+    broken: usize,
 }
 
 impl Default for Receiver {
@@ -655,6 +678,7 @@ impl Default for Receiver {
         Receiver {
             buf: [0; MAX_PACKET],
             len: 0,
+            broken: 0,
         }
     }
 }
@@ -681,9 +705,17 @@ impl Receiver {
         }
     }
 
-    /// Drops everything buffered.
+    /// Drops everything buffered (and the count of [`Receiver::take_broken`]).
     pub fn clear(&mut self) {
         self.len = 0;
+        self.broken = 0;
+    }
+
+    /// Header bytes (0xFF) thrown away since the last call or [`Receiver::clear`]: the start of
+    /// a packet that broke off. Line noise that cannot begin a header does not count. A host
+    /// must not trust a reply found after one: a valid but old packet may follow a cut one.
+    pub fn take_broken(&mut self) -> usize {
+        core::mem::take(&mut self.broken)
     }
 
     /// Bytes buffered.
@@ -696,14 +728,21 @@ impl Receiver {
     pub fn next_packet(&mut self) -> Received<'_> {
         loop {
             let skip = protocol::find_header(&self.buf[..self.len]);
-            self.consume(skip);
+            self.discard(skip);
             match protocol::packet_len(&self.buf[..self.len]) {
-                Ok(n) if n > MAX_PACKET => self.consume(1),
+                Ok(n) if n > MAX_PACKET => self.discard(1),
                 Ok(n) if n <= self.len => return Received::Packet(&self.buf[..n]),
                 Ok(_) | Err(CodecError::Incomplete) => return Received::Pending,
-                Err(_) => self.consume(1),
+                Err(_) => self.discard(1),
             }
         }
+    }
+
+    /// Throws away `n` bytes that are no packet, counting header bytes among them.
+    fn discard(&mut self, n: usize) {
+        let n = n.min(self.len);
+        self.broken += self.buf[..n].iter().filter(|&&b| b == 0xFF).count();
+        self.consume(n);
     }
 
     /// Removes `n` bytes from the front.

@@ -148,6 +148,12 @@ impl FaultInjector {
         }
     }
 
+    /// Changes the chance that a reply is hit (0 turns injection off, the seeded sequence
+    /// goes on).
+    pub fn set_rate(&mut self, rate: f64) {
+        self.rate = rate;
+    }
+
     /// Total faults applied.
     #[must_use]
     pub fn total(&self) -> u64 {

@@ -111,6 +111,14 @@ impl<T: Transport> PacketBus<T> {
                         },
                         _ => BusError::Malformed { id, what: "packet" },
                     })?;
+                    if self.rx.take_broken() > 0 {
+                        // A packet broke off before this one: this may be an old reply that
+                        // came late, with a valid CRC and the right id but stale data.
+                        return Err(BusError::Malformed {
+                            id,
+                            what: "a broken packet before the reply",
+                        });
+                    }
                     if inst != instruction::STATUS {
                         // Our own instruction echoed on a half-duplex adapter.
                         continue;

@@ -62,6 +62,13 @@ pub enum CliError {
         /// The operating system's error.
         reason: String,
     },
+    /// The soak could not run.
+    #[error("soak: {0}")]
+    Soak(#[from] crate::control::soak::SoakError),
+    /// The soak counted safety violations (panics, corrupt values used, goals outside limits,
+    /// torque left on).
+    #[error("the soak counted {0} safety violations (see the figures above)")]
+    SoakFailed(u64),
     /// The control loop's thread ended by a panic.
     #[error("the control loop thread panicked")]
     LoopPanicked,

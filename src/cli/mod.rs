@@ -10,6 +10,7 @@ mod inspect;
 mod play;
 mod rig;
 mod sim;
+mod soak;
 
 pub use error::CliError;
 
@@ -112,6 +113,32 @@ enum Command {
         /// Print JSON.
         #[arg(long)]
         json: bool,
+    },
+    /// A fault soak in virtual time: the whole loop on the in-process virtual chain, playing a
+    /// clip through seeded bursts of every bus fault; prints what it counted (panics, corrupt
+    /// values used, goals outside limits, ticks to recover after each burst).
+    Soak {
+        /// The profile.
+        profile: PathBuf,
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Clip (.amc), played on a loop.
+        amc: PathBuf,
+        /// Faults to apply before stopping.
+        #[arg(long, default_value_t = 1_000_000)]
+        faults: u64,
+        /// Seed of the faults and the bursts (the same seed replays the same soak).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Loop rate, Hz.
+        #[arg(long, default_value_t = 100.0)]
+        rate: f64,
+        /// Longest burst of faults, ticks.
+        #[arg(long, default_value_t = 30)]
+        max_burst: u64,
+        /// Also write the figures as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
     },
     /// Inverse kinematics: move a bone's tip to a target and print the result.
     Ik {
@@ -432,6 +459,28 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
         Command::Budget { profile, rate, json } => {
             rig::budget_cmd(&profile, rate, json, &mut io::stdout().lock())
         }
+        Command::Soak {
+            profile,
+            asf,
+            amc,
+            faults,
+            seed,
+            rate,
+            max_burst,
+            json,
+        } => soak::soak_cmd(
+            &profile,
+            &asf,
+            &amc,
+            soak::SoakArgs {
+                faults,
+                seed,
+                rate,
+                max_burst,
+                json,
+            },
+            &mut io::stdout().lock(),
+        ),
         Command::Ik {
             asf,
             amc,

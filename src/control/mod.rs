@@ -20,6 +20,7 @@ pub mod input;
 pub mod lockstep;
 pub mod plot;
 pub mod rt;
+pub mod soak;
 pub mod sources;
 pub mod stats;
 

@@ -1,0 +1,80 @@
+//! `marionette soak`: the fault soak in virtual time ([`crate::control::soak`]).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use super::error::CliError;
+use crate::control::soak::{soak, SoakConfig};
+use crate::formats::{amc, asf};
+use crate::profile::Profile;
+
+/// The soak's settings from the command line.
+pub struct SoakArgs {
+    pub faults: u64,
+    pub seed: u64,
+    pub rate: f64,
+    pub max_burst: u64,
+    pub json: Option<PathBuf>,
+}
+
+/// `marionette soak`.
+///
+/// # Errors
+/// [`CliError`].
+pub fn soak_cmd(
+    profile_path: &Path,
+    asf_path: &Path,
+    amc_path: &Path,
+    args: SoakArgs,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    if !(args.rate.is_finite() && (1.0..=2000.0).contains(&args.rate)) {
+        return Err(CliError::Usage("--rate must be between 1 and 2000 Hz".into()));
+    }
+    if args.max_burst == 0 {
+        return Err(CliError::Usage("--max-burst must be at least 1 tick".into()));
+    }
+    let profile = Profile::load(profile_path)?;
+    let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
+    let motion = Arc::new(amc::load(&skeleton, amc_path)?);
+    if motion.is_empty() {
+        return Err(CliError::EmptyClip(amc_path.to_path_buf()));
+    }
+    let rig = profile.rig(Some(&skeleton))?;
+    let config = SoakConfig {
+        faults: args.faults,
+        seed: args.seed,
+        rate_hz: args.rate,
+        max_burst_ticks: args.max_burst,
+        ..SoakConfig::default()
+    };
+    writeln!(
+        out,
+        "soak: {} faults (seed {}) on a virtual chain of {} servos at {} bit/s, loop at {} Hz, bursts of 1–{} ticks",
+        config.faults,
+        config.seed,
+        profile.servos.len(),
+        profile.bus.baud,
+        config.rate_hz,
+        config.max_burst_ticks
+    )?;
+    let report = soak(&skeleton, &motion, &profile, &rig, &config, |r| {
+        eprintln!("  {} faults, {} ticks", r.faults, r.ticks);
+    })?;
+    writeln!(out, "{report}")?;
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&report)?;
+        std::fs::write(path, text + "\n").map_err(|e| crate::formats::FileError::io(path, e))?;
+        writeln!(out, "figures written to {}", path.display())?;
+    }
+    let bad = report.panics
+        + report.corrupt_values_used
+        + report.commands_outside_limits
+        + report.goals_outside_limits
+        + report.torque_left_on;
+    if bad > 0 {
+        return Err(CliError::SoakFailed(bad));
+    }
+    Ok(())
+}
