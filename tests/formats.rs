@@ -469,3 +469,24 @@ fn asf_with_a_byte_order_mark_keeps_its_documentation() {
     let doc = asf::parse(&accented).unwrap().documentation;
     assert!(doc.starts_with("Señor Ωmega\n"), "{doc:?}");
 }
+
+/// Found by the `asf` fuzz target: a documentation line whose first token, once its control
+/// characters are read as spaces, starts like a section keyword was written back as one.
+#[test]
+fn asf_documentation_that_looks_like_a_section_writes_back_as_documentation() {
+    let text = common::read("16.asf").replacen(
+        ":documentation\r\n",
+        ":documentation\r\n\u{b}:\r:hierarchy\rbonedata (c)\r\n",
+        1,
+    );
+    let file = asf::parse(&text).unwrap();
+    let mut out = Vec::new();
+    asf::write(&file, &mut out).unwrap();
+    let back = asf::parse(std::str::from_utf8(&out).unwrap()).unwrap();
+    assert_eq!(back.skeleton.len(), file.skeleton.len());
+    assert!(
+        back.documentation.starts_with("hierarchy bonedata (c)\n"),
+        "{:?}",
+        back.documentation
+    );
+}

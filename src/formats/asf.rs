@@ -99,8 +99,13 @@ pub fn write(asf: &AsfFile, mut w: impl Write) -> io::Result<()> {
     if !asf.documentation.is_empty() {
         writeln!(w, ":documentation")?;
         for l in asf.documentation.lines() {
-            // A documentation line must not look like a section keyword.
-            writeln!(w, "  {}", l.trim_start_matches(':'))?;
+            // Control characters become spaces, and no line may start like a section keyword.
+            let clean: String = l.chars().map(|c| if c.is_control() { ' ' } else { c }).collect();
+            let mut text = clean.trim();
+            while let Some(rest) = text.strip_prefix(':') {
+                text = rest.trim_start();
+            }
+            writeln!(w, "  {text}")?;
         }
     }
     let root = s.root();
