@@ -2,6 +2,7 @@
 //! error, 2 a usage error.
 
 use clap::Parser;
+use std::io::Write;
 use std::process::ExitCode;
 
 /// Counts allocations per thread: the control loop reads the count before and after each tick
@@ -15,7 +16,8 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             let msg = e.to_string().replace('\n', " ");
-            eprintln!("marionette: error: {msg}");
+            // After a hang-up stderr may be gone; the exit code still tells.
+            let _ = writeln!(std::io::stderr(), "marionette: error: {msg}");
             ExitCode::from(e.exit_code())
         }
     }

@@ -470,7 +470,7 @@ fn run_loop(
     let status = status_line(&trx, args, &handle, period);
     let (stats, end, port_error, warnings) = handle.join().map_err(|_| CliError::LoopPanicked)?;
     if status {
-        eprintln!();
+        let _ = writeln!(std::io::stderr());
     }
     for w in warnings {
         writeln!(out, "{w}")?;
@@ -538,11 +538,14 @@ fn status_line<T>(
                 p99 * 1e3 / period_ns as f64 * 100.0,
                 if clip.is_finite() { format!("  clip {clip:6.2} s") } else { String::new() }
             );
-            if tty {
-                eprint!("\r{line}");
+            // Writes may fail after a hang-up (the terminal closed): the loop goes on to its
+            // safe stop regardless.
+            let mut err = std::io::stderr();
+            let _ = if tty {
+                write!(err, "\r{line}")
             } else {
-                eprintln!("{line}");
-            }
+                writeln!(err, "{line}")
+            };
             printed = tty;
         }
         window.clear();

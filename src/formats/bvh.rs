@@ -276,6 +276,8 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
         root_spec.position = Vec3::from(root.offset.map(|v| v as f32));
     }
     let mut specs: Vec<BoneSpec> = Vec::new();
+    // The joint each bone was made for (its line and column locate errors).
+    let mut spec_joint: Vec<usize> = Vec::new();
     let mut parents: Vec<Option<usize>> = Vec::new();
     let mut spec_of_joint: Vec<Option<usize>> = vec![None; joints.len()];
     let mut attach_of_joint: Vec<Option<usize>> = vec![None; joints.len()]; // where children hang
@@ -381,6 +383,7 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
             maps.push((joint.name.to_string(), ValueMap { from }));
             let parent_attach = attach_of_joint[j];
             specs.push(spec);
+            spec_joint.push(j);
             parents.push(parent_attach);
             spec_of_joint[j] = Some(specs.len() - 1);
         }
@@ -402,6 +405,7 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
                 let len = o.length();
                 let spec = BoneSpec::new(name_of(&name, at)?, (o / len).as_vec3(), len as f32);
                 specs.push(spec);
+                spec_joint.push(k);
                 parents.push(own);
                 attach_of_joint[k] = Some(specs.len() - 1);
             }
@@ -417,10 +421,11 @@ pub fn parse(text: &str, inches_per_unit: f64) -> Result<(AsfFile, Motion), Text
     let skeleton = Skeleton::new(root_spec, units, &specs, &parents).map_err(|e| {
         let i = e.bone().unwrap_or(usize::MAX);
         let name = specs.get(i).map_or("", |s| s.name.as_str());
-        let j = joints.iter().find(|j| j.name == name);
+        // The joint the bone was made for (a connector: the child it leads to); else the root.
+        let j = &joints[spec_joint.get(i).copied().unwrap_or(0)];
         TextError::new(
-            j.map_or(0, |j| j.line),
-            j.map_or(0, |j| j.column),
+            j.line,
+            j.column,
             match e {
                 SkeletonError::DuplicateName(_) => format!("joint name '{name}' is used twice"),
                 SkeletonError::TooManyBones => {
