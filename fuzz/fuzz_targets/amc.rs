@@ -20,12 +20,14 @@ fn skeleton() -> &'static Skeleton {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(text) = text_from_bytes(data.to_vec()) else {
-        return;
+    let text = match text_from_bytes(data.to_vec()) {
+        Ok(text) => text,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
     let skeleton = skeleton();
-    let Ok(motion) = amc::parse(skeleton, &text) else {
-        return;
+    let motion = match amc::parse(skeleton, &text) {
+        Ok(motion) => motion,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
     let mut pose = Pose64::default();
     for frame in motion.frames() {

@@ -7,11 +7,13 @@ use marionette::fk::{fk64, Pose64};
 use marionette::formats::{asf, text_from_bytes};
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(text) = text_from_bytes(data.to_vec()) else {
-        return;
+    let text = match text_from_bytes(data.to_vec()) {
+        Ok(text) => text,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
-    let Ok(file) = asf::parse(&text) else {
-        return;
+    let file = match asf::parse(&text) {
+        Ok(file) => file,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
     let skeleton = &file.skeleton;
     let mut pose = Pose64::default();

@@ -8,11 +8,13 @@ use marionette::formats::{bvh, text_from_bytes};
 use marionette::motion::frame_to_radians;
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(text) = text_from_bytes(data.to_vec()) else {
-        return;
+    let text = match text_from_bytes(data.to_vec()) {
+        Ok(text) => text,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
-    let Ok((file, motion)) = bvh::parse(&text, 1.0) else {
-        return;
+    let (file, motion) = match bvh::parse(&text, 1.0) {
+        Ok(loaded) => loaded,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
     let skeleton = &file.skeleton;
     let mut pose = Pose64::default();

@@ -21,16 +21,25 @@ fn skeleton() -> &'static Skeleton {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(text) = text_from_bytes(data.to_vec()) else {
-        return;
+    let text = match text_from_bytes(data.to_vec()) {
+        Ok(text) => text,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
-    let Ok(profile) = Profile::parse(&text, Path::new("fuzz.toml")) else {
-        return;
+    let profile = match Profile::parse(&text, Path::new("fuzz.toml")) {
+        Ok(profile) => profile,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
-    let _ = profile.rig(None);
-    if let Ok(rig) = profile.rig(Some(skeleton())) {
-        for s in &rig.servos {
-            assert!(s.min_tick <= s.max_tick, "a rig servo's limits are in order");
+    for rig in [profile.rig(None), profile.rig(Some(skeleton()))] {
+        match rig {
+            Ok(rig) => {
+                for s in &rig.servos {
+                    assert!(s.min_tick <= s.max_tick, "a rig servo's limits are in order");
+                }
+            }
+            Err(e) => assert!(
+                e.text_error().is_some_and(|t| t.line > 0),
+                "a rig error names its line: {e}"
+            ),
         }
     }
     let _ = plan(&profile.bus, profile.servos.len(), Some(100.0));

@@ -17,11 +17,13 @@ fuzz_target!(|data: &[u8]| {
             assert!(targets.iter().all(|x| x.is_finite()));
         }
     }
-    let Ok(text) = text_from_bytes(data.to_vec()) else {
-        return;
+    let text = match text_from_bytes(data.to_vec()) {
+        Ok(text) => text,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
-    let Ok(track) = TargetTrack::parse(&text, &effectors) else {
-        return;
+    let track = match TargetTrack::parse(&text, &effectors) {
+        Ok(track) => track,
+        Err(e) => return assert!(e.line > 0, "an error names its line: {e:?}"),
     };
     let mut last = f64::NEG_INFINITY;
     for (t, targets) in &track.samples {
