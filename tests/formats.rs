@@ -490,3 +490,15 @@ fn asf_documentation_that_looks_like_a_section_writes_back_as_documentation() {
         back.documentation
     );
 }
+
+/// Found by the `asf` fuzz target after the fix above: two byte-order marks (one is removed, the
+/// second is text) must not shift the documentation's offsets either.
+#[test]
+fn asf_with_two_byte_order_marks_is_an_error_not_a_panic() {
+    let text = "\u{feff}\u{feff}\r\n:documentation\r\n  é\r\n:root\r\n";
+    let e = asf::parse(text).unwrap_err();
+    assert_eq!(e.line, 1, "{e:?}");
+    let fuzzed = b"\xef\xbb\xbf\xef\xbb\xbf\r\n# weg\r\n:documentation\r\n01.):bonedata\x0c\x18\r\n    \x00:\x01\x00\x0c\xef\xbb\xbf\r\x00\n";
+    let text = marionette::formats::text_from_bytes(fuzzed.to_vec()).unwrap();
+    assert!(asf::parse(&text).is_err());
+}

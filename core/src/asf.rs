@@ -184,8 +184,8 @@ struct Lines<'a> {
 }
 
 impl<'a> Lines<'a> {
+    /// Lines of `text` (a byte-order mark already removed: offsets count from its start).
     fn new(text: &'a str) -> Self {
-        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         Lines {
             text,
             pos: 0,
