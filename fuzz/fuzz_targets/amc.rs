@@ -35,7 +35,10 @@ fuzz_target!(|data: &[u8]| {
     }
     let mut written = Vec::new();
     amc::write(skeleton, &motion, &mut written).expect("writing to memory");
-    let again = amc::parse(skeleton, std::str::from_utf8(&written).expect("AMC is written as UTF-8"))
-        .unwrap_or_else(|e| panic!("a written motion must read back: {e}"));
+    let again = amc::parse(
+        skeleton,
+        std::str::from_utf8(&written).expect("AMC is written as UTF-8"),
+    )
+    .unwrap_or_else(|e| panic!("a written motion must read back: {e}"));
     assert_eq!(again.len(), motion.len());
 });

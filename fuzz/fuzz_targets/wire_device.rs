@@ -47,8 +47,8 @@ fuzz_target!(|data: &[u8]| {
             }
             for r in &replies {
                 let mut params = [0u8; MAX_PACKET];
-                let (status, used) = protocol::decode(&out[r.start..r.start + r.len], &mut params)
-                    .expect("a reply decodes");
+                let (status, used) =
+                    protocol::decode(&out[r.start..r.start + r.len], &mut params).expect("a reply decodes");
                 assert_eq!(used, r.len);
                 assert_eq!(status.instruction, instruction::STATUS);
                 assert_eq!(status.id, r.id);

@@ -51,7 +51,11 @@ fuzz_target!(|data: &[u8]| {
         let mut again = [0u8; 2048];
         let n = protocol::encode(packet.id, packet.instruction, packet.params, &mut again)
             .expect("a decoded packet encodes");
-        assert_eq!(&again[..n], &data[..total], "decode then encode gives the same bytes");
+        assert_eq!(
+            &again[..n],
+            &data[..total],
+            "decode then encode gives the same bytes"
+        );
     }
 
     let Some((&choice, replies)) = data.split_first() else {
