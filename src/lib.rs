@@ -2,7 +2,7 @@
 //!
 //! This crate is the std edge over the `no_std` core, `marionette-core` (folder `core/`), whose
 //! modules it re-exports under the same names ([`math`], [`skeleton`], [`asf`], [`fk`],
-//! [`interp`], [`ik`], [`ik_numeric`], [`servo`], [`rig`], [`command`], [`protocol`],
+//! [`interp`], [`robot`], [`ik`], [`ik_numeric`], [`servo`], [`rig`], [`command`], [`protocol`],
 //! [`device`], [`schedule`]). The edge adds files, buses, threads, pictures and the command
 //! line; its modules depend on the core and on those above them in this list:
 //!
@@ -25,7 +25,7 @@
 #![warn(missing_docs)]
 
 pub use marionette_core::{
-    asf, command, device, fk, ik, ik_numeric, interp, math, protocol, rig, schedule, servo, skeleton,
+    asf, command, device, fk, ik, ik_numeric, interp, math, protocol, rig, robot, schedule, servo, skeleton,
 };
 
 pub mod alloc_count;

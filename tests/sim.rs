@@ -356,3 +356,75 @@ fn play_bus_sim_writes_the_report_and_the_picture() {
     assert!(err.contains("has no actuator in the model"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The OP3's kinematic tree read from its MJCF (issue 16): every body's frame and the centre
+/// of mass equal MuJoCo's own kinematics to 1e-6 m on random joint angles (scene.xml, through
+/// its include), the floating base where the model puts it.
+#[test]
+fn op3_kinematics_from_mjcf_equal_mujocos() {
+    use marionette::bus::faults::Rng;
+    use marionette::formats::mjcf;
+    use marionette::robot::RobotPose;
+
+    let path = repo("sim/models/robotis_op3/scene.xml");
+    let model = mjcf::load(&path).unwrap();
+    let robot = &model.robot;
+    assert!(model.floating);
+    assert_eq!(robot.joints().len(), 20);
+    assert!(model.without_inertial.is_empty(), "{:?}", model.without_inertial);
+    let mut world = World::from_file(&path).unwrap();
+    assert!(
+        (robot.mass() - world.total_mass()).abs() < 1e-9,
+        "{} vs {}",
+        robot.mass(),
+        world.total_mass()
+    );
+    let joints: Vec<usize> = robot
+        .joints()
+        .iter()
+        .map(|j| {
+            world
+                .joint(&j.name)
+                .unwrap_or_else(|| panic!("MuJoCo has no joint {}", j.name))
+        })
+        .collect();
+    let bodies: Vec<usize> = robot
+        .bodies()
+        .iter()
+        .map(|b| world.body(&b.name).unwrap())
+        .collect();
+    let mut rng = Rng::new(16);
+    let mut pose = RobotPose::default();
+    let (mut worst_pos, mut worst_com, mut worst_rot) = (0.0f64, 0.0f64, 0.0f64);
+    for _ in 0..200 {
+        let q: Vec<f64> = robot
+            .joints()
+            .iter()
+            .map(|j| {
+                let (lo, hi) = j.range.unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
+                lo + (hi - lo) * (rng.below(1 << 30) as f64 / f64::from(1u32 << 30))
+            })
+            .collect();
+        world.reset();
+        for (&mj, &a) in joints.iter().zip(&q) {
+            world.set_joint_position(mj, a);
+        }
+        world.forward();
+        robot.forward(DVec3::ZERO, DQuat::IDENTITY, &q, &mut pose);
+        for (i, &mj) in bodies.iter().enumerate() {
+            let p = DVec3::from_array(world.body_position(mj));
+            worst_pos = worst_pos.max((p - pose.pos[i]).length());
+            let m = world.body_rotation(mj);
+            let ours = glam::DMat3::from_quat(pose.rot[i]);
+            for r in 0..3 {
+                for c in 0..3 {
+                    worst_rot = worst_rot.max((m[3 * r + c] - ours.col(c)[r]).abs());
+                }
+            }
+        }
+        let com = DVec3::from_array(world.subtree_com(bodies[0]));
+        worst_com = worst_com.max((com - robot.centre_of_mass(&pose)).length());
+    }
+    println!("OP3 vs MuJoCo, 200 random configurations: body position {worst_pos:.2e} m, rotation {worst_rot:.2e}, centre of mass {worst_com:.2e} m");
+    assert!(worst_pos < 1e-6 && worst_com < 1e-6 && worst_rot < 1e-9);
+}

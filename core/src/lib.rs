@@ -13,6 +13,8 @@
 //!   [`fk::Pose64`].
 //! * [`interp`] — per-frame editing maths in f64: facing (eq. 6–7), SLERP (eq. 12), ease
 //!   weights (eq. 13), frame interpolation.
+//! * [`robot`] — a robot's own kinematic tree (bodies, hinges, masses, as its MJCF model
+//!   says), its forward kinematics and centre of mass.
 //! * [`ik`] — the analytic limb solver with swivel search (help note §IV) and closed-form
 //!   pointing; [`ik_numeric`] — CCD, Jacobian transpose, pseudoinverse, DLS, conjugate gradient.
 //! * [`servo`] — X-series servo models, control-table addresses, the velocity- and
@@ -43,6 +45,8 @@ pub mod asf;
 pub mod fk;
 
 pub mod interp;
+
+pub mod robot;
 
 pub mod ik;
 

@@ -290,6 +290,16 @@ impl World {
         self.data.xmat().get(body).copied().unwrap_or([f64::NAN; 9])
     }
 
+    /// The centre of mass of a body and all bodies below it, in the world, metres.
+    #[must_use]
+    pub fn subtree_com(&self, body: usize) -> [f64; 3] {
+        self.data
+            .subtree_com()
+            .get(body)
+            .copied()
+            .unwrap_or([f64::NAN; 3])
+    }
+
     /// Number of sites.
     #[must_use]
     pub fn site_count(&self) -> usize {

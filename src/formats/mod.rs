@@ -4,6 +4,7 @@
 pub mod amc;
 pub mod asf;
 pub mod bvh;
+pub mod mjcf;
 
 use std::fmt;
 use std::path::{Path, PathBuf};

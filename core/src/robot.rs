@@ -1,0 +1,316 @@
+//! A robot's own kinematic tree, as its model (MJCF) describes it: bodies at fixed offsets from
+//! their parents, hinge joints turning them, and each body's mass at its centre of mass.
+//! Forward kinematics and the centre of mass of the whole robot, in fixed capacity.
+//!
+//! The conventions are MuJoCo's: a body's frame is its parent's frame moved by `pos` and turned
+//! by `quat`; a hinge at `anchor` (body frame) about `axis` then turns the body by the joint
+//! angle about that line, so the anchor stays where it was: with `R` and `p` the body's
+//! orientation and position before the hinge, `R' = R·rot(axis, q)` and
+//! `p' = p + R·anchor − R'·anchor`.
+
+use glam::{DQuat, DVec3};
+
+/// Most bodies in a robot (the world not counted).
+pub const MAX_ROBOT_BODIES: usize = 64;
+
+/// Most hinge joints in a robot.
+pub const MAX_ROBOT_JOINTS: usize = 64;
+
+/// Longest body or joint name kept.
+pub const MAX_NAME: usize = 32;
+
+/// A name of fixed capacity.
+pub type Name = heapless::String<MAX_NAME>;
+
+/// One body.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RobotBody {
+    /// Its name.
+    pub name: Name,
+    /// Its parent body (`None`: attached to the base frame).
+    pub parent: Option<usize>,
+    /// Offset of its frame in its parent's frame, metres.
+    pub pos: DVec3,
+    /// Orientation of its frame in its parent's frame.
+    pub quat: DQuat,
+    /// Mass, kg.
+    pub mass: f64,
+    /// Centre of mass in its own frame, metres.
+    pub com: DVec3,
+}
+
+/// One hinge joint.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RobotJoint {
+    /// Its name.
+    pub name: Name,
+    /// The body it turns.
+    pub body: usize,
+    /// Unit axis in the body's frame.
+    pub axis: DVec3,
+    /// A point on the axis in the body's frame, metres.
+    pub anchor: DVec3,
+    /// Limits, radians (`None`: unlimited).
+    pub range: Option<(f64, f64)>,
+}
+
+/// Why a body or joint cannot be added.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RobotError {
+    /// More than [`MAX_ROBOT_BODIES`] bodies or [`MAX_ROBOT_JOINTS`] joints.
+    Full,
+    /// A name longer than [`MAX_NAME`] bytes.
+    NameTooLong,
+    /// A parent that is not an earlier body.
+    BadParent,
+    /// A second hinge on one body (one per body is supported).
+    SecondJoint,
+    /// A zero-length joint axis.
+    ZeroAxis,
+}
+
+impl core::fmt::Display for RobotError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            RobotError::Full => "too many bodies or joints",
+            RobotError::NameTooLong => "a name longer than 32 bytes",
+            RobotError::BadParent => "a parent that is not an earlier body",
+            RobotError::SecondJoint => "a second joint on one body",
+            RobotError::ZeroAxis => "a joint axis of zero length",
+        })
+    }
+}
+
+impl core::error::Error for RobotError {}
+
+/// A robot: bodies listed parents first, hinge joints (at most one per body).
+#[derive(Clone, Debug, Default)]
+pub struct Robot {
+    bodies: heapless::Vec<RobotBody, MAX_ROBOT_BODIES>,
+    joints: heapless::Vec<RobotJoint, MAX_ROBOT_JOINTS>,
+    joint_of_body: heapless::Vec<Option<usize>, MAX_ROBOT_BODIES>,
+}
+
+/// Where every body of a robot is, in the base's frame.
+#[derive(Clone, Debug)]
+pub struct RobotPose {
+    /// Body frame positions, metres.
+    pub pos: [DVec3; MAX_ROBOT_BODIES],
+    /// Body frame orientations.
+    pub rot: [DQuat; MAX_ROBOT_BODIES],
+}
+
+impl Default for RobotPose {
+    fn default() -> Self {
+        RobotPose {
+            pos: [DVec3::ZERO; MAX_ROBOT_BODIES],
+            rot: [DQuat::IDENTITY; MAX_ROBOT_BODIES],
+        }
+    }
+}
+
+fn name(text: &str) -> Result<Name, RobotError> {
+    Name::try_from(text).map_err(|_| RobotError::NameTooLong)
+}
+
+impl Robot {
+    /// An empty robot.
+    #[must_use]
+    pub fn new() -> Robot {
+        Robot::default()
+    }
+
+    /// Adds a body after its parent; returns its index.
+    ///
+    /// # Errors
+    /// [`RobotError`].
+    pub fn add_body(
+        &mut self,
+        body_name: &str,
+        parent: Option<usize>,
+        pos: DVec3,
+        quat: DQuat,
+        mass: f64,
+        com: DVec3,
+    ) -> Result<usize, RobotError> {
+        if parent.is_some_and(|p| p >= self.bodies.len()) {
+            return Err(RobotError::BadParent);
+        }
+        let body = RobotBody {
+            name: name(body_name)?,
+            parent,
+            pos,
+            quat: quat.normalize(),
+            mass,
+            com,
+        };
+        self.bodies.push(body).map_err(|_| RobotError::Full)?;
+        self.joint_of_body.push(None).map_err(|_| RobotError::Full)?;
+        Ok(self.bodies.len() - 1)
+    }
+
+    /// Adds a hinge turning `body`; returns its index (its place in a joint-angle vector).
+    ///
+    /// # Errors
+    /// [`RobotError`].
+    pub fn add_hinge(
+        &mut self,
+        joint_name: &str,
+        body: usize,
+        axis: DVec3,
+        anchor: DVec3,
+        range: Option<(f64, f64)>,
+    ) -> Result<usize, RobotError> {
+        let slot = self.joint_of_body.get_mut(body).ok_or(RobotError::BadParent)?;
+        if slot.is_some() {
+            return Err(RobotError::SecondJoint);
+        }
+        let axis = axis.try_normalize().ok_or(RobotError::ZeroAxis)?;
+        let joint = RobotJoint {
+            name: name(joint_name)?,
+            body,
+            axis,
+            anchor,
+            range,
+        };
+        self.joints.push(joint).map_err(|_| RobotError::Full)?;
+        *slot = Some(self.joints.len() - 1);
+        Ok(self.joints.len() - 1)
+    }
+
+    /// The bodies, parents first.
+    #[must_use]
+    pub fn bodies(&self) -> &[RobotBody] {
+        &self.bodies
+    }
+
+    /// The hinge joints, in the order they were added.
+    #[must_use]
+    pub fn joints(&self) -> &[RobotJoint] {
+        &self.joints
+    }
+
+    /// The body with this name.
+    #[must_use]
+    pub fn body(&self, body_name: &str) -> Option<usize> {
+        self.bodies.iter().position(|b| b.name == body_name)
+    }
+
+    /// The joint with this name.
+    #[must_use]
+    pub fn joint(&self, joint_name: &str) -> Option<usize> {
+        self.joints.iter().position(|j| j.name == joint_name)
+    }
+
+    /// Total mass, kg.
+    #[must_use]
+    pub fn mass(&self) -> f64 {
+        self.bodies.iter().map(|b| b.mass).sum()
+    }
+
+    /// Forward kinematics: every body's frame for joint angles `q` (radians, in joint order;
+    /// missing angles count as 0), the base at `base_pos` turned by `base_rot`.
+    pub fn forward(&self, base_pos: DVec3, base_rot: DQuat, q: &[f64], pose: &mut RobotPose) {
+        for (i, b) in self.bodies.iter().enumerate() {
+            let (pp, pr) = match b.parent {
+                Some(p) => (pose.pos[p], pose.rot[p]),
+                None => (base_pos, base_rot),
+            };
+            let mut rot = pr * b.quat;
+            let mut pos = pp + pr * b.pos;
+            if let Some(j) = self.joint_of_body[i] {
+                let joint = &self.joints[j];
+                let angle = q.get(j).copied().unwrap_or(0.0);
+                let anchor = pos + rot * joint.anchor;
+                rot *= DQuat::from_axis_angle(joint.axis, angle);
+                pos = anchor - rot * joint.anchor;
+            }
+            pose.pos[i] = pos;
+            pose.rot[i] = rot;
+        }
+    }
+
+    /// The centre of mass of the whole robot in `pose` (the base frame's origin when it has no
+    /// mass).
+    #[must_use]
+    pub fn centre_of_mass(&self, pose: &RobotPose) -> DVec3 {
+        let mut sum = DVec3::ZERO;
+        let mut mass = 0.0;
+        for (i, b) in self.bodies.iter().enumerate() {
+            sum += b.mass * (pose.pos[i] + pose.rot[i] * b.com);
+            mass += b.mass;
+        }
+        if mass > 0.0 {
+            sum / mass
+        } else {
+            DVec3::ZERO
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A two-link arm in a plane: FK against the closed form, and the centre of mass.
+    #[test]
+    fn planar_two_link_arm() {
+        let mut r = Robot::new();
+        let a = r
+            .add_body(
+                "upper",
+                None,
+                DVec3::ZERO,
+                DQuat::IDENTITY,
+                1.0,
+                DVec3::new(0.5, 0.0, 0.0),
+            )
+            .unwrap();
+        let b = r
+            .add_body(
+                "lower",
+                Some(a),
+                DVec3::new(1.0, 0.0, 0.0),
+                DQuat::IDENTITY,
+                2.0,
+                DVec3::new(0.5, 0.0, 0.0),
+            )
+            .unwrap();
+        r.add_hinge("shoulder", a, DVec3::Z, DVec3::ZERO, None).unwrap();
+        r.add_hinge("elbow", b, DVec3::Z, DVec3::ZERO, None).unwrap();
+        let (t1, t2) = (0.3_f64, -0.7_f64);
+        let mut pose = RobotPose::default();
+        r.forward(DVec3::ZERO, DQuat::IDENTITY, &[t1, t2], &mut pose);
+        let elbow = DVec3::new(libm::cos(t1), libm::sin(t1), 0.0);
+        assert!((pose.pos[b] - elbow).length() < 1e-12);
+        let mid_lower = elbow + 0.5 * DVec3::new(libm::cos(t1 + t2), libm::sin(t1 + t2), 0.0);
+        let mid_upper = 0.5 * DVec3::new(libm::cos(t1), libm::sin(t1), 0.0);
+        let com = (mid_upper + 2.0 * mid_lower) / 3.0;
+        assert!((r.centre_of_mass(&pose) - com).length() < 1e-12);
+        assert_eq!(
+            r.add_hinge("again", b, DVec3::X, DVec3::ZERO, None),
+            Err(RobotError::SecondJoint)
+        );
+    }
+
+    /// A hinge off the body's origin keeps its anchor fixed.
+    #[test]
+    fn a_hinge_turns_about_its_anchor() {
+        let mut r = Robot::new();
+        let a = r
+            .add_body("b", None, DVec3::ZERO, DQuat::IDENTITY, 1.0, DVec3::ZERO)
+            .unwrap();
+        let anchor = DVec3::new(0.0, 1.0, 0.0);
+        r.add_hinge("j", a, DVec3::Z, anchor, None).unwrap();
+        let mut pose = RobotPose::default();
+        r.forward(
+            DVec3::ZERO,
+            DQuat::IDENTITY,
+            &[core::f64::consts::FRAC_PI_2],
+            &mut pose,
+        );
+        // The origin swings about (0, 1, 0): to (1, 1, 0).
+        assert!((pose.pos[a] - DVec3::new(1.0, 1.0, 0.0)).length() < 1e-12);
+        assert!((pose.pos[a] + pose.rot[a] * anchor - anchor).length() < 1e-12);
+    }
+}
