@@ -14,6 +14,7 @@ use marionette::control::{Controller, Follower, LoopConfig, Solve};
 use marionette::formats::{amc, asf};
 use marionette::profile::Profile;
 use marionette::protocol::{encode, instruction, BROADCAST_ID};
+use marionette::rig::ServoMap;
 use marionette::schedule::{Clock, Tick};
 use marionette::skeleton::MAX_CHANNELS;
 use std::path::Path;
@@ -85,11 +86,7 @@ fn bench(c: &mut Criterion) {
         Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml"))
             .unwrap();
     let rig = profile.rig(Some(&skel)).unwrap();
-    let present: Vec<i32> = rig
-        .servos
-        .iter()
-        .map(|s| s.angle_to_ticks(0.0).clamp(s.min_tick, s.max_tick))
-        .collect();
+    let present: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     let names: Vec<String> = ["lradius", "rradius", "ltibia", "rtibia"]
         .iter()
         .map(|s| (*s).to_string())

@@ -17,7 +17,7 @@ use marionette::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopM
 use marionette::formats::{amc, asf};
 use marionette::motion::Motion;
 use marionette::profile::Profile;
-use marionette::rig::Rig;
+use marionette::rig::{Rig, ServoMap};
 use marionette::schedule::{Clock, Schedule};
 use marionette::skeleton::{Skeleton, MAX_CHANNELS};
 
@@ -37,11 +37,7 @@ fn setup() -> Setup {
     let profile = Profile::load(&path).unwrap();
     let rig = profile.rig(Some(&skel)).unwrap();
     // Servos resting at their zero angle, clamped into their limits.
-    let zero: Vec<i32> = rig
-        .servos
-        .iter()
-        .map(|s| s.angle_to_ticks(0.0).clamp(s.min_tick, s.max_tick))
-        .collect();
+    let zero: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     let mut vr = VirtualRig::new(
         chain_for(&profile, |k| zero[k]),
         profile.bus.baud,
@@ -501,12 +497,7 @@ fn run_ramps_to_rest_then_turns_torque_off() {
     let end = c.run(&mut schedule, &mut s.vr.clone(), &mut clock, &stop);
     assert_eq!(end, RunEnd::Duration);
     assert_eq!(c.stats.ticks, 200);
-    let rest: Vec<i32> = s
-        .rig
-        .servos
-        .iter()
-        .map(|m| m.angle_to_ticks(0.0).clamp(m.min_tick, m.max_tick))
-        .collect();
+    let rest: Vec<i32> = s.rig.servos.iter().map(ServoMap::rest_tick).collect();
     let goals: Vec<i32> =
         s.vr.with(|t| t.chain().servos().iter().map(|v| v.goal_tick()).collect());
     let off = s.vr.with(|t| t.chain().servos().iter().all(|v| !v.torque_on()));
@@ -844,4 +835,35 @@ fn an_unplugged_port_ends_the_run_with_one_torque_off_try() {
             bus.other_after
         );
     }
+    // The port goes during the ramp to rest after 60 ticks: the ramp stops there, one torque-off
+    // is tried, and the run ends as a lost port (not as its duration).
+    let mut bus = Unplugged {
+        inner: s.vr.clone(),
+        left: 2 * 60 + 10,
+        goal_writes_after: 0,
+        torque_writes_after: 0,
+        other_after: 0,
+    };
+    let mut cfg = config(120.0);
+    cfg.stop = StopMode::Rest { ramp_s: 1.0 };
+    cfg.max_ticks = Some(60);
+    let (mut c, tx) = controller(&s, Solve::Frames, cfg, 400);
+    let start = clock.now_ns() + period;
+    for k in 0..400 {
+        let t = player.next_sample(&mut buf[..n]).unwrap();
+        tx.send_newest(Input::frame(k, start + k * period, 0, &buf[..n], t))
+            .unwrap();
+    }
+    let end = c.run(
+        &mut Schedule::new(start, period),
+        &mut bus,
+        &mut clock,
+        &StopRequests::new(),
+    );
+    assert_eq!(end, RunEnd::PortLost);
+    assert_eq!(c.stats.ticks, 60);
+    assert!(c.port_error.is_some());
+    assert_eq!(bus.goal_writes_after, 1, "the ramp stopped at its failed write");
+    assert_eq!(bus.torque_writes_after, 1, "one torque-off Sync Write");
+    assert_eq!(bus.other_after, 0, "no servo asked on its own");
 }

@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 use marionette::bus::virtual_chain::{chain_for, PtyChain, TorqueEvent};
 use marionette::formats::asf;
 use marionette::profile::Profile;
+use marionette::rig::ServoMap;
 
 const PROFILE: &str = "firmware-profile/cmu-puppet.toml";
 
@@ -24,11 +25,7 @@ fn serve_puppet() -> (PtyChain, Profile) {
     let profile = Profile::load(&path).unwrap();
     let skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
     let rig = profile.rig(Some(&skeleton)).unwrap();
-    let rest: Vec<i32> = rig
-        .servos
-        .iter()
-        .map(|s| s.angle_to_ticks(0.0).clamp(s.min_tick, s.max_tick))
-        .collect();
+    let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     let chain = PtyChain::serve(chain_for(&profile, |k| rest[k]), None).unwrap();
     (chain, profile)
 }
@@ -170,7 +167,7 @@ fn every_termination_signal_eases_to_rest_and_turns_torque_off() {
         let skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
         let rig = profile.rig(Some(&skeleton)).unwrap();
         for (v, r) in chain.chain().servos().iter().zip(&rig.servos) {
-            let rest = r.angle_to_ticks(0.0).clamp(r.min_tick, r.max_tick);
+            let rest = r.rest_tick();
             assert!(
                 (v.goal_tick() - rest).abs() <= 1,
                 "SIG{sig}: servo {} goal {} rest {rest}",

@@ -74,6 +74,13 @@ impl ServoMap {
         libm::round(self.angle_to_ticks_exact(angle)) as i32
     }
 
+    /// The rest position: the tick of joint angle 0, inside the limits (where a run eases to
+    /// when it stops).
+    #[must_use]
+    pub fn rest_tick(&self) -> i32 {
+        self.angle_to_ticks(0.0).clamp(self.min_tick, self.max_tick)
+    }
+
     /// The joint angle of a tick.
     #[must_use]
     pub fn ticks_to_angle(&self, ticks: f64) -> f64 {

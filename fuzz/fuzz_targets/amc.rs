@@ -2,22 +2,13 @@
 //! FK on every frame and writes back to AMC that loads again with the same frames.
 #![no_main]
 
-use std::sync::OnceLock;
-
 use libfuzzer_sys::fuzz_target;
 use marionette::fk::{fk64, Pose64};
-use marionette::formats::{amc, asf, text_from_bytes};
+use marionette::formats::{amc, text_from_bytes};
 use marionette::motion::frame_to_radians;
-use marionette::skeleton::Skeleton;
 
-fn skeleton() -> &'static Skeleton {
-    static SKELETON: OnceLock<Skeleton> = OnceLock::new();
-    SKELETON.get_or_init(|| {
-        asf::parse(include_str!("../../data/cmu/16.asf"))
-            .expect("the bundled skeleton loads")
-            .skeleton
-    })
-}
+mod bundled;
+use bundled::skeleton;
 
 fuzz_target!(|data: &[u8]| {
     let text = match text_from_bytes(data.to_vec()) {

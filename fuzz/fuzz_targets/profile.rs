@@ -3,22 +3,14 @@
 #![no_main]
 
 use std::path::Path;
-use std::sync::OnceLock;
 
 use libfuzzer_sys::fuzz_target;
 use marionette::budget::plan;
-use marionette::formats::{asf, text_from_bytes};
+use marionette::formats::text_from_bytes;
 use marionette::profile::Profile;
-use marionette::skeleton::Skeleton;
 
-fn skeleton() -> &'static Skeleton {
-    static SKELETON: OnceLock<Skeleton> = OnceLock::new();
-    SKELETON.get_or_init(|| {
-        asf::parse(include_str!("../../data/cmu/16.asf"))
-            .expect("the bundled skeleton loads")
-            .skeleton
-    })
-}
+mod bundled;
+use bundled::skeleton;
 
 fuzz_target!(|data: &[u8]| {
     let text = match text_from_bytes(data.to_vec()) {

@@ -82,9 +82,6 @@ pub enum CliError {
         /// The servo's name.
         name: String,
     },
-    /// A clip without frames.
-    #[error("{}: no frames", .0.display())]
-    EmptyClip(PathBuf),
     /// Two clips cannot be connected (or a clip looped).
     #[error(transparent)]
     Connect(#[from] ConnectError),

@@ -378,9 +378,6 @@ pub fn ik_edit_cmd(args: &IkEditArgs<'_>, out: &mut dyn Write) -> Result<(), Cli
     let file = asf::load(args.asf)?;
     let skel = &file.skeleton;
     let mut motion = amc::load(skel, args.amc)?;
-    if motion.is_empty() {
-        return Err(CliError::EmptyClip(args.amc.to_path_buf()));
-    }
     let first = motion.first_frame;
     let last = first + motion.len() as i64 - 1;
     let (a, b) = parse_frame_range(args.frames)?;

@@ -187,11 +187,7 @@ fn open_bus(
     match &args.bus {
         BusArg::Virtual => {
             // Servos powered up at their zero angle (inside their limits).
-            let rest: Vec<i32> = rig
-                .servos
-                .iter()
-                .map(|s| s.angle_to_ticks(0.0).clamp(s.min_tick, s.max_tick))
-                .collect();
+            let rest: Vec<i32> = rig.servos.iter().map(crate::rig::ServoMap::rest_tick).collect();
             let chain = PtyChain::serve(chain_for(profile, |k| rest[k]), None).map_err(CliError::Output)?;
             let path = chain.path().to_string();
             let baud = args.baud.unwrap_or(profile.bus.baud);
@@ -642,10 +638,8 @@ pub fn play_cmd(
     }
     let profile = Profile::load(profile_path)?;
     let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
+    // A loaded motion has at least one frame.
     let motion = Arc::new(amc::load(&skeleton, amc_path)?);
-    if motion.is_empty() {
-        return Err(CliError::EmptyClip(amc_path.to_path_buf()));
-    }
     if !(start_at.is_finite() && (0.0..=motion.duration()).contains(&start_at)) {
         return Err(CliError::Usage(format!(
             "--start must be within the clip's 0…{:.3} s",

@@ -38,9 +38,6 @@ pub fn soak_cmd(
     let profile = Profile::load(profile_path)?;
     let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
     let motion = Arc::new(amc::load(&skeleton, amc_path)?);
-    if motion.is_empty() {
-        return Err(CliError::EmptyClip(amc_path.to_path_buf()));
-    }
     let rig = profile.rig(Some(&skeleton))?;
     let config = SoakConfig {
         faults: args.faults,

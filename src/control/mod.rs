@@ -704,12 +704,10 @@ impl Controller {
             }
         }
         if let Some(why) = lost {
-            // The port is gone: command nothing more; one torque-off Sync Write is all that
-            // can be tried (it needs no replies).
+            // The port is gone: command nothing more; one torque-off (its Sync Write fails
+            // too, so no servo is asked on its own).
             self.port_error = Some(why);
-            let zeros = [0u8; MAX_SERVOS];
-            let _ = bus.sync_write(addr::TORQUE_ENABLE, 1, &self.ids, &zeros[..len]);
-            self.stats.torque_off_acknowledged = Some(0);
+            self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
             end = Some(RunEnd::PortLost);
         }
 
@@ -782,8 +780,13 @@ impl Controller {
             }
         };
         self.input.stop_producers();
-        if !matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
-            self.finish(schedule, bus, clock, stop);
+        if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
+            return why;
+        }
+        self.finish(schedule, bus, clock, stop);
+        // The port may fail during the ramp: that, not the reason the ramp began, is the end.
+        if self.port_error.is_some() {
+            return RunEnd::PortLost;
         }
         why
     }

@@ -25,7 +25,7 @@ use crate::bus::virtual_chain::{chain_for, VirtualRig};
 use crate::bus::{start_up, ErrorKind, StartupError};
 use crate::motion::Motion;
 use crate::profile::Profile;
-use crate::rig::Rig;
+use crate::rig::{Rig, ServoMap};
 use crate::schedule::{Clock, Schedule};
 use crate::skeleton::{Skeleton, MAX_CHANNELS};
 
@@ -143,11 +143,7 @@ pub fn soak(
         return Err(SoakError::EmptyClip);
     }
     let began = Instant::now();
-    let rest: Vec<i32> = rig
-        .servos
-        .iter()
-        .map(|s| s.angle_to_ticks(0.0).clamp(s.min_tick, s.max_tick))
-        .collect();
+    let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     let limits: Vec<(i32, i32)> = rig.servos.iter().map(|s| (s.min_tick, s.max_tick)).collect();
     let delay_us = u32::try_from(config.delay.as_micros()).unwrap_or(u32::MAX);
     let mut vr = VirtualRig::new(chain_for(profile, |k| rest[k]), profile.bus.baud, config.margin);

@@ -11,10 +11,11 @@ use std::path::Path;
 pub const MAX_VALUE: f64 = 1.0e9;
 
 /// Parses AMC text for `skeleton`. Angles without `:DEGREES`/`:RADIANS` follow the skeleton's
-/// ASF unit. The motion holds degrees whatever the file used.
+/// ASF unit. The motion holds degrees whatever the file used, and at least one frame.
 ///
 /// # Errors
-/// The line and column of the first problem, saying what was expected.
+/// The line and column of the first problem, saying what was expected (a file without frames
+/// is one).
 pub fn parse(skeleton: &Skeleton, text: &str) -> Result<Motion, TextError> {
     let mut degrees = skeleton.units().degrees;
     let mut motion = Motion::new(skeleton.channel_count(), CMU_FRAME_RATE);
@@ -149,7 +150,7 @@ pub fn parse(skeleton: &Skeleton, text: &str) -> Result<Motion, TextError> {
     Ok(motion)
 }
 
-/// Loads an AMC file for `skeleton`.
+/// Loads an AMC file for `skeleton` (at least one frame, see [`parse`]).
 ///
 /// # Errors
 /// I/O errors, or `file:line:column` and what was expected.

@@ -357,7 +357,7 @@ impl Reader {
                 return Err(at(n, format!("expected a defined class, found class \"{c}\"")));
             }
         }
-        let name = self.joint_attr(n, class, "name").unwrap_or("").to_string();
+        let name = n.attribute("name").unwrap_or("").to_string();
         match self.joint_attr(n, class, "type").unwrap_or("hinge") {
             "hinge" => {}
             "free" if root => {
