@@ -19,6 +19,14 @@ use marionette::rig::ServoMap;
 
 const PROFILE: &str = "firmware-profile/cmu-puppet.toml";
 
+/// One test at a time: a process that one test starts while another test's pseudo-terminal is
+/// being opened could inherit its device end (the open and the close-on-exec flag are two
+/// steps) and keep that line up after the chain closed it.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static ONE: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    ONE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// The puppet's 28 servos standing at their zero angle, served on a pseudo-terminal.
 fn serve_puppet() -> (PtyChain, Profile) {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(PROFILE);
@@ -144,6 +152,7 @@ fn assert_torque_went_off_before(log: &[TorqueEvent], profile: &Profile, exited:
 
 #[test]
 fn every_termination_signal_eases_to_rest_and_turns_torque_off() {
+    let _one_at_a_time = serial();
     for sig in ["INT", "TERM", "HUP", "QUIT"] {
         let (chain, profile) = serve_puppet();
         let mut child = spawn_play(chain.path(), &["--ramp", "0.3"]);
@@ -180,6 +189,7 @@ fn every_termination_signal_eases_to_rest_and_turns_torque_off() {
 
 #[test]
 fn a_second_signal_during_the_ramp_turns_torque_off_at_once() {
+    let _one_at_a_time = serial();
     let (chain, profile) = serve_puppet();
     let dir = common::tempdir("second-signal");
     let stats = dir.join("stats.json");
@@ -219,6 +229,7 @@ fn a_second_signal_during_the_ramp_turns_torque_off_at_once() {
 
 #[test]
 fn follow_stops_on_sigterm_with_torque_off() {
+    let _one_at_a_time = serial();
     let (chain, profile) = serve_puppet();
     let dir = common::tempdir("follow-term");
     let targets = dir.join("targets.csv");
@@ -258,6 +269,7 @@ fn follow_stops_on_sigterm_with_torque_off() {
 
 #[test]
 fn the_port_vanishing_mid_run_ends_with_one_line_naming_it() {
+    let _one_at_a_time = serial();
     let (chain, _profile) = serve_puppet();
     let port = chain.path().to_string();
     let mut child = spawn_play(&port, &["--ramp", "0.3"]);

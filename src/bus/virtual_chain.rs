@@ -367,6 +367,8 @@ impl Drop for PtyChain {
 
 /// Keeps a pseudo-terminal's descriptor out of child processes (as std does for every file it
 /// opens): a child holding the device end would keep the line up after the chain closed it.
+/// `serialport` opens without the flag, so a child that another thread starts between the open
+/// and this call can still inherit it.
 #[allow(unsafe_code)]
 fn close_on_exec(port: &serialport::TTYPort) -> io::Result<()> {
     use std::os::fd::AsRawFd;
