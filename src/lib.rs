@@ -13,6 +13,8 @@
 //! * [`formats`] — file loading with `file:line:column` errors, AMC read/write, ASF write,
 //!   BVH import/export.
 //! * [`profile`] — rig profiles (TOML) into a core [`rig::Rig`]; [`budget`] — bus time per cycle.
+//! * [`retarget`] — the core's retargeting with a profile's map resolved against the robot's
+//!   model and a skeleton, the floor from a clip, whole clips and their report.
 //! * [`bus`] — servo buses (serial through `dynamixel2`, the virtual chain on a pseudo-terminal,
 //!   fault injection).
 //! * [`control`] — the fixed-rate loop, its inputs, statistics and fault policy.
@@ -39,6 +41,8 @@ pub mod formats;
 pub mod profile;
 
 pub mod budget;
+
+pub mod retarget;
 
 pub mod bus;
 

@@ -31,6 +31,37 @@
 //! max_acceleration_dps2 = 3600
 //! position_p_gain = 1600    # optional: Position P Gain written at start-up (factory value otherwise)
 //! ```
+//!
+//! A profile whose servos follow robot joints (`joint = …`) may say how a human drives them
+//! (the retarget map; see [`RetargetSpec`] and `firmware-profile/robotis-op3.toml`):
+//!
+//! ```toml
+//! [retarget]
+//! model = "../sim/models/robotis_op3/op3.xml"   # MJCF, relative to the profile
+//! base = "body_link"                            # the robot's pelvis body
+//! # leg_scale = 0.3                             # robot / human leg length (default: measured)
+//!
+//! [retarget.names]          # optional: the skeleton's names for bones named otherwise
+//! lhumerus = "mixamorig:LeftArm"
+//!
+//! [retarget.left_arm]       # upper arm, forearm → shoulder, shoulder, elbow
+//! human = ["lhumerus", "lradius"]
+//! robot = ["l_sho_pitch", "l_sho_roll", "l_el"]
+//! tip = [-0.019, 0.14, 0.0076]                  # hand point in the elbow's body, metres
+//!
+//! [retarget.left_leg]       # thigh, shin, foot → hip ×3, knee, ankle ×2
+//! human = ["lfemur", "ltibia", "lfoot"]
+//! robot = ["l_hip_yaw", "l_hip_roll", "l_hip_pitch", "l_knee", "l_ank_pitch", "l_ank_roll"]
+//! sole_centre = [0.024, 0.0125, -0.0305]        # in the last ankle joint's body
+//! sole_half_size = [0.057, 0.039]
+//!
+//! [retarget.head]           # head → pan, tilt
+//! human = ["head"]
+//! robot = ["head_pan", "head_tilt"]
+//! ```
+//!
+//! Human bones are named as in CMU's ASF files; a BVH skeleton with CMU's BVH names
+//! (`LeftArm`, `LeftForeArm`, …) is understood as well, and `[retarget.names]` names others.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -209,6 +240,65 @@ pub struct Profile {
     pub bone_orders: Vec<(String, EulerOrder, u32)>,
     /// The servos in file order.
     pub servos: Vec<ServoSpec>,
+    /// How a human drives the robot joints (`[retarget]`), when given.
+    pub retarget: Option<RetargetSpec>,
+}
+
+/// A name in a profile and where it was written (1-based line and column).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Named {
+    /// The name.
+    pub name: String,
+    /// Line.
+    pub line: u32,
+    /// Column.
+    pub column: u32,
+}
+
+/// One chain of a retarget map (`[retarget.left_arm]` …), checked for shape.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChainSpec {
+    /// Human bones, in the order the chain wants them.
+    pub human: Vec<Named>,
+    /// Robot joints, from the base outwards.
+    pub robot: Vec<Named>,
+    /// Arms: the hand point in the elbow's body, metres.
+    pub tip: [f64; 3],
+    /// Legs: the sole's centre in the last ankle joint's body, metres.
+    pub sole_centre: [f64; 3],
+    /// Legs: the sole's half length and half width, metres.
+    pub sole_half_size: [f64; 2],
+    /// Scale override (robot / human length).
+    pub scale: Option<f64>,
+    /// Line of the table's header.
+    pub line: u32,
+}
+
+/// The retarget map (`[retarget]`): the robot's model and which human bones drive which of
+/// its chains. Names are resolved against the model and the skeleton by
+/// [`crate::retarget::Setup::new`], with errors at the line and column written here.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RetargetSpec {
+    /// The MJCF model, resolved against the profile's folder.
+    pub model: PathBuf,
+    /// Where `model` was written.
+    pub model_at: (u32, u32),
+    /// The robot's pelvis body.
+    pub base: Named,
+    /// The human pelvis bone (`None`: the skeleton's root).
+    pub pelvis: Option<Named>,
+    /// Names of bones in skeletons that name them otherwise: the map's name → the skeleton's.
+    pub names: Vec<(String, Named)>,
+    /// Leg scale override.
+    pub leg_scale: Option<f64>,
+    /// Arms, left then right.
+    pub arms: [Option<ChainSpec>; 2],
+    /// Legs, left then right.
+    pub legs: [ChainSpec; 2],
+    /// Pan/tilt head.
+    pub head: Option<ChainSpec>,
+    /// Line of `[retarget]`.
+    pub line: u32,
 }
 
 #[derive(Deserialize)]
@@ -220,6 +310,46 @@ struct RawProfile {
     bone: Vec<Spanned<RawBone>>,
     #[serde(default)]
     servo: Vec<Spanned<RawServo>>,
+    #[serde(default)]
+    retarget: Option<Spanned<RawRetarget>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRetarget {
+    model: Spanned<String>,
+    base: Spanned<String>,
+    #[serde(default)]
+    pelvis: Option<Spanned<String>>,
+    #[serde(default)]
+    leg_scale: Option<Spanned<f64>>,
+    #[serde(default)]
+    names: Option<std::collections::BTreeMap<String, Spanned<String>>>,
+    #[serde(default)]
+    left_arm: Option<Spanned<RawChain>>,
+    #[serde(default)]
+    right_arm: Option<Spanned<RawChain>>,
+    #[serde(default)]
+    left_leg: Option<Spanned<RawChain>>,
+    #[serde(default)]
+    right_leg: Option<Spanned<RawChain>>,
+    #[serde(default)]
+    head: Option<Spanned<RawChain>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawChain {
+    human: Spanned<Vec<Spanned<String>>>,
+    robot: Spanned<Vec<Spanned<String>>>,
+    #[serde(default)]
+    tip: Option<Spanned<Vec<f64>>>,
+    #[serde(default)]
+    sole_centre: Option<Spanned<Vec<f64>>>,
+    #[serde(default)]
+    sole_half_size: Option<Spanned<Vec<f64>>>,
+    #[serde(default)]
+    scale: Option<Spanned<f64>>,
 }
 
 #[derive(Deserialize)]
@@ -302,6 +432,133 @@ impl Checker<'_> {
     fn line<T>(&self, s: &Spanned<T>) -> u32 {
         line_col(self.text, s.span().start).0
     }
+
+    fn named(&self, s: &Spanned<String>) -> Named {
+        let (line, column) = line_col(self.text, s.span().start);
+        Named {
+            name: s.get_ref().trim().to_string(),
+            line,
+            column,
+        }
+    }
+}
+
+/// The shape each chain of a retarget map must have: human bones, robot joints.
+const CHAIN_SHAPES: [(&str, usize, usize, &str, &str); 3] = [
+    ("arm", 2, 3, "[upper arm, forearm]", "[shoulder, shoulder, elbow]"),
+    (
+        "leg",
+        3,
+        6,
+        "[thigh, shin, foot]",
+        "[hip, hip, hip, knee, ankle, ankle]",
+    ),
+    ("head", 1, 2, "[head]", "[pan, tilt]"),
+];
+
+fn check_retarget(
+    ck: &Checker<'_>,
+    raw: &Spanned<RawRetarget>,
+    path: &Path,
+) -> Result<RetargetSpec, TextError> {
+    let r = raw.get_ref();
+    let model_text = r.model.get_ref().trim();
+    if model_text.is_empty() {
+        return Err(ck.at(&r.model, "expected the path of the robot's MJCF model"));
+    }
+    let model = path.parent().unwrap_or(Path::new(".")).join(model_text);
+    let chain =
+        |c: &Option<Spanned<RawChain>>, key: &str, kind: usize| -> Result<Option<ChainSpec>, TextError> {
+            let Some(c) = c else { return Ok(None) };
+            let (what, nh, nr, hdesc, rdesc) = CHAIN_SHAPES[kind];
+            let raw_c = c.get_ref();
+            if raw_c.human.get_ref().len() != nh {
+                return Err(ck.at(
+                    &raw_c.human,
+                    format!(
+                        "expected {nh} human bone(s) for a{} {what}: {hdesc}",
+                        if what == "arm" { "n" } else { "" }
+                    ),
+                ));
+            }
+            if raw_c.robot.get_ref().len() != nr {
+                return Err(ck.at(
+                    &raw_c.robot,
+                    format!("expected {nr} robot joints for the {what}: {rdesc}"),
+                ));
+            }
+            let vector = |v: &Option<Spanned<Vec<f64>>>,
+                          n: usize,
+                          name: &str,
+                          needed: bool|
+             -> Result<Vec<f64>, TextError> {
+                match v {
+                    None if needed => Err(ck.at(
+                        c,
+                        format!("[retarget.{key}] needs `{name}` ({n} numbers, metres)"),
+                    )),
+                    None => Ok(vec![0.0; n]),
+                    Some(v) if v.get_ref().len() == n && v.get_ref().iter().all(|x| x.is_finite()) => {
+                        Ok(v.get_ref().clone())
+                    }
+                    Some(v) => Err(ck.at(v, format!("expected {n} finite numbers (metres)"))),
+                }
+            };
+            let tip = vector(&raw_c.tip, 3, "tip", kind == 0)?;
+            let sole_centre = vector(&raw_c.sole_centre, 3, "sole_centre", kind == 1)?;
+            let sole_half_size = vector(&raw_c.sole_half_size, 2, "sole_half_size", kind == 1)?;
+            if kind == 1 && sole_half_size.iter().any(|x| *x <= 0.0) {
+                let at = raw_c.sole_half_size.as_ref().map_or(ck.line(c), |v| ck.line(v));
+                return Err(TextError::new(
+                    at,
+                    0,
+                    "expected a positive half length and half width",
+                ));
+            }
+            let scale = match &raw_c.scale {
+                None => None,
+                Some(v) if v.get_ref().is_finite() && *v.get_ref() > 0.0 => Some(*v.get_ref()),
+                Some(v) => return Err(ck.at(v, format!("expected a positive scale, found {}", v.get_ref()))),
+            };
+            Ok(Some(ChainSpec {
+                human: raw_c.human.get_ref().iter().map(|n| ck.named(n)).collect(),
+                robot: raw_c.robot.get_ref().iter().map(|n| ck.named(n)).collect(),
+                tip: [tip[0], tip[1], tip[2]],
+                sole_centre: [sole_centre[0], sole_centre[1], sole_centre[2]],
+                sole_half_size: [sole_half_size[0], sole_half_size[1]],
+                scale,
+                line: ck.line(c),
+            }))
+        };
+    let leg = |c: &Option<Spanned<RawChain>>, key: &str| -> Result<ChainSpec, TextError> {
+        chain(c, key, 1)?.ok_or_else(|| ck.at(raw, format!("[retarget] needs a [retarget.{key}] table")))
+    };
+    let leg_scale = match &r.leg_scale {
+        None => None,
+        Some(v) if v.get_ref().is_finite() && *v.get_ref() > 0.0 => Some(*v.get_ref()),
+        Some(v) => return Err(ck.at(v, format!("expected a positive scale, found {}", v.get_ref()))),
+    };
+    let names = r
+        .names
+        .iter()
+        .flatten()
+        .map(|(k, v)| (k.clone(), ck.named(v)))
+        .collect();
+    Ok(RetargetSpec {
+        model,
+        model_at: line_col(ck.text, r.model.span().start),
+        base: ck.named(&r.base),
+        pelvis: r.pelvis.as_ref().map(|p| ck.named(p)),
+        names,
+        leg_scale,
+        arms: [
+            chain(&r.left_arm, "left_arm", 0)?,
+            chain(&r.right_arm, "right_arm", 0)?,
+        ],
+        legs: [leg(&r.left_leg, "left_leg")?, leg(&r.right_leg, "right_leg")?],
+        head: chain(&r.head, "head", 2)?,
+        line: ck.line(raw),
+    })
 }
 
 impl Profile {
@@ -404,12 +661,17 @@ impl Profile {
             }
             servos.push(spec);
         }
+        let retarget = match &raw.retarget {
+            Some(r) => Some(check_retarget(&ck, r, path)?),
+            None => None,
+        };
         Ok(Profile {
             path: path.to_path_buf(),
             name: raw.rig.name,
             bus,
             bone_orders,
             servos,
+            retarget,
         })
     }
 

@@ -17,6 +17,8 @@
 //!   says), its forward kinematics and centre of mass.
 //! * [`ik`] — the analytic limb solver with swivel search (help note §IV) and closed-form
 //!   pointing; [`ik_numeric`] — CCD, Jacobian transpose, pseudoinverse, DLS, conjugate gradient.
+//! * [`retarget`] — a human pose onto a robot of other proportions: arm directions, legs to
+//!   the feet in closed form, head, planted feet, balance over the support polygon.
 //! * [`servo`] — X-series servo models, control-table addresses, the velocity- and
 //!   acceleration-limited step, [`servo::MAX_SERVOS`].
 //! * [`rig`] — joint sources and angle ↔ tick mapping, Euler re-decomposition.
@@ -51,6 +53,8 @@ pub mod robot;
 pub mod ik;
 
 pub mod ik_numeric;
+
+pub mod retarget;
 
 pub mod servo;
 

@@ -202,6 +202,13 @@ impl Robot {
         self.joints.iter().position(|j| j.name == joint_name)
     }
 
+    /// Sets a joint's limits (radians; `None`: unlimited). Out-of-range indices are ignored.
+    pub fn set_range(&mut self, joint: usize, range: Option<(f64, f64)>) {
+        if let Some(j) = self.joints.get_mut(joint) {
+            j.range = range;
+        }
+    }
+
     /// Total mass, kg.
     #[must_use]
     pub fn mass(&self) -> f64 {

@@ -272,6 +272,17 @@ impl World {
         }
     }
 
+    /// The body of the model's first free joint (a floating base), if it has one.
+    #[must_use]
+    pub fn free_body(&self) -> Option<usize> {
+        let m = self.model();
+        let j = m
+            .jnt_type()
+            .iter()
+            .position(|t| *t == mujoco_rs::prelude::MjtJoint::mjJNT_FREE)?;
+        id(*m.jnt_bodyid().get(j)?)
+    }
+
     /// The body with this name.
     #[must_use]
     pub fn body(&self, name: &str) -> Option<usize> {

@@ -1,7 +1,6 @@
 //! Why a command failed: [`CliError`], printed as one line, with the process exit code.
 
 use std::io;
-use std::path::PathBuf;
 
 use crate::bus::{BusError, StartupError};
 use crate::fk::ShortFrame;
@@ -72,16 +71,6 @@ pub enum CliError {
     /// The control loop's thread ended by a panic.
     #[error("the control loop thread panicked")]
     LoopPanicked,
-    /// A profile whose servos follow robot joints, given to a command that drives bones.
-    #[error("{}: servo {id} (`{name}`) is driven by a robot joint, not a skeleton bone; play and follow need a profile whose servos follow the skeleton's bones", profile.display())]
-    JointDriven {
-        /// The profile.
-        profile: PathBuf,
-        /// The servo's id.
-        id: u8,
-        /// The servo's name.
-        name: String,
-    },
     /// Two clips cannot be connected (or a clip looped).
     #[error(transparent)]
     Connect(#[from] ConnectError),

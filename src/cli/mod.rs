@@ -8,6 +8,7 @@ mod error;
 mod ik;
 mod inspect;
 mod play;
+mod retarget;
 mod rig;
 mod sim;
 mod soak;
@@ -139,6 +140,37 @@ enum Command {
         /// Also write the figures as JSON to this file.
         #[arg(long)]
         json: Option<PathBuf>,
+    },
+    /// Retarget a clip onto a robot (the profile's [retarget] map): joint trajectory as CSV,
+    /// a report, a picture.
+    Retarget {
+        /// The rig profile with a [retarget] map, e.g. firmware-profile/robotis-op3.toml.
+        profile: PathBuf,
+        /// Skeleton: an .asf file, or a .bvh file (skeleton and motion).
+        skeleton: PathBuf,
+        /// Clip (.amc) for an ASF skeleton.
+        amc: Option<PathBuf>,
+        /// Joint trajectory: time, then one column per robot joint (radians).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Also write the report as JSON.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Draw human and robot side by side at a few frames, and the error curves (.svg/.png).
+        #[arg(long)]
+        plot: Option<PathBuf>,
+        /// Keep the legs in a standing stance; retarget arms, head and torso only.
+        #[arg(long)]
+        upper_body: bool,
+        /// Do not move the pelvis to keep the centre of mass over the planted feet.
+        #[arg(long)]
+        no_balance: bool,
+        /// Frame rate of the AMC file.
+        #[arg(long, default_value_t = CMU_FRAME_RATE)]
+        fps: f64,
+        /// Length unit of a BVH file.
+        #[arg(long, value_enum, default_value_t = BvhUnit::Cm)]
+        bvh_unit: BvhUnit,
     },
     /// Inverse kinematics: move a bone's tip to a target and print the result.
     Ik {
@@ -478,6 +510,32 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
                 rate,
                 max_burst,
                 json,
+            },
+            &mut io::stdout().lock(),
+        ),
+        Command::Retarget {
+            profile,
+            skeleton,
+            amc,
+            output,
+            report,
+            plot,
+            upper_body,
+            no_balance,
+            fps,
+            bvh_unit,
+        } => retarget::retarget_cmd(
+            &retarget::RetargetArgs {
+                profile: &profile,
+                skeleton: &skeleton,
+                amc: amc.as_deref(),
+                output: &output,
+                report,
+                plot,
+                upper_body,
+                balance: !no_balance,
+                fps,
+                bvh_unit,
             },
             &mut io::stdout().lock(),
         ),

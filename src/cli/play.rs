@@ -28,10 +28,14 @@ use crate::control::sources::{
     ProducerReport, TargetTrack, TrackFrame,
 };
 use crate::control::stats::{ClipFigures, LoopStats, RunReport};
-use crate::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode, StopRequests, Telemetry};
+use crate::control::{
+    Controller, Follower, LoopConfig, RetargetStage, RunEnd, Solve, StopMode, StopRequests, Telemetry,
+};
 use crate::formats::{amc, asf};
+use crate::motion::Motion;
 use crate::plot::{draw, Format};
 use crate::profile::Profile;
+use crate::retarget::{floor_of_clip, floor_of_rest, Options as RetargetOptions, Setup};
 use crate::schedule::{Clock, Schedule};
 use crate::skeleton::Skeleton;
 
@@ -138,6 +142,14 @@ pub struct LoopArgs {
     /// Servos drawn by --sim-plot (default: the four with the largest RMS).
     #[arg(long, value_delimiter = ',')]
     pub plot_servos: Vec<String>,
+    /// Profiles of robot joints: keep the legs in a standing stance and retarget arms, head
+    /// and torso only.
+    #[arg(long)]
+    pub upper_body: bool,
+    /// Profiles of robot joints: do not move the pelvis to keep the centre of mass over the
+    /// planted feet.
+    #[arg(long)]
+    pub no_balance: bool,
 }
 
 /// The opened bus: the virtual chain (kept alive while the bus is used) or a port.
@@ -256,6 +268,7 @@ fn run_sim(
     _make_source: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>,
     _allocations: Option<fn() -> u64>,
     _stop: &StopRequests,
+    _retarget: Option<RetargetStage>,
     _out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
     Err(CliError::NoSimulator("--bus sim"))
@@ -276,6 +289,7 @@ fn run_sim(
     make_source: Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>,
     allocations: Option<fn() -> u64>,
     stop: &StopRequests,
+    retarget: Option<RetargetStage>,
     out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
     use crate::control::lockstep::FeedingClock;
@@ -303,6 +317,9 @@ fn run_sim(
     let _ = allocations;
     let config = loop_config(args, None);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
+    if let Some(r) = retarget {
+        controller.set_retarget(r);
+    }
     let period = controller.period_ns();
     let start = bus.now_ns() + period;
     let mut clock = FeedingClock::new(bus.clone(), make_source(period), tx, start, period);
@@ -398,23 +415,43 @@ fn run_loop(
     port: InputPort,
     producer: Producer,
     allocations: Option<fn() -> u64>,
+    clip: Option<&Motion>,
     out: &mut dyn Write,
 ) -> Result<Outcome, CliError> {
     check(args)?;
     // From here on a signal stops the run safely (during start-up too).
     let stop = crate::signals::stop_requests().map_err(CliError::Output)?;
-    let rig = profile.rig(Some(&skeleton))?;
-    if let Some(s) = profile
+    // A profile of robot joints retargets the human pose onto the robot inside the tick.
+    let joint_driven = profile
         .servos
         .iter()
-        .find(|s| matches!(s.drive, crate::profile::Drive::Joint(_)))
-    {
-        return Err(CliError::JointDriven {
-            profile: profile.path.clone(),
-            id: s.id,
-            name: s.name.clone(),
-        });
-    }
+        .any(|s| matches!(s.drive, crate::profile::Drive::Joint(_)));
+    let (rig, retarget) = if joint_driven {
+        let setup = Setup::new(profile, &skeleton)?;
+        let floor = match clip {
+            Some(m) => floor_of_clip(&skeleton, m, &setup.map.human),
+            None => floor_of_rest(&skeleton, &setup.map.human),
+        };
+        let options = RetargetOptions {
+            upper_body: args.upper_body,
+            balance: !args.no_balance,
+        };
+        let stage = RetargetStage::new(&setup, &skeleton, floor, options);
+        writeln!(
+            out,
+            "retargeting onto {} ({} joints){}",
+            setup.model.display(),
+            setup.robot.joints().len(),
+            if args.upper_body {
+                ", upper body (legs in a stance)"
+            } else {
+                ""
+            }
+        )?;
+        (setup.rig, Some(stage))
+    } else {
+        (profile.rig(Some(&skeleton))?, None)
+    };
     let start_producer = match producer {
         Producer::Lockstep(tx, make_source) => {
             return run_sim(
@@ -428,6 +465,7 @@ fn run_loop(
                 make_source,
                 allocations,
                 &stop,
+                retarget,
                 out,
             )
         }
@@ -442,6 +480,9 @@ fn run_loop(
     writeln!(out, "{label}: {} servos up, torque on", present.len())?;
     let config = loop_config(args, allocations);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
+    if let Some(r) = retarget {
+        controller.set_retarget(r);
+    }
     let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
     controller.set_telemetry(ttx);
     let period = controller.period_ns();
@@ -682,6 +723,7 @@ pub fn play_cmd(
         port,
         producer,
         allocations,
+        Some(&motion),
         out,
     )?;
     let all = outcome.producer.sent == outcome.stats.inputs_used;
@@ -830,6 +872,7 @@ pub fn follow_cmd(
         port,
         producer,
         allocations,
+        None,
         out,
     )?;
     writeln!(

@@ -35,7 +35,9 @@ use crate::command::CommandStage;
 use crate::fk::{fk64, Pose64};
 use crate::ik::{point_bone, Limb, Swivel};
 use crate::ik_numeric::{Constraint, Settings, Solver};
+use crate::retarget::{Floor, Options, ReportBuilder, RetargetFrame, RetargetReport, Retargeter, Setup};
 use crate::rig::Rig;
+use crate::robot::Robot;
 use crate::schedule::{Clock, Schedule, Tick};
 use crate::servo::MAX_SERVOS;
 use crate::servo::{addr, TICKS_PER_TURN};
@@ -383,6 +385,53 @@ impl Follower {
     }
 }
 
+/// Retargeting inside the tick, for profiles whose servos follow a robot's joints: each new
+/// human pose becomes the robot's joint vector, which the rig's servos read.
+#[derive(Debug)]
+pub struct RetargetStage {
+    robot: Robot,
+    retargeter: Retargeter,
+    frame: RetargetFrame,
+    report: ReportBuilder,
+    names: Vec<String>,
+    last_clip_time: f64,
+}
+
+impl RetargetStage {
+    /// A stage for `setup` over `skeleton`, the human floor at `floor`.
+    #[must_use]
+    pub fn new(setup: &Setup, skeleton: &Skeleton, floor: Floor, options: Options) -> RetargetStage {
+        RetargetStage {
+            robot: setup.robot.clone(),
+            retargeter: setup.retargeter(skeleton, floor, options),
+            frame: RetargetFrame::default(),
+            report: ReportBuilder::new(setup.robot.joints().len()),
+            names: setup.joint_names(),
+            last_clip_time: f64::NAN,
+        }
+    }
+
+    /// What the run's retargeting measured.
+    #[must_use]
+    pub fn report(&self) -> RetargetReport {
+        self.report.finish(&self.retargeter, &self.names, None)
+    }
+
+    /// One human pose, `dt` seconds after the previous one (clip time when the input has
+    /// it). Allocates nothing.
+    fn step(&mut self, pose: &Pose64, clip_time: f64, tick_dt: f64) {
+        let dt =
+            if clip_time.is_finite() && self.last_clip_time.is_finite() && clip_time > self.last_clip_time {
+                clip_time - self.last_clip_time
+            } else {
+                tick_dt
+            };
+        self.last_clip_time = clip_time;
+        self.retargeter.step(&self.robot, pose, dt, &mut self.frame);
+        self.report.add(&self.frame, self.frame.lowest_sole);
+    }
+}
+
 /// The loop's state: everything a tick touches, allocated before the first tick.
 pub struct Controller {
     skeleton: Arc<Skeleton>,
@@ -412,6 +461,7 @@ pub struct Controller {
     pub port_error: Option<std::io::Error>,
     last_valid_read_ns: u64,
     last_tick: Option<(u64, u64)>,
+    retarget: Option<Box<RetargetStage>>,
 }
 
 impl std::fmt::Debug for Controller {
@@ -487,7 +537,13 @@ impl Controller {
             port_error: None,
             last_valid_read_ns: 0,
             last_tick: None,
+            retarget: None,
         }
+    }
+
+    /// Retargets each new pose onto a robot whose joints the rig's servos follow.
+    pub fn set_retarget(&mut self, stage: RetargetStage) {
+        self.retarget = Some(Box::new(stage));
     }
 
     /// Sends per-tick figures to `tx` (bounded; a full channel drops the record, counted).
@@ -614,20 +670,29 @@ impl Controller {
                 *t = self.pose.tip[b];
             }
         }
+        let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;
+        if let Some(r) = &mut self.retarget {
+            if fresh {
+                r.step(&self.pose, self.clip_time, dt);
+            }
+        }
         let t_encode = clock.now_ns();
         self.stats.stage_mut(Stage::Solve).record(t_encode - t_solve);
 
         // Encode: mapping and the command stage — or hold.
         let holding = self.failures >= self.config.hold_after;
-        let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;
         let mut goals = [0i32; MAX_SERVOS];
         let len = self.ids.len();
         if holding {
             self.stats.held_ticks += 1;
             goals[..len].copy_from_slice(self.stage.last());
         } else if self.have_input {
+            let joints: &[f64] = match &self.retarget {
+                Some(r) => &r.frame.q,
+                None => &[],
+            };
             self.rig
-                .joint_angles(&self.skeleton, &self.channels[..n], &[], &mut self.angles);
+                .joint_angles(&self.skeleton, &self.channels[..n], joints, &mut self.angles);
             match self.stage.command(&self.rig, &self.angles, dt) {
                 Ok((g, limited)) => {
                     goals[..len].copy_from_slice(g);
@@ -780,6 +845,9 @@ impl Controller {
             }
         };
         self.input.stop_producers();
+        if let Some(r) = &self.retarget {
+            self.stats.retarget = Some(r.report());
+        }
         if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
             return why;
         }

@@ -252,6 +252,8 @@ pub struct LoopStats {
     pub allocations_in_tick: Option<u64>,
     /// Servos that acknowledged the torque-off at the end (`None` before the end).
     pub torque_off_acknowledged: Option<usize>,
+    /// What retargeting onto a robot measured (profiles whose servos follow robot joints).
+    pub retarget: Option<crate::retarget::RetargetReport>,
     tracking_sq: f64,
     tracking_n: u64,
     tracking_max_deg: f64,
@@ -351,6 +353,7 @@ impl LoopStats {
             },
             allocations_in_tick: self.allocations_in_tick,
             torque_off_acknowledged: self.torque_off_acknowledged,
+            retarget: self.retarget.clone(),
             tracking_rms_deg: self.tracking_rms_deg(),
             tracking_max_deg: self.tracking_max_deg,
             commands_sent: self.commands_sent,
@@ -403,6 +406,9 @@ pub struct Report {
     pub allocations_in_tick: Option<u64>,
     /// Servos that acknowledged the torque-off at the end.
     pub torque_off_acknowledged: Option<usize>,
+    /// What retargeting onto a robot measured (profiles whose servos follow robot joints).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub retarget: Option<crate::retarget::RetargetReport>,
     /// RMS of commanded − present over servos and reads, degrees.
     pub tracking_rms_deg: f64,
     /// Largest |commanded − present|, degrees.

@@ -82,6 +82,9 @@ pub struct Sample {
     /// Per effector site: distance between the simulated site and the site at the commanded
     /// angles, metres.
     pub effector_error: Vec<f64>,
+    /// A floating base's height (metres) and tilt from upright (degrees), when the model has
+    /// one.
+    pub torso: Option<(f64, f64)>,
 }
 
 /// The MuJoCo plant of a chain.
@@ -279,6 +282,12 @@ impl SimPlant {
             let b = self.twin.site_position(site);
             let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
             s.effector_error.push(d);
+        }
+        if let Some(b) = self.world.free_body() {
+            let p = self.world.body_position(b);
+            let r = self.world.body_rotation(b);
+            // Row-major: the body's z axis in the world is the third column; its z component r[8].
+            s.torso = Some((p[2], r[8].clamp(-1.0, 1.0).acos().to_degrees()));
         }
         self.samples.push(s);
     }

@@ -59,7 +59,23 @@ pub struct TrackingReport {
     pub servos: Vec<ServoTracking>,
     /// Per effector site.
     pub effectors: Vec<EffectorTracking>,
+    /// A floating base's lowest height, metres (absent for a fixed base).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub torso_min_height_m: Option<f64>,
+    /// A floating base's largest tilt from upright, degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub torso_max_tilt_deg: Option<f64>,
+    /// Whether the robot fell: its torso below [`FELL_HEIGHT`] of the height it started at, or
+    /// tilted past [`FELL_TILT_DEG`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fell: Option<bool>,
 }
+
+/// A floating base lower than this share of its starting height has fallen.
+pub const FELL_HEIGHT: f64 = 0.6;
+
+/// A floating base tilted further than this (degrees) has fallen.
+pub const FELL_TILT_DEG: f64 = 45.0;
 
 impl TrackingReport {
     /// Analyses recorded samples. `names` and `saturated` are per servo, `sites` per effector.
@@ -125,7 +141,23 @@ impl TrackingReport {
                 }
             })
             .collect();
+        let torso: Vec<(f64, f64)> = samples.iter().filter_map(|s| s.torso).collect();
+        let (torso_min_height_m, torso_max_tilt_deg, fell) = match torso.first() {
+            Some(&(start, _)) => {
+                let low = torso.iter().map(|t| t.0).fold(f64::INFINITY, f64::min);
+                let tilt = torso.iter().map(|t| t.1).fold(0.0, f64::max);
+                (
+                    Some(low),
+                    Some(tilt),
+                    Some(low < FELL_HEIGHT * start || tilt > FELL_TILT_DEG),
+                )
+            }
+            None => (None, None, None),
+        };
         TrackingReport {
+            torso_min_height_m,
+            torso_max_tilt_deg,
+            fell,
             samples: samples.len(),
             duration_s: samples.last().map_or(0.0, |s| s.time) - samples.first().map_or(0.0, |s| s.time),
             physics_steps: steps,
@@ -170,6 +202,15 @@ impl std::fmt::Display for TrackingReport {
                 .map(|e| format!("{} {:.1}/{:.1}", e.name, e.rms_mm, e.max_mm))
                 .collect();
             writeln!(f, "  effector error rms/max mm: {}", list.join(", "))?;
+        }
+        if let (Some(h), Some(t), Some(fell)) = (self.torso_min_height_m, self.torso_max_tilt_deg, self.fell)
+        {
+            writeln!(
+                f,
+                "  torso: lowest {:.3} m, largest tilt {t:.1}°{}",
+                h,
+                if fell { " — FELL" } else { ", did not fall" }
+            )?;
         }
         Ok(())
     }

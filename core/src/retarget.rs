@@ -1,0 +1,1434 @@
+//! Retargeting a human pose onto a robot whose kinematics differ from the human's (a humanoid
+//! such as the ROBOTIS OP3: 3-DOF arms, 6-DOF legs, a pan/tilt head), frame by frame, in fixed
+//! capacity and without allocation.
+//!
+//! Frames. The human's *pelvis frame* (forward, left, up) comes from the rest pose: left from the
+//! right hip to the left hip, up from the pelvis towards the head, forward = left × up; the robot's
+//! from its zero pose the same way. Directions are compared in these frames, so a robot whose
+//! base axes differ from the capture's world axes (z up against y up) needs no setting.
+//!
+//! Per frame ([`Retargeter::step`]):
+//! * **Pelvis**: the base turns as the human pelvis turns; its height and path are the human's,
+//!   scaled by the leg-length ratio (floor at z = 0, from the clip's lowest feet).
+//! * **Arms** follow *directions*: the upper arm's direction exactly (two shoulder joints, the
+//!   Paden–Kahan subproblem 2), the elbow the angle that best aligns the forearm (subproblem 1).
+//!   A 3-DOF arm cannot twist its upper arm, so the plane the elbow bends in is fixed by the upper
+//!   arm's direction; of the two shoulder solutions the one with the smaller direction error is
+//!   taken, the previous one kept unless the other is better by [`BRANCH_HYSTERESIS`].
+//! * **Legs** follow *end points*: the ankle at the scaled human ankle, the sole flat on the floor
+//!   while the foot is planted, solved in closed form in product-of-exponentials form (knee from
+//!   the hip–ankle distance — subproblem 3 —, ankle pitch and roll by subproblem 2, hip yaw, roll
+//!   and pitch by subproblems 2 and 1), exact when the hip axes meet in a point and the ankle axes
+//!   in another.
+//! * **Head**: pan and tilt point the head where the human head faces.
+//! * **Feet**: a foot is planted when it is low and slow (with hysteresis); a planted foot stays
+//!   where it landed (position and heading), flat; a foot never goes below the floor; after
+//!   lift-off the locked offset fades out over [`RELEASE_S`].
+//! * **Balance**: the pelvis moves over the ground so the centre of mass stays over the support
+//!   polygon of the planted feet with a margin; the arms keep following.
+//!
+//! Joint limits clamp each joint on its own: a joint at its limit does not move its neighbours.
+//! Every choice between solutions is made from the current frame (smallest joint angles, or the
+//! smaller error), so a clip gives the same joints wherever it starts, apart from where planted
+//! feet were locked and the arms' branch memory, which both end with the next step.
+
+use glam::{DMat3, DQuat, DVec2, DVec3};
+
+use crate::fk::{fk64, Pose64};
+use crate::robot::{Robot, RobotPose, MAX_ROBOT_JOINTS};
+use crate::skeleton::Skeleton;
+
+/// Left and right.
+pub const SIDES: [&str; 2] = ["left", "right"];
+
+/// Extra error (radians of direction error) the other shoulder branch must save before the
+/// arm switches to it.
+pub const BRANCH_HYSTERESIS: f64 = 0.15;
+
+/// Seconds over which a released foot's locked offset fades out.
+pub const RELEASE_S: f64 = 0.25;
+
+/// A foot is planted when lower than this (metres above its floor height, human scale)…
+pub const PLANT_HEIGHT_M: f64 = 0.03;
+/// …and slower than this (m/s, human scale, horizontal).
+pub const PLANT_SPEED_M_S: f64 = 0.3;
+/// A planted foot is released when higher than this…
+pub const RELEASE_HEIGHT_M: f64 = 0.05;
+/// …or faster than this.
+pub const RELEASE_SPEED_M_S: f64 = 0.6;
+
+/// The centre of mass is kept this far inside the support polygon (metres, robot scale).
+pub const BALANCE_MARGIN_M: f64 = 0.01;
+
+/// Fastest the balance shift of the pelvis may change, m/s (robot scale).
+pub const BALANCE_SPEED_M_S: f64 = 0.25;
+
+/// Limbs in reports: left arm, right arm, left leg, right leg, head.
+pub const LIMBS: [&str; 5] = ["left_arm", "right_arm", "left_leg", "right_leg", "head"];
+
+/// The human bones a map uses (indices into the skeleton).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HumanBones {
+    /// The pelvis (the root).
+    pub pelvis: usize,
+    /// Per side: upper arm (shoulder → elbow) and forearm (elbow → wrist).
+    pub arms: [Option<[usize; 2]>; 2],
+    /// Per side: thigh (hip → knee), shin (knee → ankle), foot (ankle → toe).
+    pub legs: [[usize; 3]; 2],
+    /// The head (its rotation is where the face points).
+    pub head: Option<usize>,
+}
+
+/// A robot arm: two shoulder joints and an elbow (indices into the robot's joints).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ArmChain {
+    /// Shoulder, shoulder, elbow.
+    pub joints: [usize; 3],
+    /// The hand point, in the body the elbow turns (metres).
+    pub tip: DVec3,
+}
+
+/// A robot leg: hip (three joints), knee, ankle (two joints).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LegChain {
+    /// Hip ×3 (from the pelvis), knee, ankle ×2.
+    pub joints: [usize; 6],
+    /// Centre of the sole's bottom face, in the body of the last ankle joint (metres).
+    pub sole_centre: DVec3,
+    /// Half length and half width of the sole (along that body's x and y, metres).
+    pub sole_half: [f64; 2],
+}
+
+/// A pan/tilt head.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeadChain {
+    /// Pan, then tilt.
+    pub joints: [usize; 2],
+}
+
+/// Which human bones drive which robot chain.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RetargetMap {
+    /// The human side.
+    pub human: HumanBones,
+    /// The robot's pelvis body (the base; body 0 in MJCF models).
+    pub base: usize,
+    /// Arms, left then right.
+    pub arms: [Option<ArmChain>; 2],
+    /// Legs, left then right.
+    pub legs: [LegChain; 2],
+    /// The head.
+    pub head: Option<HeadChain>,
+    /// Leg scale override (robot leg length / human leg length).
+    pub leg_scale: Option<f64>,
+    /// Arm scale overrides.
+    pub arm_scale: [Option<f64>; 2],
+}
+
+/// Where the human's floor is: heights (along the human's up, file units) of the ankle and of
+/// the toe when the foot is on the floor.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Floor {
+    /// Ankle height with the foot down (left, right).
+    pub ankle: [f64; 2],
+    /// Toe height with the foot down (left, right).
+    pub toe: [f64; 2],
+}
+
+/// Options of a run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Options {
+    /// Keep the legs in a standing stance; retarget arms and head only.
+    pub upper_body: bool,
+    /// Keep the centre of mass over the planted feet.
+    pub balance: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            upper_body: false,
+            balance: true,
+        }
+    }
+}
+
+/// Why a map does not fit a robot or a skeleton.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RetargetError {
+    /// A joint index past the robot's joints, or a body index past its bodies.
+    NoSuchJoint,
+    /// A chain's joints are not one after another down one branch of the tree.
+    NotAChain(&'static str),
+    /// A chain's geometry does not allow the closed form (hip or ankle axes that do not meet,
+    /// an elbow on a shoulder axis, parallel shoulder axes…).
+    Geometry(&'static str),
+    /// A bone index past the skeleton, or a rest pose without width or height.
+    Skeleton(&'static str),
+}
+
+impl core::fmt::Display for RetargetError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            RetargetError::NoSuchJoint => f.write_str("a joint or body the robot does not have"),
+            RetargetError::NotAChain(what) => write!(f, "{what}: the joints are not one chain from the base"),
+            RetargetError::Geometry(what) => write!(f, "{what}"),
+            RetargetError::Skeleton(what) => write!(f, "{what}"),
+        }
+    }
+}
+
+impl core::error::Error for RetargetError {}
+
+/// One retargeted frame.
+#[derive(Clone, Debug)]
+pub struct RetargetFrame {
+    /// Joint angles, radians, in the robot's joint order.
+    pub q: [f64; MAX_ROBOT_JOINTS],
+    /// The base's position in the robot's world (metres, floor at z = 0).
+    pub base_pos: DVec3,
+    /// The base's orientation in the robot's world.
+    pub base_rot: DQuat,
+    /// Per limb ([`LIMBS`]): the largest angle (degrees) between a human segment and the robot
+    /// segment it drives, in the pelvis frame, and the sum of squares over its segments with
+    /// their count (for RMS). NaN / 0 when the limb is not mapped.
+    pub limb_error_deg: [f64; 5],
+    /// Per limb: sum of squared segment errors (degrees²) and the number of segments.
+    pub limb_error_sq: [(f64, u32); 5],
+    /// Whether each foot is planted.
+    pub planted: [bool; 2],
+    /// Each sole's centre in the robot's world (metres).
+    pub sole: [DVec3; 2],
+    /// The robot's centre of mass in its world.
+    pub com: DVec3,
+    /// Signed distance of the centre of mass (on the floor) inside the support polygon of the
+    /// planted feet, metres (negative: outside); NaN when no foot is planted.
+    pub com_margin: f64,
+    /// Joint values held at a limit in this frame.
+    pub clamps: u32,
+    /// Feet whose target was out of reach (the pelvis was lowered or the leg stretched).
+    pub out_of_reach: u32,
+    /// The lowest sole corner's height above the floor, metres.
+    pub lowest_sole: f64,
+}
+
+impl Default for RetargetFrame {
+    fn default() -> Self {
+        RetargetFrame {
+            q: [0.0; MAX_ROBOT_JOINTS],
+            base_pos: DVec3::ZERO,
+            base_rot: DQuat::IDENTITY,
+            limb_error_deg: [f64::NAN; 5],
+            limb_error_sq: [(0.0, 0); 5],
+            planted: [false; 2],
+            sole: [DVec3::ZERO; 2],
+            com: DVec3::ZERO,
+            com_margin: f64::NAN,
+            clamps: 0,
+            out_of_reach: 0,
+            lowest_sole: 0.0,
+        }
+    }
+}
+
+/// Angle about unit axis `a` that turns `v` nearest to `t` (Paden–Kahan subproblem 1).
+#[must_use]
+pub fn angle_about(a: DVec3, v: DVec3, t: DVec3) -> f64 {
+    let vp = v - a * a.dot(v);
+    let tp = t - a * a.dot(t);
+    libm::atan2(a.dot(vp.cross(tp)), vp.dot(tp))
+}
+
+/// Angles `(q1, q2)` with `rot(a1, q1)·rot(a2, q2)·v` pointing along `t` (Paden–Kahan
+/// subproblem 2, axes through one point, `a2` as it lies at `q1 = 0`): the two solutions, or
+/// twice the nearest direction when `t` cannot be reached.
+#[must_use]
+pub fn angles_about_two(a1: DVec3, a2: DVec3, v: DVec3, t: DVec3) -> [(f64, f64); 2] {
+    let t = t.normalize_or_zero() * v.length();
+    let along = a2 * a2.dot(v);
+    let perp = v - along;
+    let side = a2.cross(perp);
+    let (c0, cc, cs) = (a1.dot(along), a1.dot(perp), a1.dot(side));
+    let r = libm::hypot(cc, cs);
+    let phi = libm::atan2(cs, cc);
+    let k = a1.dot(t) - c0;
+    let delta = if r > 1e-12 {
+        libm::acos((k / r).clamp(-1.0, 1.0))
+    } else {
+        0.0
+    };
+    let mut out = [(0.0, 0.0); 2];
+    for (o, q2) in out.iter_mut().zip([phi + delta, phi - delta]) {
+        let q2 = wrap(q2);
+        let v2 = DQuat::from_axis_angle(a2, q2) * v;
+        *o = (angle_about(a1, v2, t), q2);
+    }
+    out
+}
+
+/// An angle in (−π, π].
+fn wrap(a: f64) -> f64 {
+    crate::math::wrap_near(a, 0.0)
+}
+
+/// The angle between two vectors, radians (0 when either is zero).
+fn angle_between(a: DVec3, b: DVec3) -> f64 {
+    let d = a.length() * b.length();
+    if d <= 0.0 {
+        return 0.0;
+    }
+    libm::atan2(a.cross(b).length(), a.dot(b))
+}
+
+/// The point nearest (least squares) to lines through `points` along unit `axes`.
+fn nearest_point(points: &[DVec3], axes: &[DVec3]) -> Option<DVec3> {
+    let mut m = DMat3::ZERO;
+    let mut b = DVec3::ZERO;
+    for (p, a) in points.iter().zip(axes) {
+        let proj = DMat3::IDENTITY - outer(*a, *a);
+        m += proj;
+        b += proj * *p;
+    }
+    let det = m.determinant();
+    (det.abs() > 1e-9).then(|| m.inverse() * b)
+}
+
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+}
+
+fn dist_to_line(p: DVec3, point: DVec3, axis: DVec3) -> f64 {
+    let d = p - point;
+    (d - axis * axis.dot(d)).length()
+}
+
+/// A joint's axis and a point on it, in the base's frame at the zero pose.
+#[derive(Clone, Copy, Debug, Default)]
+struct Screw {
+    axis: DVec3,
+    point: DVec3,
+    range: Option<(f64, f64)>,
+    index: usize,
+}
+
+impl Screw {
+    fn rot(&self, q: f64) -> DQuat {
+        DQuat::from_axis_angle(self.axis, q)
+    }
+
+    /// Moves a point by this joint turned by `q`.
+    fn apply(&self, q: f64, p: DVec3) -> DVec3 {
+        self.point + self.rot(q) * (p - self.point)
+    }
+
+    /// `q` at its limits, and whether it was clamped. An angle outside the range is first
+    /// tried a turn away.
+    fn limit(&self, q: f64, reference: f64) -> (f64, bool) {
+        let q = crate::math::wrap_near(q, reference);
+        match self.range {
+            None => (q, false),
+            Some((lo, hi)) => {
+                for k in [0.0, -core::f64::consts::TAU, core::f64::consts::TAU] {
+                    if (lo..=hi).contains(&(q + k)) {
+                        return (q + k, false);
+                    }
+                }
+                let mid = 0.5 * (lo + hi);
+                let q = crate::math::wrap_near(q, mid);
+                (q.clamp(lo, hi), true)
+            }
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct ArmGeometry {
+    joints: [Screw; 3],
+    upper: DVec3,
+    fore: DVec3,
+    length: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct LegGeometry {
+    joints: [Screw; 6],
+    hip: DVec3,
+    knee: DVec3,
+    ankle: DVec3,
+    /// The foot body's zero-pose orientation and the sole's corners relative to the ankle
+    /// centre, in that body's frame.
+    foot_rot: DQuat,
+    corners: [DVec3; 4],
+    sole_from_ankle: DVec3,
+    /// Sign of knee angles that bend the knee the human way (the shin backwards).
+    knee_sign: f64,
+    reach: f64,
+    thigh_len: f64,
+    shin_len: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct HeadGeometry {
+    joints: [Screw; 2],
+    forward: DVec3,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct FootState {
+    planted: bool,
+    /// Where the foot was locked: ankle position and heading (world).
+    lock: Option<(DVec3, f64)>,
+    /// After release: the locked offset and the time since release.
+    release: Option<(DVec3, f64, f64)>,
+    previous: Option<DVec3>,
+}
+
+/// The retargeter: constants derived from the map, the robot and the skeleton once, and the
+/// little state a stream needs (planted feet, the arms' branches, the balance shift).
+#[derive(Clone, Debug)]
+pub struct Retargeter {
+    map: RetargetMap,
+    /// Human world → robot world, rotation.
+    world: DMat3,
+    /// The human pelvis frame at rest (columns forward, left, up) in human world coordinates.
+    human_frame: DMat3,
+    /// The robot pelvis frame (columns forward, left, up) in base coordinates.
+    robot_frame: DMat3,
+    /// The base's orientation at the zero pose (model frame).
+    base_rest: DQuat,
+    base_rest_pos: DVec3,
+    human_rest_world: [DMat3; 5],
+    units: f64,
+    leg_scale: f64,
+    arm_scale: [f64; 2],
+    arms: [Option<ArmGeometry>; 2],
+    legs: [LegGeometry; 2],
+    head: Option<HeadGeometry>,
+    floor: Floor,
+    hip_mid: DVec3,
+    stance: [f64; MAX_ROBOT_JOINTS],
+    stance_base: DVec3,
+    options: Options,
+    feet: [FootState; 2],
+    arm_prev: [Option<[f64; 3]>; 2],
+    shift: DVec2,
+    pose: RobotPose,
+    /// Every body at the zero pose (model frame).
+    rest: RobotPose,
+}
+
+/// Rest-pose indices into `human_rest_world`.
+const REST_PELVIS: usize = 0;
+const REST_HEAD: usize = 1;
+const REST_FEET: usize = 2;
+
+impl Retargeter {
+    /// Prepares a map for `robot` and `skeleton`, with the human floor `floor` (see
+    /// [`floor_of_rest`] and the std edge's clip calibration).
+    ///
+    /// # Errors
+    /// [`RetargetError`] when the map's indices or geometry do not fit.
+    pub fn new(
+        robot: &Robot,
+        skeleton: &Skeleton,
+        map: RetargetMap,
+        floor: Floor,
+        options: Options,
+    ) -> Result<Retargeter, RetargetError> {
+        let nb = skeleton.bones().len();
+        let h = &map.human;
+        let bones_ok = h.pelvis < nb
+            && h.legs.iter().flatten().all(|b| *b < nb)
+            && h.arms.iter().flatten().flatten().all(|b| *b < nb)
+            && h.head.is_none_or(|b| b < nb);
+        if !bones_ok {
+            return Err(RetargetError::Skeleton("a bone the skeleton does not have"));
+        }
+        let nj = robot.joints().len();
+        let joints_ok = map.base < robot.bodies().len()
+            && map.legs.iter().flat_map(|l| l.joints).all(|j| j < nj)
+            && map.arms.iter().flatten().flat_map(|a| a.joints).all(|j| j < nj)
+            && map.head.iter().flat_map(|hd| hd.joints).all(|j| j < nj);
+        if !joints_ok {
+            return Err(RetargetError::NoSuchJoint);
+        }
+        // Human rest pose.
+        let mut rest = Pose64::default();
+        fk64(skeleton, &[], &mut rest);
+        let units = f64::from(skeleton.units().meters_per_unit());
+        let hips = [rest.start[h.legs[0][0]], rest.start[h.legs[1][0]]];
+        let hip_mid_h = 0.5 * (hips[0] + hips[1]);
+        let top = match (h.head, h.arms[0], h.arms[1]) {
+            (Some(b), _, _) => rest.start[b],
+            (None, Some(l), Some(r)) => 0.5 * (rest.start[l[0]] + rest.start[r[0]]),
+            _ => {
+                return Err(RetargetError::Skeleton(
+                    "neither a head nor two arms to tell up from",
+                ))
+            }
+        };
+        let human_frame = frame_from(hips[0] - hips[1], top - hip_mid_h).ok_or(RetargetError::Skeleton(
+            "the rest pose has no width between the hips or no height",
+        ))?;
+
+        // Robot zero pose, in the model frame; then in the base's frame.
+        let mut pose = RobotPose::default();
+        robot.forward(DVec3::ZERO, DQuat::IDENTITY, &[], &mut pose);
+        let base_rest = pose.rot[map.base];
+        let base_rest_pos = pose.pos[map.base];
+        let to_base = |p: DVec3| base_rest.inverse() * (p - base_rest_pos);
+        let screw = |j: usize| -> Screw {
+            let joint = &robot.joints()[j];
+            let body = joint.body;
+            Screw {
+                axis: (base_rest.inverse() * (pose.rot[body] * joint.axis)).normalize(),
+                point: to_base(pose.pos[body] + pose.rot[body] * joint.anchor),
+                range: joint.range,
+                index: j,
+            }
+        };
+        for (what, chain) in [
+            ("left leg", &map.legs[0].joints[..]),
+            ("right leg", &map.legs[1].joints[..]),
+        ] {
+            check_chain(robot, map.base, chain, what)?;
+        }
+        let mut legs = [LegGeometry::default(); 2];
+        for (side, leg) in map.legs.iter().enumerate() {
+            let s: [Screw; 6] = core::array::from_fn(|k| screw(leg.joints[k]));
+            let hip = nearest_point(
+                &[s[0].point, s[1].point, s[2].point],
+                &[s[0].axis, s[1].axis, s[2].axis],
+            )
+            .ok_or(RetargetError::Geometry("the hip axes are parallel"))?;
+            let ankle = nearest_point(&[s[4].point, s[5].point], &[s[4].axis, s[5].axis])
+                .ok_or(RetargetError::Geometry("the ankle axes are parallel"))?;
+            for k in 0..3 {
+                if dist_to_line(hip, s[k].point, s[k].axis) > 2e-3 {
+                    return Err(RetargetError::Geometry(
+                        "the three hip axes do not meet in a point (within 2 mm)",
+                    ));
+                }
+            }
+            for k in 4..6 {
+                if dist_to_line(ankle, s[k].point, s[k].axis) > 2e-3 {
+                    return Err(RetargetError::Geometry(
+                        "the two ankle axes do not meet in a point (within 2 mm)",
+                    ));
+                }
+            }
+            let knee_axis = s[3].axis;
+            let along = |p: DVec3| knee_axis.dot(p - s[3].point);
+            let knee = s[3].point + knee_axis * along(hip);
+            let thigh_len = dist_to_line(hip, s[3].point, knee_axis);
+            let shin_len = dist_to_line(ankle, s[3].point, knee_axis);
+            if thigh_len < 1e-3 || shin_len < 1e-3 {
+                return Err(RetargetError::Geometry(
+                    "the knee axis passes through the hip or the ankle",
+                ));
+            }
+            let foot_body = robot.joints()[leg.joints[5]].body;
+            let foot_rot = base_rest.inverse() * pose.rot[foot_body];
+            let foot_pos = to_base(pose.pos[foot_body]);
+            let ankle_local = foot_rot.inverse() * (ankle - foot_pos);
+            let [hx, hy] = leg.sole_half;
+            let corners = [(1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0)]
+                .map(|(a, b)| leg.sole_centre + DVec3::new(a * hx, b * hy, 0.0) - ankle_local);
+            legs[side] = LegGeometry {
+                joints: s,
+                hip,
+                knee,
+                ankle,
+                foot_rot,
+                corners,
+                sole_from_ankle: leg.sole_centre - ankle_local,
+                knee_sign: 1.0,
+                reach: 0.0,
+                thigh_len,
+                shin_len,
+            };
+        }
+        let hip_mid = 0.5 * (legs[0].hip + legs[1].hip);
+        let head_point = match map.head {
+            Some(hd) => Some(screw(hd.joints[0]).point),
+            None => None,
+        };
+        let arm_top = match (map.arms[0], map.arms[1]) {
+            (Some(l), Some(r)) => Some(0.5 * (screw(l.joints[0]).point + screw(r.joints[0]).point)),
+            _ => None,
+        };
+        let up_point = head_point.or(arm_top).ok_or(RetargetError::Geometry(
+            "neither a head nor two arms to tell up from",
+        ))?;
+        let robot_frame = frame_from(legs[0].hip - legs[1].hip, up_point - hip_mid)
+            .ok_or(RetargetError::Geometry("the robot's hips have no width"))?;
+        let forward = robot_frame.col(0);
+        for leg in &mut legs {
+            // The knee bends the human way when a positive angle moves the ankle backwards.
+            let k = leg.joints[3];
+            let moved = k.axis.cross(leg.ankle - k.point);
+            leg.knee_sign = if moved.dot(forward) < 0.0 { 1.0 } else { -1.0 };
+            leg.reach = (leg.ankle - leg.hip).length();
+        }
+        let mut arms = [None; 2];
+        for (side, arm) in map.arms.iter().enumerate() {
+            let Some(arm) = arm else { continue };
+            check_chain(robot, map.base, &arm.joints, "arm")?;
+            let s: [Screw; 3] = core::array::from_fn(|k| screw(arm.joints[k]));
+            let elbow_body = robot.joints()[arm.joints[2]].body;
+            let tip = to_base(pose.pos[elbow_body] + pose.rot[elbow_body] * arm.tip);
+            let upper = s[2].point - s[1].point;
+            // The forearm's direction in the plane the elbow turns it in (an offset of the
+            // hand along the elbow's axis moves the hand sideways; it is not a direction).
+            let fore = tip - s[2].point;
+            let fore = fore - s[2].axis * s[2].axis.dot(fore);
+            if upper.length() < 1e-4 || fore.length() < 1e-4 {
+                return Err(RetargetError::Geometry("an arm segment of zero length"));
+            }
+            if s[0].axis.cross(s[1].axis).length() < 1e-6 {
+                return Err(RetargetError::Geometry("the two shoulder axes are parallel"));
+            }
+            arms[side] = Some(ArmGeometry {
+                joints: s,
+                upper: upper.normalize(),
+                fore: fore.normalize(),
+                length: upper.length() + fore.length(),
+            });
+        }
+        let head = match map.head {
+            Some(hd) => {
+                check_chain(robot, map.base, &hd.joints, "head")?;
+                let s = [screw(hd.joints[0]), screw(hd.joints[1])];
+                if s[0].axis.cross(s[1].axis).length() < 1e-6 {
+                    return Err(RetargetError::Geometry("the pan and tilt axes are parallel"));
+                }
+                Some(HeadGeometry { joints: s, forward })
+            }
+            None => None,
+        };
+        // Human ↔ robot.
+        let human_leg = |side: usize| {
+            let [t, s, _] = h.legs[side];
+            (rest.tip[t] - rest.start[t]).length() + (rest.tip[s] - rest.start[s]).length()
+        };
+        let leg_h = 0.5 * (human_leg(0) + human_leg(1)) * units;
+        let leg_r = 0.5 * (legs[0].thigh_len + legs[0].shin_len + legs[1].thigh_len + legs[1].shin_len);
+        let leg_scale = map.leg_scale.unwrap_or(leg_r / leg_h.max(1e-9));
+        let mut arm_scale = [1.0; 2];
+        for side in 0..2 {
+            if let (Some(a), Some(ha)) = (&arms[side], h.arms[side]) {
+                let lh = ((rest.tip[ha[0]] - rest.start[ha[0]]).length()
+                    + (rest.tip[ha[1]] - rest.start[ha[1]]).length())
+                    * units;
+                arm_scale[side] = map.arm_scale[side].unwrap_or(a.length / lh.max(1e-9));
+            }
+        }
+        let robot_world_frame = DMat3::from_quat(base_rest) * robot_frame;
+        let world = robot_world_frame * human_frame.transpose();
+        let mut human_rest_world = [DMat3::IDENTITY; 5];
+        human_rest_world[REST_PELVIS] = rest.world[h.pelvis];
+        if let Some(b) = h.head {
+            human_rest_world[REST_HEAD] = rest.world[b];
+        }
+        human_rest_world[REST_FEET] = rest.world[h.legs[0][2]];
+        human_rest_world[REST_FEET + 1] = rest.world[h.legs[1][2]];
+        let mut r = Retargeter {
+            map,
+            world,
+            human_frame,
+            robot_frame,
+            base_rest,
+            base_rest_pos,
+            human_rest_world,
+            units,
+            leg_scale,
+            arm_scale,
+            arms,
+            legs,
+            head,
+            floor,
+            hip_mid,
+            stance: [0.0; MAX_ROBOT_JOINTS],
+            stance_base: DVec3::ZERO,
+            options,
+            feet: [FootState::default(); 2],
+            arm_prev: [None; 2],
+            shift: DVec2::ZERO,
+            rest: pose.clone(),
+            pose,
+        };
+        r.make_stance();
+        Ok(r)
+    }
+
+    /// Leg length ratio robot / human.
+    #[must_use]
+    pub fn leg_scale(&self) -> f64 {
+        self.leg_scale
+    }
+
+    /// Arm length ratios robot / human (left, right; 1 where unmapped).
+    #[must_use]
+    pub fn arm_scale(&self) -> [f64; 2] {
+        self.arm_scale
+    }
+
+    /// The options in use.
+    #[must_use]
+    pub fn options(&self) -> Options {
+        self.options
+    }
+
+    /// Forgets the stream's state (planted feet, branches, balance shift): the next frame is
+    /// treated as a first one.
+    pub fn reset(&mut self) {
+        self.feet = [FootState::default(); 2];
+        self.arm_prev = [None; 2];
+        self.shift = DVec2::ZERO;
+    }
+
+    /// The standing stance `--upper-body` keeps: knees bent so the hips sit 8 % of the leg
+    /// lower than straight, feet under the hips, soles flat.
+    fn make_stance(&mut self) {
+        let mut clamps = 0;
+        let mut q = [0.0; MAX_ROBOT_JOINTS];
+        let drop = 0.08 * self.legs[0].reach;
+        for side in 0..2 {
+            let g = self.legs[side];
+            let ankle = g.ankle + self.robot_frame.col(2) * drop;
+            let sol = self.solve_leg(side, g.foot_rot, ankle, &mut clamps);
+            for (k, s) in g.joints.iter().enumerate() {
+                q[s.index] = sol[k];
+            }
+        }
+        // The base high enough that the soles touch z = 0.
+        let up = self.robot_frame.col(2) * drop;
+        let lowest = self
+            .legs
+            .iter()
+            .flat_map(|g| {
+                g.corners
+                    .map(|c| (self.base_rest * (g.ankle + up + g.foot_rot * c)).z)
+            })
+            .fold(f64::INFINITY, f64::min);
+        self.stance = q;
+        self.stance_base = DVec3::new(0.0, 0.0, -lowest);
+    }
+
+    /// The model-frame placement (for [`Robot::forward`]) that puts the base at `pos`, `rot`.
+    #[must_use]
+    pub fn model_placement(&self, pos: DVec3, rot: DQuat) -> (DVec3, DQuat) {
+        let model_rot = rot * self.base_rest.inverse();
+        (pos - model_rot * self.base_rest_pos, model_rot)
+    }
+
+    /// Retargets one human pose (`pose` from [`fk64`] of the frame) taken `dt` seconds after the
+    /// previous one, into `out`.
+    pub fn step(&mut self, robot: &Robot, pose: &Pose64, dt: f64, out: &mut RetargetFrame) {
+        let h = self.map.human;
+        out.clamps = 0;
+        out.out_of_reach = 0;
+        let rel = pose.world[h.pelvis] * self.human_rest_world[REST_PELVIS].transpose();
+        let pelvis = rel * self.human_frame;
+        // Human world vector → base coordinates (pelvis frame to pelvis frame).
+        let to_base = self.robot_frame * pelvis.transpose();
+        let mut q = if self.options.upper_body {
+            self.stance
+        } else {
+            [0.0; MAX_ROBOT_JOINTS]
+        };
+
+        // Arms.
+        for side in 0..2 {
+            let (Some(g), Some(bones)) = (self.arms[side], h.arms[side]) else {
+                continue;
+            };
+            let upper = to_base * (pose.tip[bones[0]] - pose.start[bones[0]]);
+            let fore = to_base * (pose.tip[bones[1]] - pose.start[bones[1]]);
+            let sol = self.solve_arm(side, &g, upper, fore, &mut out.clamps);
+            for (k, s) in g.joints.iter().enumerate() {
+                q[s.index] = sol[k];
+            }
+        }
+        // Head.
+        if let (Some(g), Some(b)) = (self.head, h.head) {
+            let rel_head = pose.world[b] * self.human_rest_world[REST_HEAD].transpose();
+            let face = to_base * (rel_head * self.human_frame.col(0));
+            let c = angles_about_two(g.joints[0].axis, g.joints[1].axis, g.forward, face);
+            let pick = |(a, b): (f64, f64)| a.abs() + b.abs();
+            let (pan, tilt) = if pick(c[0]) <= pick(c[1]) { c[0] } else { c[1] };
+            let (pan, c1) = g.joints[0].limit(pan, 0.0);
+            let (tilt, c2) = g.joints[1].limit(tilt, 0.0);
+            out.clamps += u32::from(c1) + u32::from(c2);
+            q[g.joints[0].index] = pan;
+            q[g.joints[1].index] = tilt;
+        }
+
+        // Pelvis and legs.
+        let (base_pos, base_rot) = if self.options.upper_body {
+            out.planted = [true; 2];
+            (self.stance_base, self.base_rest)
+        } else {
+            self.whole_body(robot, pose, pelvis, dt, &mut q, out)
+        };
+        out.q = q;
+        out.base_pos = base_pos;
+        out.base_rot = base_rot;
+        self.measure(robot, pose, to_base, out);
+    }
+
+    /// A human point (file units, the capture's world) in the robot's world: turned, scaled by
+    /// the leg ratio, the human floor onto z = 0.
+    #[must_use]
+    pub fn human_point_in_world(&self, p: DVec3) -> DVec3 {
+        self.to_world(p)
+    }
+
+    /// Human world point → robot world point (metres; the human floor onto z = 0 at the ankle).
+    fn to_world(&self, p: DVec3) -> DVec3 {
+        let up_h = self.human_frame.col(2);
+        let floor = 0.5 * (self.floor.ankle[0] + self.floor.ankle[1]);
+        let v = (p - up_h * floor) * self.units * self.leg_scale;
+        self.world * v + DVec3::new(0.0, 0.0, self.flat_ankle_height(0))
+    }
+
+    #[allow(clippy::too_many_lines)]
+    fn whole_body(
+        &mut self,
+        robot: &Robot,
+        pose: &Pose64,
+        pelvis: DMat3,
+        dt: f64,
+        q: &mut [f64; MAX_ROBOT_JOINTS],
+        out: &mut RetargetFrame,
+    ) -> (DVec3, DQuat) {
+        let h = self.map.human;
+        let up_h = self.human_frame.col(2);
+        // Base orientation: the human pelvis's turn, seen in the robot's world.
+        let base_world = self.world * pelvis * self.robot_frame.transpose();
+        let base_rot = DQuat::from_mat3(&base_world).normalize();
+        let hips_h = 0.5 * (pose.start[h.legs[0][0]] + pose.start[h.legs[1][0]]);
+        let mut base_pos = self.to_world(hips_h) - base_rot * self.hip_mid;
+
+        // Feet: targets in the world, stance, locks.
+        let mut ankle = [DVec3::ZERO; 2];
+        let mut foot_rot = [DQuat::IDENTITY; 2];
+        for side in 0..2 {
+            let [_, shin, foot] = h.legs[side];
+            let a_h = pose.tip[shin];
+            let toe_h = pose.tip[foot];
+            let height = ((a_h.dot(up_h) - self.floor.ankle[side])
+                .min(toe_h.dot(up_h) - self.floor.toe[side]))
+                * self.units;
+            let mut st = self.feet[side];
+            let speed = match st.previous {
+                Some(p) if dt > 0.0 => {
+                    let d = (a_h - p) * self.units;
+                    (d - up_h * d.dot(up_h)).length() / dt
+                }
+                _ => 0.0,
+            };
+            st.previous = Some(a_h);
+            let was = st.planted;
+            st.planted = if was {
+                !(height > RELEASE_HEIGHT_M || speed > RELEASE_SPEED_M_S)
+            } else {
+                height < PLANT_HEIGHT_M && speed < PLANT_SPEED_M_S
+            };
+            let rel_foot = pose.world[foot] * self.human_rest_world[REST_FEET + side].transpose();
+            let g = self.legs[side];
+            let rest_foot = self.base_rest * g.foot_rot;
+            let turn = DQuat::from_mat3(&(self.world * rel_foot * self.world.transpose())).normalize();
+            let swing_rot = turn * rest_foot;
+            let mapped = self.to_world(a_h);
+            let (target, rot) = if st.planted {
+                let (p, yaw) = match st.lock {
+                    Some(l) if was => l,
+                    _ => {
+                        let yaw = heading(turn);
+                        let mut p = mapped;
+                        p.z = self.flat_ankle_height(side);
+                        st.lock = Some((p, yaw));
+                        st.release = None;
+                        (p, yaw)
+                    }
+                };
+                (p, DQuat::from_rotation_z(yaw) * rest_foot)
+            } else {
+                if was {
+                    if let Some((p, _)) = st.lock.take() {
+                        st.release = Some((p - mapped, 0.0, 0.0));
+                    }
+                }
+                let mut p = mapped;
+                if let Some((offset, t, _)) = &mut st.release {
+                    *t += dt;
+                    let w = 1.0 - smoothstep(*t / RELEASE_S);
+                    p += *offset * w;
+                    if *t >= RELEASE_S {
+                        st.release = None;
+                    }
+                }
+                (p, swing_rot)
+            };
+            // Never below the floor.
+            let lowest = g
+                .corners
+                .iter()
+                .map(|c| (rot * *c).z)
+                .fold(f64::INFINITY, f64::min);
+            let mut target = target;
+            if target.z + lowest < 0.0 {
+                target.z = -lowest;
+            }
+            ankle[side] = target;
+            foot_rot[side] = rot;
+            out.planted[side] = st.planted;
+            self.feet[side] = st;
+        }
+
+        // Reach: lower the pelvis until both ankles are within reach.
+        for side in 0..2 {
+            let g = &self.legs[side];
+            let hip = base_pos + base_rot * g.hip;
+            let d = ankle[side] - hip;
+            let max = 0.995 * g.reach;
+            if d.length() > max {
+                out.out_of_reach += 1;
+                let horizontal = DVec2::new(d.x, d.y).length().min(max);
+                let dz = libm::sqrt(max * max - horizontal * horizontal);
+                base_pos.z -= hip.z - (ankle[side].z + dz);
+            }
+        }
+
+        // Balance: move the pelvis over the support polygon.
+        let planted = [self.feet[0].planted, self.feet[1].planted];
+        let mut shift = DVec2::ZERO;
+        if self.options.balance && (planted[0] || planted[1]) {
+            for _ in 0..4 {
+                let p = base_pos + DVec3::new(shift.x, shift.y, 0.0);
+                self.solve_legs(base_rot, p, &ankle, &foot_rot, q, &mut 0);
+                let (mp, mr) = self.model_placement(p, base_rot);
+                robot.forward(mp, mr, q, &mut self.pose);
+                let com = robot.centre_of_mass(&self.pose);
+                let (margin, inside) = self.support(&ankle, &foot_rot, planted, DVec2::new(com.x, com.y));
+                if margin >= BALANCE_MARGIN_M {
+                    break;
+                }
+                shift += inside - DVec2::new(com.x, com.y);
+            }
+        }
+        // The shift changes at a bounded speed.
+        let step = BALANCE_SPEED_M_S * dt.max(0.0);
+        let first = self.feet.iter().all(|f| f.previous.is_none());
+        let d = shift - self.shift;
+        self.shift = if first || d.length() <= step || dt <= 0.0 {
+            shift
+        } else {
+            self.shift + d * (step / d.length())
+        };
+        base_pos += DVec3::new(self.shift.x, self.shift.y, 0.0);
+        self.solve_legs(base_rot, base_pos, &ankle, &foot_rot, q, &mut out.clamps);
+        (base_pos, base_rot)
+    }
+
+    /// Ankle height (world z) with the sole flat on the floor.
+    fn flat_ankle_height(&self, side: usize) -> f64 {
+        let g = &self.legs[side];
+        -g.corners
+            .iter()
+            .map(|c| (self.base_rest * g.foot_rot * *c).z)
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Signed distance of `p` inside the support polygon of the planted feet, and the point
+    /// [`BALANCE_MARGIN_M`] inside the polygon nearest `p`.
+    fn support(&self, ankle: &[DVec3; 2], rot: &[DQuat; 2], planted: [bool; 2], p: DVec2) -> (f64, DVec2) {
+        let mut pts = heapless::Vec::<DVec2, 8>::new();
+        for side in 0..2 {
+            if planted[side] {
+                let g = &self.legs[side];
+                for c in g.corners {
+                    let w = ankle[side] + rot[side] * c;
+                    let _ = pts.push(DVec2::new(w.x, w.y));
+                }
+            }
+        }
+        let hull = convex_hull(&pts);
+        polygon_margin(&hull, p, BALANCE_MARGIN_M)
+    }
+
+    fn solve_legs(
+        &self,
+        base_rot: DQuat,
+        base_pos: DVec3,
+        ankle: &[DVec3; 2],
+        foot_rot: &[DQuat; 2],
+        q: &mut [f64; MAX_ROBOT_JOINTS],
+        clamps: &mut u32,
+    ) {
+        let inv = base_rot.inverse();
+        for side in 0..2 {
+            let g = self.legs[side];
+            // The foot body's target orientation and the ankle, in the base frame.
+            let a = inv * (ankle[side] - base_pos);
+            let sol = self.solve_leg(side, inv * foot_rot[side], a, clamps);
+            for (k, s) in g.joints.iter().enumerate() {
+                q[s.index] = sol[k];
+            }
+        }
+    }
+
+    /// The closed-form leg: foot body orientation `rot` and ankle centre `ankle`, both in the
+    /// base frame.
+    fn solve_leg(&self, side: usize, rot: DQuat, ankle: DVec3, clamps: &mut u32) -> [f64; 6] {
+        let g = &self.legs[side];
+        let s = &g.joints;
+        // g = e1·…·e6 as a rigid motion: rotation rg, and the ankle centre carried to `ankle`.
+        let rg = rot * g.foot_rot.inverse();
+        let delta = (ankle - g.hip).length();
+        // Knee (subproblem 3).
+        let k = s[3];
+        let v = g.ankle - k.point;
+        let w = g.hip - k.point;
+        let (v_par, w_par) = (k.axis.dot(v), k.axis.dot(w));
+        let (vp, wp) = (v - k.axis * v_par, w - k.axis * w_par);
+        let c = (vp.length_squared() + wp.length_squared() + (v_par - w_par) * (v_par - w_par)
+            - delta * delta)
+            / (2.0 * vp.length() * wp.length());
+        let theta0 = angle_about(k.axis, wp, vp);
+        let bend = libm::acos(c.clamp(-1.0, 1.0));
+        let cand = [wrap(bend - theta0), wrap(-bend - theta0)];
+        let q4 = if cand[0] * g.knee_sign >= cand[1] * g.knee_sign {
+            cand[0]
+        } else {
+            cand[1]
+        };
+        // Ankle (subproblem 2): e5·e6·(g⁻¹·hip) = e4⁻¹·hip.
+        let p = rg.inverse() * (g.hip - ankle) + g.ankle;
+        let target = k.apply(-q4, g.hip);
+        let (a5, a6) = (s[4], s[5]);
+        let c56 = angles_about_two(a5.axis, a6.axis, p - g.ankle, target - g.ankle);
+        let small = |(a, b): (f64, f64)| a.abs() + b.abs();
+        let (q5, q6) = if small(c56[0]) <= small(c56[1]) {
+            c56[0]
+        } else {
+            c56[1]
+        };
+        // Hip: e1·e2·e3 = rg·(e4·e5·e6)⁻¹.
+        let r456 = k.rot(q4) * a5.rot(q5) * a6.rot(q6);
+        let r_hip = rg * r456.inverse();
+        let (a1, a2, a3) = (s[0], s[1], s[2]);
+        let c12 = angles_about_two(a1.axis, a2.axis, a3.axis, r_hip * a3.axis);
+        let probe = a3.axis.any_orthonormal_vector();
+        let mut best = ([0.0; 3], f64::INFINITY);
+        for (q1, q2) in c12 {
+            let r12 = a1.rot(q1) * a2.rot(q2);
+            let q3 = angle_about(a3.axis, probe, r12.inverse() * r_hip * probe);
+            let cost = q1.abs() + q2.abs() + q3.abs();
+            if cost < best.1 {
+                best = ([q1, q2, q3], cost);
+            }
+        }
+        let raw = [best.0[0], best.0[1], best.0[2], q4, q5, q6];
+        let mut out = [0.0; 6];
+        for k in 0..6 {
+            let (v, clamped) = s[k].limit(raw[k], 0.0);
+            out[k] = v;
+            *clamps += u32::from(clamped);
+        }
+        out
+    }
+
+    /// The arm: of the shoulder's two closed-form solutions for the upper arm's direction
+    /// (subproblem 2, the elbow by subproblem 1) and the previous frame's angles, each refined
+    /// by Levenberg–Marquardt on both segments' directions within the limits ([`refine_arm`]);
+    /// the best is taken, the previous branch kept unless another is better by
+    /// [`BRANCH_HYSTERESIS`].
+    fn solve_arm(
+        &mut self,
+        side: usize,
+        g: &ArmGeometry,
+        upper: DVec3,
+        fore: DVec3,
+        clamps: &mut u32,
+    ) -> [f64; 3] {
+        let [s1, s2, s3] = g.joints;
+        let (upper, fore) = (upper.normalize_or_zero(), fore.normalize_or_zero());
+        let prev = self.arm_prev[side];
+        let reference = prev.unwrap_or([0.0; 3]);
+        let mut starts = [[0.0; 3]; 3];
+        for (k, (q1, q2)) in angles_about_two(s1.axis, s2.axis, g.upper, upper)
+            .into_iter()
+            .enumerate()
+        {
+            let r12 = s1.rot(q1) * s2.rot(q2);
+            let q3 = angle_about(r12 * s3.axis, r12 * g.fore, fore);
+            starts[k] = [q1, q2, q3];
+        }
+        starts[2] = reference;
+        let count = if prev.is_some() { 3 } else { 2 };
+        let mut best: Option<([f64; 3], f64)> = None;
+        let mut from_prev = None;
+        for (k, start) in starts.iter().take(count).enumerate() {
+            let start = [
+                s1.limit(start[0], reference[0]).0,
+                s2.limit(start[1], reference[1]).0,
+                s3.limit(start[2], reference[2]).0,
+            ];
+            let (q, cost) = refine_arm(g, start, upper, fore);
+            let error = libm::sqrt(cost);
+            if k == 2 {
+                from_prev = Some((q, error));
+            }
+            if best.is_none_or(|(_, e)| error < e) {
+                best = Some((q, error));
+            }
+        }
+        let (mut q, error) = best.unwrap_or((reference, 0.0));
+        if let Some((qp, ep)) = from_prev {
+            if ep <= error + BRANCH_HYSTERESIS {
+                q = qp;
+            }
+        }
+        for (k, s) in g.joints.iter().enumerate() {
+            if s.range
+                .is_some_and(|(lo, hi)| q[k] <= lo + 1e-9 || q[k] >= hi - 1e-9)
+            {
+                *clamps += 1;
+            }
+        }
+        self.arm_prev[side] = Some(q);
+        q
+    }
+
+    /// Direction errors per limb, the soles, the centre of mass and its margin.
+    fn measure(&mut self, robot: &Robot, pose: &Pose64, to_base: DMat3, out: &mut RetargetFrame) {
+        let h = self.map.human;
+        let (mp, mr) = self.model_placement(out.base_pos, out.base_rot);
+        robot.forward(mp, mr, &out.q, &mut self.pose);
+        let inv = out.base_rot.inverse();
+        let base = |p: DVec3| inv * (p - out.base_pos);
+        let human = |b: usize| to_base * (pose.tip[b] - pose.start[b]);
+        let mut errs = [(0.0, 0.0, 0u32); 5];
+        let mut add = |limb: usize, a: DVec3, b: DVec3| {
+            let e = angle_between(a, b).to_degrees();
+            errs[limb].0 = f64::max(errs[limb].0, e);
+            errs[limb].1 += e * e;
+            errs[limb].2 += 1;
+        };
+        for side in 0..2 {
+            if let (Some(g), Some(bones), Some(chain)) = (self.arms[side], h.arms[side], self.map.arms[side])
+            {
+                let at = |k: usize| {
+                    let j = &robot.joints()[g.joints[k].index];
+                    base(self.pose.pos[j.body] + self.pose.rot[j.body] * j.anchor)
+                };
+                let elbow = &robot.joints()[chain.joints[2]];
+                let eb = elbow.body;
+                let tip = base(self.pose.pos[eb] + self.pose.rot[eb] * chain.tip);
+                let axis = inv * (self.pose.rot[eb] * elbow.axis);
+                let fore = tip - at(2);
+                add(side, at(2) - at(1), human(bones[0]));
+                add(side, fore - axis * axis.dot(fore), human(bones[1]));
+            }
+            let g = &self.legs[side];
+            let [thigh, shin, _] = h.legs[side];
+            let chain = &self.map.legs[side];
+            let body = |k: usize| robot.joints()[chain.joints[k]].body;
+            // Hip centre (fixed in the base), knee and ankle centres through their bodies.
+            // A point given where it sits at the zero pose (base coordinates), carried by body k.
+            let point = |k: usize, p_rest: DVec3| -> DVec3 {
+                let b = body(k);
+                base(self.pose.pos[b] + self.pose.rot[b] * self.body_local(b, p_rest))
+            };
+            let knee = point(3, g.knee);
+            let ankle = point(5, g.ankle);
+            add(2 + side, knee - g.hip, human(thigh));
+            add(2 + side, ankle - knee, human(shin));
+            let fb = body(5);
+            let sole = self.pose.pos[fb]
+                + self.pose.rot[fb] * self.body_local(fb, g.ankle + g.foot_rot * g.sole_from_ankle);
+            out.sole[side] = sole;
+        }
+        if let (Some(g), Some(b)) = (self.head, h.head) {
+            let rel_head = pose.world[b] * self.human_rest_world[REST_HEAD].transpose();
+            let face = to_base * (rel_head * self.human_frame.col(0));
+            let tilt_body = robot.joints()[g.joints[1].index].body;
+            let fwd = inv
+                * (self.pose.rot[tilt_body]
+                    * (self.rest.rot[tilt_body].inverse() * (self.base_rest * g.forward)));
+            add(4, fwd, face);
+        }
+        for (k, (max, sq, n)) in errs.iter().enumerate() {
+            out.limb_error_deg[k] = if *n > 0 { *max } else { f64::NAN };
+            out.limb_error_sq[k] = (*sq, *n);
+        }
+        out.com = robot.centre_of_mass(&self.pose);
+        let mut ankles = [DVec3::ZERO; 2];
+        let mut rots = [DQuat::IDENTITY; 2];
+        for side in 0..2 {
+            let fb = robot.joints()[self.map.legs[side].joints[5]].body;
+            let g = &self.legs[side];
+            ankles[side] = self.pose.pos[fb] + self.pose.rot[fb] * self.body_local(fb, g.ankle);
+            rots[side] = self.pose.rot[fb];
+        }
+        out.lowest_sole = (0..2)
+            .flat_map(|side| self.legs[side].corners.map(|c| (ankles[side] + rots[side] * c).z))
+            .fold(f64::INFINITY, f64::min);
+        out.com_margin = if out.planted.iter().any(|p| *p) {
+            // Soles from the actual pose (the corners relative to the ankle in the foot body).
+            let mut pts = heapless::Vec::<DVec2, 8>::new();
+            for side in 0..2 {
+                if out.planted[side] {
+                    for c in self.legs[side].corners {
+                        let w = ankles[side] + rots[side] * c;
+                        let _ = pts.push(DVec2::new(w.x, w.y));
+                    }
+                }
+            }
+            polygon_margin(&convex_hull(&pts), DVec2::new(out.com.x, out.com.y), 0.0).0
+        } else {
+            f64::NAN
+        };
+    }
+
+    /// A point given in base coordinates at the zero pose, in body `b`'s own frame.
+    fn body_local(&self, b: usize, p_base: DVec3) -> DVec3 {
+        self.rest.rot[b].inverse() * (self.base_rest_pos + self.base_rest * p_base - self.rest.pos[b])
+    }
+}
+
+/// Weight pulling an arm's angles towards zero where the directions leave them free (a
+/// straight arm's twist), rad⁻².
+const ARM_REGULARISATION: f64 = 1e-4;
+
+/// Squared direction error of an arm at `q` (unit targets), with the regularisation.
+fn arm_cost(g: &ArmGeometry, q: [f64; 3], upper: DVec3, fore: DVec3) -> f64 {
+    let [s1, s2, s3] = g.joints;
+    let r12 = s1.rot(q[0]) * s2.rot(q[1]);
+    let u = r12 * g.upper;
+    let f = r12 * s3.rot(q[2]) * g.fore;
+    (u - upper).length_squared()
+        + (f - fore).length_squared()
+        + ARM_REGULARISATION * (q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+}
+
+/// Levenberg–Marquardt on an arm's two segment directions (six residuals, three angles),
+/// each step clamped into the joint limits; returns the angles and the cost.
+fn refine_arm(g: &ArmGeometry, start: [f64; 3], upper: DVec3, fore: DVec3) -> ([f64; 3], f64) {
+    let [s1, s2, s3] = g.joints;
+    let clamp = |q: [f64; 3]| -> [f64; 3] {
+        let c = |s: &Screw, v: f64| match s.range {
+            Some((lo, hi)) => v.clamp(lo, hi),
+            None => v,
+        };
+        [c(&s1, q[0]), c(&s2, q[1]), c(&s3, q[2])]
+    };
+    let mut q = clamp(start);
+    let mut cost = arm_cost(g, q, upper, fore);
+    let mut lambda = 1e-3;
+    for _ in 0..30 {
+        let r1 = s1.rot(q[0]);
+        let r12 = r1 * s2.rot(q[1]);
+        let u = r12 * g.upper;
+        let f = r12 * s3.rot(q[2]) * g.fore;
+        let a1 = s1.axis;
+        let a2 = r1 * s2.axis;
+        let a3 = r12 * s3.axis;
+        // Residuals and their derivatives (a turn about axis a moves v by a × v).
+        let (ru, rf) = (u - upper, f - fore);
+        let ju = [a1.cross(u), a2.cross(u), DVec3::ZERO];
+        let jf = [a1.cross(f), a2.cross(f), a3.cross(f)];
+        let mut jtj = DMat3::ZERO;
+        let mut jtr = DVec3::ZERO;
+        for i in 0..3 {
+            for k in 0..3 {
+                let v = ju[i].dot(ju[k]) + jf[i].dot(jf[k]) + if i == k { ARM_REGULARISATION } else { 0.0 };
+                let mut col = jtj.col(k);
+                col[i] = v;
+                *jtj.col_mut(k) = col;
+            }
+            jtr[i] = ju[i].dot(ru) + jf[i].dot(rf) + ARM_REGULARISATION * q[i];
+        }
+        let mut improved = false;
+        for _ in 0..6 {
+            let damped = jtj
+                + DMat3::from_diagonal(
+                    DVec3::new(jtj.x_axis.x, jtj.y_axis.y, jtj.z_axis.z) * lambda + DVec3::splat(1e-12),
+                );
+            if damped.determinant().abs() < 1e-18 {
+                break;
+            }
+            let dq = -(damped.inverse() * jtr);
+            let trial = clamp([q[0] + dq.x, q[1] + dq.y, q[2] + dq.z]);
+            let c = arm_cost(g, trial, upper, fore);
+            if c < cost {
+                let gain = cost - c;
+                q = trial;
+                cost = c;
+                lambda = (lambda * 0.3).max(1e-9);
+                improved = gain > 1e-14;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    (q, cost)
+}
+
+/// The heading (yaw about world z) of a rotation's x axis.
+fn heading(r: DQuat) -> f64 {
+    let x = r * DVec3::X;
+    libm::atan2(x.y, x.x)
+}
+
+fn smoothstep(t: f64) -> f64 {
+    let t = t.clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// Orthonormal (forward, left, up) from a left vector and a rough up vector. Up is snapped to
+/// the nearest coordinate axis (captures and models are made with an axis up; a rest pose that
+/// leans a little must not tilt the floor); left is made square to it.
+fn frame_from(left: DVec3, up: DVec3) -> Option<DMat3> {
+    let up = snap_axis(up.try_normalize()?);
+    let left = (left - up * up.dot(left)).try_normalize()?;
+    let forward = left.cross(up);
+    Some(DMat3::from_cols(forward, left, up))
+}
+
+/// The signed coordinate axis nearest a unit vector.
+fn snap_axis(v: DVec3) -> DVec3 {
+    let a = v.abs();
+    if a.x >= a.y && a.x >= a.z {
+        DVec3::X * v.x.signum()
+    } else if a.y >= a.z {
+        DVec3::Y * v.y.signum()
+    } else {
+        DVec3::Z * v.z.signum()
+    }
+}
+
+/// Checks that `joints` lie one below another on one branch below `base`.
+fn check_chain(
+    robot: &Robot,
+    base: usize,
+    joints: &[usize],
+    what: &'static str,
+) -> Result<(), RetargetError> {
+    let body = |j: usize| robot.joints()[j].body;
+    let descends = |mut b: usize, from: usize| loop {
+        if b == from {
+            return true;
+        }
+        match robot.bodies()[b].parent {
+            Some(p) => b = p,
+            None => return false,
+        }
+    };
+    let mut above = base;
+    for &j in joints {
+        let b = body(j);
+        if b == above || !descends(b, above) {
+            return Err(RetargetError::NotAChain(what));
+        }
+        above = b;
+    }
+    Ok(())
+}
+
+/// Convex hull (counter-clockwise) of up to eight points.
+fn convex_hull(points: &[DVec2]) -> heapless::Vec<DVec2, 8> {
+    let mut pts: heapless::Vec<DVec2, 8> = points.iter().copied().collect();
+    pts.sort_unstable_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
+    let mut hull = heapless::Vec::<DVec2, 16>::new();
+    let cross = |o: DVec2, a: DVec2, b: DVec2| (a - o).perp_dot(b - o);
+    for p in pts.iter() {
+        while hull.len() >= 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], *p) <= 0.0 {
+            hull.pop();
+        }
+        let _ = hull.push(*p);
+    }
+    let lower = hull.len() + 1;
+    for p in pts.iter().rev().skip(1) {
+        while hull.len() >= lower && cross(hull[hull.len() - 2], hull[hull.len() - 1], *p) <= 0.0 {
+            hull.pop();
+        }
+        let _ = hull.push(*p);
+    }
+    hull.pop();
+    hull.iter().copied().take(8).collect()
+}
+
+/// Signed distance of `p` inside a convex counter-clockwise polygon (negative outside), and
+/// the point nearest `p` that lies at least `margin` inside (the centroid when the polygon is
+/// thinner than that).
+fn polygon_margin(poly: &[DVec2], p: DVec2, margin: f64) -> (f64, DVec2) {
+    let n = poly.len();
+    if n < 3 {
+        return (f64::NAN, p);
+    }
+    let mut dist = f64::INFINITY;
+    for i in 0..n {
+        let (a, b) = (poly[i], poly[(i + 1) % n]);
+        let e = (b - a).normalize_or_zero();
+        let inward = e.perp();
+        dist = dist.min((p - a).dot(inward));
+    }
+    if dist >= margin {
+        return (dist, p);
+    }
+    // Project onto the polygon shrunk by `margin`: clip p towards the centroid until inside.
+    let centroid = poly.iter().copied().sum::<DVec2>() / n as f64;
+    let mut lo = 0.0;
+    let mut hi = 1.0;
+    let inside = |x: DVec2| {
+        (0..n).all(|i| {
+            let (a, b) = (poly[i], poly[(i + 1) % n]);
+            (x - a).dot((b - a).normalize_or_zero().perp()) >= margin
+        })
+    };
+    if !inside(centroid) {
+        return (dist, centroid);
+    }
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if inside(p + (centroid - p) * mid) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    (dist, p + (centroid - p) * hi)
+}
+
+/// The human's up direction: the coordinate axis nearest the rest pose's pelvis-to-head (or
+/// shoulders) direction.
+#[must_use]
+pub fn human_up(skeleton: &Skeleton, human: &HumanBones) -> DVec3 {
+    let mut rest = Pose64::default();
+    fk64(skeleton, &[], &mut rest);
+    let hips = [rest.start[human.legs[0][0]], rest.start[human.legs[1][0]]];
+    let top = match (human.head, human.arms[0]) {
+        (Some(b), _) | (None, Some([b, _])) => rest.start[b],
+        _ => rest.start[human.pelvis] + DVec3::Y,
+    };
+    frame_from(hips[0] - hips[1], top - 0.5 * (hips[0] + hips[1])).map_or(DVec3::Y, |f| f.col(2))
+}
+
+/// The human floor from the rest pose alone (for live streams): the ankle and toe heights of
+/// the rest pose (the rest pose stands on the floor).
+#[must_use]
+pub fn floor_of_rest(skeleton: &Skeleton, human: &HumanBones) -> Floor {
+    let mut rest = Pose64::default();
+    fk64(skeleton, &[], &mut rest);
+    let up = human_up(skeleton, human);
+    Floor {
+        ankle: human.legs.map(|l| rest.tip[l[1]].dot(up)),
+        toe: human.legs.map(|l| rest.tip[l[2]].dot(up)),
+    }
+}

@@ -1,0 +1,200 @@
+//! `marionette retarget`: a clip (ASF + AMC, or BVH) onto a robot through the profile's retarget
+//! map: the joint trajectory as CSV, a report (printed; `--report` as JSON), a picture.
+
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use super::args::{extension, BvhUnit};
+use super::error::CliError;
+use crate::formats::{amc, asf, bvh, FileError};
+use crate::motion::Motion;
+use crate::profile::Profile;
+use crate::retarget::{retarget_clip, write_csv, ClipRetarget, Options, RetargetReport, Setup};
+use crate::skeleton::Skeleton;
+
+/// The command's settings.
+pub struct RetargetArgs<'a> {
+    pub profile: &'a Path,
+    pub skeleton: &'a Path,
+    pub amc: Option<&'a Path>,
+    pub output: &'a Path,
+    pub report: Option<PathBuf>,
+    pub plot: Option<PathBuf>,
+    pub upper_body: bool,
+    pub balance: bool,
+    pub fps: f64,
+    pub bvh_unit: BvhUnit,
+}
+
+/// Reads a skeleton and its clip: `.bvh` alone, or `.asf` with an `.amc` at `fps`.
+pub(super) fn load_clip(
+    skeleton: &Path,
+    amc_path: Option<&Path>,
+    fps: f64,
+    unit: BvhUnit,
+) -> Result<(Skeleton, Motion), CliError> {
+    if extension(skeleton) == "bvh" {
+        if amc_path.is_some() {
+            return Err(CliError::Usage(
+                "a BVH file holds its own motion: give no AMC".into(),
+            ));
+        }
+        let (a, m) = bvh::load(skeleton, unit.inches())?;
+        return Ok((a.skeleton, m));
+    }
+    let Some(amc_path) = amc_path else {
+        return Err(CliError::Usage(
+            "give the clip: SKELETON.asf CLIP.amc, or one .bvh file".into(),
+        ));
+    };
+    let a = asf::load(skeleton)?;
+    let mut m = amc::load(&a.skeleton, amc_path)?;
+    m.frame_rate = fps;
+    Ok((a.skeleton, m))
+}
+
+/// `marionette retarget`.
+///
+/// # Errors
+/// [`CliError`].
+pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
+    if !(args.fps.is_finite() && args.fps > 0.0) {
+        return Err(CliError::Usage(format!(
+            "--fps must be a positive number, got {}",
+            args.fps
+        )));
+    }
+    if let Some(p) = &args.plot {
+        crate::plot::Format::of(p)?;
+    }
+    let profile = Profile::load(args.profile)?;
+    let (skeleton, motion) = load_clip(args.skeleton, args.amc, args.fps, args.bvh_unit)?;
+    let setup = Setup::new(&profile, &skeleton)?;
+    let options = Options {
+        upper_body: args.upper_body,
+        balance: args.balance,
+    };
+    let run = retarget_clip(&setup, &skeleton, &motion, options);
+    let names = setup.joint_names();
+    let file = std::fs::File::create(args.output).map_err(|source| FileError::Io {
+        path: args.output.to_path_buf(),
+        source,
+    })?;
+    let mut w = BufWriter::new(file);
+    write_csv(&mut w, &names, &run)
+        .and_then(|()| w.flush())
+        .map_err(|source| FileError::Io {
+            path: args.output.to_path_buf(),
+            source,
+        })?;
+    if let Some(path) = &args.report {
+        let text = serde_json::to_string_pretty(&run.report).map_err(|e| CliError::Usage(e.to_string()))?;
+        std::fs::write(path, text + "\n").map_err(|source| FileError::Io {
+            path: path.clone(),
+            source,
+        })?;
+    }
+    if let Some(path) = &args.plot {
+        let picture = crate::retarget::plot::RetargetPicture {
+            title: format!(
+                "{} → {}",
+                args.amc.unwrap_or(args.skeleton).display(),
+                profile.name
+            ),
+            skeleton: &skeleton,
+            motion: &motion,
+            setup: &setup,
+            run: &run,
+        };
+        crate::plot::draw(&picture, (1400, 900), path)?;
+    }
+    writeln!(
+        out,
+        "retarget: {} frames of {} onto {} ({} joints){}",
+        run.report.frames,
+        args.amc.unwrap_or(args.skeleton).display(),
+        profile.name,
+        names.len(),
+        if args.upper_body {
+            ", upper body (legs in a stance)"
+        } else {
+            ""
+        }
+    )?;
+    print_report(&run.report, out)?;
+    writeln!(out, "wrote {}", args.output.display())?;
+    if let Some(p) = &args.report {
+        writeln!(out, "wrote {}", p.display())?;
+    }
+    if let Some(p) = &args.plot {
+        writeln!(out, "wrote {}", p.display())?;
+    }
+    let _ = run_summary(&run);
+    Ok(())
+}
+
+fn run_summary(run: &ClipRetarget) -> usize {
+    run.frames.len()
+}
+
+/// The report as lines of text.
+///
+/// # Errors
+/// Writing failed.
+pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<()> {
+    let e = &r.limb_direction_error_deg;
+    writeln!(
+        out,
+        "  scale: legs {:.3}, arms {:.3} / {:.3} (robot / human)",
+        r.leg_scale, r.arm_scale[0], r.arm_scale[1]
+    )?;
+    writeln!(
+        out,
+        "  direction error (deg, in the pelvis frame)      RMS     max"
+    )?;
+    for (name, v) in [
+        ("left arm", &e.left_arm),
+        ("right arm", &e.right_arm),
+        ("left leg", &e.left_leg),
+        ("right leg", &e.right_leg),
+        ("head", &e.head),
+    ] {
+        if let Some(v) = v {
+            writeln!(out, "    {name:<44}{:>6.2}  {:>6.2}", v.rms, v.max)?;
+        }
+    }
+    writeln!(
+        out,
+        "    {:<44}{:>6.2}  {:>6.2}",
+        "overall", e.overall.rms, e.overall.max
+    )?;
+    writeln!(
+        out,
+        "  feet: planted {:.0} % / {:.0} % of frames, slide at most {:.2} mm, lowest sole {:.2} mm above the floor",
+        100.0 * r.planted_fraction[0],
+        100.0 * r.planted_fraction[1],
+        r.foot_slide_mm.max,
+        r.lowest_sole_mm
+    )?;
+    match r.com_margin_mm.min {
+        Some(m) => writeln!(
+            out,
+            "  balance: centre of mass at least {m:.1} mm inside the support polygon"
+        )?,
+        None => writeln!(out, "  balance: no foot planted")?,
+    }
+    writeln!(
+        out,
+        "  limits: {} joint values held at a limit, {} foot targets out of reach",
+        r.limit_clamps, r.out_of_reach
+    )?;
+    writeln!(
+        out,
+        "  continuity: largest joint step {:.2}° ({} at frame {})",
+        r.continuity.max_joint_step_deg, r.continuity.joint, r.continuity.frame
+    )?;
+    if let Some(fps) = r.frames_per_second {
+        writeln!(out, "  speed: {fps:.0} frames per second")?;
+    }
+    Ok(())
+}
