@@ -310,19 +310,43 @@ pub fn floor_of_clip(skeleton: &Skeleton, motion: &Motion, human: &HumanBones) -
     let mut pose = Pose64::default();
     let mut ankles = [Vec::with_capacity(motion.len()), Vec::with_capacity(motion.len())];
     let mut toes = ankles.clone();
+    let mut pitches = ankles.clone();
     for frame in motion.frames() {
         let ch = frame_to_radians(skeleton, frame);
         fk64(skeleton, &ch, &mut pose);
         for (side, leg) in human.legs.iter().enumerate() {
             ankles[side].push(pose.tip[leg[1]].dot(up));
             toes[side].push(pose.tip[leg[2]].dot(up));
+            pitches[side].push(foot_elevation(&pose, *leg, up));
         }
     }
-    let [mut al, mut ar] = ankles;
-    let [mut tl, mut tr] = toes;
+    let ankle = [
+        percentile(&mut ankles[0].clone(), 0.02),
+        percentile(&mut ankles[1].clone(), 0.02),
+    ];
+    let toe = [
+        percentile(&mut toes[0].clone(), 0.02),
+        percentile(&mut toes[1].clone(), 0.02),
+    ];
+    // The flat foot's pitch: the median over frames with the foot down (both ends low).
+    let units = f64::from(skeleton.units().meters_per_unit());
+    let mut foot_pitch = rest.foot_pitch;
+    for side in 0..2 {
+        let mut down: Vec<f64> = (0..motion.len())
+            .filter(|&i| {
+                (ankles[side][i] - ankle[side]) * units < PLANT_HEIGHT_M
+                    && (toes[side][i] - toe[side]) * units < PLANT_HEIGHT_M
+            })
+            .map(|i| pitches[side][i])
+            .collect();
+        if !down.is_empty() {
+            foot_pitch[side] = percentile(&mut down, 0.5);
+        }
+    }
     Floor {
-        ankle: [percentile(&mut al, 0.02), percentile(&mut ar, 0.02)],
-        toe: [percentile(&mut tl, 0.02), percentile(&mut tr, 0.02)],
+        ankle,
+        toe,
+        foot_pitch,
     }
 }
 
@@ -396,6 +420,10 @@ pub struct RetargetReport {
     pub arm_scale: [f64; 2],
     /// Frames retargeted per second of computer time (with the human's forward kinematics).
     pub frames_per_second: Option<f64>,
+    /// Stretches of at least a second with both feet planted, `[start, end]` seconds (clips
+    /// retargeted whole; empty in a live run).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub standing_s: Vec<[f64; 2]>,
 }
 
 /// The largest value, mm.
@@ -529,6 +557,7 @@ impl ReportBuilder {
             leg_scale: retargeter.leg_scale(),
             arm_scale: retargeter.arm_scale(),
             frames_per_second: fps,
+            standing_s: Vec::new(),
         }
     }
 }
@@ -570,10 +599,32 @@ pub fn retarget_clip(setup: &Setup, skeleton: &Skeleton, motion: &Motion, option
     }
     let fps = (elapsed > 0.0).then(|| frames.len() as f64 / elapsed);
     let names = setup.joint_names();
+    let mut report = report.finish(&r, &names, fps);
+    let mut start = None;
+    for (i, f) in frames.iter().enumerate() {
+        let both = f.planted[0] && f.planted[1];
+        match (both, start) {
+            (true, None) => start = Some(i),
+            (false, Some(s0)) => {
+                if (i - s0) as f64 * dt >= 1.0 {
+                    report.standing_s.push([s0 as f64 * dt, (i - 1) as f64 * dt]);
+                }
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some(s0) = start {
+        if (frames.len() - s0) as f64 * dt >= 1.0 {
+            report
+                .standing_s
+                .push([s0 as f64 * dt, (frames.len() - 1) as f64 * dt]);
+        }
+    }
     ClipRetarget {
         times: (0..frames.len()).map(|i| i as f64 * dt).collect(),
         joints: frames.iter().map(|f| f.q[..n].to_vec()).collect(),
-        report: report.finish(&r, &names, fps),
+        report,
         frames,
     }
 }

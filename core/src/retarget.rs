@@ -43,7 +43,10 @@ pub const SIDES: [&str; 2] = ["left", "right"];
 
 /// Extra error (radians of direction error) the other shoulder branch must save before the
 /// arm switches to it.
-pub const BRANCH_HYSTERESIS: f64 = 0.15;
+pub const BRANCH_HYSTERESIS: f64 = 0.35;
+
+/// The share of a leg's full length (hip to ankle, straight) a foot target may be away.
+pub const REACH_SHARE: f64 = 0.995;
 
 /// Seconds over which a released foot's locked offset fades out.
 pub const RELEASE_S: f64 = 0.25;
@@ -133,6 +136,10 @@ pub struct Floor {
     pub ankle: [f64; 2],
     /// Toe height with the foot down (left, right).
     pub toe: [f64; 2],
+    /// Elevation of the ankle-to-toe line (radians, negative: the toe lower) with the foot flat
+    /// on the floor (left, right): the human foot's arch, which the robot's flat sole does
+    /// not have.
+    pub foot_pitch: [f64; 2],
 }
 
 /// Options of a run.
@@ -420,7 +427,6 @@ pub struct Retargeter {
 /// Rest-pose indices into `human_rest_world`.
 const REST_PELVIS: usize = 0;
 const REST_HEAD: usize = 1;
-const REST_FEET: usize = 2;
 
 impl Retargeter {
     /// Prepares a map for `robot` and `skeleton`, with the human floor `floor` (see
@@ -630,8 +636,7 @@ impl Retargeter {
         if let Some(b) = h.head {
             human_rest_world[REST_HEAD] = rest.world[b];
         }
-        human_rest_world[REST_FEET] = rest.world[h.legs[0][2]];
-        human_rest_world[REST_FEET + 1] = rest.world[h.legs[1][2]];
+
         let mut r = Retargeter {
             map,
             world,
@@ -835,17 +840,25 @@ impl Retargeter {
             } else {
                 height < PLANT_HEIGHT_M && speed < PLANT_SPEED_M_S
             };
-            let rel_foot = pose.world[foot] * self.human_rest_world[REST_FEET + side].transpose();
+            // The foot's heading, its pitch from the flat-foot pitch, its roll — from where its
+            // joints are, in the robot's world.
+            let frame = self.world * foot_frame(pose, h.legs[side]);
+            let (fwd, left) = (frame.col(0), frame.col(1));
+            let yaw_now = libm::atan2(fwd.y, fwd.x);
+            let pitch = libm::asin(fwd.z.clamp(-1.0, 1.0)) - self.floor.foot_pitch[side];
+            let roll = libm::asin(left.z.clamp(-1.0, 1.0));
             let g = self.legs[side];
             let rest_foot = self.base_rest * g.foot_rot;
-            let turn = DQuat::from_mat3(&(self.world * rel_foot * self.world.transpose())).normalize();
-            let swing_rot = turn * rest_foot;
+            let swing_rot = DQuat::from_rotation_z(yaw_now)
+                * DQuat::from_rotation_y(-pitch)
+                * DQuat::from_rotation_x(roll)
+                * rest_foot;
             let mapped = self.to_world(a_h);
             let (target, rot) = if st.planted {
                 let (p, yaw) = match st.lock {
                     Some(l) if was => l,
                     _ => {
-                        let yaw = heading(turn);
+                        let yaw = yaw_now;
                         let mut p = mapped;
                         p.z = self.flat_ankle_height(side);
                         st.lock = Some((p, yaw));
@@ -888,18 +901,7 @@ impl Retargeter {
         }
 
         // Reach: lower the pelvis until both ankles are within reach.
-        for side in 0..2 {
-            let g = &self.legs[side];
-            let hip = base_pos + base_rot * g.hip;
-            let d = ankle[side] - hip;
-            let max = 0.995 * g.reach;
-            if d.length() > max {
-                out.out_of_reach += 1;
-                let horizontal = DVec2::new(d.x, d.y).length().min(max);
-                let dz = libm::sqrt(max * max - horizontal * horizontal);
-                base_pos.z -= hip.z - (ankle[side].z + dz);
-            }
-        }
+        out.out_of_reach += self.lower_to_reach(&mut base_pos, base_rot, &ankle);
 
         // Balance: move the pelvis over the support polygon.
         let planted = [self.feet[0].planted, self.feet[1].planted];
@@ -928,8 +930,29 @@ impl Retargeter {
             self.shift + d * (step / d.length())
         };
         base_pos += DVec3::new(self.shift.x, self.shift.y, 0.0);
+        // The shift may have taken a foot out of reach again.
+        self.lower_to_reach(&mut base_pos, base_rot, &ankle);
         self.solve_legs(base_rot, base_pos, &ankle, &foot_rot, q, &mut out.clamps);
         (base_pos, base_rot)
+    }
+
+    /// Lowers the pelvis until both ankle targets lie within the legs' reach (a little short
+    /// of straight); returns how many were out of reach.
+    fn lower_to_reach(&self, base_pos: &mut DVec3, base_rot: DQuat, ankle: &[DVec3; 2]) -> u32 {
+        let mut count = 0;
+        for side in 0..2 {
+            let g = &self.legs[side];
+            let hip = *base_pos + base_rot * g.hip;
+            let d = ankle[side] - hip;
+            let max = REACH_SHARE * g.reach;
+            if d.length() > max {
+                count += 1;
+                let horizontal = DVec2::new(d.x, d.y).length().min(max);
+                let dz = libm::sqrt(max * max - horizontal * horizontal);
+                base_pos.z -= hip.z - (ankle[side].z + dz);
+            }
+        }
+        count
     }
 
     /// Ankle height (world z) with the sole flat on the floor.
@@ -979,9 +1002,38 @@ impl Retargeter {
         }
     }
 
-    /// The closed-form leg: foot body orientation `rot` and ankle centre `ankle`, both in the
-    /// base frame.
+    /// The leg for foot body orientation `rot` and ankle centre `ankle` (base frame): the
+    /// closed form, then two fixed-point corrections of the target by the ankle's miss (the
+    /// hip axes of a real robot meet only nearly — the OP3's within 0.1 mm).
     fn solve_leg(&self, side: usize, rot: DQuat, ankle: DVec3, clamps: &mut u32) -> [f64; 6] {
+        let g = &self.legs[side];
+        let mut aim = ankle;
+        let mut q = self.solve_leg_closed(side, rot, aim, &mut 0);
+        for _ in 0..2 {
+            let s = &g.joints;
+            let reached = s[0].apply(
+                q[0],
+                s[1].apply(q[1], s[2].apply(q[2], s[3].apply(q[3], g.ankle))),
+            );
+            let miss = ankle - reached;
+            if miss.length() < 1e-9 {
+                break;
+            }
+            aim += miss;
+            q = self.solve_leg_closed(side, rot, aim, &mut 0);
+        }
+        let mut out = [0.0; 6];
+        for k in 0..6 {
+            let (v, clamped) = g.joints[k].limit(q[k], 0.0);
+            out[k] = v;
+            *clamps += u32::from(clamped);
+        }
+        out
+    }
+
+    /// The closed form (see the module's notes), unclamped.
+    fn solve_leg_closed(&self, side: usize, rot: DQuat, ankle: DVec3, clamps: &mut u32) -> [f64; 6] {
+        let _ = clamps;
         let g = &self.legs[side];
         let s = &g.joints;
         // g = e1·…·e6 as a rigid motion: rotation rg, and the ankle centre carried to `ankle`.
@@ -1030,14 +1082,7 @@ impl Retargeter {
                 best = ([q1, q2, q3], cost);
             }
         }
-        let raw = [best.0[0], best.0[1], best.0[2], q4, q5, q6];
-        let mut out = [0.0; 6];
-        for k in 0..6 {
-            let (v, clamped) = s[k].limit(raw[k], 0.0);
-            out[k] = v;
-            *clamps += u32::from(clamped);
-        }
-        out
+        [best.0[0], best.0[1], best.0[2], q4, q5, q6]
     }
 
     /// The arm: of the shoulder's two closed-form solutions for the upper arm's direction
@@ -1199,6 +1244,18 @@ impl Retargeter {
     }
 }
 
+/// A foot's frame from where its joints are (not from its bone's axes, which formats and
+/// tools set differently): forward from the ankle to the toe, left square to it and to the
+/// shin, up completing them.
+fn foot_frame(pose: &Pose64, leg: [usize; 3]) -> DMat3 {
+    let [_, shin, foot] = leg;
+    let forward = (pose.tip[foot] - pose.start[foot]).normalize_or(DVec3::X);
+    let down = pose.tip[shin] - pose.start[shin];
+    let left = forward.cross(down).normalize_or(DVec3::Y);
+    let up = left.cross(forward);
+    DMat3::from_cols(forward, left, up)
+}
+
 /// Weight pulling an arm's angles towards zero where the directions leave them free (a
 /// straight arm's twist), rad⁻².
 const ARM_REGULARISATION: f64 = 1e-4;
@@ -1278,12 +1335,6 @@ fn refine_arm(g: &ArmGeometry, start: [f64; 3], upper: DVec3, fore: DVec3) -> ([
         }
     }
     (q, cost)
-}
-
-/// The heading (yaw about world z) of a rotation's x axis.
-fn heading(r: DQuat) -> f64 {
-    let x = r * DVec3::X;
-    libm::atan2(x.y, x.x)
 }
 
 fn smoothstep(t: f64) -> f64 {
@@ -1430,5 +1481,14 @@ pub fn floor_of_rest(skeleton: &Skeleton, human: &HumanBones) -> Floor {
     Floor {
         ankle: human.legs.map(|l| rest.tip[l[1]].dot(up)),
         toe: human.legs.map(|l| rest.tip[l[2]].dot(up)),
+        foot_pitch: human.legs.map(|l| foot_elevation(&rest, l, up)),
     }
+}
+
+/// Elevation of a foot's ankle-to-toe line above the floor plane (radians), between −60° and 0°
+/// (a rest pose with the foot pointing down says nothing about the arch).
+#[must_use]
+pub fn foot_elevation(pose: &Pose64, leg: [usize; 3], up: DVec3) -> f64 {
+    let f = (pose.tip[leg[2]] - pose.start[leg[2]]).normalize_or_zero();
+    libm::asin(f.dot(up).clamp(-1.0, 1.0)).clamp(-core::f64::consts::FRAC_PI_3, 0.0)
 }

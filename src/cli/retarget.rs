@@ -193,6 +193,14 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
         "  continuity: largest joint step {:.2}° ({} at frame {})",
         r.continuity.max_joint_step_deg, r.continuity.joint, r.continuity.frame
     )?;
+    if !r.standing_s.is_empty() {
+        let list: Vec<String> = r
+            .standing_s
+            .iter()
+            .map(|[a, b]| format!("{a:.2}–{b:.2}"))
+            .collect();
+        writeln!(out, "  standing (both feet planted ≥ 1 s): {} s", list.join(", "))?;
+    }
     if let Some(fps) = r.frames_per_second {
         writeln!(out, "  speed: {fps:.0} frames per second")?;
     }

@@ -103,7 +103,7 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
         // Side by side: the human to the left of the robot, both centred on the robot's base.
         let base = pic.run.frames[i].base_pos;
         let centre = view(base).0;
-        let width = 0.45;
+        let width = 0.34;
         let shift = |p: DVec3, dx: f64| {
             let (x, y) = view(p);
             (x - centre + dx, y)
@@ -114,25 +114,25 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
                 ("sans-serif", 15),
             )
             .margin(6)
-            .build_cartesian_2d(-width..width, -0.05..(2.0 * width - 0.05))?;
+            .build_cartesian_2d(-width..width, -0.03..0.65)?;
         chart.draw_series(std::iter::once(PathElement::new(
             vec![(-width, 0.0), (width, 0.0)],
             RGBColor(160, 160, 160).stroke_width(1),
         )))?;
         chart.draw_series(human.iter().map(|(a, b)| {
             PathElement::new(
-                vec![shift(*a, -0.2), shift(*b, -0.2)],
+                vec![shift(*a, -0.16), shift(*b, -0.16)],
                 RGBColor(40, 90, 200).stroke_width(3),
             )
         }))?;
         chart.draw_series(robot.iter().map(|(a, b)| {
             PathElement::new(
-                vec![shift(*a, 0.2), shift(*b, 0.2)],
+                vec![shift(*a, 0.16), shift(*b, 0.16)],
                 RGBColor(210, 90, 30).stroke_width(3),
             )
         }))?;
         let f = &pic.run.frames[i];
-        let com = shift(DVec3::new(f.com.x, f.com.y, 0.0), 0.2);
+        let com = shift(DVec3::new(f.com.x, f.com.y, 0.0), 0.16);
         chart.draw_series(std::iter::once(Circle::new(com, 4, BLACK.filled())))?;
         chart.draw_series(std::iter::once(Text::new(
             format!(
@@ -140,7 +140,7 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
                 if f.planted[0] { "L" } else { "·" },
                 if f.planted[1] { "R" } else { "·" }
             ),
-            (0.2 - 0.04, 1.9 * width - 0.05),
+            (0.12, 0.6),
             ("sans-serif", 13),
         )))?;
     }
