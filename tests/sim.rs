@@ -428,3 +428,113 @@ fn op3_kinematics_from_mjcf_equal_mujocos() {
     println!("OP3 vs MuJoCo, 200 random configurations: body position {worst_pos:.2e} m, rotation {worst_rot:.2e}, centre of mass {worst_com:.2e} m");
     assert!(worst_pos < 1e-6 && worst_com < 1e-6 && worst_rot < 1e-9);
 }
+
+/// Runs `play` on the OP3 in MuJoCo (lockstep, `scene.xml` with its floor) and returns the
+/// simulator's report and the stats JSON.
+fn op3_on_the_floor(
+    asf_name: &str,
+    amc: &std::path::Path,
+    extra: &[&str],
+) -> (serde_json::Value, serde_json::Value) {
+    let dir = common::tempdir("op3-floor");
+    let (sim_json, stats_json) = (dir.join("sim.json"), dir.join("stats.json"));
+    let out = common::bin()
+        .arg("play")
+        .arg(repo("firmware-profile/robotis-op3.toml"))
+        .arg(common::data(asf_name))
+        .arg(amc)
+        .args(["--bus", "sim", "--model"])
+        .arg(repo("sim/models/robotis_op3/scene.xml"))
+        .args(["-q", "--sim-report"])
+        .arg(&sim_json)
+        .arg("--stats-json")
+        .arg(&stats_json)
+        .args(extra)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let read = |p: &std::path::Path| serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap();
+    let r = (read(&sim_json), read(&stats_json));
+    let _ = std::fs::remove_dir_all(&dir);
+    r
+}
+
+/// Issue 16: `--upper-body` on the floor — the legs in a stance, arms and head retargeted —
+/// keeps the OP3 up through the walk and the playground clip, every joint inside its limits,
+/// and two runs give the same figures.
+#[test]
+fn op3_upper_body_on_the_floor_does_not_fall() {
+    for (a, m) in [("16.asf", "16_15.amc"), ("01.asf", "01_01.amc")] {
+        let (sim, stats) = op3_on_the_floor(a, &common::data(m), &["--upper-body"]);
+        println!(
+            "{m}: torso {} m, tilt {}°, retarget {}",
+            sim["torso_min_height_m"],
+            sim["torso_max_tilt_deg"],
+            stats["retarget"]["limb_direction_error_deg"]
+        );
+        assert_eq!(sim["fell"].as_bool(), Some(false), "{m}: {sim}");
+        assert!(sim["torso_max_tilt_deg"].as_f64().unwrap() <= 15.0, "{m}");
+        assert_eq!(stats["commands_refused"].as_u64(), Some(0));
+        assert_eq!(stats["retarget"]["foot_slide_mm"]["max"].as_f64(), Some(0.0));
+        if m == "16_15.amc" {
+            let (again, stats2) = op3_on_the_floor(a, &common::data(m), &["--upper-body"]);
+            assert_eq!(sim, again, "two runs differ");
+            assert_eq!(stats["retarget"], stats2["retarget"]);
+        }
+    }
+}
+
+/// Issue 16: the whole body on the floor through slow motions — a squat and a weight shift —
+/// without falling, the centre of mass inside the support polygon throughout.
+#[test]
+fn op3_whole_body_squats_and_shifts_its_weight_on_the_floor() {
+    for name in ["squat.amc", "weight_shift.amc"] {
+        let (sim, stats) = op3_on_the_floor("16.asf", &repo("data/generated").join(name), &[]);
+        println!(
+            "{name}: torso {} m, tilt {}°, margin {}",
+            sim["torso_min_height_m"], sim["torso_max_tilt_deg"], stats["retarget"]["com_margin_mm"]
+        );
+        assert_eq!(sim["fell"].as_bool(), Some(false), "{name}: {sim}");
+        assert!(
+            stats["retarget"]["com_margin_mm"]["min"].as_f64().unwrap() >= 0.0,
+            "{name}"
+        );
+    }
+}
+
+/// Issue 16: the standing stretches of the playground clip (both feet planted for a second or
+/// more; `retarget` lists them), whole body on the floor, held at the end: no fall.
+#[test]
+fn op3_whole_body_stands_through_the_standing_stretches() {
+    for (start, length) in [("0", "1.81"), ("11.18", "1.64"), ("18.90", "1.29")] {
+        let (sim, stats) = op3_on_the_floor(
+            "01.asf",
+            &common::data("01_01.amc"),
+            &[
+                "--start",
+                start,
+                "--duration",
+                length,
+                "--on-stop",
+                "hold",
+                "--ramp",
+                "0.01",
+            ],
+        );
+        println!(
+            "01_01 {start}+{length}: torso {} m, tilt {}°, margin {}",
+            sim["torso_min_height_m"], sim["torso_max_tilt_deg"], stats["retarget"]["com_margin_mm"]
+        );
+        assert_eq!(sim["fell"].as_bool(), Some(false), "{start}: {sim}");
+        assert!(
+            stats["retarget"]["com_margin_mm"]["min"].as_f64().unwrap() >= 0.0,
+            "{start}"
+        );
+    }
+}

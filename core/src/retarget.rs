@@ -48,6 +48,10 @@ pub const BRANCH_HYSTERESIS: f64 = 0.35;
 /// The share of a leg's full length (hip to ankle, straight) a foot target may be away.
 pub const REACH_SHARE: f64 = 0.995;
 
+/// Most fixed-point corrections of a leg's closed form (each shrinks the ankle's miss about
+/// a hundredfold on the OP3).
+pub const LEG_CORRECTIONS: usize = 4;
+
 /// Seconds over which a released foot's locked offset fades out.
 pub const RELEASE_S: f64 = 0.25;
 
@@ -684,6 +688,22 @@ impl Retargeter {
         self.options
     }
 
+    /// The leg's joint angles (clamped to the limits) that put foot `side`'s body at
+    /// orientation `rot` and its ankle centre at `ankle`, both in the base's frame: the closed
+    /// form of [`Retargeter::step`], for tests and benchmarks.
+    #[must_use]
+    pub fn leg_ik(&self, side: usize, rot: DQuat, ankle: DVec3) -> [f64; 6] {
+        self.solve_leg(side & 1, rot, ankle, &mut 0)
+    }
+
+    /// Where the ankle centre of leg `side` sits: its foot body and the point in that body's
+    /// frame (metres).
+    #[must_use]
+    pub fn ankle_centre(&self, robot: &Robot, side: usize) -> (usize, DVec3) {
+        let body = robot.joints()[self.map.legs[side & 1].joints[5]].body;
+        (body, self.body_local(body, self.legs[side & 1].ankle))
+    }
+
     /// Forgets the stream's state (planted feet, branches, balance shift): the next frame is
     /// treated as a first one.
     pub fn reset(&mut self) {
@@ -1003,13 +1023,13 @@ impl Retargeter {
     }
 
     /// The leg for foot body orientation `rot` and ankle centre `ankle` (base frame): the
-    /// closed form, then two fixed-point corrections of the target by the ankle's miss (the
+    /// closed form, then up to [`LEG_CORRECTIONS`] fixed-point corrections of the target by the ankle's miss (the
     /// hip axes of a real robot meet only nearly — the OP3's within 0.1 mm).
     fn solve_leg(&self, side: usize, rot: DQuat, ankle: DVec3, clamps: &mut u32) -> [f64; 6] {
         let g = &self.legs[side];
         let mut aim = ankle;
         let mut q = self.solve_leg_closed(side, rot, aim, &mut 0);
-        for _ in 0..2 {
+        for _ in 0..LEG_CORRECTIONS {
             let s = &g.joints;
             let reached = s[0].apply(
                 q[0],

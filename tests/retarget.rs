@@ -1,0 +1,533 @@
+//! Retargeting onto the ROBOTIS OP3 (issue 16): the profile's map and its errors, the closed-form
+//! legs against the model's kinematics, the bundled clips kinematically (feet, floor, balance,
+//! continuity, start independence, ASF against BVH), the `retarget` command, and `play` on the
+//! virtual chain retargeting inside an allocation-free tick.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use glam::{DQuat, DVec3};
+use marionette::fk::{fk64, Pose64};
+use marionette::formats::{amc, asf, bvh};
+use marionette::motion::{frame_to_radians, Motion};
+use marionette::profile::Profile;
+use marionette::retarget::{floor_of_clip, retarget_clip, Options, RetargetFrame, Setup};
+use marionette::robot::RobotPose;
+use marionette::skeleton::Skeleton;
+
+fn repo(p: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
+}
+
+fn op3() -> Profile {
+    Profile::load(&repo("firmware-profile/robotis-op3.toml")).unwrap()
+}
+
+fn clip(asf_name: &str, amc_path: &Path) -> (Skeleton, Motion) {
+    let s = asf::load(&common::data(asf_name)).unwrap().skeleton;
+    let m = amc::load(&s, amc_path).unwrap();
+    (s, m)
+}
+
+/// The OP3 profile resolves: 20 servos reading the model's joints, limits from the servos.
+#[test]
+fn op3_map_resolves_against_the_model_and_the_skeleton() {
+    let profile = op3();
+    let spec = profile.retarget.as_ref().expect("[retarget]");
+    assert!(spec.model.ends_with("op3.xml"));
+    let (s, _) = clip("16.asf", &common::data("16_15.amc"));
+    let setup = Setup::new(&profile, &s).unwrap();
+    assert_eq!(setup.rig.len(), 20);
+    assert_eq!(setup.robot.joints().len(), 20);
+    let elbow = setup.robot.joint("l_el").unwrap();
+    let (lo, hi) = setup.robot.joints()[elbow].range.unwrap();
+    assert!((lo + 150f64.to_radians()).abs() < 1e-12 && (hi - 150f64.to_radians()).abs() < 1e-12);
+    for (servo, map) in profile.servos.iter().zip(&setup.rig.servos) {
+        let marionette::rig::JointSource::Joint(j) = map.source else {
+            panic!("servo {} does not read a joint", servo.name)
+        };
+        let marionette::profile::Drive::Joint(name) = &servo.drive else {
+            panic!()
+        };
+        assert_eq!(setup.robot.joints()[j].name.as_str(), name);
+    }
+}
+
+/// Every way a map can be wrong names the profile's line and column and what was expected.
+#[test]
+fn map_errors_name_the_line_and_column() {
+    let text = std::fs::read_to_string(repo("firmware-profile/robotis-op3.toml")).unwrap();
+    let model = repo("sim/models/robotis_op3/op3.xml");
+    let text = text.replace(
+        "model = \"../sim/models/robotis_op3/op3.xml\"",
+        &format!("model = \"{}\"", model.display()),
+    );
+    let dir = common::tempdir("retarget-errors");
+    let (s, _) = clip("16.asf", &common::data("16_15.amc"));
+    let line_col = |needle: &str, t: &str| -> (usize, usize) {
+        let at = t.find(needle).unwrap();
+        let line = t[..at].matches('\n').count() + 1;
+        let col = at - t[..at].rfind('\n').map_or(0, |p| p + 1) + 1;
+        (line, col)
+    };
+    let cases: [(&str, &str, &str, &str); 6] = [
+        // (replace, with, the text at the error, what the message says)
+        (
+            "\"l_el\"]",
+            "\"l_elbow\"]",
+            "\"l_elbow\"",
+            "no joint `l_elbow` in",
+        ),
+        (
+            "human = [\"lhumerus\", \"lradius\"]",
+            "human = [\"lhumerus\", \"lforearm\"]",
+            "\"lforearm\"",
+            "the skeleton has no bone `lforearm`",
+        ),
+        (
+            "human = [\"rfemur\", \"rtibia\", \"rfoot\"]",
+            "human = [\"rfemur\", \"rtibia\"]",
+            "[\"rfemur\", \"rtibia\"]",
+            "expected 3 human bone(s) for a leg",
+        ),
+        (
+            "base = \"body_link\"",
+            "base = \"torso\"",
+            "\"torso\"",
+            "no body `torso` in",
+        ),
+        (
+            "sole_half_size = [0.057, 0.039]\n\n[retarget.right_leg]",
+            "sole_half_size = [0.057, -0.039]\n\n[retarget.right_leg]",
+            "[0.057, -0.039]",
+            "expected a positive half length and half width",
+        ),
+        (
+            "tip = [-0.019, 0.14, 0.0076]",
+            "tip = [-0.019, 0.14]",
+            "[-0.019, 0.14]",
+            "expected 3 finite numbers",
+        ),
+    ];
+    for (from, to, at, says) in cases {
+        assert!(text.contains(from), "{from}");
+        let bad = text.replacen(from, to, 1);
+        let path = dir.join("op3.toml");
+        std::fs::write(&path, &bad).unwrap();
+        let err = Profile::load(&path)
+            .and_then(|p| Setup::new(&p, &s).map(|_| ()))
+            .expect_err(to)
+            .to_string();
+        let (line, col) = line_col(at, &bad);
+        assert!(err.contains(says), "{err}");
+        // The sole size is checked as a whole value: its line is enough there.
+        let place = if says.contains("half length") {
+            format!("op3.toml:{line}:")
+        } else {
+            format!("op3.toml:{line}:{col}:")
+        };
+        assert!(err.contains(&place), "{err} (expected {place})");
+        assert_eq!(err.lines().count(), 1, "{err}");
+    }
+    // A model that cannot be read: the profile's line, and the file.
+    let bad = text.replace(&model.display().to_string(), "/nonexistent/op3.xml");
+    let path = dir.join("op3.toml");
+    std::fs::write(&path, &bad).unwrap();
+    let err = Setup::new(&Profile::load(&path).unwrap(), &s)
+        .unwrap_err()
+        .to_string();
+    let (line, col) = line_col("\"/nonexistent/op3.xml\"", &bad);
+    assert!(
+        err.contains(&format!(
+            "op3.toml:{line}:{col}: cannot read the model /nonexistent/op3.xml"
+        )),
+        "{err}"
+    );
+    // A model with a broken element: the model's file, line and element.
+    let broken = dir.join("broken.xml");
+    std::fs::write(
+        &broken,
+        "<mujoco>\n<worldbody>\n<body name=\"b\" pos=\"0 0 x\"/>\n</worldbody>\n</mujoco>\n",
+    )
+    .unwrap();
+    let bad = text.replace(&model.display().to_string(), &broken.display().to_string());
+    std::fs::write(&path, &bad).unwrap();
+    let err = Setup::new(&Profile::load(&path).unwrap(), &s)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("broken.xml:3:") && err.contains("body"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A BVH skeleton with CMU's BVH names (`LeftUpLeg`, `LeftArm`, …) needs no renaming; one with
+/// names of its own is named in `[retarget.names]`.
+#[test]
+fn bvh_names_are_understood_and_others_can_be_named() {
+    let profile = op3();
+    let (file, motion) = bvh::load(&common::data("01_01.bvh"), 1.0 / 0.45).unwrap();
+    let s = &file.skeleton;
+    assert!(s.find("LeftArm").is_some() && s.find("lhumerus").is_none());
+    let setup = Setup::new(&profile, s).unwrap();
+    assert_eq!(
+        setup.map.human.arms[0]
+            .map(|a| s.bones()[a[0]].name().to_string())
+            .unwrap(),
+        "LeftArm"
+    );
+    // The BVH conversion retargets like the ASF/AMC original.
+    let from_bvh = retarget_clip(&setup, s, &motion, Options::default()).report;
+    let (sa, ma) = clip("01.asf", &common::data("01_01.amc"));
+    let from_asf = retarget_clip(&Setup::new(&profile, &sa).unwrap(), &sa, &ma, Options::default()).report;
+    let (eb, ea) = (
+        &from_bvh.limb_direction_error_deg,
+        &from_asf.limb_direction_error_deg,
+    );
+    for (b, a) in [
+        (eb.left_arm, ea.left_arm),
+        (eb.right_arm, ea.right_arm),
+        (eb.left_leg, ea.left_leg),
+        (eb.right_leg, ea.right_leg),
+    ] {
+        let (b, a) = (b.unwrap().rms, a.unwrap().rms);
+        assert!((b - a).abs() < 1.0, "BVH {b:.2}° against ASF {a:.2}°");
+    }
+    // A skeleton whose bones have other names: an error naming the map's bone, then a
+    // [retarget.names] entry fixes it.
+    let text = common::read("16.asf").replace("lhumerus", "upper_arm_L");
+    let renamed = asf::parse(&text).unwrap().skeleton;
+    let err = Setup::new(&profile, &renamed).unwrap_err().to_string();
+    assert!(
+        err.contains("the skeleton has no bone `lhumerus` (nor CMU's BVH name `LeftArm`)")
+            && err.contains("[retarget.names]"),
+        "{err}"
+    );
+    let dir = common::tempdir("retarget-names");
+    let ptext = std::fs::read_to_string(repo("firmware-profile/robotis-op3.toml"))
+        .unwrap()
+        .replace(
+            "model = \"../sim/models/robotis_op3/op3.xml\"",
+            &format!("model = \"{}\"", repo("sim/models/robotis_op3/op3.xml").display()),
+        )
+        .replace(
+            "[retarget.left_arm]",
+            "[retarget.names]\nlhumerus = \"upper_arm_L\"\n\n[retarget.left_arm]",
+        );
+    let path = dir.join("named.toml");
+    std::fs::write(&path, ptext).unwrap();
+    let setup = Setup::new(&Profile::load(&path).unwrap(), &renamed).unwrap();
+    assert_eq!(
+        renamed.bones()[setup.map.human.arms[0].unwrap()[0]].name(),
+        "upper_arm_L"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The closed-form leg puts the OP3's foot where it was asked, position and orientation, for
+/// random reachable foot poses (checked with the model's own forward kinematics): within 10 µm
+/// (the OP3's hip axes miss each other by 0.1 mm; the closed form is corrected for that) and
+/// 1 µrad.
+#[test]
+fn closed_form_legs_reach_random_foot_poses() {
+    let profile = op3();
+    let (s, m) = clip("16.asf", &common::data("16_15.amc"));
+    let setup = Setup::new(&profile, &s).unwrap();
+    let r = setup.retargeter(&s, floor_of_clip(&s, &m, &setup.map.human), Options::default());
+    let robot = &setup.robot;
+    let mut pose = RobotPose::default();
+    let base = robot.body("body_link").unwrap();
+    let mut rng = 0x2545_f491_4f6c_dd1du64;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut worst = (0.0f64, 0.0f64);
+    for _ in 0..2000 {
+        // A random leg configuration inside generous limits, then its foot pose as the target.
+        let side = usize::from(next() < 0.5);
+        let leg = setup.map.legs[side];
+        let mut q = vec![0.0; robot.joints().len()];
+        let spans = [0.6, 0.4, 1.0, 1.4, 0.6, 0.4];
+        for (k, j) in leg.joints.iter().enumerate() {
+            q[*j] = (next() - 0.5) * spans[k];
+        }
+        // The knee bends the human way (its sign from the model).
+        let knee = leg.joints[3];
+        q[knee] = q[knee].abs() * if side == 0 { 1.0 } else { -1.0 };
+        robot.forward(DVec3::ZERO, DQuat::IDENTITY, &q, &mut pose);
+        let (fb, local) = r.ankle_centre(robot, side);
+        let to_base = |p: DVec3, pose: &RobotPose| pose.rot[base].inverse() * (p - pose.pos[base]);
+        let ankle = to_base(pose.pos[fb] + pose.rot[fb] * local, &pose);
+        let rot = pose.rot[base].inverse() * pose.rot[fb];
+        let solved = r.leg_ik(side, rot, ankle);
+        let mut q2 = vec![0.0; robot.joints().len()];
+        for (k, j) in leg.joints.iter().enumerate() {
+            q2[*j] = solved[k];
+        }
+        robot.forward(DVec3::ZERO, DQuat::IDENTITY, &q2, &mut pose);
+        let got = to_base(pose.pos[fb] + pose.rot[fb] * local, &pose);
+        let got_rot = pose.rot[base].inverse() * pose.rot[fb];
+        worst.0 = worst.0.max((got - ankle).length());
+        worst.1 = worst.1.max(got_rot.angle_between(rot));
+    }
+    assert!(
+        worst.0 < 1e-5 && worst.1 < 1e-6,
+        "worst miss {:.3e} m, {:.3e} rad",
+        worst.0,
+        worst.1
+    );
+}
+
+fn run(setup: &Setup, s: &Skeleton, m: &Motion, options: Options) -> marionette::retarget::ClipRetarget {
+    retarget_clip(setup, s, m, options)
+}
+
+/// The bundled clips, whole body, kinematically: planted feet do not slide and no sole goes
+/// below the floor; each leg follows its human leg; the arms and head are mapped; numbers
+/// are finite and every joint stays inside its limits.
+#[test]
+fn bundled_clips_retarget_with_still_feet_above_the_floor() {
+    let profile = op3();
+    for (a, m) in [("16.asf", "16_15.amc"), ("01.asf", "01_01.amc")] {
+        let (s, motion) = clip(a, &common::data(m));
+        let setup = Setup::new(&profile, &s).unwrap();
+        let out = run(&setup, &s, &motion, Options::default());
+        let r = &out.report;
+        assert_eq!(r.frames as usize, motion.len());
+        assert!(
+            r.foot_slide_mm.max <= 0.5,
+            "{m}: slide {} mm",
+            r.foot_slide_mm.max
+        );
+        assert!(
+            r.lowest_sole_mm >= -0.01,
+            "{m}: a sole {} mm below the floor",
+            r.lowest_sole_mm
+        );
+        assert!(
+            r.planted_fraction.iter().all(|f| *f > 0.3),
+            "{m}: {:?}",
+            r.planted_fraction
+        );
+        let e = &r.limb_direction_error_deg;
+        for leg in [e.left_leg, e.right_leg] {
+            assert!(leg.unwrap().rms < 12.0, "{m}: {e:?}");
+        }
+        assert!(e.left_arm.is_some() && e.right_arm.is_some() && e.head.is_some());
+        for (f, q) in out.frames.iter().zip(&out.joints) {
+            assert!(f.q.iter().all(|v| v.is_finite()));
+            for (j, joint) in setup.robot.joints().iter().enumerate() {
+                let (lo, hi) = joint.range.unwrap();
+                assert!(
+                    (lo - 1e-9..=hi + 1e-9).contains(&q[j]),
+                    "{m}: {} at {}",
+                    joint.name,
+                    q[j]
+                );
+            }
+        }
+    }
+}
+
+/// Slow motions on both feet keep the centre of mass inside the support polygon, with the
+/// legs continuous from frame to frame.
+#[test]
+fn slow_clips_keep_the_centre_of_mass_over_the_feet() {
+    let profile = op3();
+    for name in ["squat.amc", "weight_shift.amc"] {
+        let (s, motion) = clip("16.asf", &repo("data/generated").join(name));
+        let setup = Setup::new(&profile, &s).unwrap();
+        let r = run(&setup, &s, &motion, Options::default()).report;
+        assert!(
+            r.com_margin_mm.min.unwrap() >= 0.0,
+            "{name}: {:?}",
+            r.com_margin_mm
+        );
+        assert_eq!(r.planted_fraction, [1.0, 1.0], "{name}");
+        assert!(
+            r.continuity.max_joint_step_deg < 1.0,
+            "{name}: {:?}",
+            r.continuity
+        );
+        assert!(r.foot_slide_mm.max <= 0.01, "{name}");
+    }
+}
+
+/// Where the clip starts changes nothing once both feet have stepped: from frame 0 and from
+/// frame 600 of the 01_01 clip (same floor), the joints agree exactly from a little after
+/// each foot's next landing.
+#[test]
+fn the_result_does_not_depend_on_where_the_clip_starts() {
+    let profile = op3();
+    let (s, motion) = clip("01.asf", &common::data("01_01.amc"));
+    let setup = Setup::new(&profile, &s).unwrap();
+    let floor = floor_of_clip(&s, &motion, &setup.map.human);
+    let frames: Vec<Vec<f64>> = motion.frames().map(|f| frame_to_radians(&s, f)).collect();
+    let dt = 1.0 / motion.frame_rate;
+    let go = |from: usize| -> Vec<RetargetFrame> {
+        let mut r = setup.retargeter(&s, floor, Options::default());
+        let mut pose = Pose64::default();
+        let mut out = RetargetFrame::default();
+        frames[from..]
+            .iter()
+            .map(|ch| {
+                fk64(&s, ch, &mut pose);
+                r.step(&setup.robot, &pose, dt, &mut out);
+                out.clone()
+            })
+            .collect()
+    };
+    let whole = go(0);
+    let late = go(600);
+    let differs: Vec<usize> = (600..motion.len())
+        .filter(|&i| whole[i].q != late[i - 600].q)
+        .collect();
+    let last = differs.last().copied().unwrap_or(600);
+    // Both runs agree from some frame on, and that frame is within 4 s of the later start.
+    assert!(last < 600 + 480, "the runs still differ at frame {last}");
+    assert!(
+        differs.len() < motion.len() - 600,
+        "{} of {} frames differ",
+        differs.len(),
+        motion.len() - 600
+    );
+}
+
+/// `marionette retarget`: the CSV (time, then one column per joint), the JSON report with the
+/// issue's keys, the picture; BVH input; a skeleton without a mapped bone refused with one line.
+#[test]
+fn retarget_command_writes_the_trajectory_report_and_picture() {
+    let dir = common::tempdir("retarget-cli");
+    let csv = dir.join("op3.csv");
+    let json = dir.join("op3.json");
+    let png = dir.join("op3.png");
+    let out = common::bin()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["retarget", "firmware-profile/robotis-op3.toml"])
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .arg("-o")
+        .arg(&csv)
+        .arg("--report")
+        .arg(&json)
+        .arg("--plot")
+        .arg(&png)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("direction error") && text.contains("frames per second"),
+        "{text}"
+    );
+    let table = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = table.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header.len(), 21);
+    assert_eq!(header[0], "time");
+    assert!(header.contains(&"l_knee") && header.contains(&"head_tilt"));
+    assert_eq!(lines.count(), 471);
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for key in [
+        "limb_direction_error_deg",
+        "foot_slide_mm",
+        "com_margin_mm",
+        "limit_clamps",
+    ] {
+        assert!(!v[key].is_null(), "{key}: {v}");
+    }
+    assert!(v["limb_direction_error_deg"]["left_arm"]["rms"].as_f64().unwrap() > 0.0);
+    assert!(v["foot_slide_mm"]["max"].as_f64().is_some());
+    assert!(std::fs::metadata(&png).unwrap().len() > 10_000);
+    // A BVH clip alone.
+    let out = common::bin()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["retarget", "firmware-profile/robotis-op3.toml"])
+        .arg(common::data("01_01.bvh"))
+        .args(["--bvh-unit", "cmu", "--upper-body", "-o"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 2753);
+    // A skeleton without a mapped bone.
+    let asf_text = common::read("16.asf").replace("rradius", "rforearm");
+    let bad = dir.join("renamed.asf");
+    std::fs::write(&bad, asf_text).unwrap();
+    let out = common::bin()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["play", "firmware-profile/robotis-op3.toml"])
+        .arg(&bad)
+        .arg(common::data("16_15.amc"))
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    let said = String::from_utf8_lossy(&out.stdout);
+    // The AMC names rradius too, so the clip is refused first (an AMC line naming a bone the
+    // skeleton lacks); with a matching clip the map is refused. Either way: before the bus.
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(!said.contains("servos up"), "{said}");
+    let amc_text = common::read("16_15.amc").replace("rradius", "rforearm");
+    let bad_amc = dir.join("renamed.amc");
+    std::fs::write(&bad_amc, amc_text).unwrap();
+    let out = common::bin()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["play", "firmware-profile/robotis-op3.toml"])
+        .arg(&bad)
+        .arg(&bad_amc)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("robotis-op3.toml:") && err.contains("the skeleton has no bone `rradius`"),
+        "{err}"
+    );
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("servos up"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `play` drives the OP3 on the virtual chain, retargeting inside the tick: the stats JSON has
+/// the retarget block, the tick allocates nothing.
+#[test]
+fn play_drives_the_op3_on_the_virtual_chain() {
+    let dir = common::tempdir("retarget-play");
+    let stats = dir.join("stats.json");
+    let out = common::bin()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["play", "firmware-profile/robotis-op3.toml"])
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .args(["--rate", "250", "-q", "--stats-json"])
+        .arg(&stats)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("retargeting onto") && text.contains("20 servos up"),
+        "{text}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    assert_eq!(v["allocations_in_tick"].as_u64(), Some(0), "{v}");
+    let r = &v["retarget"];
+    assert_eq!(r["frames"].as_u64(), v["inputs_used"].as_u64());
+    assert!(r["foot_slide_mm"]["max"].as_f64().unwrap() <= 0.5, "{r}");
+    assert!(r["limb_direction_error_deg"]["overall"]["rms"].as_f64().unwrap() > 0.0);
+    assert_eq!(v["commands_refused"].as_u64(), Some(0));
+    let _ = std::fs::remove_dir_all(&dir);
+}
