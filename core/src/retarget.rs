@@ -513,15 +513,15 @@ impl Retargeter {
             .ok_or(RetargetError::Geometry("the hip axes are parallel"))?;
             let ankle = nearest_point(&[s[4].point, s[5].point], &[s[4].axis, s[5].axis])
                 .ok_or(RetargetError::Geometry("the ankle axes are parallel"))?;
-            for k in 0..3 {
-                if dist_to_line(hip, s[k].point, s[k].axis) > 2e-3 {
+            for screw in &s[..3] {
+                if dist_to_line(hip, screw.point, screw.axis) > 2e-3 {
                     return Err(RetargetError::Geometry(
                         "the three hip axes do not meet in a point (within 2 mm)",
                     ));
                 }
             }
-            for k in 4..6 {
-                if dist_to_line(ankle, s[k].point, s[k].axis) > 2e-3 {
+            for screw in &s[4..] {
+                if dist_to_line(ankle, screw.point, screw.axis) > 2e-3 {
                     return Err(RetargetError::Geometry(
                         "the two ankle axes do not meet in a point (within 2 mm)",
                     ));
@@ -559,10 +559,7 @@ impl Retargeter {
             };
         }
         let hip_mid = 0.5 * (legs[0].hip + legs[1].hip);
-        let head_point = match map.head {
-            Some(hd) => Some(screw(hd.joints[0]).point),
-            None => None,
-        };
+        let head_point = map.head.map(|hd| screw(hd.joints[0]).point);
         let arm_top = match (map.arms[0], map.arms[1]) {
             (Some(l), Some(r)) => Some(0.5 * (screw(l.joints[0]).point + screw(r.joints[0]).point)),
             _ => None,
@@ -960,16 +957,15 @@ impl Retargeter {
     /// of straight); returns how many were out of reach.
     fn lower_to_reach(&self, base_pos: &mut DVec3, base_rot: DQuat, ankle: &[DVec3; 2]) -> u32 {
         let mut count = 0;
-        for side in 0..2 {
-            let g = &self.legs[side];
+        for (g, target) in self.legs.iter().zip(ankle) {
             let hip = *base_pos + base_rot * g.hip;
-            let d = ankle[side] - hip;
+            let d = *target - hip;
             let max = REACH_SHARE * g.reach;
             if d.length() > max {
                 count += 1;
                 let horizontal = DVec2::new(d.x, d.y).length().min(max);
                 let dz = libm::sqrt(max * max - horizontal * horizontal);
-                base_pos.z -= hip.z - (ankle[side].z + dz);
+                base_pos.z -= hip.z - (target.z + dz);
             }
         }
         count

@@ -41,6 +41,9 @@ fn view(p: DVec3) -> (f64, f64) {
 
 type Segments = Vec<(DVec3, DVec3)>;
 
+/// A labelled, coloured curve.
+type Curve = (&'static str, RGBColor, Vec<(f64, f64)>);
+
 /// Stick figures of frame `i`: the human (in the robot's world, at the robot's scale) and the
 /// robot.
 fn figures(pic: &RetargetPicture<'_>, i: usize) -> (Segments, Segments) {
@@ -148,7 +151,7 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
     let (left, right) = bottom.split_horizontally(760);
     let times = &pic.run.times;
     let t1 = times.last().copied().unwrap_or(1.0).max(1e-3);
-    let curves: Vec<(&str, RGBColor, Vec<(f64, f64)>)> = super::LIMBS
+    let curves: Vec<Curve> = super::LIMBS
         .iter()
         .enumerate()
         .map(|(k, name)| {
