@@ -508,19 +508,33 @@ fn op3_whole_body_squats_and_shifts_its_weight_on_the_floor() {
     }
 }
 
-/// Issue 16: the standing stretches of the playground clip (both feet planted for a second or
-/// more; `retarget` lists them), whole body on the floor, held at the end: no fall.
+/// Issue 16: every standing stretch of the playground clip (both feet planted for a second or
+/// more, as `retarget` lists them: the crouches before the jumps), whole body on the floor,
+/// eased in over 0.5 s from the standing robot and held at the end: no fall, the centre of mass
+/// inside the support polygon throughout.
 #[test]
 fn op3_whole_body_stands_through_the_standing_stretches() {
-    for (start, length) in [("0", "1.81"), ("11.18", "1.64"), ("18.90", "1.29")] {
+    use marionette::retarget::{retarget_clip, Options, Setup};
+    let profile = Profile::load(&repo("firmware-profile/robotis-op3.toml")).unwrap();
+    let skeleton = asf::load(&common::data("01.asf")).unwrap().skeleton;
+    let motion = amc::load(&skeleton, &common::data("01_01.amc")).unwrap();
+    let setup = Setup::new(&profile, &skeleton).unwrap();
+    let stretches = retarget_clip(&setup, &skeleton, &motion, Options::default())
+        .report
+        .standing_s;
+    assert!(stretches.len() >= 8, "{stretches:?}");
+    for [from, to] in stretches {
+        let (start, length) = (format!("{from:.3}"), format!("{:.3}", to - from));
         let (sim, stats) = op3_on_the_floor(
             "01.asf",
             &common::data("01_01.amc"),
             &[
                 "--start",
-                start,
+                &start,
                 "--duration",
-                length,
+                &length,
+                "--ease-in",
+                "0.5",
                 "--on-stop",
                 "hold",
                 "--ramp",

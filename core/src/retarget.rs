@@ -701,6 +701,38 @@ impl Retargeter {
         (body, self.body_local(body, self.legs[side & 1].ankle))
     }
 
+    /// The human arm's segment directions (upper arm, forearm; unit) in the robot base's frame,
+    /// as [`Retargeter::step`] aims them, for a pose from [`fk64`]; `None` when unmapped.
+    #[must_use]
+    pub fn human_arm(&self, pose: &Pose64, side: usize) -> Option<(DVec3, DVec3)> {
+        let bones = self.map.human.arms[side & 1]?;
+        let rel = pose.world[self.map.human.pelvis] * self.human_rest_world[REST_PELVIS].transpose();
+        let to_base = self.robot_frame * (rel * self.human_frame).transpose();
+        let dir = |b: usize| (to_base * (pose.tip[b] - pose.start[b])).normalize_or_zero();
+        Some((dir(bones[0]), dir(bones[1])))
+    }
+
+    /// The direction error of arm `side` at joint angles `q` (shoulder, shoulder, elbow)
+    /// against unit segment directions: the RMS of the two segments' angles, degrees (NaN when
+    /// the arm is unmapped).
+    #[must_use]
+    pub fn arm_error_deg(&self, side: usize, q: [f64; 3], upper: DVec3, fore: DVec3) -> f64 {
+        let Some(g) = self.arms[side & 1] else {
+            return f64::NAN;
+        };
+        let [s1, s2, s3] = g.joints;
+        let r12 = s1.rot(q[0]) * s2.rot(q[1]);
+        let u = angle_between(r12 * g.upper, upper).to_degrees();
+        let f = angle_between(r12 * s3.rot(q[2]) * g.fore, fore).to_degrees();
+        libm::sqrt(0.5 * (u * u + f * f))
+    }
+
+    /// The arm joints of arm `side` in the robot's joint order (shoulder, shoulder, elbow).
+    #[must_use]
+    pub fn arm_joints(&self, side: usize) -> Option<[usize; 3]> {
+        self.map.arms[side & 1].map(|a| a.joints)
+    }
+
     /// Forgets the stream's state (planted feet, branches, balance shift): the next frame is
     /// treated as a first one.
     pub fn reset(&mut self) {
@@ -1507,4 +1539,63 @@ pub fn floor_of_rest(skeleton: &Skeleton, human: &HumanBones) -> Floor {
 pub fn foot_elevation(pose: &Pose64, leg: [usize; 3], up: DVec3) -> f64 {
     let f = (pose.tip[leg[2]] - pose.start[leg[2]]).normalize_or_zero();
     libm::asin(f.dot(up).clamp(-1.0, 1.0)).clamp(-core::f64::consts::FRAC_PI_3, 0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit(x: f64, y: f64, z: f64) -> DVec3 {
+        DVec3::new(x, y, z).normalize()
+    }
+
+    /// Subproblem 1 turns a vector onto the target's cone; subproblem 2 reaches any direction
+    /// two perpendicular axes can reach, with both solutions.
+    #[test]
+    fn paden_kahan_subproblems() {
+        let a = DVec3::Z;
+        let q = angle_about(a, DVec3::X, unit(0.0, 1.0, 0.3));
+        assert!((q - core::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        let (a1, a2, v) = (DVec3::Y, -DVec3::X, DVec3::Y);
+        for t in [unit(0.3, -0.2, -0.9), unit(1.0, 0.5, 0.2), unit(-0.2, 0.9, 0.1)] {
+            for (q1, q2) in angles_about_two(a1, a2, v, t) {
+                let got = DQuat::from_axis_angle(a1, q1) * DQuat::from_axis_angle(a2, q2) * v;
+                assert!((got - t).length() < 1e-12, "{got} {t}");
+            }
+        }
+        // Unreachable: both axes along z cannot lift x; the nearest direction comes back.
+        let [(q1, q2), _] = angles_about_two(DVec3::Z, DVec3::Z * 1.0, DVec3::X, DVec3::Z);
+        assert!(q1.is_finite() && q2.is_finite());
+    }
+
+    /// The support polygon: the hull of two soles, the margin inside and outside, the point a
+    /// margin inside.
+    #[test]
+    fn support_polygon_margin() {
+        let pts = [
+            DVec2::new(0.0, 0.0),
+            DVec2::new(1.0, 0.0),
+            DVec2::new(1.0, 1.0),
+            DVec2::new(0.0, 1.0),
+            DVec2::new(0.5, 0.5),
+        ];
+        let hull = convex_hull(&pts);
+        assert_eq!(hull.len(), 4);
+        let (m, p) = polygon_margin(&hull, DVec2::new(0.5, 0.2), 0.0);
+        assert!((m - 0.2).abs() < 1e-12 && p == DVec2::new(0.5, 0.2));
+        let (m, p) = polygon_margin(&hull, DVec2::new(0.5, -0.3), 0.1);
+        assert!((m + 0.3).abs() < 1e-12);
+        assert!((p.y - 0.1).abs() < 1e-6 && p.x > 0.0 && p.x < 1.0, "{p}");
+        assert!(polygon_margin(&hull[..2], DVec2::ZERO, 0.0).0.is_nan());
+    }
+
+    /// A rest pose that leans does not tilt the floor: up snaps to the nearest axis.
+    #[test]
+    fn pelvis_frame_snaps_up_to_an_axis() {
+        let f = frame_from(DVec3::new(1.0, 0.05, 0.0), DVec3::new(0.1, 1.0, -0.05)).unwrap();
+        assert_eq!(f.col(2), DVec3::Y);
+        assert!((f.col(1) - DVec3::X).length() < 1e-12);
+        assert!((f.col(0) - DVec3::Z).length() < 1e-12);
+        assert!(frame_from(DVec3::Y, DVec3::Y).is_none());
+    }
 }

@@ -142,6 +142,10 @@ pub struct LoopArgs {
     /// Servos drawn by --sim-plot (default: the four with the largest RMS).
     #[arg(long, value_delimiter = ',')]
     pub plot_servos: Vec<String>,
+    /// Seconds over which the first commands blend from where the servos stand to the input
+    /// (a robot on the floor should not jump into a clip's first pose).
+    #[arg(long, default_value_t = 0.0)]
+    pub ease_in: f64,
     /// Profiles of robot joints: keep the legs in a standing stance and retarget arms, head
     /// and torso only.
     #[arg(long)]
@@ -169,6 +173,11 @@ fn check(args: &LoopArgs) -> Result<(), CliError> {
     if args.duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
         return Err(CliError::Usage(
             "--duration must be a positive number of seconds".into(),
+        ));
+    }
+    if !(args.ease_in.is_finite() && (0.0..=60.0).contains(&args.ease_in)) {
+        return Err(CliError::Usage(
+            "--ease-in must be between 0 and 60 seconds".into(),
         ));
     }
     if !(args.ramp.is_finite() && (0.0..=60.0).contains(&args.ramp)) {
@@ -401,6 +410,7 @@ fn loop_config(args: &LoopArgs, allocations: Option<fn() -> u64>) -> LoopConfig 
             OnStop::Hold => StopMode::Hold { hold_s: args.ramp },
         },
         max_ticks: args.duration.map(|d| (d * args.rate).round().max(1.0) as u64),
+        ease_in_s: args.ease_in,
         allocations,
     }
 }

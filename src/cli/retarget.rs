@@ -9,7 +9,7 @@ use super::error::CliError;
 use crate::formats::{amc, asf, bvh, FileError};
 use crate::motion::Motion;
 use crate::profile::Profile;
-use crate::retarget::{retarget_clip, write_csv, ClipRetarget, Options, RetargetReport, Setup};
+use crate::retarget::{retarget_clip, write_csv, Options, RetargetReport, Setup};
 use crate::skeleton::Skeleton;
 
 /// The command's settings.
@@ -129,12 +129,7 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
     if let Some(p) = &args.plot {
         writeln!(out, "wrote {}", p.display())?;
     }
-    let _ = run_summary(&run);
     Ok(())
-}
-
-fn run_summary(run: &ClipRetarget) -> usize {
-    run.frames.len()
 }
 
 /// The report as lines of text.
@@ -174,7 +169,8 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
         100.0 * r.planted_fraction[0],
         100.0 * r.planted_fraction[1],
         r.foot_slide_mm.max,
-        r.lowest_sole_mm
+        // Rounding noise (a few nanometres below) prints as 0.
+        if r.lowest_sole_mm.abs() < 0.005 { 0.0 } else { r.lowest_sole_mm }
     )?;
     match r.com_margin_mm.min {
         Some(m) => writeln!(

@@ -80,6 +80,9 @@ pub struct LoopConfig {
     /// Heap allocations made so far on this thread (a counting global allocator's counter), to
     /// count allocations inside ticks.
     pub allocations: Option<fn() -> u64>,
+    /// Seconds over which the first commands blend from where the servos stood to the input
+    /// (0: the first input is commanded at once, within the velocity limits).
+    pub ease_in_s: f64,
 }
 
 impl Default for LoopConfig {
@@ -91,6 +94,7 @@ impl Default for LoopConfig {
             stop: StopMode::Rest { ramp_s: 1.0 },
             max_ticks: None,
             allocations: None,
+            ease_in_s: 0.0,
         }
     }
 }
@@ -462,6 +466,11 @@ pub struct Controller {
     last_valid_read_ns: u64,
     last_tick: Option<(u64, u64)>,
     retarget: Option<Box<RetargetStage>>,
+    /// The joint angles the servos stood at (the ease-in's start), its length in ticks, and
+    /// the commanded ticks so far.
+    ease_from: Vec<f64>,
+    ease_ticks: u64,
+    eased: u64,
 }
 
 impl std::fmt::Debug for Controller {
@@ -504,12 +513,13 @@ impl Controller {
         let n = rig.len();
         let period_ns = (1e9 / config.rate_hz).round().max(1.0) as u64;
         // The joint angles of the present positions: the reference for Euler re-decomposition.
-        let angles = rig
+        let angles: Vec<f64> = rig
             .servos
             .iter()
             .zip(present)
             .map(|(s, p)| s.ticks_to_angle(f64::from(*p)))
             .collect();
+        let ease_ticks = (config.ease_in_s * config.rate_hz).round().max(0.0) as u64;
         let mut stats = LoopStats::new(config.rate_hz);
         stats.allocations_in_tick = config.allocations.map(|_| 0);
         Controller {
@@ -521,6 +531,9 @@ impl Controller {
             period_ns,
             stage,
             channels: [0.0; MAX_CHANNELS],
+            ease_from: angles.clone(),
+            ease_ticks,
+            eased: 0,
             angles,
             present: present.to_vec(),
             read_buf: vec![0; n],
@@ -693,6 +706,15 @@ impl Controller {
             };
             self.rig
                 .joint_angles(&self.skeleton, &self.channels[..n], joints, &mut self.angles);
+            if self.eased < self.ease_ticks {
+                // Ease in: blend from where the servos stood (smoothstep weight).
+                self.eased += 1;
+                let t = self.eased as f64 / self.ease_ticks as f64;
+                let w = t * t * (3.0 - 2.0 * t);
+                for (a, from) in self.angles.iter_mut().zip(&self.ease_from) {
+                    *a = from + w * (*a - from);
+                }
+            }
             match self.stage.command(&self.rig, &self.angles, dt) {
                 Ok((g, limited)) => {
                     goals[..len].copy_from_slice(g);
