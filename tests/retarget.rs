@@ -529,6 +529,34 @@ fn play_drives_the_op3_on_the_virtual_chain() {
     assert!(r["foot_slide_mm"]["max"].as_f64().unwrap() <= 0.5, "{r}");
     assert!(r["limb_direction_error_deg"]["overall"]["rms"].as_f64().unwrap() > 0.0);
     assert_eq!(v["commands_refused"].as_u64(), Some(0));
+    // `follow`: IK targets solved on the human skeleton, then retargeted in the same tick.
+    let targets = dir.join("targets.csv");
+    let out = common::bin()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .arg("targets")
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .arg("-o")
+        .arg(&targets)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let out = common::bin()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["follow", "firmware-profile/robotis-op3.toml"])
+        .arg(common::data("16.asf"))
+        .arg("--targets")
+        .arg(&targets)
+        .args(["-q", "--stats-json"])
+        .arg(&stats)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    assert_eq!(v["allocations_in_tick"].as_u64(), Some(0), "{v}");
+    assert_eq!(v["retarget"]["frames"].as_u64(), v["inputs_used"].as_u64());
+    assert!(v["retarget"]["foot_slide_mm"]["max"].as_f64().unwrap() <= 0.5);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -580,4 +608,56 @@ fn arm_errors_are_what_the_3_dof_arm_cannot_follow() {
     }
     println!("{checked} arms checked; the grid beat the retargeter by at most {worst_gain:.2}°");
     assert!(worst_gain < 2.0, "the grid found arms {worst_gain:.2}° better");
+}
+
+/// A robot whose legs do not allow the closed form (hip pitch axes 12 mm below the roll axes):
+/// the legs are solved numerically (damped least squares) and retarget as well — planted feet
+/// still, no sole below the floor, the legs' errors close to the OP3's.
+#[test]
+fn legs_without_the_closed_form_are_solved_numerically() {
+    let dir = common::tempdir("retarget-numeric");
+    let xml = std::fs::read_to_string(repo("sim/models/robotis_op3/op3.xml")).unwrap();
+    let moved = xml
+        .replace(
+            "<body name=\"l_hip_pitch_link\" pos=\"0.0241 0.019 0\">",
+            "<body name=\"l_hip_pitch_link\" pos=\"0.0241 0.019 -0.012\">",
+        )
+        .replace(
+            "<body name=\"r_hip_pitch_link\" pos=\"0.0241 -0.019 0\">",
+            "<body name=\"r_hip_pitch_link\" pos=\"0.0241 -0.019 -0.012\">",
+        );
+    assert_ne!(moved, xml);
+    std::fs::write(dir.join("op3_offset.xml"), moved).unwrap();
+    let text = std::fs::read_to_string(repo("firmware-profile/robotis-op3.toml"))
+        .unwrap()
+        .replace("../sim/models/robotis_op3/op3.xml", "op3_offset.xml");
+    std::fs::write(dir.join("offset.toml"), text).unwrap();
+    let offset = Profile::load(&dir.join("offset.toml")).unwrap();
+    for (a, m) in [
+        ("16.asf", common::data("16_15.amc")),
+        ("16.asf", repo("data/generated/squat.amc")),
+    ] {
+        let (s, motion) = clip(a, &m);
+        let numeric = run(&Setup::new(&offset, &s).unwrap(), &s, &motion, Options::default()).report;
+        let closed = run(&Setup::new(&op3(), &s).unwrap(), &s, &motion, Options::default()).report;
+        println!(
+            "{}: numeric {:?}\nclosed {:?}",
+            m.display(),
+            numeric.limb_direction_error_deg,
+            closed.limb_direction_error_deg
+        );
+        assert!(numeric.foot_slide_mm.max <= 1.0, "{numeric:?}");
+        assert!(numeric.lowest_sole_mm >= -1.0, "{numeric:?}");
+        let (n, c) = (
+            &numeric.limb_direction_error_deg,
+            &closed.limb_direction_error_deg,
+        );
+        for (x, y) in [(n.left_leg, c.left_leg), (n.right_leg, c.right_leg)] {
+            assert!(
+                (x.unwrap().rms - y.unwrap().rms).abs() < 3.0,
+                "{x:?} against {y:?}"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

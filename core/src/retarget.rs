@@ -52,6 +52,12 @@ pub const REACH_SHARE: f64 = 0.995;
 /// a hundredfold on the OP3).
 pub const LEG_CORRECTIONS: usize = 4;
 
+/// Damped-least-squares iterations for a leg without the closed form.
+pub const NUMERIC_LEG_ITERATIONS: usize = 40;
+
+/// Damping of those iterations (metres).
+pub const NUMERIC_LEG_DAMPING: f64 = 1e-3;
+
 /// Seconds over which a released foot's locked offset fades out.
 pub const RELEASE_S: f64 = 0.25;
 
@@ -376,6 +382,9 @@ struct LegGeometry {
     reach: f64,
     thigh_len: f64,
     shin_len: f64,
+    /// Whether the hip axes meet in a point and the ankle axes in another (the closed form);
+    /// otherwise the leg is solved by damped least squares from its previous angles.
+    closed_form: bool,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -422,6 +431,8 @@ pub struct Retargeter {
     options: Options,
     feet: [FootState; 2],
     arm_prev: [Option<[f64; 3]>; 2],
+    /// The legs' last angles: where a leg without the closed form starts its iterations.
+    leg_prev: [[f64; 6]; 2],
     shift: DVec2,
     pose: RobotPose,
     /// Every body at the zero pose (model frame).
@@ -506,27 +517,22 @@ impl Retargeter {
         let mut legs = [LegGeometry::default(); 2];
         for (side, leg) in map.legs.iter().enumerate() {
             let s: [Screw; 6] = core::array::from_fn(|k| screw(leg.joints[k]));
-            let hip = nearest_point(
+            // The closed form needs hip axes that meet in a point and ankle axes that meet in
+            // another (within 2 mm; the corrections absorb the rest); other legs are solved
+            // numerically.
+            let hip_point = nearest_point(
                 &[s[0].point, s[1].point, s[2].point],
                 &[s[0].axis, s[1].axis, s[2].axis],
-            )
-            .ok_or(RetargetError::Geometry("the hip axes are parallel"))?;
-            let ankle = nearest_point(&[s[4].point, s[5].point], &[s[4].axis, s[5].axis])
-                .ok_or(RetargetError::Geometry("the ankle axes are parallel"))?;
-            for screw in &s[..3] {
-                if dist_to_line(hip, screw.point, screw.axis) > 2e-3 {
-                    return Err(RetargetError::Geometry(
-                        "the three hip axes do not meet in a point (within 2 mm)",
-                    ));
-                }
-            }
-            for screw in &s[4..] {
-                if dist_to_line(ankle, screw.point, screw.axis) > 2e-3 {
-                    return Err(RetargetError::Geometry(
-                        "the two ankle axes do not meet in a point (within 2 mm)",
-                    ));
-                }
-            }
+            );
+            let ankle_point = nearest_point(&[s[4].point, s[5].point], &[s[4].axis, s[5].axis]);
+            let hip = hip_point.unwrap_or(s[2].point);
+            let ankle = ankle_point.unwrap_or(s[4].point);
+            let closed_form = hip_point.is_some()
+                && ankle_point.is_some()
+                && s[..3].iter().all(|j| dist_to_line(hip, j.point, j.axis) <= 2e-3)
+                && s[4..]
+                    .iter()
+                    .all(|j| dist_to_line(ankle, j.point, j.axis) <= 2e-3);
             let knee_axis = s[3].axis;
             let along = |p: DVec3| knee_axis.dot(p - s[3].point);
             let knee = s[3].point + knee_axis * along(hip);
@@ -556,6 +562,7 @@ impl Retargeter {
                 reach: 0.0,
                 thigh_len,
                 shin_len,
+                closed_form,
             };
         }
         let hip_mid = 0.5 * (legs[0].hip + legs[1].hip);
@@ -659,12 +666,23 @@ impl Retargeter {
             options,
             feet: [FootState::default(); 2],
             arm_prev: [None; 2],
+            leg_prev: [[0.0; 6]; 2],
             shift: DVec2::ZERO,
             rest: pose.clone(),
             pose,
         };
+        r.leg_prev = r.neutral_legs();
         r.make_stance();
         Ok(r)
+    }
+
+    /// Legs straight but for a slightly bent knee: where numerical legs start.
+    fn neutral_legs(&self) -> [[f64; 6]; 2] {
+        let mut q = [[0.0; 6]; 2];
+        for (side, g) in self.legs.iter().enumerate() {
+            q[side][3] = 0.3 * g.knee_sign;
+        }
+        q
     }
 
     /// Leg length ratio robot / human.
@@ -738,6 +756,7 @@ impl Retargeter {
     pub fn reset(&mut self) {
         self.feet = [FootState::default(); 2];
         self.arm_prev = [None; 2];
+        self.leg_prev = self.neutral_legs();
         self.shift = DVec2::ZERO;
     }
 
@@ -828,6 +847,9 @@ impl Retargeter {
         out.q = q;
         out.base_pos = base_pos;
         out.base_rot = base_rot;
+        for (side, g) in self.legs.iter().enumerate() {
+            self.leg_prev[side] = g.joints.map(|j| out.q[j.index]);
+        }
         self.measure(robot, pose, to_base, out);
     }
 
@@ -1055,6 +1077,11 @@ impl Retargeter {
     /// hip axes of a real robot meet only nearly — the OP3's within 0.1 mm).
     fn solve_leg(&self, side: usize, rot: DQuat, ankle: DVec3, clamps: &mut u32) -> [f64; 6] {
         let g = &self.legs[side];
+        if !g.closed_form {
+            let (q, clamped) = self.solve_leg_numeric(side, rot, ankle, self.leg_prev[side]);
+            *clamps += clamped;
+            return q;
+        }
         let mut aim = ankle;
         let mut q = self.solve_leg_closed(side, rot, aim, &mut 0);
         for _ in 0..LEG_CORRECTIONS {
@@ -1077,6 +1104,64 @@ impl Retargeter {
             *clamps += u32::from(clamped);
         }
         out
+    }
+
+    /// A leg whose axes do not allow the closed form: damped least squares on the ankle's
+    /// position and the foot's orientation (six equations, six joints), from `start`, each
+    /// step clamped into the limits. Returns the angles and how many sit at a limit.
+    fn solve_leg_numeric(&self, side: usize, rot: DQuat, ankle: DVec3, start: [f64; 6]) -> ([f64; 6], u32) {
+        let g = &self.legs[side];
+        let s = &g.joints;
+        let clamp = |k: usize, v: f64| match s[k].range {
+            Some((lo, hi)) => v.clamp(lo, hi),
+            None => v,
+        };
+        let mut q: [f64; 6] = core::array::from_fn(|k| clamp(k, start[k]));
+        for _ in 0..NUMERIC_LEG_ITERATIONS {
+            // The chain's rigid motion joint by joint (product of exponentials), the joints'
+            // axes and points where they are now.
+            let (mut r, mut t) = (DQuat::IDENTITY, DVec3::ZERO);
+            let mut axes = [DVec3::ZERO; 6];
+            let mut points = [DVec3::ZERO; 6];
+            for k in 0..6 {
+                axes[k] = r * s[k].axis;
+                points[k] = r * s[k].point + t;
+                let rk = s[k].rot(q[k]);
+                t += r * s[k].point - r * (rk * s[k].point);
+                r *= rk;
+            }
+            let now = r * g.ankle + t;
+            let e_pos = ankle - now;
+            let e_rot = (rot * (r * g.foot_rot).inverse()).to_scaled_axis();
+            if e_pos.length() < 1e-9 && e_rot.length() < 1e-8 {
+                break;
+            }
+            // Rows: position (m) and orientation weighted to metres by the leg's length.
+            let w = g.reach.max(0.05);
+            let mut jtj = [[0.0; 6]; 6];
+            let mut jte = [0.0; 6];
+            let cols: [[f64; 6]; 6] = core::array::from_fn(|k| {
+                let lin = axes[k].cross(now - points[k]);
+                let ang = axes[k] * w;
+                [lin.x, lin.y, lin.z, ang.x, ang.y, ang.z]
+            });
+            let err = [e_pos.x, e_pos.y, e_pos.z, e_rot.x * w, e_rot.y * w, e_rot.z * w];
+            for i in 0..6 {
+                for k in 0..6 {
+                    jtj[i][k] = (0..6).map(|m| cols[i][m] * cols[k][m]).sum::<f64>();
+                }
+                jtj[i][i] += NUMERIC_LEG_DAMPING * NUMERIC_LEG_DAMPING;
+                jte[i] = (0..6).map(|m| cols[i][m] * err[m]).sum::<f64>();
+            }
+            let Some(dq) = solve6(jtj, jte) else { break };
+            for k in 0..6 {
+                q[k] = clamp(k, q[k] + dq[k].clamp(-0.5, 0.5));
+            }
+        }
+        let at_limit = (0..6)
+            .filter(|&k| s[k].range.is_some_and(|(lo, hi)| q[k] <= lo || q[k] >= hi))
+            .count();
+        (q, at_limit as u32)
     }
 
     /// The closed form (see the module's notes), unclamped.
@@ -1290,6 +1375,32 @@ impl Retargeter {
     fn body_local(&self, b: usize, p_base: DVec3) -> DVec3 {
         self.rest.rot[b].inverse() * (self.base_rest_pos + self.base_rest * p_base - self.rest.pos[b])
     }
+}
+
+/// Solves the 6×6 system `a·x = b` by Gaussian elimination with partial pivoting (`None` when
+/// singular).
+fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {
+    for c in 0..6 {
+        let p = (c..6).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
+        if a[p][c].abs() < 1e-15 {
+            return None;
+        }
+        a.swap(c, p);
+        b.swap(c, p);
+        for r in c + 1..6 {
+            let f = a[r][c] / a[c][c];
+            for k in c..6 {
+                a[r][k] -= f * a[c][k];
+            }
+            b[r] -= f * b[c];
+        }
+    }
+    let mut x = [0.0; 6];
+    for c in (0..6).rev() {
+        let sum: f64 = (c + 1..6).map(|k| a[c][k] * x[k]).sum();
+        x[c] = (b[c] - sum) / a[c][c];
+    }
+    Some(x)
 }
 
 /// A foot's frame from where its joints are (not from its bone's axes, which formats and
