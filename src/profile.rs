@@ -47,12 +47,12 @@
 //! [retarget.left_arm]       # upper arm, forearm → shoulder, shoulder, elbow
 //! human = ["lhumerus", "lradius"]
 //! robot = ["l_sho_pitch", "l_sho_roll", "l_el"]
-//! tip = [-0.019, 0.14, 0.0076]                  # hand point in the elbow's body, metres
+//! tip = "l_hand"                                # a site, or [x, y, z] in the elbow's body
 //!
 //! [retarget.left_leg]       # thigh, shin, foot → hip ×3, knee, ankle ×2
 //! human = ["lfemur", "ltibia", "lfoot"]
 //! robot = ["l_hip_yaw", "l_hip_roll", "l_hip_pitch", "l_knee", "l_ank_pitch", "l_ank_roll"]
-//! sole_centre = [0.024, 0.0125, -0.0305]        # in the last ankle joint's body
+//! sole_centre = "l_foot"                        # a site, or [x, y, z] in the last ankle body
 //! sole_half_size = [0.057, 0.039]
 //!
 //! [retarget.head]           # head → pan, tilt
@@ -255,6 +255,22 @@ pub struct Named {
     pub column: u32,
 }
 
+/// A point of a robot chain: one of the model's sites, or a position in the chain's last body.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PointSpec {
+    /// A site of the model, by name (it must be fixed in the chain's last body).
+    Site(Named),
+    /// A position in the chain's last body, metres.
+    At([f64; 3]),
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum RawPoint {
+    Site(String),
+    At(Vec<f64>),
+}
+
 /// One chain of a retarget map (`[retarget.left_arm]` …), checked for shape.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ChainSpec {
@@ -262,10 +278,10 @@ pub struct ChainSpec {
     pub human: Vec<Named>,
     /// Robot joints, from the base outwards.
     pub robot: Vec<Named>,
-    /// Arms: the hand point in the elbow's body, metres.
-    pub tip: [f64; 3],
-    /// Legs: the sole's centre in the last ankle joint's body, metres.
-    pub sole_centre: [f64; 3],
+    /// Arms: the hand point in the elbow's body.
+    pub tip: PointSpec,
+    /// Legs: the sole's centre in the last ankle joint's body.
+    pub sole_centre: PointSpec,
     /// Legs: the sole's half length and half width, metres.
     pub sole_half_size: [f64; 2],
     /// Scale override (robot / human length).
@@ -343,9 +359,9 @@ struct RawChain {
     human: Spanned<Vec<Spanned<String>>>,
     robot: Spanned<Vec<Spanned<String>>>,
     #[serde(default)]
-    tip: Option<Spanned<Vec<f64>>>,
+    tip: Option<Spanned<RawPoint>>,
     #[serde(default)]
-    sole_centre: Option<Spanned<Vec<f64>>>,
+    sole_centre: Option<Spanned<RawPoint>>,
     #[serde(default)]
     sole_half_size: Option<Spanned<Vec<f64>>>,
     #[serde(default)]
@@ -467,69 +483,95 @@ fn check_retarget(
         return Err(ck.at(&r.model, "expected the path of the robot's MJCF model"));
     }
     let model = path.parent().unwrap_or(Path::new(".")).join(model_text);
-    let chain =
-        |c: &Option<Spanned<RawChain>>, key: &str, kind: usize| -> Result<Option<ChainSpec>, TextError> {
-            let Some(c) = c else { return Ok(None) };
-            let (what, nh, nr, hdesc, rdesc) = CHAIN_SHAPES[kind];
-            let raw_c = c.get_ref();
-            if raw_c.human.get_ref().len() != nh {
-                return Err(ck.at(
-                    &raw_c.human,
-                    format!(
-                        "expected {nh} human bone(s) for a{} {what}: {hdesc}",
-                        if what == "arm" { "n" } else { "" }
-                    ),
-                ));
+    let chain = |c: &Option<Spanned<RawChain>>,
+                 key: &str,
+                 kind: usize|
+     -> Result<Option<ChainSpec>, TextError> {
+        let Some(c) = c else { return Ok(None) };
+        let (what, nh, nr, hdesc, rdesc) = CHAIN_SHAPES[kind];
+        let raw_c = c.get_ref();
+        if raw_c.human.get_ref().len() != nh {
+            return Err(ck.at(
+                &raw_c.human,
+                format!(
+                    "expected {nh} human bone(s) for a{} {what}: {hdesc}",
+                    if what == "arm" { "n" } else { "" }
+                ),
+            ));
+        }
+        if raw_c.robot.get_ref().len() != nr {
+            return Err(ck.at(
+                &raw_c.robot,
+                format!("expected {nr} robot joints for the {what}: {rdesc}"),
+            ));
+        }
+        let vector = |v: &Option<Spanned<Vec<f64>>>,
+                      n: usize,
+                      name: &str,
+                      needed: bool|
+         -> Result<Vec<f64>, TextError> {
+            match v {
+                None if needed => Err(ck.at(
+                    c,
+                    format!("[retarget.{key}] needs `{name}` ({n} numbers, metres)"),
+                )),
+                None => Ok(vec![0.0; n]),
+                Some(v) if v.get_ref().len() == n && v.get_ref().iter().all(|x| x.is_finite()) => {
+                    Ok(v.get_ref().clone())
+                }
+                Some(v) => Err(ck.at(v, format!("expected {n} finite numbers (metres)"))),
             }
-            if raw_c.robot.get_ref().len() != nr {
-                return Err(ck.at(
-                    &raw_c.robot,
-                    format!("expected {nr} robot joints for the {what}: {rdesc}"),
-                ));
-            }
-            let vector = |v: &Option<Spanned<Vec<f64>>>,
-                          n: usize,
-                          name: &str,
-                          needed: bool|
-             -> Result<Vec<f64>, TextError> {
+        };
+        let point =
+            |v: &Option<Spanned<RawPoint>>, name: &str, needed: bool| -> Result<PointSpec, TextError> {
                 match v {
                     None if needed => Err(ck.at(
                         c,
-                        format!("[retarget.{key}] needs `{name}` ({n} numbers, metres)"),
+                        format!("[retarget.{key}] needs `{name}`: a site of the model or [x, y, z] metres"),
                     )),
-                    None => Ok(vec![0.0; n]),
-                    Some(v) if v.get_ref().len() == n && v.get_ref().iter().all(|x| x.is_finite()) => {
-                        Ok(v.get_ref().clone())
-                    }
-                    Some(v) => Err(ck.at(v, format!("expected {n} finite numbers (metres)"))),
+                    None => Ok(PointSpec::At([0.0; 3])),
+                    Some(p) => match p.get_ref() {
+                        RawPoint::Site(site) if !site.trim().is_empty() => {
+                            let (line, column) = line_col(ck.text, p.span().start);
+                            Ok(PointSpec::Site(Named {
+                                name: site.trim().to_string(),
+                                line,
+                                column,
+                            }))
+                        }
+                        RawPoint::At(v) if v.len() == 3 && v.iter().all(|x| x.is_finite()) => {
+                            Ok(PointSpec::At([v[0], v[1], v[2]]))
+                        }
+                        _ => Err(ck.at(p, "expected a site's name or 3 finite numbers (metres)")),
+                    },
                 }
             };
-            let tip = vector(&raw_c.tip, 3, "tip", kind == 0)?;
-            let sole_centre = vector(&raw_c.sole_centre, 3, "sole_centre", kind == 1)?;
-            let sole_half_size = vector(&raw_c.sole_half_size, 2, "sole_half_size", kind == 1)?;
-            if kind == 1 && sole_half_size.iter().any(|x| *x <= 0.0) {
-                let at = raw_c.sole_half_size.as_ref().map_or(ck.line(c), |v| ck.line(v));
-                return Err(TextError::new(
-                    at,
-                    0,
-                    "expected a positive half length and half width",
-                ));
-            }
-            let scale = match &raw_c.scale {
-                None => None,
-                Some(v) if v.get_ref().is_finite() && *v.get_ref() > 0.0 => Some(*v.get_ref()),
-                Some(v) => return Err(ck.at(v, format!("expected a positive scale, found {}", v.get_ref()))),
-            };
-            Ok(Some(ChainSpec {
-                human: raw_c.human.get_ref().iter().map(|n| ck.named(n)).collect(),
-                robot: raw_c.robot.get_ref().iter().map(|n| ck.named(n)).collect(),
-                tip: [tip[0], tip[1], tip[2]],
-                sole_centre: [sole_centre[0], sole_centre[1], sole_centre[2]],
-                sole_half_size: [sole_half_size[0], sole_half_size[1]],
-                scale,
-                line: ck.line(c),
-            }))
+        let tip = point(&raw_c.tip, "tip", kind == 0)?;
+        let sole_centre = point(&raw_c.sole_centre, "sole_centre", kind == 1)?;
+        let sole_half_size = vector(&raw_c.sole_half_size, 2, "sole_half_size", kind == 1)?;
+        if kind == 1 && sole_half_size.iter().any(|x| *x <= 0.0) {
+            let at = raw_c.sole_half_size.as_ref().map_or(ck.line(c), |v| ck.line(v));
+            return Err(TextError::new(
+                at,
+                0,
+                "expected a positive half length and half width",
+            ));
+        }
+        let scale = match &raw_c.scale {
+            None => None,
+            Some(v) if v.get_ref().is_finite() && *v.get_ref() > 0.0 => Some(*v.get_ref()),
+            Some(v) => return Err(ck.at(v, format!("expected a positive scale, found {}", v.get_ref()))),
         };
+        Ok(Some(ChainSpec {
+            human: raw_c.human.get_ref().iter().map(|n| ck.named(n)).collect(),
+            robot: raw_c.robot.get_ref().iter().map(|n| ck.named(n)).collect(),
+            tip,
+            sole_centre,
+            sole_half_size: [sole_half_size[0], sole_half_size[1]],
+            scale,
+            line: ck.line(c),
+        }))
+    };
     let leg = |c: &Option<Spanned<RawChain>>, key: &str| -> Result<ChainSpec, TextError> {
         chain(c, key, 1)?.ok_or_else(|| ck.at(raw, format!("[retarget] needs a [retarget.{key}] table")))
     };

@@ -13,7 +13,7 @@ use serde::Serialize;
 use crate::fk::{fk64, Pose64};
 use crate::formats::{mjcf, FileError, TextError};
 use crate::motion::{frame_to_radians, Motion};
-use crate::profile::{ChainSpec, Drive, Named, Profile, RetargetSpec};
+use crate::profile::{ChainSpec, Drive, Named, PointSpec, Profile, RetargetSpec};
 pub use marionette_core::retarget::*;
 
 pub mod plot;
@@ -170,7 +170,7 @@ impl Setup {
                 let j = joints(c)?;
                 arms[side] = Some(ArmChain {
                     joints: [j[0], j[1], j[2]],
-                    tip: DVec3::from_array(c.tip),
+                    tip: point_in(path, spec, &robot, robot.joints()[j[2]].body, &c.tip)?,
                 });
                 human_arms[side] = Some([bone(&c.human[0])?, bone(&c.human[1])?]);
             }
@@ -185,7 +185,7 @@ impl Setup {
             let j = joints(c)?;
             legs[side] = LegChain {
                 joints: [j[0], j[1], j[2], j[3], j[4], j[5]],
-                sole_centre: DVec3::from_array(c.sole_centre),
+                sole_centre: point_in(path, spec, &robot, robot.joints()[j[5]].body, &c.sole_centre)?,
                 sole_half: c.sole_half_size,
             };
             human_legs[side] = [bone(&c.human[0])?, bone(&c.human[1])?, bone(&c.human[2])?];
@@ -253,6 +253,52 @@ impl Setup {
     #[must_use]
     pub fn joint_names(&self) -> Vec<String> {
         self.robot.joints().iter().map(|j| j.name.to_string()).collect()
+    }
+}
+
+/// A chain's point in `body`'s frame: a site fixed in that body, or the position given.
+fn point_in(
+    profile: &Path,
+    spec: &RetargetSpec,
+    robot: &Robot,
+    body: usize,
+    p: &PointSpec,
+) -> Result<DVec3, FileError> {
+    match p {
+        PointSpec::At(v) => Ok(DVec3::from_array(*v)),
+        PointSpec::Site(n) => {
+            let Some(site) = robot.site(&n.name) else {
+                let known: Vec<&str> = robot.sites().iter().map(|s| s.name.as_str()).collect();
+                return Err(at(
+                    profile,
+                    n,
+                    format!(
+                        "no site `{}` in {}; it has: {}",
+                        n.name,
+                        spec.model.display(),
+                        if known.is_empty() {
+                            "none".to_string()
+                        } else {
+                            known.join(" ")
+                        }
+                    ),
+                ));
+            };
+            let s = &robot.sites()[site];
+            if s.body != body {
+                return Err(at(
+                    profile,
+                    n,
+                    format!(
+                        "site `{}` is on body `{}`; the chain ends in body `{}`",
+                        n.name,
+                        robot.bodies()[s.body].name,
+                        robot.bodies()[body].name
+                    ),
+                ));
+            }
+            Ok(s.pos)
+        }
     }
 }
 

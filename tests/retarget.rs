@@ -65,13 +65,12 @@ fn map_errors_name_the_line_and_column() {
     );
     let dir = common::tempdir("retarget-errors");
     let (s, _) = clip("16.asf", &common::data("16_15.amc"));
-    let line_col = |needle: &str, t: &str| -> (usize, usize) {
-        let at = t.find(needle).unwrap();
+    let line_col = |at: usize, t: &str| -> (usize, usize) {
         let line = t[..at].matches('\n').count() + 1;
         let col = at - t[..at].rfind('\n').map_or(0, |p| p + 1) + 1;
         (line, col)
     };
-    let cases: [(&str, &str, &str, &str); 6] = [
+    let cases: [(&str, &str, &str, &str); 8] = [
         // (replace, with, the text at the error, what the message says)
         (
             "\"l_el\"]",
@@ -104,10 +103,22 @@ fn map_errors_name_the_line_and_column() {
             "expected a positive half length and half width",
         ),
         (
-            "tip = [-0.019, 0.14, 0.0076]",
+            "tip = \"l_hand\"",
             "tip = [-0.019, 0.14]",
             "[-0.019, 0.14]",
-            "expected 3 finite numbers",
+            "expected a site's name or 3 finite numbers",
+        ),
+        (
+            "tip = \"l_hand\"",
+            "tip = \"l_palm\"",
+            "\"l_palm\"",
+            "no site `l_palm` in",
+        ),
+        (
+            "tip = \"l_hand\"",
+            "tip = \"l_foot\"",
+            "\"l_foot\"",
+            "site `l_foot` is on body `l_ank_roll_link`; the chain ends in body `l_el_link`",
         ),
     ];
     for (from, to, at, says) in cases {
@@ -119,7 +130,8 @@ fn map_errors_name_the_line_and_column() {
             .and_then(|p| Setup::new(&p, &s).map(|_| ()))
             .expect_err(to)
             .to_string();
-        let (line, col) = line_col(at, &bad);
+        // Where the error points: the replaced text, at `at` within it.
+        let (line, col) = line_col(bad.find(to).unwrap() + to.find(at).unwrap(), &bad);
         assert!(err.contains(says), "{err}");
         // The sole size is checked as a whole value: its line is enough there.
         let place = if says.contains("half length") {
@@ -137,7 +149,7 @@ fn map_errors_name_the_line_and_column() {
     let err = Setup::new(&Profile::load(&path).unwrap(), &s)
         .unwrap_err()
         .to_string();
-    let (line, col) = line_col("\"/nonexistent/op3.xml\"", &bad);
+    let (line, col) = line_col(bad.find("\"/nonexistent/op3.xml\"").unwrap(), &bad);
     assert!(
         err.contains(&format!(
             "op3.toml:{line}:{col}: cannot read the model /nonexistent/op3.xml"

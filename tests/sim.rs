@@ -393,6 +393,13 @@ fn op3_kinematics_from_mjcf_equal_mujocos() {
         .iter()
         .map(|b| world.body(&b.name).unwrap())
         .collect();
+    let sites: Vec<usize> = robot
+        .sites()
+        .iter()
+        .map(|s| world.site(&s.name).unwrap())
+        .collect();
+    assert_eq!(sites.len(), 5, "the OP3 model's named sites");
+    let mut worst_site = 0.0f64;
     let mut rng = Rng::new(16);
     let mut pose = RobotPose::default();
     let (mut worst_pos, mut worst_com, mut worst_rot) = (0.0f64, 0.0f64, 0.0f64);
@@ -411,6 +418,10 @@ fn op3_kinematics_from_mjcf_equal_mujocos() {
         }
         world.forward();
         robot.forward(DVec3::ZERO, DQuat::IDENTITY, &q, &mut pose);
+        for (k, &mj) in sites.iter().enumerate() {
+            let p = DVec3::from_array(world.site_position(mj));
+            worst_site = worst_site.max((p - robot.site_position(&pose, k)).length());
+        }
         for (i, &mj) in bodies.iter().enumerate() {
             let p = DVec3::from_array(world.body_position(mj));
             worst_pos = worst_pos.max((p - pose.pos[i]).length());
@@ -426,7 +437,8 @@ fn op3_kinematics_from_mjcf_equal_mujocos() {
         worst_com = worst_com.max((com - robot.centre_of_mass(&pose)).length());
     }
     println!("OP3 vs MuJoCo, 200 random configurations: body position {worst_pos:.2e} m, rotation {worst_rot:.2e}, centre of mass {worst_com:.2e} m");
-    assert!(worst_pos < 1e-6 && worst_com < 1e-6 && worst_rot < 1e-9);
+    println!("sites: {worst_site:.1e} m");
+    assert!(worst_pos < 1e-6 && worst_com < 1e-6 && worst_rot < 1e-9 && worst_site < 1e-6);
 }
 
 /// Runs `play` on the OP3 in MuJoCo (lockstep, `scene.xml` with its floor) and returns the

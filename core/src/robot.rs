@@ -54,6 +54,20 @@ pub struct RobotJoint {
     pub range: Option<(f64, f64)>,
 }
 
+/// A named point fixed in a body (an MJCF site): a hand, a sole.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RobotSite {
+    /// Its name.
+    pub name: Name,
+    /// The body it is fixed in.
+    pub body: usize,
+    /// Its position in that body's frame, metres.
+    pub pos: DVec3,
+}
+
+/// Most sites in a robot.
+pub const MAX_ROBOT_SITES: usize = 32;
+
 /// Why a body or joint cannot be added.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RobotError {
@@ -89,6 +103,7 @@ pub struct Robot {
     bodies: heapless::Vec<RobotBody, MAX_ROBOT_BODIES>,
     joints: heapless::Vec<RobotJoint, MAX_ROBOT_JOINTS>,
     joint_of_body: heapless::Vec<Option<usize>, MAX_ROBOT_BODIES>,
+    sites: heapless::Vec<RobotSite, MAX_ROBOT_SITES>,
 }
 
 /// Where every body of a robot is, in the base's frame.
@@ -200,6 +215,43 @@ impl Robot {
     #[must_use]
     pub fn joint(&self, joint_name: &str) -> Option<usize> {
         self.joints.iter().position(|j| j.name == joint_name)
+    }
+
+    /// Adds a named point fixed in `body`; returns its index.
+    ///
+    /// # Errors
+    /// [`RobotError`]: a body that does not exist, a long name, too many sites.
+    pub fn add_site(&mut self, site_name: &str, body: usize, pos: DVec3) -> Result<usize, RobotError> {
+        if body >= self.bodies.len() {
+            return Err(RobotError::BadParent);
+        }
+        let site = RobotSite {
+            name: name(site_name)?,
+            body,
+            pos,
+        };
+        self.sites.push(site).map_err(|_| RobotError::Full)?;
+        Ok(self.sites.len() - 1)
+    }
+
+    /// The sites.
+    #[must_use]
+    pub fn sites(&self) -> &[RobotSite] {
+        &self.sites
+    }
+
+    /// The site with this name.
+    #[must_use]
+    pub fn site(&self, site_name: &str) -> Option<usize> {
+        self.sites.iter().position(|s| s.name == site_name)
+    }
+
+    /// Where a site is in `pose` (NaN for a site that does not exist).
+    #[must_use]
+    pub fn site_position(&self, pose: &RobotPose, site: usize) -> DVec3 {
+        self.sites
+            .get(site)
+            .map_or(DVec3::NAN, |s| pose.pos[s.body] + pose.rot[s.body] * s.pos)
     }
 
     /// Sets a joint's limits (radians; `None`: unlimited). Out-of-range indices are ignored.

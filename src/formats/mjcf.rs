@@ -1,6 +1,6 @@
 //! A robot's kinematic tree from its MuJoCo model (MJCF) into the core's [`Robot`]: bodies'
 //! `pos` and orientation (`quat`, `euler` with the compiler's `eulerseq`, `axisangle`), hinge
-//! joints' `axis`, `pos` and `range`, `<inertial>` masses and centres, the compiler's angle
+//! joints' `axis`, `pos` and `range`, named sites' `pos`, `<inertial>` masses and centres, the compiler's angle
 //! unit, `<default>` classes and `childclass` resolved as MuJoCo resolves them, and top-level
 //! `<include>` files. What a kinematic tree cannot hold (slide and ball joints, frames, a free
 //! joint below the root) is an error naming the file, line and element.
@@ -75,6 +75,7 @@ pub fn load(path: &Path) -> Result<MjcfRobot, FileError> {
 struct Class {
     parent: Option<String>,
     joint: HashMap<String, String>,
+    site: HashMap<String, String>,
 }
 
 struct Reader {
@@ -191,11 +192,18 @@ impl Reader {
                 joint.insert(a.name().to_string(), a.value().to_string());
             }
         }
+        let mut site = HashMap::new();
+        for j in n.children().filter(|c| c.has_tag_name("site")) {
+            for a in j.attributes() {
+                site.insert(a.name().to_string(), a.value().to_string());
+            }
+        }
         self.classes.insert(
             name.clone(),
             Class {
                 parent: parent.map(str::to_string),
                 joint,
+                site,
             },
         );
         for child in n.children().filter(|c| c.has_tag_name("default")) {
@@ -206,13 +214,24 @@ impl Reader {
 
     /// A joint attribute: the element's own, else its class's, else the class's parents'.
     fn joint_attr<'a>(&'a self, n: Node<'a, '_>, class: &str, key: &str) -> Option<&'a str> {
+        self.class_attr(n, class, key, |c| &c.joint)
+    }
+
+    /// An attribute of an element whose defaults `of` picks from a class.
+    fn class_attr<'a>(
+        &'a self,
+        n: Node<'a, '_>,
+        class: &str,
+        key: &str,
+        of: impl Fn(&Class) -> &HashMap<String, String>,
+    ) -> Option<&'a str> {
         if let Some(v) = n.attribute(key) {
             return Some(v);
         }
         let mut c = Some(n.attribute("class").unwrap_or(class));
         while let Some(name) = c {
             let class = self.classes.get(name)?;
-            if let Some(v) = class.joint.get(key) {
+            if let Some(v) = of(class).get(key) {
                 return Some(v);
             }
             c = class.parent.as_deref().or((name != "main").then_some("main"));
@@ -334,6 +353,20 @@ impl Reader {
                     self.floating = true;
                 }
                 "joint" => self.joint(c, index, &class, parent.is_none(), at)?,
+                "site" => {
+                    if let Some(site) = c.attribute("name") {
+                        let pos = match self.class_attr(c, &class, "pos", |k| &k.site) {
+                            Some(p) => DVec3::from_array(
+                                numbers::<3>(p)
+                                    .ok_or_else(|| at(c, format!("expected pos=\"x y z\", found \"{p}\"")))?,
+                            ),
+                            None => DVec3::ZERO,
+                        };
+                        self.robot
+                            .add_site(site, index, pos)
+                            .map_err(|e| at(c, format!("cannot add site \"{site}\": {e}")))?;
+                    }
+                }
                 "body" => self.body(c, Some(index), &class, at)?,
                 "frame" | "replicate" | "attach" => {
                     return Err(at(c, "is not supported in a robot's kinematic tree".into()));
