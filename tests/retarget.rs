@@ -673,3 +673,55 @@ fn legs_without_the_closed_form_are_solved_numerically() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Any finite pose, however wild (every channel random in ±10 rad, the root anywhere), gives
+/// finite joint angles inside their limits and a finite base pose: the tick never hands the
+/// command stage a NaN from retargeting.
+#[test]
+fn wild_poses_give_finite_joints_inside_the_limits() {
+    let profile = op3();
+    let (s, motion) = clip("16.asf", &common::data("16_15.amc"));
+    let setup = Setup::new(&profile, &s).unwrap();
+    let mut r = setup.retargeter(
+        &s,
+        floor_of_clip(&s, &motion, &setup.map.human),
+        Options::default(),
+    );
+    let mut pose = Pose64::default();
+    let mut out = RetargetFrame::default();
+    let mut rng = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for i in 0..3000 {
+        let channels: Vec<f64> = (0..s.channel_count())
+            .map(|_| {
+                if i % 3 == 0 {
+                    (next() - 0.5) * 20.0
+                } else {
+                    (next() - 0.5) * 2.0
+                }
+            })
+            .collect();
+        fk64(&s, &channels, &mut pose);
+        r.step(
+            &setup.robot,
+            &pose,
+            if i % 7 == 0 { 0.0 } else { 1.0 / 120.0 },
+            &mut out,
+        );
+        assert!(out.base_pos.is_finite() && out.base_rot.is_finite(), "frame {i}");
+        for (j, joint) in setup.robot.joints().iter().enumerate() {
+            let (lo, hi) = joint.range.unwrap();
+            assert!(
+                out.q[j].is_finite() && out.q[j] >= lo - 1e-9 && out.q[j] <= hi + 1e-9,
+                "frame {i}: {} = {}",
+                joint.name,
+                out.q[j]
+            );
+        }
+    }
+}
