@@ -99,14 +99,14 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
     let root = root.titled(&pic.title, ("sans-serif", 22))?;
     let (top, bottom) = root.split_vertically(480);
     let n = pic.run.frames.len();
-    let shown: Vec<usize> = (0..5).map(|k| (k * n.saturating_sub(1)) / 4).collect();
+    let shown: Vec<usize> = (0..3).map(|k| (k * n.saturating_sub(1)) / 2).collect();
     let panels = top.split_evenly((1, shown.len()));
     for (panel, &i) in panels.iter().zip(&shown) {
         let (human, robot) = figures(pic, i);
         // Side by side: the human to the left of the robot, both centred on the robot's base.
         let base = pic.run.frames[i].base_pos;
         let centre = view(base).0;
-        let width = 0.34;
+        let width = 0.31;
         let shift = |p: DVec3, dx: f64| {
             let (x, y) = view(p);
             (x - centre + dx, y)
@@ -117,25 +117,25 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
                 ("sans-serif", 15),
             )
             .margin(6)
-            .build_cartesian_2d(-width..width, -0.03..0.65)?;
+            .build_cartesian_2d(-width..width, -0.03..0.55)?;
         chart.draw_series(std::iter::once(PathElement::new(
             vec![(-width, 0.0), (width, 0.0)],
             RGBColor(160, 160, 160).stroke_width(1),
         )))?;
         chart.draw_series(human.iter().map(|(a, b)| {
             PathElement::new(
-                vec![shift(*a, -0.16), shift(*b, -0.16)],
+                vec![shift(*a, -0.15), shift(*b, -0.15)],
                 RGBColor(40, 90, 200).stroke_width(3),
             )
         }))?;
         chart.draw_series(robot.iter().map(|(a, b)| {
             PathElement::new(
-                vec![shift(*a, 0.16), shift(*b, 0.16)],
+                vec![shift(*a, 0.15), shift(*b, 0.15)],
                 RGBColor(210, 90, 30).stroke_width(3),
             )
         }))?;
         let f = &pic.run.frames[i];
-        let com = shift(DVec3::new(f.com.x, f.com.y, 0.0), 0.16);
+        let com = shift(DVec3::new(f.com.x, f.com.y, 0.0), 0.15);
         chart.draw_series(std::iter::once(Circle::new(com, 4, BLACK.filled())))?;
         chart.draw_series(std::iter::once(Text::new(
             format!(
@@ -143,7 +143,7 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
                 if f.planted[0] { "L" } else { "·" },
                 if f.planted[1] { "R" } else { "·" }
             ),
-            (0.12, 0.6),
+            (0.11, 0.52),
             ("sans-serif", 13),
         )))?;
     }
