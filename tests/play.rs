@@ -60,6 +60,23 @@ fn check_stats(v: &serde_json::Value, rate: f64) {
     );
     let t = v["tracking_rms_deg"].as_f64().unwrap();
     assert!(t.is_finite() && t < 5.0, "tracking {t}");
+    // End to end: the source mapped through the rig against the present positions read back.
+    let f = &v["fidelity"];
+    for key in [
+        "joint_rms_deg",
+        "joint_max_deg",
+        "lag_ms",
+        "rms_after_lag_deg",
+        "effector_rms_mm",
+    ] {
+        let x = f[key].as_f64().unwrap_or(f64::NAN);
+        assert!(x.is_finite() && x >= 0.0, "fidelity.{key} = {x}: {f}");
+    }
+    assert!(f["rms_after_lag_deg"].as_f64() <= f["joint_rms_deg"].as_f64());
+    assert!(f["joint_rms_deg"].as_f64() <= f["joint_max_deg"].as_f64());
+    let samples = f["samples"].as_u64().unwrap();
+    assert!(samples > 0 && samples <= v["reads_ok"].as_u64().unwrap(), "{f}");
+    assert_eq!(f["servos"].as_array().unwrap().len(), 28);
 }
 
 /// `follow … --targets TARGETS --ramp 0.1 --duration SECONDS --stats-json STATS` as a child

@@ -517,3 +517,39 @@ fn budget_matches_hand_computation() {
     assert!(b.max_rate_hz < 90.0 && b.max_rate_hz > 80.0, "{}", b.max_rate_hz);
     assert_eq!(b.feasible, Some(false));
 }
+
+/// The inverse mapping (issue 17's effector fidelity): servo angles back to a skeleton frame.
+/// For every frame of the walk on the puppet (direct channels and re-decomposed bones), the
+/// frame the servos' angles stand for poses every bone the servos move exactly as the source.
+#[test]
+fn servo_angles_map_back_to_the_frame_they_came_from() {
+    use marionette::fk::{fk64, Pose64};
+    let skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
+    let motion = amc::load(&skeleton, &common::data("16_15.amc")).unwrap();
+    let profile = Profile::load(&profile_path("cmu-puppet.toml")).unwrap();
+    let rig = profile.rig(Some(&skeleton)).unwrap();
+    assert!(rig
+        .servos
+        .iter()
+        .any(|s| matches!(s.source, JointSource::Redecomposed { .. })));
+    let mut angles = vec![0.0; rig.len()];
+    let mut back = vec![0.0; skeleton.channel_count()];
+    let (mut a, mut b) = (Pose64::default(), Pose64::default());
+    let mut worst = 0.0f64;
+    for frame in motion.frames() {
+        let source = marionette::motion::frame_to_radians(&skeleton, frame);
+        rig.joint_angles(&skeleton, &source, &[], &mut angles);
+        rig.channels_from_angles(&skeleton, &angles, &source, &mut back);
+        fk64(&skeleton, &source, &mut a);
+        fk64(&skeleton, &back, &mut b);
+        for i in 0..skeleton.len() {
+            worst = worst.max((a.tip[i] - b.tip[i]).length());
+        }
+        // A servo turned by 0.1 rad moves the frame: the inverse is not just the source.
+        let mut turned = angles.clone();
+        turned[0] += 0.1;
+        rig.channels_from_angles(&skeleton, &turned, &source, &mut back);
+        assert_ne!(back, source);
+    }
+    assert!(worst < 1e-9, "tips moved by {worst} units");
+}

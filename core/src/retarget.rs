@@ -751,6 +751,23 @@ impl Retargeter {
         self.map.arms[side & 1].map(|a| a.joints)
     }
 
+    /// The effectors in `pose` (the robot's forward kinematics): left hand, right hand, left
+    /// sole, right sole (NaN for an unmapped arm), metres.
+    #[must_use]
+    pub fn effector_points(&self, robot: &Robot, pose: &RobotPose) -> [DVec3; 4] {
+        let mut out = [DVec3::NAN; 4];
+        for side in 0..2 {
+            if let Some(arm) = self.map.arms[side] {
+                let b = robot.joints()[arm.joints[2]].body;
+                out[side] = pose.pos[b] + pose.rot[b] * arm.tip;
+            }
+            let leg = &self.map.legs[side];
+            let b = robot.joints()[leg.joints[5]].body;
+            out[2 + side] = pose.pos[b] + pose.rot[b] * leg.sole_centre;
+        }
+        out
+    }
+
     /// Forgets the stream's state (planted feet, branches, balance shift): the next frame is
     /// treated as a first one.
     pub fn reset(&mut self) {

@@ -153,6 +153,80 @@ impl Rig {
     }
 }
 
+impl Rig {
+    /// The skeleton frame a pose of the servos stands for: `source` (the frame they were driven
+    /// from, radians) with each servo's channel replaced by its angle `angles[k]` — a channel
+    /// directly; a re-decomposed bone's rotation recomposed in the rig's order from its servos'
+    /// angles (slots no servo drives kept from the source) and written back in the bone's own
+    /// DOF order (bones with fewer than three rotation DOFs keep the source). The inverse of
+    /// [`Rig::joint_angles`], for comparing what the servos do with what they were asked.
+    pub fn channels_from_angles(&self, skeleton: &Skeleton, angles: &[f64], source: &[f64], out: &mut [f64]) {
+        let n = source.len().min(out.len());
+        out[..n].copy_from_slice(&source[..n]);
+        let mut done: heapless::Vec<(usize, EulerOrder), MAX_SERVOS> = heapless::Vec::new();
+        for (k, servo) in self.servos.iter().enumerate() {
+            let Some(&angle) = angles.get(k) else { break };
+            match servo.source {
+                JointSource::Channel(c) => {
+                    if let Some(o) = out.get_mut(c) {
+                        *o = angle;
+                    }
+                }
+                JointSource::Joint(_) => {}
+                JointSource::Redecomposed { bone, order, .. } => {
+                    if done.contains(&(bone, order)) {
+                        continue;
+                    }
+                    let _ = done.push((bone, order));
+                    let (Some(b), Some(m)) =
+                        (skeleton.bones().get(bone), bone_rotation(skeleton, bone, source))
+                    else {
+                        continue;
+                    };
+                    let mut a = euler_near(order, &m, [0.0; 3]);
+                    for (j, s) in self.servos.iter().enumerate() {
+                        if let JointSource::Redecomposed {
+                            bone: b2,
+                            order: o2,
+                            slot,
+                        } = s.source
+                        {
+                            if b2 == bone && o2 == order {
+                                if let Some(v) = angles.get(j) {
+                                    a[slot] = *v;
+                                }
+                            }
+                        }
+                    }
+                    let Some(own) = crate::skeleton::dof_order(b.dofs()) else {
+                        continue;
+                    };
+                    let rotations: heapless::Vec<usize, 3> = b
+                        .dofs()
+                        .iter()
+                        .zip(b.channels())
+                        .filter(|(d, _)| d.is_rotation())
+                        .map(|(_, c)| c)
+                        .collect();
+                    let reference: [f64; 3] = core::array::from_fn(|i| {
+                        rotations
+                            .get(i)
+                            .and_then(|c| source.get(*c))
+                            .copied()
+                            .unwrap_or(0.0)
+                    });
+                    let back = euler_near(own, &order.to_mat3_f64(a), reference);
+                    for (i, c) in rotations.iter().enumerate() {
+                        if let Some(o) = out.get_mut(*c) {
+                            *o = back[i];
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// A bone's local rotation `M = R(last)·…·R(first)` from its rotation channels (radians), or
 /// `None` when the frame is too short.
 #[must_use]

@@ -324,8 +324,10 @@ fn run_sim(
     // In lockstep the physics (and its recorder) runs inside the bus calls of each tick, so a
     // count would be the simulator's; the loop's own ticks are counted on the other buses.
     let _ = allocations;
-    let config = loop_config(args, None);
+    let mut config = loop_config(args, None);
+    config.effector_metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
+    controller.set_servo_names(profile.servos.iter().map(|s| s.name.clone()).collect());
     if let Some(r) = retarget {
         controller.set_retarget(r);
     }
@@ -411,6 +413,7 @@ fn loop_config(args: &LoopArgs, allocations: Option<fn() -> u64>) -> LoopConfig 
         },
         max_ticks: args.duration.map(|d| (d * args.rate).round().max(1.0) as u64),
         ease_in_s: args.ease_in,
+        effector_metres_per_unit: 0.0,
         allocations,
     }
 }
@@ -488,8 +491,10 @@ fn run_loop(
     } = open_bus(args, profile, &rig, out)?;
     let present = start_up(&mut bus, profile)?;
     writeln!(out, "{label}: {} servos up, torque on", present.len())?;
-    let config = loop_config(args, allocations);
+    let mut config = loop_config(args, allocations);
+    config.effector_metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
+    controller.set_servo_names(profile.servos.iter().map(|s| s.name.clone()).collect());
     if let Some(r) = retarget {
         controller.set_retarget(r);
     }

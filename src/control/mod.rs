@@ -16,6 +16,7 @@
 //! Stopping: [`StopRequests`] are counted. The first ends the loop with the ramp to rest (or the
 //! hold); a second during the ramp cuts it short and turns torque off at once.
 
+pub mod fidelity;
 pub mod input;
 pub mod lockstep;
 pub mod plot;
@@ -37,7 +38,7 @@ use crate::ik::{point_bone, Limb, Swivel};
 use crate::ik_numeric::{Constraint, Settings, Solver};
 use crate::retarget::{Floor, Options, ReportBuilder, RetargetFrame, RetargetReport, Retargeter, Setup};
 use crate::rig::Rig;
-use crate::robot::Robot;
+use crate::robot::{Robot, RobotPose, MAX_ROBOT_JOINTS};
 use crate::schedule::{Clock, Schedule, Tick};
 use crate::servo::MAX_SERVOS;
 use crate::servo::{addr, TICKS_PER_TURN};
@@ -83,6 +84,9 @@ pub struct LoopConfig {
     /// Seconds over which the first commands blend from where the servos stood to the input
     /// (0: the first input is commanded at once, within the velocity limits).
     pub ease_in_s: f64,
+    /// Metres per skeleton file unit at the rig's size, for effector distances (the puppet's
+    /// scale times the skeleton's unit; a robot's are in its own metres).
+    pub effector_metres_per_unit: f64,
 }
 
 impl Default for LoopConfig {
@@ -95,6 +99,7 @@ impl Default for LoopConfig {
             max_ticks: None,
             allocations: None,
             ease_in_s: 0.0,
+            effector_metres_per_unit: 0.0,
         }
     }
 }
@@ -399,6 +404,8 @@ pub struct RetargetStage {
     report: ReportBuilder,
     names: Vec<String>,
     last_clip_time: f64,
+    pose: Box<RobotPose>,
+    present_q: [f64; MAX_ROBOT_JOINTS],
 }
 
 impl RetargetStage {
@@ -412,7 +419,29 @@ impl RetargetStage {
             report: ReportBuilder::new(setup.robot.joints().len()),
             names: setup.joint_names(),
             last_clip_time: f64::NAN,
+            pose: Box::default(),
+            present_q: [0.0; MAX_ROBOT_JOINTS],
         }
+    }
+
+    /// The effectors (hands, soles) at the retargeted joints and at the `present` angles of
+    /// the rig's servos (the base where the retargeting put it), metres.
+    fn effectors(&mut self, rig: &Rig, present: &[f64]) -> ([DVec3; 4], [DVec3; 4]) {
+        let (pos, rot) = self
+            .retargeter
+            .model_placement(self.frame.base_pos, self.frame.base_rot);
+        self.robot.forward(pos, rot, &self.frame.q, &mut self.pose);
+        let source = self.retargeter.effector_points(&self.robot, &self.pose);
+        self.present_q.copy_from_slice(&self.frame.q);
+        for (servo, angle) in rig.servos.iter().zip(present) {
+            if let crate::rig::JointSource::Joint(j) = servo.source {
+                if let Some(q) = self.present_q.get_mut(j) {
+                    *q = *angle;
+                }
+            }
+        }
+        self.robot.forward(pos, rot, &self.present_q, &mut self.pose);
+        (source, self.retargeter.effector_points(&self.robot, &self.pose))
     }
 
     /// What the run's retargeting measured.
@@ -471,6 +500,15 @@ pub struct Controller {
     ease_from: Vec<f64>,
     ease_ticks: u64,
     eased: u64,
+    /// Source against present, end to end.
+    fidelity: Box<fidelity::Fidelity>,
+    /// This tick's source angles (the input mapped through the rig) and the present angles.
+    source_angles: Vec<f64>,
+    present_angles: Vec<f64>,
+    /// The frame the present angles stand for, and its pose (effectors).
+    present_channels: Box<[f64; MAX_CHANNELS]>,
+    present_pose: Box<Pose64>,
+    servo_names: Vec<String>,
 }
 
 impl std::fmt::Debug for Controller {
@@ -534,6 +572,12 @@ impl Controller {
             ease_from: angles.clone(),
             ease_ticks,
             eased: 0,
+            fidelity: Box::new(fidelity::Fidelity::new(n, period_ns as f64 * 1e-9)),
+            source_angles: vec![f64::NAN; n],
+            present_angles: vec![f64::NAN; n],
+            present_channels: Box::new([0.0; MAX_CHANNELS]),
+            present_pose: Box::default(),
+            servo_names: Vec::new(),
             angles,
             present: present.to_vec(),
             read_buf: vec![0; n],
@@ -552,6 +596,52 @@ impl Controller {
             last_tick: None,
             retarget: None,
         }
+    }
+
+    /// Source against present for this tick (after a valid read): joints, and effectors by
+    /// forward kinematics of both. Allocates nothing.
+    fn record_fidelity(&mut self, source_tips: &[DVec3; 4]) {
+        for ((p, s), t) in self
+            .present_angles
+            .iter_mut()
+            .zip(&self.rig.servos)
+            .zip(&self.present)
+        {
+            *p = s.ticks_to_angle(f64::from(*t));
+        }
+        self.fidelity.record(&self.source_angles, &self.present_angles);
+        if let Some(r) = &mut self.retarget {
+            let (source, present) = r.effectors(&self.rig, &self.present_angles);
+            self.fidelity.record_effectors(&source, &present);
+        } else if self.config.effector_metres_per_unit > 0.0 {
+            let n = self.skeleton.channel_count();
+            self.rig.channels_from_angles(
+                &self.skeleton,
+                &self.present_angles,
+                &self.channels[..n],
+                &mut self.present_channels[..n],
+            );
+            fk64(
+                &self.skeleton,
+                &self.present_channels[..n],
+                &mut self.present_pose,
+            );
+            let scale = self.config.effector_metres_per_unit;
+            let mut source = [DVec3::NAN; 4];
+            let mut present = [DVec3::NAN; 4];
+            for (k, w) in self.watch.iter().enumerate() {
+                if let Some(b) = w {
+                    source[k] = source_tips[k] * scale;
+                    present[k] = self.present_pose.tip[*b] * scale;
+                }
+            }
+            self.fidelity.record_effectors(&source, &present);
+        }
+    }
+
+    /// Names of the servos (rig order), for the fidelity report.
+    pub fn set_servo_names(&mut self, names: Vec<String>) {
+        self.servo_names = names;
     }
 
     /// Retargets each new pose onto a robot whose joints the rig's servos follow.
@@ -706,6 +796,8 @@ impl Controller {
             };
             self.rig
                 .joint_angles(&self.skeleton, &self.channels[..n], joints, &mut self.angles);
+            // What a perfect rig would do this tick: the fidelity's reference.
+            self.source_angles.copy_from_slice(&self.angles);
             if self.eased < self.ease_ticks {
                 // Ease in: blend from where the servos stood (smoothstep weight).
                 self.eased += 1;
@@ -777,6 +869,9 @@ impl Controller {
                         sq += deg * deg;
                     }
                     tracking = (sq / len.max(1) as f64).sqrt();
+                }
+                if self.have_input && !holding {
+                    self.record_fidelity(&tips);
                 }
             }
             Err(e) => {
@@ -870,6 +965,7 @@ impl Controller {
         if let Some(r) = &self.retarget {
             self.stats.retarget = Some(r.report());
         }
+        self.stats.fidelity = Some(self.fidelity.report(&self.servo_names));
         if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
             return why;
         }

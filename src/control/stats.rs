@@ -254,6 +254,8 @@ pub struct LoopStats {
     pub torque_off_acknowledged: Option<usize>,
     /// What retargeting onto a robot measured (profiles whose servos follow robot joints).
     pub retarget: Option<crate::retarget::RetargetReport>,
+    /// Source against present, end to end (set when a run ends).
+    pub fidelity: Option<super::fidelity::FidelityReport>,
     tracking_sq: f64,
     tracking_n: u64,
     tracking_max_deg: f64,
@@ -354,6 +356,7 @@ impl LoopStats {
             allocations_in_tick: self.allocations_in_tick,
             torque_off_acknowledged: self.torque_off_acknowledged,
             retarget: self.retarget.clone(),
+            fidelity: self.fidelity.clone(),
             tracking_rms_deg: self.tracking_rms_deg(),
             tracking_max_deg: self.tracking_max_deg,
             commands_sent: self.commands_sent,
@@ -409,6 +412,10 @@ pub struct Report {
     /// What retargeting onto a robot measured (profiles whose servos follow robot joints).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub retarget: Option<crate::retarget::RetargetReport>,
+    /// Source against present, end to end: the input mapped through the rig (what a perfect
+    /// rig would do) against the present positions read back.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fidelity: Option<super::fidelity::FidelityReport>,
     /// RMS of commanded − present over servos and reads, degrees.
     pub tracking_rms_deg: f64,
     /// Largest |commanded − present|, degrees.
@@ -559,6 +566,17 @@ impl fmt::Display for LoopStats {
             self.tracking_max_deg,
             self.reads_ok
         )?;
+        if let Some(r) = &self.fidelity {
+            write!(
+                f,
+                "fidelity        rms {:.3}°  max {:.3}° (source − present, {} ticks), lag {:.0} ms (rms {:.3}° aligned)",
+                r.joint_rms_deg, r.joint_max_deg, r.samples, r.lag_ms, r.rms_after_lag_deg
+            )?;
+            match r.effector_rms_mm {
+                Some(e) => writeln!(f, ", effectors rms {e:.1} mm")?,
+                None => writeln!(f)?,
+            }
+        }
         writeln!(f, "telemetry drops {}", self.telemetry_dropped)?;
         match self.allocations_in_tick {
             Some(n) => write!(f, "allocations in ticks: {n}"),
