@@ -338,6 +338,11 @@ fn play_bus_sim_writes_the_report_and_the_picture() {
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["servos"].as_array().unwrap().len(), 28);
     assert!(v["rms_deg"].as_f64().unwrap() <= 3.0);
+    // Issue 17: the loop's end-to-end figures per servo, beside the simulator's own.
+    for servo in v["servos"].as_array().unwrap() {
+        let rms = servo["source_rms_deg"].as_f64().expect("source_rms_deg");
+        assert!(rms.is_finite() && servo["source_lag_ms"].as_f64().is_some(), "{servo}");
+    }
     let picture = std::fs::read_to_string(&svg).unwrap();
     assert!(picture.contains("ltibia_rx") && picture.contains("RMS tracking error per servo"));
     // A profile of robot joints with a model it does not fit: a one-line error, exit 1.

@@ -338,7 +338,7 @@ fn run_sim(
     let end = controller.run(&mut schedule, &mut bus, &mut clock, stop);
     let producer = clock.report();
     let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
-    let tracking = bus.with(|t| {
+    let mut tracking = bus.with(|t| {
         let p = t.plant();
         report::TrackingReport::new(
             p.samples(),
@@ -348,6 +348,9 @@ fn run_sim(
             p.steps(),
         )
     });
+    if let Some(f) = &controller.stats.fidelity {
+        tracking.add_fidelity(f);
+    }
     write!(out, "{tracking}")?;
     if let Some(path) = &args.sim_report {
         let text = serde_json::to_string_pretty(&tracking)?;

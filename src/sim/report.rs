@@ -27,6 +27,13 @@ pub struct ServoTracking {
     pub commanded_range_deg: f64,
     /// Physics steps at the torque limit.
     pub saturated_steps: u64,
+    /// End to end, from the loop: RMS of the present position against the source angle (the
+    /// input mapped through the rig), degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub source_rms_deg: Option<f64>,
+    /// The lag of the present position behind the source that aligns them best, ms.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub source_lag_ms: Option<f64>,
 }
 
 /// One effector site's position error.
@@ -122,6 +129,8 @@ impl TrackingReport {
                 rms_after_lag_deg: rms(best_ss, best_c).to_degrees(),
                 commanded_range_deg: if hi >= lo { (hi - lo).to_degrees() } else { 0.0 },
                 saturated_steps: saturated.get(k).copied().unwrap_or(0),
+                source_rms_deg: None,
+                source_lag_ms: None,
             });
         }
         let effectors = sites
@@ -170,6 +179,18 @@ impl TrackingReport {
     }
 }
 
+impl TrackingReport {
+    /// Adds the loop's end-to-end figures per servo (matched by name).
+    pub fn add_fidelity(&mut self, fidelity: &crate::control::fidelity::FidelityReport) {
+        for s in &mut self.servos {
+            if let Some(f) = fidelity.servos.iter().find(|f| f.name == s.name) {
+                s.source_rms_deg = Some(f.rms_deg);
+                s.source_lag_ms = Some(f.lag_ms);
+            }
+        }
+    }
+}
+
 impl std::fmt::Display for TrackingReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
@@ -179,20 +200,24 @@ impl std::fmt::Display for TrackingReport {
         )?;
         writeln!(
             f,
-            "  {:<16} {:>8} {:>8} {:>8} {:>10} {:>9} {:>9}",
-            "servo", "rms °", "max °", "lag ms", "rms-lag °", "range °", "sat steps"
+            "  {:<16} {:>8} {:>8} {:>8} {:>10} {:>9} {:>9} {:>10} {:>9}",
+            "servo", "rms °", "max °", "lag ms", "rms-lag °", "range °", "sat steps", "source °", "src lag"
         )?;
         for s in &self.servos {
+            let opt =
+                |v: Option<f64>, prec: usize| v.map_or_else(|| "-".to_string(), |x| format!("{x:.prec$}"));
             writeln!(
                 f,
-                "  {:<16} {:>8.2} {:>8.2} {:>8.0} {:>10.2} {:>9.1} {:>9}",
+                "  {:<16} {:>8.2} {:>8.2} {:>8.0} {:>10.2} {:>9.1} {:>9} {:>10} {:>9}",
                 s.name,
                 s.rms_deg,
                 s.max_deg,
                 s.lag_ms,
                 s.rms_after_lag_deg,
                 s.commanded_range_deg,
-                s.saturated_steps
+                s.saturated_steps,
+                opt(s.source_rms_deg, 2),
+                opt(s.source_lag_ms, 0)
             )?;
         }
         if !self.effectors.is_empty() {
