@@ -341,7 +341,10 @@ fn play_bus_sim_writes_the_report_and_the_picture() {
     // Issue 17: the loop's end-to-end figures per servo, beside the simulator's own.
     for servo in v["servos"].as_array().unwrap() {
         let rms = servo["source_rms_deg"].as_f64().expect("source_rms_deg");
-        assert!(rms.is_finite() && servo["source_lag_ms"].as_f64().is_some(), "{servo}");
+        assert!(
+            rms.is_finite() && servo["source_lag_ms"].as_f64().is_some(),
+            "{servo}"
+        );
     }
     let picture = std::fs::read_to_string(&svg).unwrap();
     assert!(picture.contains("ltibia_rx") && picture.contains("RMS tracking error per servo"));

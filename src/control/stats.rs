@@ -577,6 +577,24 @@ impl fmt::Display for LoopStats {
                 None => writeln!(f)?,
             }
         }
+        if let Some(r) = &self.retarget {
+            let e = &r.limb_direction_error_deg;
+            let rms = |x: &Option<crate::retarget::RmsMax>| x.map_or(f64::NAN, |v| v.rms);
+            write!(
+                f,
+                "retarget        direction rms {:.2}° (arms {:.2}° / {:.2}°, legs {:.2}° / {:.2}°), foot slide max {:.2} mm",
+                e.overall.rms,
+                rms(&e.left_arm),
+                rms(&e.right_arm),
+                rms(&e.left_leg),
+                rms(&e.right_leg),
+                r.foot_slide_mm.max
+            )?;
+            match r.com_margin_mm.min {
+                Some(m) => writeln!(f, ", CoM margin min {m:.1} mm, {} limit clamps", r.limit_clamps)?,
+                None => writeln!(f, ", {} limit clamps", r.limit_clamps)?,
+            }
+        }
         writeln!(f, "telemetry drops {}", self.telemetry_dropped)?;
         match self.allocations_in_tick {
             Some(n) => write!(f, "allocations in ticks: {n}"),
