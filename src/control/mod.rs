@@ -870,7 +870,8 @@ impl Controller {
                     }
                     tracking = (sq / len.max(1) as f64).sqrt();
                 }
-                if self.have_input && !holding {
+                // The clip proper: not while easing in from where the servos stood.
+                if self.have_input && !holding && self.eased >= self.ease_ticks {
                     self.record_fidelity(&tips);
                 }
             }
