@@ -348,6 +348,10 @@ fn play_bus_sim_writes_the_report_and_the_picture() {
     }
     let picture = std::fs::read_to_string(&svg).unwrap();
     assert!(picture.contains("ltibia_rx") && picture.contains("RMS tracking error per servo"));
+    assert!(
+        picture.contains("source (the clip through the rig)"),
+        "issue 17: the source curve"
+    );
     // A profile of robot joints with a model it does not fit: a one-line error, exit 1.
     let bad = common::bin()
         .arg("play")

@@ -335,6 +335,10 @@ fn run_sim(
     let start = bus.now_ns() + period;
     let mut clock = FeedingClock::new(bus.clone(), make_source(period), tx, start, period);
     let mut schedule = Schedule::new(start, period);
+    if args.sim_plot.is_some() {
+        // Up to ten minutes of ticks for the picture's source curves.
+        controller.log_source(((600.0 * args.rate) as usize).min(600_000));
+    }
     let end = controller.run(&mut schedule, &mut bus, &mut clock, stop);
     let producer = clock.report();
     let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
@@ -359,15 +363,25 @@ fn run_sim(
     }
     if let Some(path) = &args.sim_plot {
         let chosen = plot_choice(&args.plot_servos, &tracking)?;
+        let source: Vec<(f64, Vec<f64>)> = controller
+            .source_log()
+            .iter()
+            .map(|(t, a)| (*t as f64 * 1e-9, a[..names.len()].to_vec()))
+            .collect();
         bus.with(|t| {
             let picture = report::TrackingPicture {
                 samples: t.plant().samples(),
                 report: &tracking,
                 chosen: &chosen,
+                source: &source,
             };
             draw(&picture, picture.size(), path)
         })?;
-        writeln!(out, "commanded vs simulated angles drawn in {}", path.display())?;
+        writeln!(
+            out,
+            "source, commanded and simulated angles drawn in {}",
+            path.display()
+        )?;
     }
     Ok(Outcome {
         stats: controller.stats,

@@ -509,6 +509,9 @@ pub struct Controller {
     present_channels: Box<[f64; MAX_CHANNELS]>,
     present_pose: Box<Pose64>,
     servo_names: Vec<String>,
+    /// Each tick's source angles with its deadline (ns), up to the capacity reserved by
+    /// [`Controller::log_source`]; never grown in a tick.
+    source_log: Vec<(u64, [f64; MAX_SERVOS])>,
 }
 
 impl std::fmt::Debug for Controller {
@@ -578,6 +581,7 @@ impl Controller {
             present_channels: Box::new([0.0; MAX_CHANNELS]),
             present_pose: Box::default(),
             servo_names: Vec::new(),
+            source_log: Vec::new(),
             angles,
             present: present.to_vec(),
             read_buf: vec![0; n],
@@ -637,6 +641,18 @@ impl Controller {
             }
             self.fidelity.record_effectors(&source, &present);
         }
+    }
+
+    /// Keeps the source angles of up to `ticks` ticks (reserved now; the tick stops logging
+    /// when it is full rather than grow it), for pictures.
+    pub fn log_source(&mut self, ticks: usize) {
+        self.source_log = Vec::with_capacity(ticks);
+    }
+
+    /// The logged source angles: tick deadline (ns on the loop's clock) and radians per servo.
+    #[must_use]
+    pub fn source_log(&self) -> &[(u64, [f64; MAX_SERVOS])] {
+        &self.source_log
     }
 
     /// Names of the servos (rig order), for the fidelity report.
@@ -798,6 +814,11 @@ impl Controller {
                 .joint_angles(&self.skeleton, &self.channels[..n], joints, &mut self.angles);
             // What a perfect rig would do this tick: the fidelity's reference.
             self.source_angles.copy_from_slice(&self.angles);
+            if self.source_log.len() < self.source_log.capacity() {
+                let mut a = [f64::NAN; MAX_SERVOS];
+                a[..len].copy_from_slice(&self.source_angles[..len]);
+                self.source_log.push((tick.deadline_ns, a));
+            }
             if self.eased < self.ease_ticks {
                 // Ease in: blend from where the servos stood (smoothstep weight).
                 self.eased += 1;

@@ -274,6 +274,9 @@ pub struct TrackingPicture<'a> {
     pub report: &'a TrackingReport,
     /// Servo indices to draw.
     pub chosen: &'a [usize],
+    /// The source angles the loop had each tick (simulated time in seconds, radians per servo),
+    /// drawn beside commanded and simulated; empty when not recorded.
+    pub source: &'a [(f64, Vec<f64>)],
 }
 
 impl TrackingPicture<'_> {
@@ -286,7 +289,7 @@ impl TrackingPicture<'_> {
 
 impl Picture for TrackingPicture<'_> {
     fn render<DB: DrawingBackend<ErrorType: 'static>>(&self, area: &Area<DB>) -> Rendered {
-        paint(area, self.samples, self.report, self.chosen)
+        paint(area, self.samples, self.report, self.chosen, self.source)
     }
 }
 
@@ -295,6 +298,7 @@ fn paint<DB: DrawingBackend<ErrorType: 'static>>(
     samples: &[Sample],
     report: &TrackingReport,
     chosen: &[usize],
+    source: &[(f64, Vec<f64>)],
 ) -> Rendered {
     root.fill(&WHITE)?;
     let (top, bottom) = root.split_vertically(230 * chosen.len().max(1) as u32);
@@ -306,6 +310,7 @@ fn paint<DB: DrawingBackend<ErrorType: 'static>>(
         let values = samples
             .iter()
             .flat_map(|x| [x.commanded[k], x.simulated[k]])
+            .chain(source.iter().filter_map(|(_, a)| a.get(k).copied()))
             .filter(|v| v.is_finite())
             .map(f64::to_degrees);
         let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
@@ -349,6 +354,18 @@ fn paint<DB: DrawingBackend<ErrorType: 'static>>(
             ))?
             .label("simulated")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+        let src: Vec<(f64, f64)> = source
+            .iter()
+            .filter_map(|(t, a)| a.get(k).filter(|v| v.is_finite()).map(|v| (*t, v.to_degrees())))
+            .filter(|(t, _)| (t0..=t1).contains(t))
+            .collect();
+        if !src.is_empty() {
+            let green = RGBColor(30, 150, 60);
+            chart
+                .draw_series(LineSeries::new(src, green.stroke_width(2)))?
+                .label("source (the clip through the rig)")
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], green));
+        }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))
