@@ -9,47 +9,14 @@
 
 use marionette::fk::{forward_kinematics, Pose};
 use marionette::formats::{amc, asf, bvh};
+use marionette::retarget::CMU_BVH_NAMES;
 use marionette::skeleton::{Skeleton, MAX_CHANNELS};
 use std::collections::BTreeMap;
 use std::path::Path;
 
-/// CMU BVH conversions name joints either like the ASF bones or like this.
-const NAMES: &[(&str, &str)] = &[
-    ("lhipjoint", "LHipJoint"),
-    ("lfemur", "LeftUpLeg"),
-    ("ltibia", "LeftLeg"),
-    ("lfoot", "LeftFoot"),
-    ("ltoes", "LeftToeBase"),
-    ("rhipjoint", "RHipJoint"),
-    ("rfemur", "RightUpLeg"),
-    ("rtibia", "RightLeg"),
-    ("rfoot", "RightFoot"),
-    ("rtoes", "RightToeBase"),
-    ("lowerback", "LowerBack"),
-    ("upperback", "Spine"),
-    ("thorax", "Spine1"),
-    ("lowerneck", "Neck"),
-    ("upperneck", "Neck1"),
-    ("head", "Head"),
-    ("lclavicle", "LeftShoulder"),
-    ("lhumerus", "LeftArm"),
-    ("lradius", "LeftForeArm"),
-    ("lwrist", "LeftHand"),
-    ("lhand", "LeftFingerBase"),
-    ("lfingers", "LeftHandIndex1"),
-    ("lthumb", "LThumb"),
-    ("rclavicle", "RightShoulder"),
-    ("rhumerus", "RightArm"),
-    ("rradius", "RightForeArm"),
-    ("rwrist", "RightHand"),
-    ("rhand", "RightFingerBase"),
-    ("rfingers", "RightHandIndex1"),
-    ("rthumb", "RThumb"),
-];
-
 fn find(bvh_skeleton: &Skeleton, asf_name: &str) -> Option<usize> {
     bvh_skeleton.find(asf_name).or_else(|| {
-        let (_, other) = NAMES.iter().find(|(a, _)| *a == asf_name)?;
+        let (_, other) = CMU_BVH_NAMES.iter().find(|(a, _)| *a == asf_name)?;
         bvh_skeleton.find(other)
     })
 }

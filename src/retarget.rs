@@ -21,13 +21,16 @@ use crate::rig::{JointSource, Rig};
 use crate::robot::Robot;
 use crate::skeleton::Skeleton;
 
-/// CMU's ASF bone names and the names CMU's BVH conversions give the same bones.
-pub const CMU_BVH_NAMES: [(&str, &str); 22] = [
+/// CMU's ASF bone names and the names CMU's BVH conversions give the same bones (a BVH joint
+/// sits where the ASF bone of the same name starts).
+pub const CMU_BVH_NAMES: &[(&str, &str)] = &[
     ("root", "Hips"),
+    ("lhipjoint", "LHipJoint"),
     ("lfemur", "LeftUpLeg"),
     ("ltibia", "LeftLeg"),
     ("lfoot", "LeftFoot"),
     ("ltoes", "LeftToeBase"),
+    ("rhipjoint", "RHipJoint"),
     ("rfemur", "RightUpLeg"),
     ("rtibia", "RightLeg"),
     ("rfoot", "RightFoot"),
@@ -41,10 +44,17 @@ pub const CMU_BVH_NAMES: [(&str, &str); 22] = [
     ("lclavicle", "LeftShoulder"),
     ("lhumerus", "LeftArm"),
     ("lradius", "LeftForeArm"),
-    ("lhand", "LeftHand"),
+    ("lwrist", "LeftHand"),
+    ("lhand", "LeftFingerBase"),
+    ("lfingers", "LeftHandIndex1"),
+    ("lthumb", "LThumb"),
     ("rclavicle", "RightShoulder"),
     ("rhumerus", "RightArm"),
     ("rradius", "RightForeArm"),
+    ("rwrist", "RightHand"),
+    ("rhand", "RightFingerBase"),
+    ("rfingers", "RightHandIndex1"),
+    ("rthumb", "RThumb"),
 ];
 
 /// A profile's retarget map made ready: the robot (limits from the profile's servos), the map
@@ -447,7 +457,7 @@ pub struct RetargetReport {
     /// Angle between each human segment and the robot segment it drives, in the pelvis frame.
     pub limb_direction_error_deg: LimbErrors,
     /// How far a planted foot's sole moved during a stance phase (largest, mm).
-    pub foot_slide_mm: RmsMaxMm,
+    pub foot_slide_mm: MaxMm,
     /// Centre of mass inside the support polygon of the planted feet (smallest margin, mm).
     pub com_margin_mm: MinMm,
     /// Joint values held at a limit (summed over frames).
@@ -474,7 +484,7 @@ pub struct RetargetReport {
 
 /// The largest value, mm.
 #[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
-pub struct RmsMaxMm {
+pub struct MaxMm {
     /// Largest, mm.
     pub max: f64,
 }
@@ -497,7 +507,7 @@ pub struct ReportBuilder {
     clamps: u64,
     reach: u64,
     lowest: f64,
-    previous_q: Option<Vec<f64>>,
+    previous_q: Vec<f64>,
     step: (f64, usize, usize),
     planted: [u64; 2],
 }
@@ -515,7 +525,7 @@ impl ReportBuilder {
             clamps: 0,
             reach: 0,
             lowest: f64::INFINITY,
-            previous_q: Some(vec![f64::NAN; joints]),
+            previous_q: vec![f64::NAN; joints],
             step: (0.0, 0, 0),
             planted: [0; 2],
         }
@@ -546,14 +556,12 @@ impl ReportBuilder {
         self.clamps += u64::from(f.clamps);
         self.reach += u64::from(f.out_of_reach);
         self.lowest = self.lowest.min(lowest_sole * 1000.0);
-        if let Some(prev) = &mut self.previous_q {
-            for (j, (p, q)) in prev.iter_mut().zip(f.q.iter()).enumerate() {
-                let d = (q - *p).abs().to_degrees();
-                if d > self.step.0 {
-                    self.step = (d, j, self.frames as usize);
-                }
-                *p = *q;
+        for (j, (p, q)) in self.previous_q.iter_mut().zip(f.q.iter()).enumerate() {
+            let d = (q - *p).abs().to_degrees();
+            if d > self.step.0 {
+                self.step = (d, j, self.frames as usize);
             }
+            *p = *q;
         }
         self.frames += 1;
     }
@@ -589,7 +597,7 @@ impl ReportBuilder {
                 right_leg: rms_max(3),
                 head: rms_max(4),
             },
-            foot_slide_mm: RmsMaxMm { max: self.slide },
+            foot_slide_mm: MaxMm { max: self.slide },
             com_margin_mm: MinMm { min: self.margin },
             limit_clamps: self.clamps,
             out_of_reach: self.reach,
@@ -613,10 +621,10 @@ impl ReportBuilder {
 pub struct ClipRetarget {
     /// Seconds from the clip's start, per frame.
     pub times: Vec<f64>,
-    /// Per frame: the robot's joint angles (radians, joint-vector order).
-    pub joints: Vec<Vec<f64>>,
-    /// Per frame: the full result (base pose, errors, feet).
+    /// Per frame: the full result (joints, base pose, errors, feet).
     pub frames: Vec<RetargetFrame>,
+    /// The human floor the run measured on the clip.
+    pub floor: Floor,
     /// The report.
     pub report: RetargetReport,
 }
@@ -669,9 +677,9 @@ pub fn retarget_clip(setup: &Setup, skeleton: &Skeleton, motion: &Motion, option
     }
     ClipRetarget {
         times: (0..frames.len()).map(|i| i as f64 * dt).collect(),
-        joints: frames.iter().map(|f| f.q[..n].to_vec()).collect(),
         report,
         frames,
+        floor,
     }
 }
 
@@ -685,18 +693,12 @@ pub fn write_csv(mut w: impl std::io::Write, names: &[String], run: &ClipRetarge
         write!(w, ",{n}")?;
     }
     writeln!(w)?;
-    for (t, q) in run.times.iter().zip(&run.joints) {
+    for (t, f) in run.times.iter().zip(&run.frames) {
         write!(w, "{t:.6}")?;
-        for v in q {
+        for v in &f.q[..names.len()] {
             write!(w, ",{v:.9}")?;
         }
         writeln!(w)?;
     }
     Ok(())
-}
-
-/// The limb names of reports, in [`RetargetFrame::limb_error_deg`] order.
-#[must_use]
-pub fn limb_names() -> [&'static str; 5] {
-    LIMBS
 }

@@ -16,6 +16,11 @@ use marionette::retarget::{floor_of_clip, retarget_clip, Options, RetargetFrame,
 use marionette::robot::RobotPose;
 use marionette::skeleton::Skeleton;
 
+/// A uniform number in [0, 1) from the project's seeded generator.
+fn uniform(rng: &mut marionette::bus::faults::Rng) -> f64 {
+    (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+}
+
 fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
 }
@@ -248,13 +253,8 @@ fn closed_form_legs_reach_random_foot_poses() {
     let robot = &setup.robot;
     let mut pose = RobotPose::default();
     let base = robot.body("body_link").unwrap();
-    let mut rng = 0x2545_f491_4f6c_dd1du64;
-    let mut next = || {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        (rng >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = marionette::bus::faults::Rng::new(0x2545_f491_4f6c_dd1du64);
+    let mut next = || uniform(&mut rng);
     let mut worst = (0.0f64, 0.0f64);
     for _ in 0..2000 {
         // A random leg configuration inside generous limits, then its foot pose as the target.
@@ -328,8 +328,9 @@ fn bundled_clips_retarget_with_still_feet_above_the_floor() {
             assert!(leg.unwrap().rms < 12.0, "{m}: {e:?}");
         }
         assert!(e.left_arm.is_some() && e.right_arm.is_some() && e.head.is_some());
-        for (f, q) in out.frames.iter().zip(&out.joints) {
-            assert!(f.q.iter().all(|v| v.is_finite()));
+        for f in &out.frames {
+            let q = &f.q;
+            assert!(q.iter().all(|v| v.is_finite()));
             for (j, joint) in setup.robot.joints().iter().enumerate() {
                 let (lo, hi) = joint.range.unwrap();
                 assert!(
@@ -689,13 +690,8 @@ fn wild_poses_give_finite_joints_inside_the_limits() {
     );
     let mut pose = Pose64::default();
     let mut out = RetargetFrame::default();
-    let mut rng = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next = || {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        (rng >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = marionette::bus::faults::Rng::new(0x9e37_79b9_7f4a_7c15u64);
+    let mut next = || uniform(&mut rng);
     for i in 0..3000 {
         let channels: Vec<f64> = (0..s.channel_count())
             .map(|_| {

@@ -227,6 +227,9 @@ pub struct RetargetFrame {
     pub out_of_reach: u32,
     /// The lowest sole corner's height above the floor, metres.
     pub lowest_sole: f64,
+    /// The effectors at the retargeted pose: left hand, right hand, left sole, right sole
+    /// (NaN for an unmapped arm), metres, the robot's world.
+    pub effectors: [DVec3; 4],
 }
 
 impl Default for RetargetFrame {
@@ -244,6 +247,7 @@ impl Default for RetargetFrame {
             clamps: 0,
             out_of_reach: 0,
             lowest_sole: 0.0,
+            effectors: [DVec3::NAN; 4],
         }
     }
 }
@@ -1054,18 +1058,25 @@ impl Retargeter {
     /// Signed distance of `p` inside the support polygon of the planted feet, and the point
     /// [`BALANCE_MARGIN_M`] inside the polygon nearest `p`.
     fn support(&self, ankle: &[DVec3; 2], rot: &[DQuat; 2], planted: [bool; 2], p: DVec2) -> (f64, DVec2) {
+        polygon_margin(&self.support_polygon(ankle, rot, planted), p, BALANCE_MARGIN_M)
+    }
+
+    /// The convex hull (on the floor) of the planted soles' corners, the feet's ankle centres
+    /// at `ankle` and their bodies turned by `rot`.
+    fn support_polygon(
+        &self,
+        ankle: &[DVec3; 2],
+        rot: &[DQuat; 2],
+        planted: [bool; 2],
+    ) -> heapless::Vec<DVec2, 8> {
         let mut pts = heapless::Vec::<DVec2, 8>::new();
-        for side in 0..2 {
-            if planted[side] {
-                let g = &self.legs[side];
-                for c in g.corners {
-                    let w = ankle[side] + rot[side] * c;
-                    let _ = pts.push(DVec2::new(w.x, w.y));
-                }
+        for side in (0..2).filter(|&s| planted[s]) {
+            for c in self.legs[side].corners {
+                let w = ankle[side] + rot[side] * c;
+                let _ = pts.push(DVec2::new(w.x, w.y));
             }
         }
-        let hull = convex_hull(&pts);
-        polygon_margin(&hull, p, BALANCE_MARGIN_M)
+        convex_hull(&pts)
     }
 
     fn solve_legs(
@@ -1100,7 +1111,7 @@ impl Retargeter {
             return q;
         }
         let mut aim = ankle;
-        let mut q = self.solve_leg_closed(side, rot, aim, &mut 0);
+        let mut q = self.solve_leg_closed(side, rot, aim);
         for _ in 0..LEG_CORRECTIONS {
             let s = &g.joints;
             let reached = s[0].apply(
@@ -1112,7 +1123,7 @@ impl Retargeter {
                 break;
             }
             aim += miss;
-            q = self.solve_leg_closed(side, rot, aim, &mut 0);
+            q = self.solve_leg_closed(side, rot, aim);
         }
         let mut out = [0.0; 6];
         for k in 0..6 {
@@ -1182,8 +1193,7 @@ impl Retargeter {
     }
 
     /// The closed form (see the module's notes), unclamped.
-    fn solve_leg_closed(&self, side: usize, rot: DQuat, ankle: DVec3, clamps: &mut u32) -> [f64; 6] {
-        let _ = clamps;
+    fn solve_leg_closed(&self, side: usize, rot: DQuat, ankle: DVec3) -> [f64; 6] {
         let g = &self.legs[side];
         let s = &g.joints;
         // g = e1·…·e6 as a rigid motion: rotation rg, and the ankle centre carried to `ankle`.
@@ -1360,6 +1370,7 @@ impl Retargeter {
             out.limb_error_sq[k] = (*sq, *n);
         }
         out.com = robot.centre_of_mass(&self.pose);
+        out.effectors = self.effector_points(robot, &self.pose);
         let mut ankles = [DVec3::ZERO; 2];
         let mut rots = [DQuat::IDENTITY; 2];
         for side in 0..2 {
@@ -1372,17 +1383,9 @@ impl Retargeter {
             .flat_map(|side| self.legs[side].corners.map(|c| (ankles[side] + rots[side] * c).z))
             .fold(f64::INFINITY, f64::min);
         out.com_margin = if out.planted.iter().any(|p| *p) {
-            // Soles from the actual pose (the corners relative to the ankle in the foot body).
-            let mut pts = heapless::Vec::<DVec2, 8>::new();
-            for side in 0..2 {
-                if out.planted[side] {
-                    for c in self.legs[side].corners {
-                        let w = ankles[side] + rots[side] * c;
-                        let _ = pts.push(DVec2::new(w.x, w.y));
-                    }
-                }
-            }
-            polygon_margin(&convex_hull(&pts), DVec2::new(out.com.x, out.com.y), 0.0).0
+            // Soles where the solved pose put them.
+            let polygon = self.support_polygon(&ankles, &rots, out.planted);
+            polygon_margin(&polygon, DVec2::new(out.com.x, out.com.y), 0.0).0
         } else {
             f64::NAN
         };
@@ -1693,7 +1696,7 @@ mod tests {
             }
         }
         // Unreachable: both axes along z cannot lift x; the nearest direction comes back.
-        let [(q1, q2), _] = angles_about_two(DVec3::Z, DVec3::Z * 1.0, DVec3::X, DVec3::Z);
+        let [(q1, q2), _] = angles_about_two(DVec3::Z, DVec3::Z, DVec3::X, DVec3::Z);
         assert!(q1.is_finite() && q2.is_finite());
     }
 

@@ -424,14 +424,13 @@ impl RetargetStage {
         }
     }
 
-    /// The effectors (hands, soles) at the retargeted joints and at the `present` angles of
-    /// the rig's servos (the base where the retargeting put it), metres.
+    /// The effectors (hands, soles) at the retargeted joints (the retargeting computed them)
+    /// and at the `present` angles of the rig's servos (the base where the retargeting put
+    /// it), metres.
     fn effectors(&mut self, rig: &Rig, present: &[f64]) -> ([DVec3; 4], [DVec3; 4]) {
         let (pos, rot) = self
             .retargeter
             .model_placement(self.frame.base_pos, self.frame.base_rot);
-        self.robot.forward(pos, rot, &self.frame.q, &mut self.pose);
-        let source = self.retargeter.effector_points(&self.robot, &self.pose);
         self.present_q.copy_from_slice(&self.frame.q);
         for (servo, angle) in rig.servos.iter().zip(present) {
             if let crate::rig::JointSource::Joint(j) = servo.source {
@@ -441,7 +440,10 @@ impl RetargetStage {
             }
         }
         self.robot.forward(pos, rot, &self.present_q, &mut self.pose);
-        (source, self.retargeter.effector_points(&self.robot, &self.pose))
+        (
+            self.frame.effectors,
+            self.retargeter.effector_points(&self.robot, &self.pose),
+        )
     }
 
     /// What the run's retargeting measured.

@@ -46,10 +46,8 @@ type Curve = (&'static str, RGBColor, Vec<(f64, f64)>);
 
 /// Stick figures of frame `i`: the human (in the robot's world, at the robot's scale) and the
 /// robot.
-fn figures(pic: &RetargetPicture<'_>, i: usize) -> (Segments, Segments) {
+fn figures(pic: &RetargetPicture<'_>, r: &super::Retargeter, i: usize) -> (Segments, Segments) {
     let setup = pic.setup;
-    let floor = super::floor_of_clip(pic.skeleton, pic.motion, &setup.map.human);
-    let r = setup.retargeter(pic.skeleton, floor, super::Options::default());
     let mut pose = Pose64::default();
     fk64(
         pic.skeleton,
@@ -99,10 +97,14 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
     let root = root.titled(&pic.title, ("sans-serif", 22))?;
     let (top, bottom) = root.split_vertically(480);
     let n = pic.run.frames.len();
+    // The run's retargeter, for the human's points in the robot's world.
+    let r = pic
+        .setup
+        .retargeter(pic.skeleton, pic.run.floor, super::Options::default());
     let shown: Vec<usize> = (0..3).map(|k| (k * n.saturating_sub(1)) / 2).collect();
     let panels = top.split_evenly((1, shown.len()));
     for (panel, &i) in panels.iter().zip(&shown) {
-        let (human, robot) = figures(pic, i);
+        let (human, robot) = figures(pic, &r, i);
         // Side by side: the human to the left of the robot, both centred on the robot's base.
         let base = pic.run.frames[i].base_pos;
         let centre = view(base).0;
