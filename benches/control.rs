@@ -3,12 +3,17 @@
 //! present positions read back, on a bus that only encodes (no I/O), so the figure is the
 //! loop's own work. Also the AMC playback tick. `cargo bench --bench control`
 //!
+//! With the look-ahead (issue 17) the same ticks plan every servo's goal path; `lookahead`
+//! times the planning of the puppet's 28 servos alone.
+//!
 //! The jitter comparison with a naive `thread::sleep` loop is `cargo bench --bench jitter`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use marionette::bus::{BusError, PingInfo, ServoBus};
 use marionette::clock::SystemClock;
+use marionette::command::CommandStage;
 use marionette::control::input::{input_channel, Input, Payload};
+use marionette::control::lookahead::{Lookahead, LookaheadSettings, Preview, SourceSample};
 use marionette::control::sources::{clip_track, ClipPlayer, TrackFrame};
 use marionette::control::{Controller, Follower, LoopConfig, Solve};
 use marionette::formats::{amc, asf};
@@ -93,7 +98,7 @@ fn bench(c: &mut Criterion) {
         .collect();
     let track = clip_track(&skel, &motion, &names, TrackFrame::Limb).unwrap();
     let mut g = c.benchmark_group("control_tick");
-    for follow in [false, true] {
+    for (follow, lookahead) in [(false, false), (true, false), (false, true), (true, true)] {
         let (tx, port) = input_channel(4);
         let solve = if follow {
             Solve::Follow(Box::new(Follower::new(&skel, &names).unwrap()))
@@ -113,6 +118,14 @@ fn bench(c: &mut Criterion) {
             solve,
             config,
         );
+        if lookahead {
+            let leads: Vec<f64> = profile
+                .servos
+                .iter()
+                .map(|s| s.lag_ms.unwrap_or(0.0) * 1e-3 + 0.002)
+                .collect();
+            ctl.set_lookahead(Lookahead::new(&rig, 500.0, &leads, LookaheadSettings::default()));
+        }
         let mut bus = EncodeBus {
             packet: [0; 4096],
             params: [0; 4096],
@@ -142,7 +155,12 @@ fn bench(c: &mut Criterion) {
             .collect();
         let next = std::cell::Cell::new(0usize);
         let mut k = 0u64;
-        let name = if follow { "follow_4_limbs" } else { "play" };
+        let name = match (follow, lookahead) {
+            (false, false) => "play",
+            (true, false) => "follow_4_limbs",
+            (false, true) => "play_lookahead",
+            (true, true) => "follow_4_limbs_lookahead",
+        };
         g.bench_function(name, |b| {
             b.iter_batched_ref(
                 || {
@@ -164,9 +182,49 @@ fn bench(c: &mut Criterion) {
                 criterion::BatchSize::SmallInput,
             );
         });
-        assert!(bus.bytes > 0);
+        assert!(next.get() == 0 || bus.bytes > 0, "the ticks wrote goals");
     }
     g.finish();
+
+    // The planner alone: 28 servos over a full preview of the walk.
+    let mut preview = Preview::new(256);
+    let mut frame_angles = vec![0.0; rig.len()];
+    let mut player = ClipPlayer::new(Arc::clone(&skel), Arc::clone(&motion), 500.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = skel.channel_count();
+    for k in 0..200u64 {
+        player.next_sample(&mut buf[..n]).unwrap();
+        rig.joint_angles(&skel, &buf[..n], &[], &mut frame_angles);
+        let mut sample = SourceSample {
+            due_ns: k * 2_000_000,
+            ..SourceSample::default()
+        };
+        sample.angles[..rig.len()].copy_from_slice(&frame_angles);
+        preview.push(sample);
+    }
+    preview.advance(1_000_000);
+    preview.live = false;
+    let leads: Vec<f64> = profile
+        .servos
+        .iter()
+        .map(|s| s.lag_ms.unwrap_or(0.0) * 1e-3 + 0.002)
+        .collect();
+    let mut look = Lookahead::new(&rig, 500.0, &leads, LookaheadSettings::default());
+    let mut stage = CommandStage::new(rig.len());
+    stage.start_from(&rig, &present);
+    // Following the walk: each iteration is the next tick, its targets commanded (every 100
+    // ticks the time starts over, the stage where it was).
+    let mut tick = 0u64;
+    c.bench_function("lookahead/plan_28_servos", |b| {
+        b.iter(|| {
+            tick = (tick + 1) % 100;
+            let now = 2_000_000 * (tick + 1);
+            let targets = look.targets(&rig, &stage, &preview, now, 0.002, None);
+            let first = targets[0];
+            let _ = stage.command_planned(&rig, targets, 0.002);
+            first
+        });
+    });
 }
 
 criterion_group!(benches, bench);

@@ -27,7 +27,8 @@
 #![warn(missing_docs)]
 
 pub use marionette_core::{
-    asf, command, device, fk, ik, ik_numeric, interp, math, protocol, rig, robot, schedule, servo, skeleton,
+    asf, command, device, fk, ik, ik_numeric, interp, math, plan, protocol, rig, robot, schedule, servo,
+    skeleton,
 };
 
 pub mod alloc_count;

@@ -30,6 +30,10 @@
 //! max_velocity_dps = 360
 //! max_acceleration_dps2 = 3600
 //! position_p_gain = 1600    # optional: Position P Gain written at start-up (factory value otherwise)
+//! lag_ms = 25               # optional: how far the horn lags its goal (`marionette identify`);
+//!                           # the look-ahead leads the servo by it
+//! supply_v = 12.0           # optional: the servo's supply (default: the model's recommended);
+//!                           # speed and torque scale with it
 //! ```
 //!
 //! A profile whose servos follow robot joints (`joint = …`) may say how a human drives them
@@ -188,6 +192,12 @@ pub struct ServoSpec {
     pub max_acceleration_dps2: f64,
     /// Position P Gain written at start-up (`None`: the servo keeps its own).
     pub position_p_gain: Option<u16>,
+    /// How far the horn lags its goal, ms (`marionette identify` measures it); the look-ahead
+    /// leads the servo by it. `None`: not identified (no lead).
+    pub lag_ms: Option<f64>,
+    /// The servo's supply, volts (the model's recommended one unless given): its no-load speed
+    /// and stall torque scale with it ([`ServoModel::voltage_factor`]).
+    pub supply_v: f64,
     /// Line of its `[[servo]]` entry.
     pub line: u32,
 }
@@ -424,6 +434,10 @@ struct RawServo {
     max_acceleration_dps2: Spanned<f64>,
     #[serde(default)]
     position_p_gain: Option<Spanned<i64>>,
+    #[serde(default)]
+    lag_ms: Option<Spanned<f64>>,
+    #[serde(default)]
+    supply_v: Option<Spanned<f64>>,
 }
 
 /// Line and column (1-based) of a byte offset.
@@ -1012,6 +1026,32 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
             }
         },
     };
+    let lag_ms = match &s.lag_ms {
+        None => None,
+        Some(l) => {
+            let v = *l.get_ref();
+            if !(v.is_finite() && (0.0..=1000.0).contains(&v)) {
+                return Err(ck.at(l, format!("expected a lag in 0…1000 ms, found {v}")));
+            }
+            Some(v)
+        }
+    };
+    let supply_v = match &s.supply_v {
+        None => model.rated_v,
+        Some(v) => {
+            let x = *v.get_ref();
+            if !(x.is_finite() && (model.min_v..=model.max_v).contains(&x)) {
+                return Err(ck.at(
+                    v,
+                    format!(
+                        "expected a supply of {}…{} V for the {}, found {x}",
+                        model.min_v, model.max_v, model.name
+                    ),
+                ));
+            }
+            x
+        }
+    };
     let spec = ServoSpec {
         id,
         name,
@@ -1025,6 +1065,8 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
         max_velocity_dps: *s.max_velocity_dps.get_ref(),
         max_acceleration_dps2: *s.max_acceleration_dps2.get_ref(),
         position_p_gain,
+        lag_ms,
+        supply_v,
         line: ck.line(raw),
     };
     // The software limits must map inside the servo's own range.
@@ -1038,15 +1080,82 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
             ));
         }
     }
-    let top = model.max_speed_rad_s().to_degrees() / gear;
+    let top = model.max_speed_rad_s_at(supply_v).to_degrees() / gear;
     if spec.max_velocity_dps > top {
         return Err(ck.at(
             &s.max_velocity_dps,
             format!(
-                "{} reaches at most {top:.0} joint °/s at gear {gear}, found {}",
+                "{} reaches at most {top:.0} joint °/s at gear {gear} and {supply_v} V, found {}",
                 model.name, spec.max_velocity_dps
             ),
         ));
     }
     Ok(spec)
+}
+
+/// The profile text with `lag_ms = …` set in the `[[servo]]` entries named in `lags`: an
+/// existing `lag_ms` line is replaced, otherwise one is added at the end of the entry.
+/// Everything else — comments, order, layout — stays as it was.
+#[must_use]
+pub fn set_servo_lags(text: &str, lags: &[(String, f64)]) -> String {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut out: Vec<String> = Vec::with_capacity(lines.len() + lags.len());
+    let mut i = 0;
+    while i < lines.len() {
+        let line = lines[i];
+        out.push(line.to_string());
+        i += 1;
+        if line.trim() != "[[servo]]" {
+            continue;
+        }
+        // The entry runs to the next table header.
+        let start = out.len();
+        while i < lines.len() && !lines[i].trim_start().starts_with('[') {
+            out.push(lines[i].to_string());
+            i += 1;
+        }
+        let key = |l: &str| {
+            l.split('=')
+                .next()
+                .map(|k| k.trim().to_string())
+                .unwrap_or_default()
+        };
+        let name = out[start..]
+            .iter()
+            .find(|l| key(l) == "name")
+            .and_then(|l| l.split('=').nth(1))
+            .map(|v| {
+                v.split('#')
+                    .next()
+                    .unwrap_or("")
+                    .trim()
+                    .trim_matches('"')
+                    .to_string()
+            });
+        let Some(lag) = name
+            .and_then(|n| lags.iter().find(|(m, _)| *m == n))
+            .map(|(_, l)| *l)
+        else {
+            continue;
+        };
+        let entry = format!("lag_ms = {lag}");
+        if let Some(l) = out[start..].iter_mut().find(|l| key(l) == "lag_ms") {
+            *l = entry;
+        } else {
+            // After the entry's last key, before its trailing blank lines and comments.
+            let last = (start..out.len())
+                .rev()
+                .find(|&k| {
+                    let t = out[k].trim();
+                    !t.is_empty() && !t.starts_with('#')
+                })
+                .map_or(start, |k| k + 1);
+            out.insert(last, entry);
+        }
+    }
+    let mut s = out.join("\n");
+    if text.ends_with('\n') {
+        s.push('\n');
+    }
+    s
 }

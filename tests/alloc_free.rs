@@ -193,7 +193,8 @@ fn ik_solves_allocate_nothing() {
 }
 
 /// Whole control-loop ticks allocate nothing: AMC playback and IK following (four limbs), with
-/// telemetry, over the virtual chain — counted inside the tick by the controller itself.
+/// telemetry, with and without the look-ahead (inputs taken ahead into its preview and
+/// planned), over the virtual chain — counted inside the tick by the controller itself.
 #[test]
 fn control_loop_ticks_allocate_nothing() {
     use marionette::bus::start_up;
@@ -216,7 +217,7 @@ fn control_loop_ticks_allocate_nothing() {
         .map(|s| (*s).to_string())
         .collect();
     let track = clip_track(&skel, &motion, &names, TrackFrame::Limb).unwrap();
-    for follow in [false, true] {
+    for (follow, lookahead) in [(false, false), (true, false), (false, true), (true, true)] {
         let mut vr = VirtualRig::new(
             chain_for(&profile, |_| 2048),
             profile.bus.baud,
@@ -246,6 +247,13 @@ fn control_loop_ticks_allocate_nothing() {
         );
         let (ttx, trx) = crossbeam_channel::bounded(8);
         c.set_telemetry(ttx);
+        if lookahead {
+            use marionette::control::lookahead::{Lookahead, LookaheadSettings};
+            let leads = vec![0.02; rig.len()];
+            c.set_lookahead(Lookahead::new(&rig, 240.0, &leads, LookaheadSettings::default()));
+        }
+        // Inputs are made as far ahead as the loop takes them.
+        let ahead = c.preview_ns();
         let mut player = ClipPlayer::new(Arc::clone(&skel), Arc::clone(&motion), 240.0, false);
         let mut buf = [0.0; MAX_CHANNELS];
         let n = skel.channel_count();
@@ -257,14 +265,14 @@ fn control_loop_ticks_allocate_nothing() {
             let msg = if follow {
                 track.samples.get(k as usize / 2).map(|(_, t)| Input {
                     seq: k,
-                    due_ns: schedule.deadline(k),
+                    due_ns: schedule.deadline(k) + ahead,
                     made_ns: 0,
                     payload: Payload::Targets(t.clone()),
                 })
             } else {
                 player
                     .next_sample(&mut buf[..n])
-                    .map(|t| Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
+                    .map(|t| Input::frame(k, schedule.deadline(k) + ahead, 0, &buf[..n], t))
             };
             let Some(msg) = msg else { break };
             tx.send_newest(msg).unwrap();
@@ -280,12 +288,18 @@ fn control_loop_ticks_allocate_nothing() {
         println!(
             "{} ticks ({}): {:?} allocations in ticks, {} telemetry records dropped",
             ticks,
-            if follow { "follow, 4 limbs" } else { "play" },
+            match (follow, lookahead) {
+                (true, false) => "follow, 4 limbs",
+                (false, false) => "play",
+                (true, true) => "follow, 4 limbs, look-ahead",
+                (false, true) => "play, look-ahead",
+            },
             st.allocations_in_tick,
             st.telemetry_dropped
         );
         assert!(ticks > 900);
         assert_eq!(st.commands_sent, ticks);
+        assert!(st.inputs_used > ticks / 3, "{} inputs used", st.inputs_used);
         assert_eq!(st.allocations_in_tick, Some(0));
         assert!(st.telemetry_dropped > 0, "the full-channel path was taken");
         if follow {

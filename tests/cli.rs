@@ -324,3 +324,59 @@ fn loop_transform_and_blend_commands() {
         "must be .svg or .png",
     );
 }
+
+/// `identify` on the virtual chain (virtual time): a row per chosen servo with its lag, the
+/// figures as JSON, one-line errors for bad options.
+#[test]
+fn identify_measures_each_servo_on_the_virtual_chain() {
+    let dir = common::tempdir("identify-cli");
+    let json = dir.join("id.json");
+    let o = run(&[
+        "identify",
+        "firmware-profile/cmu-puppet.toml",
+        "data/cmu/16.asf",
+        "--rate",
+        "250",
+        "--servos",
+        "ltibia_rx,head_rx",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let s = stdout(&o);
+    assert!(o.status.success(), "{s}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(s.contains("identifying 2 servo(s) at 250 Hz"), "{s}");
+    let rows: Vec<&str> = s
+        .lines()
+        .filter(|l| l.starts_with("ltibia_rx") || l.starts_with("head_rx"))
+        .collect();
+    assert_eq!(rows.len(), 2, "{s}");
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for servo in r.as_array().unwrap() {
+        let lag = servo["lag_ms"].as_f64().unwrap();
+        // The virtual servo follows at its no-load speed: a few milliseconds.
+        assert!((0.0..20.0).contains(&lag), "{servo}");
+        assert!(servo["rms_after_lag_deg"].as_f64().unwrap() < 1.0, "{servo}");
+        assert!(servo["frequency_response"].as_array().unwrap().len() > 10);
+    }
+    one_line_error(
+        &run(&[
+            "identify",
+            "firmware-profile/cmu-puppet.toml",
+            "data/cmu/16.asf",
+            "--servos",
+            "elbow",
+        ]),
+        "--servos: no servo named `elbow` in the profile",
+    );
+    one_line_error(
+        &run(&[
+            "identify",
+            "firmware-profile/cmu-puppet.toml",
+            "data/cmu/16.asf",
+            "--amplitude-deg",
+            "0",
+        ]),
+        "--amplitude-deg must be above 0",
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

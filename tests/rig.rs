@@ -553,3 +553,166 @@ fn servo_angles_map_back_to_the_frame_they_came_from() {
     }
     assert!(worst < 1e-9, "tips moved by {worst} units");
 }
+
+/// Issue 17: the look-ahead's plans through the command stage under 10⁶ random source angles —
+/// a random walk, jumps, NaN, infinities, ±1e300 and angles far outside the limits, with and
+/// without extrapolation, leads from none to 100 ms: no command outside the limits, none
+/// faster than the velocity limit, none accelerating harder than the acceleration limit (a
+/// tick of rounding aside).
+#[test]
+fn planned_commands_keep_every_limit_under_random_input() {
+    use marionette::control::lookahead::{Lookahead, LookaheadSettings, Preview, SourceSample};
+    let mut rng = marionette::bus::faults::Rng::new(17);
+    let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+    let limited = |direction: f64, gear: f64, lo: i32, hi: i32, v: f64, a: f64| ServoMap {
+        min_tick: lo,
+        max_tick: hi,
+        max_velocity: v,
+        max_acceleration: a,
+        ..servo(direction, 2048.0, gear)
+    };
+    let mut rig = Rig::default();
+    for s in [
+        limited(1.0, 1.0, 1024, 3072, 3000.0, 30_000.0),
+        limited(-1.0, 2.0, 1900, 2600, 500.0, 2_000.0),
+        limited(1.0, 0.5, 0, 4095, 6000.0, 200_000.0),
+    ] {
+        rig.servos.push(s).unwrap();
+    }
+    let rate = 500.0;
+    let dt = 1.0 / rate;
+    let period = 2_000_000u64;
+    let look = Lookahead::new(&rig, rate, &[0.0, 0.02, 0.1], LookaheadSettings::default());
+    let ahead = look.preview_ns() / period + 1;
+    let mut look = look;
+    let mut preview = Preview::new(ahead as usize + 8);
+    let mut stage = CommandStage::new(3);
+    let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
+    stage.start_from(&rig, &rest);
+    let mut walk = [0.0f64; 3];
+    let (mut before, mut last) = (rest.clone(), rest.clone());
+    let inputs = 1_000_000 / 3 + 1;
+    let mut commands = 0u64;
+    let (mut at_limit, mut fastest) = (0u64, [0.0f64; 3]);
+    for k in 0..inputs as u64 {
+        let mut sample = SourceSample {
+            due_ns: (k + ahead) * period,
+            ..SourceSample::default()
+        };
+        for (s, w) in walk.iter_mut().enumerate() {
+            *w = match (rng_pick(&mut uniform), k % 5000 < 2500) {
+                (p, _) if p < 0.01 => f64::NAN,
+                (p, _) if p < 0.015 => f64::INFINITY,
+                (p, _) if p < 0.02 => f64::NEG_INFINITY,
+                (p, _) if p < 0.025 => 1e300 * uniform(-1.0, 1.0),
+                (p, _) if p < 0.05 => uniform(-10.0, 10.0),
+                (_, true) => (*w + uniform(-0.05, 0.05)).clamp(-2.0, 2.0),
+                (_, false) => 0.6 * (k as f64 * 0.01 + s as f64).sin(),
+            };
+            // Non-finite values stay in the sample; the walk goes on from a finite one.
+            sample.angles[s] = *w;
+            if !w.is_finite() || w.abs() > 10.0 {
+                *w = 0.0;
+            }
+        }
+        preview.push(sample);
+        preview.advance(k * period + period / 2);
+        preview.live = k % 3 == 0;
+        let targets = look
+            .targets(&rig, &stage, &preview, k * period, dt, None)
+            .to_vec();
+        let (goals, _) = stage.command_planned(&rig, &targets, dt).expect("finite targets");
+        commands += 1;
+        for (j, (servo, &g)) in rig.servos.iter().zip(goals).enumerate() {
+            assert!(
+                (servo.min_tick..=servo.max_tick).contains(&g),
+                "input {k}, servo {j}: goal {g} outside {}…{}",
+                servo.min_tick,
+                servo.max_tick
+            );
+            let step = f64::from(g - last[j]);
+            let previous = f64::from(last[j] - before[j]);
+            at_limit += u64::from(g == servo.min_tick || g == servo.max_tick);
+            fastest[j] = fastest[j].max(step.abs() / (servo.max_velocity * dt));
+            assert!(
+                step.abs() <= servo.max_velocity * dt + 1.0,
+                "input {k}, servo {j}: {step} ticks in one tick"
+            );
+            assert!(
+                (step - previous).abs() <= servo.max_acceleration * dt * dt + 2.0,
+                "input {k}, servo {j}: step {previous} → {step}"
+            );
+        }
+        before = std::mem::replace(&mut last, goals.to_vec());
+    }
+    assert_eq!(commands * 3, inputs as u64 * 3);
+    assert!(inputs * 3 >= 1_000_000);
+    // The input did push the plans against the limits.
+    println!("goals at a position limit: {at_limit}; fastest step / velocity limit: {fastest:?}");
+    assert!(at_limit > 1000, "{at_limit}");
+    assert!(fastest.iter().all(|&f| f > 0.9), "{fastest:?}");
+}
+
+/// A number in 0…1 from the test's generator.
+fn rng_pick(uniform: &mut impl FnMut(f64, f64) -> f64) -> f64 {
+    uniform(0.0, 1.0)
+}
+
+/// `identify --write`: `lag_ms` replaced where it is, added at the end of an entry where it is
+/// not, only in the entries named; comments and layout kept; the result loads.
+#[test]
+fn lags_are_written_into_a_profile_keeping_its_text() {
+    use marionette::profile::set_servo_lags;
+    // The shipped profile without its lags.
+    let shipped = std::fs::read_to_string(profile_path("cmu-puppet.toml")).unwrap();
+    let mut text: String = shipped
+        .lines()
+        .filter(|l| !l.starts_with("lag_ms"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    text.push('\n');
+    assert!(text.len() < shipped.len(), "the shipped profile has lags");
+    let once = set_servo_lags(&text, &[("ltibia_rx".into(), 21.5), ("head_rx".into(), 3.0)]);
+    let twice = set_servo_lags(&once, &[("ltibia_rx".into(), 30.0)]);
+    assert_eq!(once.lines().count(), text.lines().count() + 2);
+    assert_eq!(twice.lines().count(), once.lines().count());
+    assert!(twice.contains("lag_ms = 30\n") && twice.contains("lag_ms = 3\n"));
+    assert!(!twice.contains("lag_ms = 21.5"));
+    // Every other line is as it was, comments included.
+    let kept: Vec<&str> = twice.lines().filter(|l| !l.starts_with("lag_ms")).collect();
+    assert_eq!(kept, text.lines().collect::<Vec<_>>());
+    let dir = common::tempdir("lags");
+    let path = dir.join("cmu-puppet.toml");
+    std::fs::write(&path, &twice).unwrap();
+    let p = Profile::load(&path).unwrap();
+    let lag = |n: &str| p.servos.iter().find(|s| s.name == n).unwrap().lag_ms;
+    assert_eq!(
+        (lag("ltibia_rx"), lag("head_rx"), lag("rtibia_rx")),
+        (Some(30.0), Some(3.0), None)
+    );
+    // A lag out of range is an error with its line.
+    std::fs::write(&path, set_servo_lags(&text, &[("ltibia_rx".into(), -1.0)])).unwrap();
+    let e = Profile::load(&path).unwrap_err().to_string();
+    assert!(e.contains("expected a lag in 0…1000 ms, found -1"), "{e}");
+    // So is a supply the model cannot take (an XM430 at 24 V), and a speed above the model's
+    // no-load speed at its supply (the W210 knee at 12 V: 462°/s).
+    let e_v = text.replacen("supply_v = 14.8", "supply_v = 24", 1);
+    std::fs::write(&path, e_v).unwrap();
+    let e = Profile::load(&path).unwrap_err().to_string();
+    assert!(
+        e.contains("expected a supply of 10…14.8 V for the XM430-W210, found 24"),
+        "{e}"
+    );
+    let fast = text.replacen("supply_v = 14.8\n", "", 1).replacen(
+        "max_velocity_dps = 440",
+        "max_velocity_dps = 500",
+        1,
+    );
+    std::fs::write(&path, fast).unwrap();
+    let e = Profile::load(&path).unwrap_err().to_string();
+    assert!(
+        e.contains("XM430-W210 reaches at most 462 joint °/s at gear 1 and 12 V, found 500"),
+        "{e}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

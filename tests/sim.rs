@@ -576,3 +576,209 @@ fn op3_whole_body_stands_through_the_standing_stretches() {
         );
     }
 }
+
+/// Plays the walk on the simulated puppet through the command line (`--bus sim --rate 120
+/// --pre-roll 0.5`, plus `extra`); returns the statistics' `fidelity` block.
+fn walk_fidelity_in_mujoco(extra: &[&str]) -> serde_json::Value {
+    let dir = common::tempdir("fidelity-sim");
+    let stats = dir.join("stats.json");
+    let out = common::bin()
+        .args([
+            "play",
+            "firmware-profile/cmu-puppet.toml",
+            "data/cmu/16.asf",
+            "data/cmu/16_15.amc",
+        ])
+        .args([
+            "--bus",
+            "sim",
+            "--rate",
+            "120",
+            "--pre-roll",
+            "0.5",
+            "-q",
+            "--stats-json",
+        ])
+        .arg(&stats)
+        .args(extra)
+        .current_dir(repo(""))
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("capture dropout: lhumerus frames 1–2"), "{text}");
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    s["fidelity"].clone()
+}
+
+/// Issue 17: source → present on the simulated puppet at 120 Hz, with the look-ahead and the
+/// profile's identified lags: joint RMS ≤ 1.5°, best-aligned lag ≤ 10 ms either way, effector
+/// RMS ≤ 10 mm — better than the greedy limiter on every figure — and two runs identical.
+#[test]
+fn the_walk_in_mujoco_follows_the_source_within_the_fidelity_targets() {
+    let planned = walk_fidelity_in_mujoco(&[]);
+    let greedy = walk_fidelity_in_mujoco(&["--no-lookahead"]);
+    let f = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap();
+    println!(
+        "look-ahead: rms {:.3}°, lag {} ms, effectors {:.1} mm; greedy: rms {:.3}°, lag {} ms, effectors {:.1} mm",
+        f(&planned, "joint_rms_deg"),
+        f(&planned, "lag_ms"),
+        f(&planned, "effector_rms_mm"),
+        f(&greedy, "joint_rms_deg"),
+        f(&greedy, "lag_ms"),
+        f(&greedy, "effector_rms_mm")
+    );
+    assert!(f(&planned, "joint_rms_deg") <= 1.5, "{planned}");
+    assert!(f(&planned, "lag_ms").abs() <= 10.0, "{planned}");
+    assert!(f(&planned, "effector_rms_mm") <= 10.0, "{planned}");
+    assert!(f(&planned, "samples") > 400.0);
+    for k in ["joint_rms_deg", "effector_rms_mm", "joint_max_deg"] {
+        assert!(f(&planned, k) < f(&greedy, k), "{k}: {planned} vs {greedy}");
+    }
+    assert!(f(&greedy, "lag_ms") > 20.0, "{greedy}");
+    assert_eq!(
+        planned,
+        walk_fidelity_in_mujoco(&[]),
+        "two runs, the same figures"
+    );
+}
+
+/// Issue 17: `identify` on the simulated puppet finds each servo's lag over the band of human
+/// motion — the values the shipped profile carries — and a bandwidth; the same every run.
+#[test]
+fn identify_in_mujoco_reproduces_the_profiles_lags() {
+    let dir = common::tempdir("identify-sim");
+    let json = dir.join("id.json");
+    let run = || {
+        let out = common::bin()
+            .args(["identify", "firmware-profile/cmu-puppet.toml", "data/cmu/16.asf"])
+            .args([
+                "--bus",
+                "sim",
+                "--rate",
+                "120",
+                "--servos",
+                "ltibia_rx,lhumerus_rx,head_rx",
+                "--json",
+            ])
+            .arg(&json)
+            .current_dir(repo(""))
+            .stdin(Stdio::null())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        v
+    };
+    let a = run();
+    let profile = Profile::load(&repo("firmware-profile/cmu-puppet.toml")).unwrap();
+    for r in a.as_array().unwrap() {
+        let name = r["name"].as_str().unwrap();
+        let lag = r["lag_ms"].as_f64().unwrap();
+        let shipped = profile
+            .servos
+            .iter()
+            .find(|s| s.name == name)
+            .unwrap()
+            .lag_ms
+            .unwrap();
+        println!(
+            "{name}: lag {lag:.1} ms (profile {shipped}), bandwidth {}",
+            r["bandwidth_hz"]
+        );
+        assert!((5.0..60.0).contains(&lag), "{r}");
+        assert!((lag - shipped).abs() <= 0.05 + 1e-9, "{name}: {lag} vs {shipped}");
+        // Below the −3 dB point within the chirp, or beyond its 8 Hz; low frequencies pass whole.
+        assert!(
+            r["bandwidth_hz"].as_f64().is_none_or(|b| (2.0..8.0).contains(&b)),
+            "{r}"
+        );
+        let first = &r["frequency_response"][0];
+        assert!((first["gain"].as_f64().unwrap() - 1.0).abs() < 0.1, "{r}");
+        // The position servo overshoots its step (an underdamped P-controlled hinge).
+        assert!(r["overshoot_pct"].as_f64().unwrap() > 5.0, "{r}");
+    }
+    assert_eq!(a, run(), "the same identification twice");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 17: `sim size` on the walk. With the puppet's knees and ankles on XL430-W250s (the
+/// profile before its fix) those four saturate; on XM430-W210s at 12 V the right knee still
+/// does; on the shipped XM430-W210s at 14.8 V none does.
+#[test]
+fn sizing_the_walk_names_the_servos_that_saturate() {
+    let shipped = std::fs::read_to_string(repo("firmware-profile/cmu-puppet.toml")).unwrap();
+    let at_12_v = shipped.replace("supply_v = 14.8\n", "");
+    // The profile before the fix: XL430-W250 knees and ankles at the old limits.
+    let before = at_12_v
+        .replace("model = \"XM430-W210\"", "model = \"XL430-W250\"")
+        .replace("max_velocity_dps = 440", "max_velocity_dps = 300")
+        .replace("max_acceleration_dps2 = 9000", "max_acceleration_dps2 = 3000");
+    let dir = common::tempdir("size");
+    let before_path = dir.join("before.toml");
+    std::fs::write(&before_path, before).unwrap();
+    let at_12_v_path = dir.join("at-12-v.toml");
+    std::fs::write(&at_12_v_path, at_12_v).unwrap();
+    let size = |profile: &std::path::Path| {
+        let json = dir.join("size.json");
+        let out = common::bin()
+            .args(["sim", "size"])
+            .arg(profile)
+            .args([repo("data/cmu/16.asf"), repo("data/cmu/16_15.amc")])
+            .arg("--json")
+            .arg(&json)
+            .stdin(Stdio::null())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            out.status.success(),
+            "{text}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        (text, v)
+    };
+    let saturating = |v: &serde_json::Value| -> Vec<String> {
+        v["servos"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| s["saturates"].as_bool().unwrap())
+            .map(|s| s["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let (text, b) = size(&before_path);
+    print!("{text}");
+    assert_eq!(saturating(&b), ["ltibia_rx", "lfoot_rx", "rtibia_rx", "rfoot_rx"]);
+    assert!(
+        text.contains("saturating: ltibia_rx, lfoot_rx, rtibia_rx, rfoot_rx"),
+        "{text}"
+    );
+    let (text, twelve) = size(&at_12_v_path);
+    print!("{text}");
+    assert_eq!(saturating(&twelve), ["rtibia_rx"]);
+    let (text, a) = size(&repo("firmware-profile/cmu-puppet.toml"));
+    print!("{text}");
+    assert!(saturating(&a).is_empty(), "{text}");
+    assert!(text.contains("no servo saturates over the 471 frames"), "{text}");
+    // Every servo the fix changed uses less of its line than before.
+    for (x, y) in b["servos"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(a["servos"].as_array().unwrap())
+    {
+        if x["model"] != y["model"] {
+            assert!(y["line_share"].as_f64() < x["line_share"].as_f64(), "{x} → {y}");
+        }
+        assert!(y["peak_torque_nm"].as_f64().unwrap() < 10.0 && y["rms_torque_nm"].as_f64().unwrap() > 0.0);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -6,7 +6,7 @@
 //! sent. Positions are kept in fractional ticks so slow motions are not lost to rounding.
 
 use crate::rig::Rig;
-use crate::servo::{step_towards, MAX_SERVOS};
+use crate::servo::{step_along, step_towards, MotionLimits, MAX_SERVOS};
 
 /// Why a command was refused. Nothing is sent; the last command stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -96,6 +96,71 @@ impl CommandStage {
         } else {
             &[]
         }
+    }
+
+    /// Where servo `k`'s command stands: position (fractional ticks) and velocity (ticks/s);
+    /// `None` before the first command or past the rig.
+    #[must_use]
+    pub fn state(&self, k: usize) -> Option<(f64, f64)> {
+        (self.started && k < self.len).then(|| (self.position[k], self.velocity[k]))
+    }
+
+    /// The next goal positions along planned paths: `targets` (fractional ticks, e.g. from
+    /// [`crate::plan`]) are points of paths that go on, so the stage limits velocity and
+    /// acceleration without braking towards them (it still brakes for the position limits),
+    /// `dt` seconds after the previous command. Before any start the first command is only
+    /// clamped.
+    ///
+    /// # Errors
+    /// [`CommandError`]: the command is refused as a whole and the last one stands.
+    pub fn command_planned(
+        &mut self,
+        rig: &Rig,
+        targets: &[f64],
+        dt: f64,
+    ) -> Result<(&[i32], Limited), CommandError> {
+        if targets.len() != rig.len() || rig.len() != self.len {
+            return Err(CommandError::WrongLength {
+                got: targets.len(),
+                want: rig.len(),
+            });
+        }
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(CommandError::BadTimeStep);
+        }
+        if let Some(servo) = targets.iter().position(|a| !a.is_finite()) {
+            return Err(CommandError::NotFinite { servo });
+        }
+        let mut limited = Limited::default();
+        for (k, (servo, &wanted)) in rig.servos.iter().zip(targets).enumerate() {
+            let (lo, hi) = (f64::from(servo.min_tick), f64::from(servo.max_tick));
+            let target = wanted.clamp(lo, hi);
+            if target != wanted {
+                limited.clamped += 1;
+            }
+            if !self.started {
+                self.position[k] = target;
+                self.velocity[k] = 0.0;
+                continue;
+            }
+            let limits = MotionLimits {
+                velocity: servo.max_velocity,
+                acceleration: servo.max_acceleration,
+                min: lo,
+                max: hi,
+            };
+            let (p, v) = step_along(self.position[k], self.velocity[k], target, dt, &limits);
+            if (p - target).abs() > 1e-9 {
+                limited.rate_limited += 1;
+            }
+            self.position[k] = p;
+            self.velocity[k] = v;
+        }
+        self.started = true;
+        for k in 0..self.len {
+            self.ticks[k] = libm::round(self.position[k]) as i32;
+        }
+        Ok((&self.ticks[..self.len], limited))
     }
 
     /// Turns joint angles (radians) into the next goal positions, `dt` seconds after the

@@ -21,6 +21,8 @@
 //!   the feet in closed form, head, planted feet, balance over the support polygon.
 //! * [`servo`] — X-series servo models, control-table addresses, the velocity- and
 //!   acceleration-limited step, [`servo::MAX_SERVOS`].
+//! * [`plan`] — look-ahead: one servo's least-deviation goal path over a preview window
+//!   within its velocity and acceleration limits (ADMM on a banded system).
 //! * [`rig`] — joint sources and angle ↔ tick mapping, Euler re-decomposition.
 //! * [`command`] — the command stage: finite check, position, velocity and acceleration limits.
 //! * [`protocol`] — Dynamixel Protocol 2.0 packets: CRC-16, byte stuffing, encode/decode.
@@ -57,6 +59,8 @@ pub mod ik_numeric;
 pub mod retarget;
 
 pub mod servo;
+
+pub mod plan;
 
 pub mod rig;
 

@@ -115,18 +115,50 @@ pub struct ServoModel {
     pub stall_torque_nm: f64,
     /// Factory Position P Gain (control-table units).
     pub position_p_gain: u16,
+    /// Gear ratio (motor turns per horn turn), e-manual.
+    pub gear_ratio: f64,
+    /// The voltage the no-load speed and stall torque are given at (the recommended one).
+    pub rated_v: f64,
+    /// The supply range the e-manual allows, volts.
+    pub min_v: f64,
+    /// Highest supply, volts.
+    pub max_v: f64,
 }
 
 impl ServoModel {
-    /// No-load speed in radians per second.
+    /// No-load speed in radians per second at the rated voltage.
     #[must_use]
     pub fn max_speed_rad_s(&self) -> f64 {
         self.no_load_rpm * core::f64::consts::TAU / 60.0
     }
+
+    /// How a DC motor scales with its supply: no-load speed and stall torque in proportion to
+    /// the voltage (the e-manual's figures at three voltages follow it within 2 %), the slope of
+    /// the torque–speed line unchanged. The factor at `volts`, clamped to the allowed range.
+    #[must_use]
+    pub fn voltage_factor(&self, volts: f64) -> f64 {
+        if volts.is_finite() && self.rated_v > 0.0 {
+            volts.clamp(self.min_v, self.max_v) / self.rated_v
+        } else {
+            1.0
+        }
+    }
+
+    /// Stall torque at `volts`, N·m.
+    #[must_use]
+    pub fn stall_torque_at(&self, volts: f64) -> f64 {
+        self.stall_torque_nm * self.voltage_factor(volts)
+    }
+
+    /// No-load speed at `volts`, radians per second.
+    #[must_use]
+    pub fn max_speed_rad_s_at(&self, volts: f64) -> f64 {
+        self.max_speed_rad_s() * self.voltage_factor(volts)
+    }
 }
 
 /// The models this release knows.
-pub const MODELS: [ServoModel; 4] = [
+pub const MODELS: [ServoModel; 5] = [
     ServoModel {
         name: "XL330-M288",
         model_number: 1200,
@@ -134,6 +166,10 @@ pub const MODELS: [ServoModel; 4] = [
         no_load_rpm: 103.0,
         stall_torque_nm: 0.52,
         position_p_gain: 400,
+        gear_ratio: 288.35,
+        rated_v: 5.0,
+        min_v: 3.7,
+        max_v: 6.0,
     },
     ServoModel {
         name: "XL430-W250",
@@ -142,6 +178,10 @@ pub const MODELS: [ServoModel; 4] = [
         no_load_rpm: 57.0,
         stall_torque_nm: 1.4,
         position_p_gain: 640,
+        gear_ratio: 258.5,
+        rated_v: 11.1,
+        min_v: 6.5,
+        max_v: 12.0,
     },
     ServoModel {
         name: "XM430-W350",
@@ -150,6 +190,10 @@ pub const MODELS: [ServoModel; 4] = [
         no_load_rpm: 46.0,
         stall_torque_nm: 4.1,
         position_p_gain: 800,
+        gear_ratio: 353.5,
+        rated_v: 12.0,
+        min_v: 10.0,
+        max_v: 14.8,
     },
     ServoModel {
         name: "XH540-W270",
@@ -158,6 +202,22 @@ pub const MODELS: [ServoModel; 4] = [
         no_load_rpm: 30.0,
         stall_torque_nm: 10.6,
         position_p_gain: 800,
+        gear_ratio: 272.5,
+        rated_v: 12.0,
+        min_v: 10.0,
+        max_v: 14.8,
+    },
+    ServoModel {
+        name: "XM430-W210",
+        model_number: 1030,
+        max_baud: 4_500_000,
+        no_load_rpm: 77.0,
+        stall_torque_nm: 3.0,
+        position_p_gain: 800,
+        gear_ratio: 212.6,
+        rated_v: 12.0,
+        min_v: 10.0,
+        max_v: 14.8,
     },
 ];
 
@@ -199,4 +259,70 @@ pub fn step_towards(position: f64, velocity: f64, target: f64, vmax: f64, amax: 
         return (target, d / dt);
     }
     (position + step, v)
+}
+
+/// Bounds of one servo's motion in its own units (ticks, ticks/s, ticks/s²); a rate that is
+/// not a positive finite number means "none".
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionLimits {
+    /// Largest speed.
+    pub velocity: f64,
+    /// Largest acceleration.
+    pub acceleration: f64,
+    /// Lowest position.
+    pub min: f64,
+    /// Highest position.
+    pub max: f64,
+}
+
+impl MotionLimits {
+    /// (velocity, acceleration, lowest, highest) with missing rates as infinity and the range
+    /// in order.
+    #[must_use]
+    pub fn sane(&self) -> (f64, f64, f64, f64) {
+        let rate = |v: f64| {
+            if v.is_finite() && v > 0.0 {
+                v
+            } else {
+                f64::INFINITY
+            }
+        };
+        let (lo, hi) = if self.min <= self.max {
+            (self.min, self.max)
+        } else {
+            (self.max, self.min)
+        };
+        (rate(self.velocity), rate(self.acceleration), lo, hi)
+    }
+}
+
+/// One step along a planned path: the velocity that reaches `next` this step, bounded by the
+/// velocity limit, by the acceleration limit's change from the last velocity, and by the speed
+/// from which that acceleration can still stop at the position limit ahead. Unlike
+/// [`step_towards`] it does not brake towards `next`: that is a point on a path that goes on,
+/// not a place to stop. Returns the new position (inside the limits) and velocity.
+#[must_use]
+pub fn step_along(position: f64, velocity: f64, next: f64, dt: f64, limits: &MotionLimits) -> (f64, f64) {
+    let (vmax, amax, lo, hi) = limits.sane();
+    let v = ((next - position) / dt).clamp(-vmax, vmax);
+    let v = if amax.is_finite() {
+        let dv = amax * dt;
+        v.clamp(velocity - dv, velocity + dv)
+    } else {
+        v
+    };
+    brake_and_move(position, v, dt, amax, lo, hi)
+}
+
+/// Bounds `v` by the speed from which `amax` can still stop at `lo`/`hi`, then moves `dt`:
+/// the new position (inside the limits) and velocity.
+#[must_use]
+pub fn brake_and_move(position: f64, v: f64, dt: f64, amax: f64, lo: f64, hi: f64) -> (f64, f64) {
+    let mut v = v;
+    if amax.is_finite() {
+        let up = libm::sqrt(2.0 * amax * (hi - position).max(0.0)).max(amax * dt);
+        let down = libm::sqrt(2.0 * amax * (position - lo).max(0.0)).max(amax * dt);
+        v = v.clamp(-down, up);
+    }
+    ((position + v * dt).clamp(lo, hi), v)
 }

@@ -259,6 +259,42 @@ impl World {
         }
     }
 
+    /// Degrees of freedom (the length of velocity and force vectors).
+    #[must_use]
+    pub fn dof_count(&self) -> usize {
+        usize::try_from(self.model().nv()).unwrap_or(0)
+    }
+
+    /// The first degree of freedom of a joint (its index in velocity and force vectors).
+    #[must_use]
+    pub fn joint_dof(&self, joint: usize) -> Option<usize> {
+        self.dof_address(joint)
+    }
+
+    /// Inverse dynamics (`mj_inverse`): the generalised force per degree of freedom that gives
+    /// the acceleration `qacc` at `qpos` and `qvel` (whole vectors; missing values are zero)
+    /// with the model's own passive forces (joint damping and springs) and constraint forces
+    /// (joint limits, contacts) added back — `M(q)·q̈ + c(q, q̇)`, what the actuators must
+    /// supply to a body that nothing else holds. The state is left at `qpos`, `qvel`.
+    pub fn load_forces(&mut self, qpos: &[f64], qvel: &[f64], qacc: &[f64]) -> Vec<f64> {
+        let fill = |dst: &mut [f64], src: &[f64]| {
+            for (i, d) in dst.iter_mut().enumerate() {
+                *d = src.get(i).copied().unwrap_or(0.0);
+            }
+        };
+        fill(self.data.qpos_mut(), qpos);
+        fill(self.data.qvel_mut(), qvel);
+        fill(self.data.qacc_mut(), qacc);
+        self.data.inverse();
+        self.data
+            .qfrc_inverse()
+            .iter()
+            .zip(self.data.qfrc_passive())
+            .zip(self.data.qfrc_constraint())
+            .map(|((f, p), c)| f + p + c)
+            .collect()
+    }
+
     /// All generalised coordinates.
     #[must_use]
     pub fn qpos(&self) -> &[f64] {

@@ -55,8 +55,9 @@ impl Dynamixel2Bus {
         &mut self.bus
     }
 
-    /// Reads until the line is quiet and drops it all.
-    fn drain(&mut self) {
+    /// Reads until the line is quiet and drops it all; the port's own failure (the adapter
+    /// unplugged) ends the wait and is returned.
+    fn drain(&mut self) -> Option<io::Error> {
         // Every reply (or noise) that still arrives restarts the wait; silence ends it.
         for _ in 0..64 {
             match self
@@ -64,16 +65,26 @@ impl Dynamixel2Bus {
                 .read_status_response_deadline(std::time::Instant::now() + self.quiet)
             {
                 Err(ReadError::Io(e)) if e.kind() == io::ErrorKind::TimedOut => break,
+                Err(ReadError::Io(e)) => {
+                    let failed = BusError::Io(e);
+                    if let Some(e) = failed.port_failure() {
+                        return Some(e);
+                    }
+                }
                 _ => {}
             }
         }
-        let _ = self.bus.serial_port().discard_input_buffer();
+        let discarded = self.bus.serial_port().discard_input_buffer();
+        discarded.err().and_then(|e| BusError::Io(e).port_failure())
     }
 
-    /// Reports a failed reply after draining the line (a failing port is not drained).
+    /// Reports a failed reply after draining the line (a failing port is not drained); a port
+    /// found failing while draining is reported instead of the reply's fault.
     fn fail<T>(&mut self, e: BusError) -> Result<T, BusError> {
         if !matches!(e, BusError::Io(_)) {
-            self.drain();
+            if let Some(io) = self.drain() {
+                return Err(BusError::Io(io));
+            }
         }
         Err(e)
     }

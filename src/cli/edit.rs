@@ -16,12 +16,22 @@ use crate::motion::Motion;
 use crate::plot::{draw, Format};
 use crate::skeleton::Skeleton;
 
+/// Loads the skeleton and the clips, each clip's capture dropouts filled (and said so): an
+/// edit should not carry a capture's glitch into its seams.
 fn load_clip(asf_path: &Path, amc_paths: &[&Path]) -> Result<(AsfFile, Vec<Motion>), CliError> {
     let file = asf::load(asf_path)?;
-    let motions = amc_paths
-        .iter()
-        .map(|p| amc::load(&file.skeleton, p))
-        .collect::<Result<Vec<_>, _>>()?;
+    let mut motions = Vec::with_capacity(amc_paths.len());
+    for p in amc_paths {
+        let mut m = amc::load(&file.skeleton, p)?;
+        for d in crate::motion::dropouts::repair(&file.skeleton, &mut m) {
+            writeln!(
+                io::stdout().lock(),
+                "{}: capture dropout filled: {d}",
+                p.display()
+            )?;
+        }
+        motions.push(m);
+    }
     Ok((file, motions))
 }
 
@@ -106,6 +116,22 @@ pub(super) fn connect_cmd(
         c.b_kept.end
     )?;
     write_seam(&mut w, &seam_report(s, &[a, b], &out, c.seam.clone()))?;
+    let worst: Vec<String> = c
+        .bones
+        .iter()
+        .take(3)
+        .map(|b| format!("{} {:.2}", b.name, b.ratio))
+        .collect();
+    writeln!(
+        w,
+        "bones     worst change per frame across the seam against each bone's own allowance (1.5× its p99 in the inputs + 1°): {} — {}",
+        worst.join(", "),
+        if c.worst_ratio() <= 1.0 {
+            "every bone within it"
+        } else {
+            "the clips end before a longer transition"
+        }
+    )?;
     writeln!(w, "wrote     {}", output.display())?;
     if let Some(p) = plot {
         let plot = ConnectionPlot {

@@ -5,6 +5,7 @@ mod args;
 mod convert;
 mod edit;
 mod error;
+mod identify;
 mod ik;
 mod inspect;
 mod play;
@@ -50,8 +51,30 @@ enum Command {
         /// Clip time to start at, seconds.
         #[arg(long, default_value_t = 0.0)]
         start: f64,
+        /// Seconds to move to the clip's first frame before it starts (eased in from where the
+        /// servos stand, unless --ease-in says otherwise); not counted in the fidelity. 0: the
+        /// clip starts at once, from wherever the servos stand. Default: 1 s for a rig of the
+        /// skeleton's bones; 0 for a robot retargeted on its floor (a joint-space blend into a
+        /// clip's first pose, a crouch say, can tip it: give --ease-in, or --pre-roll, knowingly).
+        #[arg(long)]
+        pre_roll: Option<f64>,
+        /// Play capture dropouts (a bone reading exactly zero between far-away frames) as
+        /// recorded instead of filling them from their neighbours.
+        #[arg(long)]
+        keep_dropouts: bool,
         #[command(flatten)]
         loop_args: play::LoopArgs,
+    },
+    /// Identify each servo's response (a step and a chirp, small and inside its limits): lag,
+    /// rise, bandwidth; `--write` puts the lags into the profile as `lag_ms`, which the
+    /// look-ahead leads each servo by.
+    Identify {
+        /// The rig profile.
+        profile: PathBuf,
+        /// Skeleton (.asf): for profiles of bones, and the generated puppet of --bus sim.
+        asf: Option<PathBuf>,
+        #[command(flatten)]
+        args: identify::IdentifyArgs,
     },
     /// Follow effector targets (file, stdin or UDP) with inverse kinematics at a fixed rate.
     Follow {
@@ -304,9 +327,14 @@ enum Command {
         /// Joint distance for matching.
         #[arg(long, value_enum, default_value_t = MetricArg::Quat)]
         metric: MetricArg,
-        /// Frames to insert (interp); default: enough to keep joint speeds within the inputs'.
+        /// Frames to insert (interp); default: as few as keep every bone, and the root, within
+        /// 1.5× its own 99th-percentile speed in the inputs (+1°).
         #[arg(long)]
         insert: Option<usize>,
+        /// Frames to blend over (blend); default: from the matching window up, as few as keep
+        /// every bone within its own speeds in the inputs.
+        #[arg(long)]
+        blend_window: Option<usize>,
         /// Output clip (.amc).
         #[arg(short, long)]
         output: PathBuf,
@@ -436,18 +464,27 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
             looping,
             speed,
             start,
+            pre_roll,
+            keep_dropouts,
             loop_args,
         } => play::play_cmd(
             &profile,
             &asf,
             &amc,
-            looping,
-            speed,
-            start,
+            play::Playback {
+                looping,
+                speed,
+                start,
+                pre_roll,
+                keep_dropouts,
+            },
             &loop_args,
             allocations,
             &mut io::stdout().lock(),
         ),
+        Command::Identify { profile, asf, args } => {
+            identify::identify_cmd(&profile, asf.as_deref(), &args, &mut io::stdout().lock())
+        }
         Command::Follow {
             profile,
             asf,
@@ -622,6 +659,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
             window,
             metric,
             insert,
+            blend_window,
             output,
             plot,
         } => {
@@ -636,6 +674,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
                 },
                 matching: MatchParams::new(window, metric.metric()),
                 insert,
+                blend: blend_window,
             };
             edit::connect_cmd(&asf, &a, &b, &params, &output, plot.as_deref())
         }

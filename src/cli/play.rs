@@ -21,6 +21,7 @@ use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::clock::SystemClock;
 use crate::control::input::{input_channel, InputPort, InputSender};
 use crate::control::lockstep::{LockstepSource, PlayerFeed, TrackFeed};
+use crate::control::lookahead::{Lookahead, LookaheadSettings};
 use crate::control::plot::Histograms;
 use crate::control::rt::RealTime;
 use crate::control::sources::{
@@ -77,6 +78,25 @@ impl std::str::FromStr for BusArg {
             port => Ok(BusArg::Port(port.to_string())),
         }
     }
+}
+
+/// Seconds a rig of bones spends moving to a clip's first frame before the clip starts.
+pub const DEFAULT_PRE_ROLL_S: f64 = 1.0;
+
+/// How `play` plays its clip.
+#[derive(Clone, Copy, Debug)]
+pub struct Playback {
+    /// Start over at the end.
+    pub looping: bool,
+    /// Playback speed (1 = as captured).
+    pub speed: f64,
+    /// Clip time to start at, seconds.
+    pub start: f64,
+    /// Seconds on the first frame before the clip starts (`None`: 1 s for a rig of bones, 0
+    /// for a retargeted robot).
+    pub pre_roll: Option<f64>,
+    /// Play capture dropouts as recorded.
+    pub keep_dropouts: bool,
 }
 
 /// Options shared by `play` and `follow`.
@@ -154,6 +174,14 @@ pub struct LoopArgs {
     /// planted feet.
     #[arg(long)]
     pub no_balance: bool,
+    /// Command each tick's target through the greedy limiter instead of planning the goal
+    /// path over a preview of the input (the look-ahead).
+    #[arg(long)]
+    pub no_lookahead: bool,
+    /// Take every servo's lag as this many ms instead of the profile's `lag_ms` (the look-ahead
+    /// plans the goal that far, and a period, ahead of the source, so the horn arrives on time).
+    #[arg(long)]
+    pub lead_ms: Option<f64>,
 }
 
 /// The opened bus: the virtual chain (kept alive while the bus is used) or a port.
@@ -196,7 +224,44 @@ fn check(args: &LoopArgs) -> Result<(), CliError> {
     if args.hold_after == 0 {
         return Err(CliError::Usage("--hold-after must be at least 1".into()));
     }
+    if args
+        .lead_ms
+        .is_some_and(|l| !(l.is_finite() && (0.0..=1000.0).contains(&l)))
+    {
+        return Err(CliError::Usage("--lead-ms must be between 0 and 1000".into()));
+    }
+    if args.no_lookahead && args.lead_ms.is_some() {
+        return Err(CliError::Usage(
+            "--lead-ms needs the look-ahead: leave out --no-lookahead".into(),
+        ));
+    }
     Ok(())
+}
+
+/// Messages an input channel holds: a few ticks, plus the look-ahead's longest preview (a
+/// lead of up to a second and the window) so that a lockstep feed never drops one.
+fn input_capacity(rate_hz: f64) -> usize {
+    INPUT_CAPACITY + (1.25 * rate_hz).ceil() as usize
+}
+
+/// The look-ahead of a run (none with `--no-lookahead`): each servo led by its own lag
+/// (`--lead-ms`, else the profile's `lag_ms`) and the loop's period (a goal written now is read
+/// back a tick later).
+fn lookahead(args: &LoopArgs, profile: &Profile, rig: &crate::rig::Rig) -> Option<Lookahead> {
+    if args.no_lookahead {
+        return None;
+    }
+    let leads: Vec<f64> = profile
+        .servos
+        .iter()
+        .map(|s| args.lead_ms.or(s.lag_ms).unwrap_or(0.0) * 1e-3 + 1.0 / args.rate)
+        .collect();
+    Some(Lookahead::new(
+        rig,
+        args.rate,
+        &leads,
+        LookaheadSettings::default(),
+    ))
 }
 
 fn open_bus(
@@ -254,10 +319,15 @@ struct Outcome {
     port_error: Option<std::io::Error>,
 }
 
+/// Starts a producer thread: (clock, first tick, period, how far ahead the loop takes inputs).
+type StartProducer =
+    Box<dyn FnOnce(SystemClock, u64, u64, u64) -> std::io::Result<JoinHandle<ProducerReport>>>;
+
 /// Where a run's input comes from.
 enum Producer {
-    /// A thread paced by the machine clock, started with (clock, first tick, period).
-    Thread(Box<dyn FnOnce(SystemClock, u64, u64) -> std::io::Result<JoinHandle<ProducerReport>>>),
+    /// A thread paced by the machine clock, started with (clock, first tick, period, how far
+    /// ahead the loop takes inputs).
+    Thread(StartProducer),
     /// A source fed in simulated time (`--bus sim`) into the sender, made once the period is
     /// known.
     Lockstep(InputSender, Box<dyn FnOnce(u64) -> Box<dyn LockstepSource>>),
@@ -326,14 +396,19 @@ fn run_sim(
     let _ = allocations;
     let mut config = loop_config(args, None);
     config.effector_metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
+    let planner = lookahead(args, profile, &rig);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
     controller.set_servo_names(profile.servos.iter().map(|s| s.name.clone()).collect());
     if let Some(r) = retarget {
         controller.set_retarget(r);
     }
+    if let Some(p) = planner {
+        controller.set_lookahead(p);
+    }
     let period = controller.period_ns();
     let start = bus.now_ns() + period;
-    let mut clock = FeedingClock::new(bus.clone(), make_source(period), tx, start, period);
+    let mut clock = FeedingClock::new(bus.clone(), make_source(period), tx, start, period)
+        .with_preview(controller.preview_ns());
     let mut schedule = Schedule::new(start, period);
     if args.sim_plot.is_some() {
         // Up to ten minutes of ticks for the picture's source curves.
@@ -510,10 +585,14 @@ fn run_loop(
     writeln!(out, "{label}: {} servos up, torque on", present.len())?;
     let mut config = loop_config(args, allocations);
     config.effector_metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
+    let planner = lookahead(args, profile, &rig);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
     controller.set_servo_names(profile.servos.iter().map(|s| s.name.clone()).collect());
     if let Some(r) = retarget {
         controller.set_retarget(r);
+    }
+    if let Some(p) = planner {
+        controller.set_lookahead(p);
     }
     let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
     controller.set_telemetry(ttx);
@@ -521,7 +600,7 @@ fn run_loop(
     let mut clock = SystemClock::new(200_000);
     // The first tick a little ahead, so the producer has filled the channel.
     let start = clock.now_ns() + 50_000_000;
-    let producer = start_producer(clock, start, period).map_err(CliError::Output)?;
+    let producer = start_producer(clock, start, period, controller.preview_ns()).map_err(CliError::Output)?;
     let rt = RealTime {
         priority: args.rt_priority,
         cpu: args.cpu,
@@ -699,20 +778,62 @@ pub fn play_cmd(
     profile_path: &Path,
     asf_path: &Path,
     amc_path: &Path,
-    looping: bool,
-    speed: f64,
-    start_at: f64,
+    playback: Playback,
     args: &LoopArgs,
     allocations: Option<fn() -> u64>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
+    let Playback {
+        looping,
+        speed,
+        start: start_at,
+        pre_roll,
+        keep_dropouts,
+    } = playback;
     if !(speed.is_finite() && speed > 0.0) {
         return Err(CliError::Usage("--speed must be a positive number".into()));
     }
+    if pre_roll.is_some_and(|p| !(p.is_finite() && (0.0..=60.0).contains(&p))) {
+        return Err(CliError::Usage(
+            "--pre-roll must be between 0 and 60 seconds".into(),
+        ));
+    }
     let profile = Profile::load(profile_path)?;
+    let joint_driven = profile
+        .servos
+        .iter()
+        .any(|s| matches!(s.drive, crate::profile::Drive::Joint(_)));
+    let pre_roll = pre_roll.unwrap_or(if joint_driven { 0.0 } else { DEFAULT_PRE_ROLL_S });
+    // The move to the first frame is eased in from where the servos stand.
+    let mut eased;
+    let args = if pre_roll > 0.0 && args.ease_in == 0.0 {
+        eased = args.clone();
+        eased.ease_in = pre_roll;
+        &eased
+    } else {
+        args
+    };
     let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
     // A loaded motion has at least one frame.
-    let motion = Arc::new(amc::load(&skeleton, amc_path)?);
+    let mut motion = amc::load(&skeleton, amc_path)?;
+    let dropouts = if keep_dropouts {
+        crate::motion::dropouts::find(&skeleton, &motion)
+    } else {
+        crate::motion::dropouts::repair(&skeleton, &mut motion)
+    };
+    for d in &dropouts {
+        writeln!(
+            out,
+            "{}: capture dropout: {d}{}",
+            amc_path.display(),
+            if keep_dropouts {
+                "; played as recorded"
+            } else {
+                "; filled from its neighbours (--keep-dropouts plays it as recorded)"
+            }
+        )?;
+    }
+    let motion = Arc::new(motion);
     if !(start_at.is_finite() && (0.0..=motion.duration()).contains(&start_at)) {
         return Err(CliError::Usage(format!(
             "--start must be within the clip's 0…{:.3} s",
@@ -723,18 +844,27 @@ pub fn play_cmd(
     let mut player = ClipPlayer::new(Arc::clone(&skeleton), Arc::clone(&motion), args.rate, looping);
     player.control(PlayerCommand::Speed(speed));
     player.control(PlayerCommand::Seek(start_at));
-    let samples = player.samples_per_pass();
+    player.set_pre_roll(pre_roll);
+    // The pre-roll's samples come first: the first pass is that much longer.
+    let pre_roll_samples = player.pre_roll_samples();
+    let samples = player.samples_per_pass() + pre_roll_samples;
     writeln!(
         out,
-        "{}: {} frames at {} Hz ({:.2} s) → {samples} samples a pass at {} Hz{}",
+        "{}: {} frames at {} Hz ({:.2} s) → {} samples a pass at {} Hz{}{}",
         amc_path.display(),
         motion.len(),
         motion.frame_rate,
         motion.duration(),
+        player.samples_per_pass(),
         args.rate,
+        if pre_roll_samples > 0 {
+            format!(", after {pre_roll_samples} on its first frame ({pre_roll} s pre-roll)")
+        } else {
+            String::new()
+        },
         if looping { ", looping" } else { "" }
     )?;
-    let (tx, port) = input_channel(INPUT_CAPACITY);
+    let (tx, port) = input_channel(input_capacity(args.rate));
     let producer = if args.bus == BusArg::Sim {
         let channels = skeleton.channel_count();
         Producer::Lockstep(
@@ -743,8 +873,8 @@ pub fn play_cmd(
         )
     } else {
         let commands = keyboard_commands(out)?;
-        Producer::Thread(Box::new(move |clock, start, period| {
-            spawn_player(player, tx, clock, start, period, commands)
+        Producer::Thread(Box::new(move |clock, start, period, preview| {
+            spawn_player(player, tx, clock, start, period, preview, commands)
         }))
     };
     let outcome = run_loop(
@@ -879,7 +1009,7 @@ pub fn follow_cmd(
             effectors.join(", ")
         )?,
     }
-    let (tx, port): (InputSender, InputPort) = input_channel(INPUT_CAPACITY);
+    let (tx, port): (InputSender, InputPort) = input_channel(input_capacity(args.rate));
     let names = effectors.to_vec();
     let producer = match source {
         TargetSource::File(track) if args.bus == BusArg::Sim => {
@@ -890,8 +1020,8 @@ pub fn follow_cmd(
             }
             Producer::Lockstep(tx, Box::new(move |_| Box::new(TrackFeed::new(track))))
         }
-        source => Producer::Thread(Box::new(move |clock, start, _period| match source {
-            TargetSource::File(track) => spawn_track(track, tx, clock, start, looping),
+        source => Producer::Thread(Box::new(move |clock, start, _period, preview| match source {
+            TargetSource::File(track) => spawn_track(track, tx, clock, start, preview, looping),
             TargetSource::Stdin => spawn_stdin(names, tx, clock),
             TargetSource::Udp(socket) => spawn_udp(socket, names, tx, clock),
         })),

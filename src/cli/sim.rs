@@ -48,6 +48,31 @@ pub enum SimCommand {
         #[arg(long)]
         duration: Option<f64>,
     },
+    /// What a clip asks of each servo: inverse dynamics (MuJoCo's mj_inverse) of the clip on the
+    /// rig's model → peak and RMS torque, peak speed and acceleration per servo against its
+    /// model's stall torque and no-load speed; which servos saturate, and which model would not.
+    Size {
+        /// The rig profile.
+        profile: PathBuf,
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// Clip (.amc); capture dropouts are filled as `play` fills them.
+        amc: PathBuf,
+        /// An MJCF model whose actuators are named as the profile's servos (default: the
+        /// puppet generated from the skeleton).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Model metres per subject metre (generated puppet).
+        #[arg(long, default_value_t = 0.3)]
+        scale: f64,
+        /// Low-pass the clip's angles at this frequency before differentiating, Hz (0: as
+        /// captured, marker noise and all).
+        #[arg(long, default_value_t = 6.0)]
+        cutoff_hz: f64,
+        /// Write the figures as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
 }
 
 /// Runs a `sim` subcommand.
@@ -77,7 +102,95 @@ pub fn sim_cmd(cmd: &SimCommand, out: &mut dyn Write) -> Result<(), CliError> {
             *duration,
             out,
         ),
+        SimCommand::Size {
+            profile,
+            asf: asf_path,
+            amc,
+            model,
+            scale,
+            cutoff_hz,
+            json,
+        } => size(
+            profile,
+            asf_path,
+            amc,
+            model.as_deref(),
+            *scale,
+            *cutoff_hz,
+            json.as_deref(),
+            out,
+        ),
     }
+}
+
+#[cfg(not(feature = "sim"))]
+#[allow(clippy::too_many_arguments)]
+fn size(
+    _profile: &Path,
+    _asf: &Path,
+    _amc: &Path,
+    _model: Option<&Path>,
+    _scale: f64,
+    _cutoff_hz: f64,
+    _json: Option<&Path>,
+    _out: &mut dyn Write,
+) -> Result<(), CliError> {
+    Err(CliError::NoSimulator("sim size"))
+}
+
+#[cfg(feature = "sim")]
+#[allow(clippy::too_many_arguments)]
+fn size(
+    profile_path: &Path,
+    asf_path: &Path,
+    amc_path: &Path,
+    model: Option<&Path>,
+    scale: f64,
+    cutoff_hz: f64,
+    json: Option<&Path>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    use crate::sim::plant::load_world;
+    if !(cutoff_hz.is_finite() && cutoff_hz >= 0.0) {
+        return Err(CliError::Usage("--cutoff-hz must be 0 or more".into()));
+    }
+    let profile = Profile::load(profile_path)?;
+    let skeleton = asf::load(asf_path)?.skeleton;
+    let mut motion = crate::formats::amc::load(&skeleton, amc_path)?;
+    for d in crate::motion::dropouts::repair(&skeleton, &mut motion) {
+        writeln!(out, "{}: capture dropout filled: {d}", amc_path.display())?;
+    }
+    let rig = profile.rig(Some(&skeleton))?;
+    let options = PuppetOptions {
+        scale,
+        ..PuppetOptions::default()
+    };
+    let mut world = load_world(model, Some(&skeleton), &profile, &rig, &options)?;
+    let report = crate::sim::size::size(&mut world, &profile, &rig, &skeleton, &motion, cutoff_hz)?;
+    writeln!(
+        out,
+        "{}: {} frames of {} on {} ({:.2} kg), inverse dynamics per frame, {}",
+        profile.name,
+        report.frames,
+        amc_path.display(),
+        model.map_or_else(
+            || format!("the puppet at scale {scale}"),
+            |m| m.display().to_string()
+        ),
+        world.total_mass(),
+        if cutoff_hz > 0.0 {
+            format!("angles low-passed at {cutoff_hz} Hz")
+        } else {
+            "angles as captured".to_string()
+        }
+    )?;
+    write!(out, "{report}")?;
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&report)?;
+        std::fs::write(path, text + "\n").map_err(|e| crate::formats::FileError::io(path, e))?;
+        writeln!(out, "figures written to {}", path.display())?;
+    }
+    Ok(())
 }
 
 fn export(

@@ -1,11 +1,12 @@
 //! End-to-end fidelity: does the rig do what the source motion did? Per servo the source angle
 //! (the input of this tick mapped through the rig — what a perfect rig would do) against the
 //! present position read back in the same tick: RMS, largest error, the lag that best aligns
-//! the two and the RMS after that alignment; and effector positions (forward kinematics of the
+//! the two (positive: the servos behind the source; negative: ahead of it) and the RMS after
+//! that alignment; and effector positions (forward kinematics of the
 //! source against that of the present angles) in millimetres at the rig's scale.
 //!
-//! Everything is accumulated in place: the last [`MAX_LAG_TICKS`] source angles in a ring, and
-//! per servo and candidate lag a sum of squares, so a tick allocates nothing and a run of any
+//! Everything is accumulated in place: the last [`MAX_LAG_TICKS`] source and present angles in
+//! rings, and per servo and candidate lag a sum of squares, so a tick allocates nothing and a run of any
 //! length costs the same memory.
 
 use glam::DVec3;
@@ -13,8 +14,11 @@ use serde::Serialize;
 
 use crate::servo::MAX_SERVOS;
 
-/// Longest lag looked for, ticks (at 120 Hz: 0.53 s; at 500 Hz: 128 ms).
+/// Longest lag looked for either way, ticks (at 120 Hz: 0.53 s; at 500 Hz: 128 ms).
 pub const MAX_LAG_TICKS: usize = 64;
+
+/// Candidate lags: −[`MAX_LAG_TICKS`] … [`MAX_LAG_TICKS`].
+const LAGS: usize = 2 * MAX_LAG_TICKS + 1;
 
 /// Most effectors compared.
 pub const MAX_EFFECTORS: usize = 4;
@@ -24,13 +28,15 @@ pub const MAX_EFFECTORS: usize = 4;
 pub struct Fidelity {
     servos: usize,
     period_s: f64,
-    /// The last source angles, newest at `head`.
+    /// The last source and present angles, newest at `head`.
     ring: Box<[[f64; MAX_SERVOS]; MAX_LAG_TICKS + 1]>,
+    present_ring: Box<[[f64; MAX_SERVOS]; MAX_LAG_TICKS + 1]>,
     head: usize,
     filled: usize,
-    /// Per servo and lag: sum of squared differences and their count.
-    sse: Box<[[f64; MAX_LAG_TICKS + 1]; MAX_SERVOS]>,
-    count: Box<[[u64; MAX_LAG_TICKS + 1]; MAX_SERVOS]>,
+    /// Per servo and lag (index `MAX_LAG_TICKS + lag`): sum of squared differences and their
+    /// count.
+    sse: Box<[[f64; LAGS]; MAX_SERVOS]>,
+    count: Box<[[u64; LAGS]; MAX_SERVOS]>,
     max_abs: [f64; MAX_SERVOS],
     effector_sse: f64,
     effector_count: u64,
@@ -46,7 +52,7 @@ pub struct ServoFidelity {
     pub rms_deg: f64,
     /// Largest |present − source|.
     pub max_deg: f64,
-    /// The lag of present behind source that aligns them best.
+    /// The lag of present behind source that aligns them best (negative: ahead).
     pub lag_ms: f64,
     /// RMS with that lag taken out.
     pub rms_after_lag_deg: f64,
@@ -61,7 +67,8 @@ pub struct FidelityReport {
     pub joint_rms_deg: f64,
     /// Largest |present − source|, degrees.
     pub joint_max_deg: f64,
-    /// The one lag (present behind source) that best aligns all servos together, ms.
+    /// The one lag (present behind source; negative: ahead) that best aligns all servos
+    /// together, ms.
     pub lag_ms: f64,
     /// RMS over all servos with that lag taken out, degrees.
     pub rms_after_lag_deg: f64,
@@ -82,10 +89,11 @@ impl Fidelity {
             servos: servos.min(MAX_SERVOS),
             period_s,
             ring: Box::new([[0.0; MAX_SERVOS]; MAX_LAG_TICKS + 1]),
+            present_ring: Box::new([[f64::NAN; MAX_SERVOS]; MAX_LAG_TICKS + 1]),
             head: 0,
             filled: 0,
-            sse: Box::new([[0.0; MAX_LAG_TICKS + 1]; MAX_SERVOS]),
-            count: Box::new([[0; MAX_LAG_TICKS + 1]; MAX_SERVOS]),
+            sse: Box::new([[0.0; LAGS]; MAX_SERVOS]),
+            count: Box::new([[0; LAGS]; MAX_SERVOS]),
             max_abs: [0.0; MAX_SERVOS],
             effector_sse: 0.0,
             effector_count: 0,
@@ -99,19 +107,23 @@ impl Fidelity {
         let n = self.servos.min(source.len()).min(present.len());
         self.head = (self.head + 1) % (MAX_LAG_TICKS + 1);
         self.ring[self.head][..n].copy_from_slice(&source[..n]);
+        self.present_ring[self.head][..n].copy_from_slice(&present[..n]);
         self.filled = (self.filled + 1).min(MAX_LAG_TICKS + 1);
-        for (k, p) in present.iter().enumerate().take(n) {
-            if !p.is_finite() {
-                continue;
-            }
-            for lag in 0..self.filled {
-                let at = (self.head + MAX_LAG_TICKS + 1 - lag) % (MAX_LAG_TICKS + 1);
-                let e = p - self.ring[at][k];
-                if e.is_finite() {
-                    self.sse[k][lag] += e * e;
-                    self.count[k][lag] += 1;
-                    if lag == 0 {
-                        self.max_abs[k] = self.max_abs[k].max(e.abs());
+        for k in 0..n {
+            for back in 0..self.filled {
+                let at = (self.head + MAX_LAG_TICKS + 1 - back) % (MAX_LAG_TICKS + 1);
+                // Behind: this present against the source `back` ticks ago; ahead: the
+                // present `back` ticks ago against this source.
+                let behind = present[k] - self.ring[at][k];
+                let ahead = self.present_ring[at][k] - source[k];
+                let both = [(MAX_LAG_TICKS + back, behind), (MAX_LAG_TICKS - back, ahead)];
+                for &(d, e) in &both[..if back == 0 { 1 } else { 2 }] {
+                    if e.is_finite() {
+                        self.sse[k][d] += e * e;
+                        self.count[k][d] += 1;
+                        if back == 0 {
+                            self.max_abs[k] = self.max_abs[k].max(e.abs());
+                        }
                     }
                 }
             }
@@ -146,45 +158,51 @@ impl Fidelity {
             }
         };
         let mut servos = Vec::with_capacity(self.servos);
+        let lag_ms = |d: usize| (d as f64 - MAX_LAG_TICKS as f64) * self.period_s * 1e3;
+        let zero = MAX_LAG_TICKS;
         for k in 0..self.servos {
-            let best = (0..=MAX_LAG_TICKS)
+            let best = (0..LAGS)
                 .filter(|&d| self.count[k][d] > 0)
                 .min_by(|&a, &b| {
                     (self.sse[k][a] / self.count[k][a] as f64)
                         .total_cmp(&(self.sse[k][b] / self.count[k][b] as f64))
                 })
-                .unwrap_or(0);
+                .unwrap_or(zero);
             servos.push(ServoFidelity {
                 name: names.get(k).cloned().unwrap_or_default(),
-                rms_deg: rms(self.sse[k][0], self.count[k][0]),
+                rms_deg: rms(self.sse[k][zero], self.count[k][zero]),
                 max_deg: self.max_abs[k].to_degrees(),
-                lag_ms: best as f64 * self.period_s * 1e3,
+                lag_ms: lag_ms(best),
                 rms_after_lag_deg: rms(self.sse[k][best], self.count[k][best]),
             });
         }
         let total = |d: usize| -> (f64, u64) {
             (0..self.servos).fold((0.0, 0), |(s, c), k| (s + self.sse[k][d], c + self.count[k][d]))
         };
-        let best = (0..=MAX_LAG_TICKS)
+        let best = (0..LAGS)
             .filter(|&d| total(d).1 > 0)
             .min_by(|&a, &b| {
                 let (sa, ca) = total(a);
                 let (sb, cb) = total(b);
                 (sa / ca as f64).total_cmp(&(sb / cb as f64))
             })
-            .unwrap_or(0);
-        let (s0, c0) = total(0);
+            .unwrap_or(zero);
+        let (s0, c0) = total(zero);
         let (sb, cb) = total(best);
         let effector =
             (self.effector_count > 0).then(|| (self.effector_sse / self.effector_count as f64).sqrt() * 1e3);
         FidelityReport {
-            samples: self.count[..self.servos].iter().map(|c| c[0]).max().unwrap_or(0),
+            samples: self.count[..self.servos]
+                .iter()
+                .map(|c| c[zero])
+                .max()
+                .unwrap_or(0),
             joint_rms_deg: rms(s0, c0),
             joint_max_deg: self.max_abs[..self.servos]
                 .iter()
                 .fold(0.0f64, |m, x| m.max(*x))
                 .to_degrees(),
-            lag_ms: best as f64 * self.period_s * 1e3,
+            lag_ms: lag_ms(best),
             rms_after_lag_deg: rms(sb, cb),
             effector_rms_mm: effector,
             effector_max_mm: effector.map(|_| self.effector_max * 1e3),
@@ -211,6 +229,7 @@ mod tests {
         }
         let r = f.report(&["a".into(), "b".into()]);
         assert!((r.servos[0].lag_ms - 30.0).abs() < 1e-9, "{r:?}");
+        assert!((r.lag_ms - 30.0).abs() < 1e-9, "{r:?}");
         assert!(r.servos[0].rms_after_lag_deg < 1e-9);
         assert!(r.servos[0].rms_deg > 1.0);
         assert!((r.servos[1].rms_deg - 0.01f64.to_degrees()).abs() < 1e-9);
@@ -219,5 +238,18 @@ mod tests {
         f.record_effectors(&[DVec3::ZERO], &[DVec3::new(0.003, 0.004, 0.0)]);
         let r = f.report(&[]);
         assert!((r.effector_rms_mm.unwrap() - 5.0).abs() < 1e-9);
+    }
+
+    /// A present that runs two ticks ahead of the source: a negative lag.
+    #[test]
+    fn a_lead_is_a_negative_lag() {
+        let mut f = Fidelity::new(1, 0.01);
+        for i in 0..300 {
+            let t = i as f64 * 0.01;
+            f.record(&[(t * 2.0).sin()], &[((t + 0.02) * 2.0).sin()]);
+        }
+        let r = f.report(&["a".into()]);
+        assert!((r.lag_ms + 20.0).abs() < 1e-9, "{r:?}");
+        assert!(r.rms_after_lag_deg < 1e-9 && r.joint_rms_deg > 0.1);
     }
 }

@@ -224,6 +224,34 @@ impl InputPort {
         }
     }
 
+    /// The next message in order if it is due by `due_by` (a look-ahead horizon), moved out;
+    /// never blocks, never allocates.
+    pub fn next_due(&mut self, due_by: u64) -> Option<Input> {
+        self.fill();
+        if self.pending.as_ref().is_some_and(|m| m.due_ns <= due_by) {
+            self.pending.take()
+        } else {
+            None
+        }
+    }
+
+    /// Whether the message after the last one taken is also due by `due_by` (so that one is
+    /// already superseded, for inputs that only the newest counts of).
+    pub fn next_is_due(&mut self, due_by: u64) -> bool {
+        self.fill();
+        self.pending.as_ref().is_some_and(|m| m.due_ns <= due_by)
+    }
+
+    fn fill(&mut self) {
+        if self.pending.is_none() {
+            match self.rx.try_recv() {
+                Ok(m) => self.pending = Some(m),
+                Err(TryRecvError::Empty) => {}
+                Err(TryRecvError::Disconnected) => self.disconnected = true,
+            }
+        }
+    }
+
     /// The message in use (the last one taken).
     #[must_use]
     pub fn current(&self) -> Option<&Input> {

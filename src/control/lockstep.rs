@@ -129,6 +129,7 @@ pub struct FeedingClock<C: Clock, S: LockstepSource> {
     tx: Option<InputSender>,
     start_ns: u64,
     half_period_ns: u64,
+    preview_ns: u64,
 }
 
 impl<C: Clock, S: LockstepSource> std::fmt::Debug for FeedingClock<C, S> {
@@ -149,7 +150,15 @@ impl<C: Clock, S: LockstepSource> FeedingClock<C, S> {
             tx: Some(tx),
             start_ns,
             half_period_ns: period_ns / 2,
+            preview_ns: 0,
         }
+    }
+
+    /// Feeds inputs `preview_ns` ahead of their tick (the loop's look-ahead).
+    #[must_use]
+    pub fn with_preview(mut self, preview_ns: u64) -> Self {
+        self.preview_ns = preview_ns;
+        self
     }
 
     /// What the source sent.
@@ -166,11 +175,14 @@ impl<C: Clock, S: LockstepSource> Clock for FeedingClock<C, S> {
     fn wait_until(&mut self, deadline_ns: u64) {
         if let Some(tx) = &self.tx {
             let now = self.clock.now_ns();
-            // Everything the tick at this deadline may take (it looks half a period ahead).
-            if !self
-                .source
-                .feed(self.start_ns, deadline_ns + self.half_period_ns, now, tx)
-            {
+            // Everything the tick at this deadline may take (it looks half a period ahead, and
+            // the look-ahead's preview further).
+            if !self.source.feed(
+                self.start_ns,
+                deadline_ns + self.half_period_ns + self.preview_ns,
+                now,
+                tx,
+            ) {
                 self.tx = None;
             }
         }

@@ -17,8 +17,10 @@
 //! hold); a second during the ramp cuts it short and turns torque off at once.
 
 pub mod fidelity;
+pub mod identify;
 pub mod input;
 pub mod lockstep;
+pub mod lookahead;
 pub mod plot;
 pub mod rt;
 pub mod soak;
@@ -44,7 +46,12 @@ use crate::servo::MAX_SERVOS;
 use crate::servo::{addr, TICKS_PER_TURN};
 use crate::skeleton::{Skeleton, MAX_BONES, MAX_CHANNELS};
 use input::{InputPort, Payload, Target, MAX_EFFECTORS};
+use lookahead::{EaseIn, Lookahead, Preview, SourceSample};
 use stats::{LoopStats, Stage};
+
+/// Most inputs turned into source samples in one tick (a look-ahead's preview fills over a few
+/// ticks at the start rather than in one long tick).
+const MAX_INGEST: usize = 16;
 
 /// Half-width of the swivel window searched around the previous frame's swivel (40°).
 const SWIVEL_WINDOW: f64 = 40.0 * core::f64::consts::PI / 180.0;
@@ -406,6 +413,9 @@ pub struct RetargetStage {
     last_clip_time: f64,
     pose: Box<RobotPose>,
     present_q: [f64; MAX_ROBOT_JOINTS],
+    /// Frames retargeted ahead (the look-ahead's preview) and their due times, reported when
+    /// they are played: a frame taken ahead but never played is not the run's.
+    pending: std::collections::VecDeque<(u64, RetargetFrame)>,
 }
 
 impl RetargetStage {
@@ -421,16 +431,28 @@ impl RetargetStage {
             last_clip_time: f64::NAN,
             pose: Box::default(),
             present_q: [0.0; MAX_ROBOT_JOINTS],
+            pending: std::collections::VecDeque::new(),
         }
     }
 
-    /// The effectors (hands, soles) at the retargeted joints (the retargeting computed them)
-    /// and at the `present` angles of the rig's servos (the base where the retargeting put
-    /// it), metres.
-    fn effectors(&mut self, rig: &Rig, present: &[f64]) -> ([DVec3; 4], [DVec3; 4]) {
-        let (pos, rot) = self
-            .retargeter
-            .model_placement(self.frame.base_pos, self.frame.base_rot);
+    /// Room for `frames` frames retargeted ahead (before the first tick).
+    fn reserve(&mut self, frames: usize) {
+        self.pending = std::collections::VecDeque::with_capacity(frames.max(4));
+    }
+
+    /// Reports the frames due by `due_ns` (played now).
+    fn report_until(&mut self, due_ns: u64) {
+        while self.pending.front().is_some_and(|(d, _)| *d <= due_ns) {
+            if let Some((_, f)) = self.pending.pop_front() {
+                self.report.add(&f, f.lowest_sole);
+            }
+        }
+    }
+
+    /// The effectors (hands, soles) at the `present` angles of the rig's servos, the base
+    /// where the retargeting put it for that source sample, metres.
+    fn present_effectors(&mut self, rig: &Rig, present: &[f64], base: (DVec3, glam::DQuat)) -> [DVec3; 4] {
+        let (pos, rot) = self.retargeter.model_placement(base.0, base.1);
         self.present_q.copy_from_slice(&self.frame.q);
         for (servo, angle) in rig.servos.iter().zip(present) {
             if let crate::rig::JointSource::Joint(j) = servo.source {
@@ -440,10 +462,7 @@ impl RetargetStage {
             }
         }
         self.robot.forward(pos, rot, &self.present_q, &mut self.pose);
-        (
-            self.frame.effectors,
-            self.retargeter.effector_points(&self.robot, &self.pose),
-        )
+        self.retargeter.effector_points(&self.robot, &self.pose)
     }
 
     /// What the run's retargeting measured.
@@ -454,7 +473,7 @@ impl RetargetStage {
 
     /// One human pose, `dt` seconds after the previous one (clip time when the input has
     /// it). Allocates nothing.
-    fn step(&mut self, pose: &Pose64, clip_time: f64, tick_dt: f64) {
+    fn step(&mut self, pose: &Pose64, clip_time: f64, tick_dt: f64, due_ns: u64) {
         let dt =
             if clip_time.is_finite() && self.last_clip_time.is_finite() && clip_time > self.last_clip_time {
                 clip_time - self.last_clip_time
@@ -463,7 +482,11 @@ impl RetargetStage {
             };
         self.last_clip_time = clip_time;
         self.retargeter.step(&self.robot, pose, dt, &mut self.frame);
-        self.report.add(&self.frame, self.frame.lowest_sole);
+        if self.pending.len() == self.pending.capacity() {
+            // Never grown in a tick: the oldest goes to the report now.
+            self.report_until(self.pending.front().map_or(0, |(d, _)| *d));
+        }
+        self.pending.push_back((due_ns, self.frame.clone()));
     }
 }
 
@@ -514,6 +537,15 @@ pub struct Controller {
     /// Each tick's source angles with its deadline (ns), up to the capacity reserved by
     /// [`Controller::log_source`]; never grown in a tick.
     source_log: Vec<(u64, [f64; MAX_SERVOS])>,
+    /// Source samples taken ahead (the look-ahead's preview; without it, the current one).
+    preview: Preview,
+    /// How far ahead inputs are taken, ns.
+    preview_ns: u64,
+    lookahead: Option<Box<Lookahead>>,
+    /// Due time of the last input turned into a sample (the retargeting's time step).
+    last_due: Option<u64>,
+    /// When the ease-in began (the first tick with a source), ns.
+    ease_start_ns: Option<u64>,
 }
 
 impl std::fmt::Debug for Controller {
@@ -584,6 +616,11 @@ impl Controller {
             present_pose: Box::default(),
             servo_names: Vec::new(),
             source_log: Vec::new(),
+            preview: Preview::new(8),
+            preview_ns: 0,
+            lookahead: None,
+            last_due: None,
+            ease_start_ns: None,
             angles,
             present: present.to_vec(),
             read_buf: vec![0; n],
@@ -606,7 +643,8 @@ impl Controller {
 
     /// Source against present for this tick (after a valid read): joints, and effectors by
     /// forward kinematics of both. Allocates nothing.
-    fn record_fidelity(&mut self, source_tips: &[DVec3; 4]) {
+    fn record_fidelity(&mut self, sample: &SourceSample) {
+        let source_tips = &sample.tips;
         for ((p, s), t) in self
             .present_angles
             .iter_mut()
@@ -617,14 +655,14 @@ impl Controller {
         }
         self.fidelity.record(&self.source_angles, &self.present_angles);
         if let Some(r) = &mut self.retarget {
-            let (source, present) = r.effectors(&self.rig, &self.present_angles);
-            self.fidelity.record_effectors(&source, &present);
+            let present = r.present_effectors(&self.rig, &self.present_angles, sample.base);
+            self.fidelity.record_effectors(&sample.effectors, &present);
         } else if self.config.effector_metres_per_unit > 0.0 {
             let n = self.skeleton.channel_count();
             self.rig.channels_from_angles(
                 &self.skeleton,
                 &self.present_angles,
-                &self.channels[..n],
+                &sample.channels[..n],
                 &mut self.present_channels[..n],
             );
             fk64(
@@ -662,8 +700,28 @@ impl Controller {
         self.servo_names = names;
     }
 
+    /// Plans the goals over a preview of the input with `lookahead` (inputs are taken that far
+    /// ahead of their time: their producers must make them so early).
+    pub fn set_lookahead(&mut self, lookahead: Lookahead) {
+        self.preview_ns = lookahead.preview_ns();
+        let ticks = (self.preview_ns / self.period_ns.max(1)) as usize;
+        self.preview = Preview::new(ticks + MAX_INGEST + 8);
+        self.lookahead = Some(Box::new(lookahead));
+        if let Some(r) = &mut self.retarget {
+            r.reserve(ticks + MAX_INGEST + 8);
+        }
+    }
+
+    /// How far ahead of its tick the loop takes an input, ns (0 without a look-ahead).
+    #[must_use]
+    pub fn preview_ns(&self) -> u64 {
+        self.preview_ns
+    }
+
     /// Retargets each new pose onto a robot whose joints the rig's servos follow.
-    pub fn set_retarget(&mut self, stage: RetargetStage) {
+    pub fn set_retarget(&mut self, mut stage: RetargetStage) {
+        let ticks = (self.preview_ns / self.period_ns.max(1)) as usize;
+        stage.reserve(ticks + MAX_INGEST + 8);
         self.retarget = Some(Box::new(stage));
     }
 
@@ -702,48 +760,107 @@ impl Controller {
         self.input.finished()
     }
 
-    /// Takes the newest input due by `due_by`; returns whether a new one was used. The age is
-    /// measured at `now`.
-    fn take_input(&mut self, due_by: u64, now: u64) -> bool {
+    /// Takes the inputs due by `horizon` in order (the look-ahead's preview; without one, the
+    /// tick's own window), at most [`MAX_INGEST`] a tick, and turns each into a source sample:
+    /// the solve, forward kinematics, retargeting and the rig's angles — what a perfect rig
+    /// would do at its time. An input already due by `due_now` with a newer one also due is
+    /// passed over (only the newest counts). Ages are measured at `now`. Allocates nothing.
+    fn ingest(&mut self, due_now: u64, horizon: u64, now: u64, tick_dt: f64) {
         let n = self.skeleton.channel_count();
-        let Some(msg) = self.input.take(due_by) else {
-            return false;
-        };
-        let age = now.saturating_sub(msg.made_ns);
-        let ok = match (&msg.payload, &mut self.solve) {
-            (
-                Payload::Frame {
-                    channels,
-                    len,
-                    clip_time,
-                },
-                Solve::Frames,
-            ) if *len >= n && channels[..n].iter().all(|v| v.is_finite()) => {
-                self.channels[..n].copy_from_slice(&channels[..n]);
-                self.clip_time = *clip_time;
-                true
+        for _ in 0..MAX_INGEST {
+            let Some(msg) = self.input.next_due(horizon) else {
+                break;
+            };
+            if msg.due_ns <= due_now && self.input.next_is_due(due_now) {
+                self.input.superseded += 1;
+                continue;
             }
-            (Payload::Targets(targets), Solve::Follow(f)) => {
-                let valid = targets
-                    .iter()
-                    .all(|t| t.is_finite() && t.effector < f.effectors.len());
-                if valid {
-                    for t in targets {
-                        f.targets[t.effector] = Some(*t);
-                    }
+            let mut clip_time = f64::NAN;
+            let ok = match (&msg.payload, &mut self.solve) {
+                (
+                    Payload::Frame {
+                        channels,
+                        len,
+                        clip_time: t,
+                    },
+                    Solve::Frames,
+                ) if *len >= n && channels[..n].iter().all(|v| v.is_finite()) => {
+                    self.channels[..n].copy_from_slice(&channels[..n]);
+                    clip_time = *t;
+                    true
                 }
-                valid
+                (Payload::Targets(targets), Solve::Follow(f)) => {
+                    let valid = targets
+                        .iter()
+                        .all(|t| t.is_finite() && t.effector < f.effectors.len());
+                    if valid {
+                        for t in targets {
+                            f.targets[t.effector] = Some(*t);
+                        }
+                    }
+                    valid
+                }
+                _ => false,
+            };
+            if !ok {
+                self.stats.inputs_rejected += 1;
+                continue;
             }
-            _ => false,
-        };
-        if ok {
             self.stats.inputs_used += 1;
-            self.stats.stage_mut(Stage::InputAge).record(age);
-            self.have_input = true;
-        } else {
-            self.stats.inputs_rejected += 1;
+            self.stats
+                .stage_mut(Stage::InputAge)
+                .record(now.saturating_sub(msg.made_ns));
+            // Live inputs are due at once: they stand for the time they were made.
+            let due = if msg.due_ns == 0 {
+                msg.made_ns.min(due_now)
+            } else {
+                msg.due_ns
+            };
+            if let Solve::Follow(f) = &mut self.solve {
+                f.solve(
+                    &self.skeleton,
+                    &mut self.channels[..n],
+                    &mut self.pose,
+                    &mut self.stats,
+                );
+            }
+            fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
+            let mut sample = SourceSample {
+                due_ns: due,
+                clip_time,
+                ..SourceSample::default()
+            };
+            sample.channels[..n].copy_from_slice(&self.channels[..n]);
+            for (t, w) in sample.tips.iter_mut().zip(self.watch) {
+                if let Some(b) = w {
+                    *t = self.pose.tip[b];
+                }
+            }
+            if let Some(r) = &mut self.retarget {
+                let dt = match self.last_due {
+                    Some(d) if due > d => (due - d) as f64 * 1e-9,
+                    _ => tick_dt,
+                };
+                r.step(&self.pose, clip_time, dt, due);
+                sample.effectors = r.frame.effectors;
+                sample.base = (r.frame.base_pos, r.frame.base_rot);
+            }
+            self.last_due = Some(due);
+            let joints: &[f64] = match &self.retarget {
+                Some(r) => &r.frame.q,
+                None => &[],
+            };
+            self.rig
+                .joint_angles(&self.skeleton, &self.channels[..n], joints, &mut self.angles);
+            if self.angles.iter().any(|a| !a.is_finite()) {
+                // Refused as a whole: the servos go on with the samples they have.
+                self.stats.commands_refused += 1;
+                continue;
+            }
+            let len = self.angles.len();
+            sample.angles[..len].copy_from_slice(&self.angles);
+            self.preview.push(sample);
         }
-        ok
     }
 
     /// One tick at `tick` (from [`Schedule::wait`]): input, solve, encode, write, read,
@@ -764,39 +881,27 @@ impl Controller {
             self.last_valid_read_ns = start;
         }
 
-        // Input: the newest one due in this tick's half-period window (inputs stamped with
-        // their ideal times, such as a 120 Hz file at 120 Hz, land on the nearest tick).
-        let fresh = self.take_input(tick.deadline_ns + self.period_ns / 2, start);
-        if !fresh && self.have_input {
+        // Input: every one due by the look-ahead's horizon becomes a source sample (solved,
+        // retargeted, mapped); the newest due in this tick's half-period window is current
+        // (inputs stamped with their ideal times, such as a 120 Hz file at 120 Hz, land on the
+        // nearest tick).
+        let t_solve = clock.now_ns();
+        let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;
+        let due_now = tick.deadline_ns + self.period_ns / 2;
+        self.ingest(due_now, due_now + self.preview_ns, start, dt);
+        let fresh = self.preview.advance(due_now);
+        if fresh {
+            self.have_input = true;
+            self.ease_start_ns.get_or_insert(tick.deadline_ns);
+        } else if self.have_input {
             self.stats.inputs_stale += 1;
         }
-
-        // Solve (IK for targets) and FK of the pose.
-        let t_solve = clock.now_ns();
-        let n = self.skeleton.channel_count();
-        if let Solve::Follow(f) = &mut self.solve {
-            if fresh {
-                f.solve(
-                    &self.skeleton,
-                    &mut self.channels[..n],
-                    &mut self.pose,
-                    &mut self.stats,
-                );
-            }
+        let current = self.preview.current().copied().unwrap_or_default();
+        if let (true, Some(r)) = (fresh, &mut self.retarget) {
+            r.report_until(current.due_ns);
         }
-        fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
-        let mut tips = [DVec3::NAN; 4];
-        for (t, w) in tips.iter_mut().zip(self.watch) {
-            if let Some(b) = w {
-                *t = self.pose.tip[b];
-            }
-        }
-        let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;
-        if let Some(r) = &mut self.retarget {
-            if fresh {
-                r.step(&self.pose, self.clip_time, dt);
-            }
-        }
+        let tips = current.tips;
+        self.clip_time = current.clip_time;
         let t_encode = clock.now_ns();
         self.stats.stage_mut(Stage::Solve).record(t_encode - t_solve);
 
@@ -808,29 +913,39 @@ impl Controller {
             self.stats.held_ticks += 1;
             goals[..len].copy_from_slice(self.stage.last());
         } else if self.have_input {
-            let joints: &[f64] = match &self.retarget {
-                Some(r) => &r.frame.q,
-                None => &[],
-            };
-            self.rig
-                .joint_angles(&self.skeleton, &self.channels[..n], joints, &mut self.angles);
             // What a perfect rig would do this tick: the fidelity's reference.
-            self.source_angles.copy_from_slice(&self.angles);
+            self.source_angles.copy_from_slice(&current.angles[..len]);
             if self.source_log.len() < self.source_log.capacity() {
                 let mut a = [f64::NAN; MAX_SERVOS];
                 a[..len].copy_from_slice(&self.source_angles[..len]);
                 self.source_log.push((tick.deadline_ns, a));
             }
             if self.eased < self.ease_ticks {
-                // Ease in: blend from where the servos stood (smoothstep weight).
                 self.eased += 1;
-                let t = self.eased as f64 / self.ease_ticks as f64;
-                let w = t * t * (3.0 - 2.0 * t);
-                for (a, from) in self.angles.iter_mut().zip(&self.ease_from) {
-                    *a = from + w * (*a - from);
-                }
             }
-            match self.stage.command(&self.rig, &self.angles, dt) {
+            let command = if let Some(la) = &mut self.lookahead {
+                // The goal path planned over the preview, each servo led by its lag.
+                let ease = (self.ease_ticks > 0).then(|| EaseIn {
+                    from: &self.ease_from,
+                    start_ns: self.ease_start_ns.unwrap_or(tick.deadline_ns),
+                    length_ns: self.ease_ticks * self.period_ns,
+                });
+                self.preview.live = !self.input.finished();
+                let targets = la.targets(&self.rig, &self.stage, &self.preview, tick.deadline_ns, dt, ease);
+                self.stage.command_planned(&self.rig, targets, dt)
+            } else {
+                self.angles.copy_from_slice(&current.angles[..len]);
+                if self.eased <= self.ease_ticks && self.ease_ticks > 0 {
+                    // Ease in: blend from where the servos stood (smoothstep weight).
+                    let t = self.eased as f64 / self.ease_ticks as f64;
+                    let w = t * t * (3.0 - 2.0 * t);
+                    for (a, from) in self.angles.iter_mut().zip(&self.ease_from) {
+                        *a = from + w * (*a - from);
+                    }
+                }
+                self.stage.command(&self.rig, &self.angles, dt)
+            };
+            match command {
                 Ok((g, limited)) => {
                     goals[..len].copy_from_slice(g);
                     self.stats.clamped += limited.clamped as u64;
@@ -893,9 +1008,11 @@ impl Controller {
                     }
                     tracking = (sq / len.max(1) as f64).sqrt();
                 }
-                // The clip proper: not while easing in from where the servos stood.
-                if self.have_input && !holding && self.eased >= self.ease_ticks {
-                    self.record_fidelity(&tips);
+                // The clip proper: not while easing in from where the servos stood, nor in a
+                // pre-roll (negative clip times).
+                let pre_roll = current.clip_time < 0.0;
+                if self.have_input && !holding && self.eased >= self.ease_ticks && !pre_roll {
+                    self.record_fidelity(&current);
                 }
             }
             Err(e) => {
@@ -954,7 +1071,7 @@ impl Controller {
         if let (Some(f), Some(before)) = (self.config.allocations, allocs) {
             *self.stats.allocations_in_tick.get_or_insert(0) += f().saturating_sub(before);
         }
-        if end.is_none() && self.input.finished() && !fresh {
+        if end.is_none() && self.input.finished() && !fresh && !self.preview.has_future() {
             end = Some(RunEnd::InputEnded);
         }
         end
@@ -1017,7 +1134,14 @@ impl Controller {
             StopMode::Rest { ramp_s } => ((ramp_s.max(0.0) * self.config.rate_hz).ceil() as usize, true),
             StopMode::Hold { hold_s } => ((hold_s.max(0.0) * self.config.rate_hz).ceil() as usize, false),
         };
-        let from: Vec<f64> = self.angles.clone();
+        // From the last command (what the servos were sent, the plan's lead included).
+        let from: Vec<f64> = self
+            .rig
+            .servos
+            .iter()
+            .zip(self.stage.last())
+            .map(|(s, t)| s.ticks_to_angle(f64::from(*t)))
+            .collect();
         let dt = self.period_ns as f64 * 1e-9;
         let requests_at_start = stop.made();
         // After the ramp, up to two more seconds for the rate limits to arrive at rest.

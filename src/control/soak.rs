@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 
 use super::input::input_channel;
 use super::input::Input;
+use super::lookahead::{Lookahead, LookaheadSettings};
 use super::sources::ClipPlayer;
 use super::{Controller, LoopConfig, RunEnd, Solve, StopMode};
 use crate::bus::faults::{Fault, FaultInjector, Rng};
@@ -183,6 +184,19 @@ pub fn soak(
             Solve::Frames,
             loop_config,
         );
+        // As `play` runs: the goal paths planned over a preview, each servo led by its lag.
+        let leads: Vec<f64> = profile
+            .servos
+            .iter()
+            .map(|s| s.lag_ms.unwrap_or(0.0) * 1e-3 + 1.0 / config.rate_hz)
+            .collect();
+        c.set_lookahead(Lookahead::new(
+            rig,
+            config.rate_hz,
+            &leads,
+            LookaheadSettings::default(),
+        ));
+        let ahead = c.preview_ns();
         let period = c.period_ns();
         let mut clock = vr.clone();
         let mut reported: Vec<Option<i32>> =
@@ -207,7 +221,7 @@ pub fn soak(
             let t = player.next_sample(&mut frame[..n]).unwrap_or(0.0);
             let _ = tx.send_newest(Input::frame(
                 k,
-                schedule.deadline(k),
+                schedule.deadline(k) + ahead,
                 clock.now_ns(),
                 &frame[..n],
                 t,

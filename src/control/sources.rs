@@ -39,6 +39,8 @@ pub struct ClipPlayer {
     paused: bool,
     time: f64,
     started: bool,
+    /// Samples of the first frame still to give before the clip starts.
+    pre_roll: u64,
     buf: Vec<f64>,
 }
 
@@ -71,6 +73,7 @@ impl ClipPlayer {
             paused: false,
             time: 0.0,
             started: false,
+            pre_roll: 0,
             buf: vec![0.0; n],
         }
     }
@@ -86,6 +89,22 @@ impl ClipPlayer {
     #[must_use]
     pub fn samples_per_pass(&self) -> u64 {
         (self.duration() / self.period_s + 1e-9).floor() as u64 + 1
+    }
+
+    /// Gives the clip's first frame for `seconds` before the clip starts (the servos move to
+    /// it first); those samples carry negative clip times, counting up to 0.
+    pub fn set_pre_roll(&mut self, seconds: f64) {
+        self.pre_roll = if seconds.is_finite() && seconds > 0.0 {
+            (seconds / self.period_s).round() as u64
+        } else {
+            0
+        };
+    }
+
+    /// Samples of the pre-roll still to come.
+    #[must_use]
+    pub fn pre_roll_samples(&self) -> u64 {
+        self.pre_roll
     }
 
     /// Applies a command.
@@ -109,6 +128,11 @@ impl ClipPlayer {
         if self.motion.is_empty() {
             return None;
         }
+        if self.pre_roll > 0 {
+            self.pre_roll -= 1;
+            self.sample_at(self.time.clamp(0.0, self.duration()), out);
+            return Some(-((self.pre_roll + 1) as f64) * self.period_s);
+        }
         if self.started && !self.paused {
             self.time += self.period_s * self.speed;
         }
@@ -120,7 +144,13 @@ impl ClipPlayer {
             }
             self.time = (self.time - d).rem_euclid(d);
         }
-        let f = (self.time.min(d) * self.motion.frame_rate).max(0.0);
+        self.sample_at(self.time.min(d), out);
+        Some(self.time)
+    }
+
+    /// The clip at `time` into `out` (SLERP between the nearest frames, radians).
+    fn sample_at(&mut self, time: f64, out: &mut [f64]) {
+        let f = (time * self.motion.frame_rate).max(0.0);
         let mut i = f.floor() as usize;
         let mut u = f - i as f64;
         if u > 1.0 - 1e-9 {
@@ -140,7 +170,6 @@ impl ClipPlayer {
                 _ => v,
             };
         }
-        Some(self.time)
     }
 }
 
@@ -174,7 +203,8 @@ fn sleep_until_lead(clock: &mut SystemClock, due: u64, lead: u64) {
 }
 
 /// Runs `player` in a thread: sample `k` is due at tick `k` of the loop's grid
-/// (`start_ns + k·period_ns` on `clock`) and made shortly before (two periods, at least 10 ms).
+/// (`start_ns + k·period_ns` on `clock`) and made shortly before (two periods, at least 10 ms)
+/// plus `preview_ns` (the loop's look-ahead takes samples that far ahead).
 /// Commands arrive on `commands`. The thread ends with the clip (played once) or when the
 /// loop stops.
 ///
@@ -186,6 +216,7 @@ pub fn spawn_player(
     mut clock: SystemClock,
     start_ns: u64,
     period_ns: u64,
+    preview_ns: u64,
     commands: Option<Receiver<PlayerCommand>>,
 ) -> std::io::Result<JoinHandle<ProducerReport>> {
     std::thread::Builder::new()
@@ -204,7 +235,7 @@ pub fn spawn_player(
                     break;
                 };
                 let due = start_ns + k * period_ns;
-                sleep_until_lead(&mut clock, due, lead_ns(period_ns));
+                sleep_until_lead(&mut clock, due, lead_ns(period_ns) + preview_ns);
                 let msg = Input::frame(k, due, clock.now_ns(), &frame[..n], t);
                 if tx.send_wait(msg).is_err() {
                     break;
@@ -403,6 +434,7 @@ pub fn spawn_track(
     tx: InputSender,
     mut clock: SystemClock,
     start_ns: u64,
+    preview_ns: u64,
     looping: bool,
 ) -> std::io::Result<JoinHandle<ProducerReport>> {
     std::thread::Builder::new()
@@ -419,7 +451,7 @@ pub fn spawn_track(
             for pass in 0u64.. {
                 for (t, targets) in &track.samples {
                     let due = start_ns + pass * pass_ns + ((t - t0) * 1e9) as u64;
-                    sleep_until_lead(&mut clock, due, LEAD_NS);
+                    sleep_until_lead(&mut clock, due, LEAD_NS + preview_ns);
                     let msg = Input {
                         seq,
                         due_ns: due,

@@ -4,9 +4,9 @@
 
 use super::clip::{heading, move_to, GroundMove};
 use super::matching::{backward_match, forward_match, MatchError, MatchParams, MatchResult};
-use super::seam::{quantile, steps};
+use super::seam::{bone_seam, BoneLimits, BoneSeam};
 use super::Motion;
-use crate::interp::{ease_weight, interpolate_frames, largest_joint_change};
+use crate::interp::{ease_weight, interpolate_frames};
 use crate::math::wrap_near;
 use crate::skeleton::Skeleton;
 use glam::DVec3;
@@ -39,9 +39,12 @@ pub struct ConnectParams {
     pub direction: Direction,
     /// Matching window and metric.
     pub matching: MatchParams,
-    /// Frames to insert when interpolating (`None`: as many as keep every joint's change per
-    /// frame within the inputs' 99th percentile).
+    /// Frames to insert when interpolating (`None`: as few as keep every bone, and the root,
+    /// within its own speeds in the inputs — [`BoneLimits`]).
     pub insert: Option<usize>,
+    /// Frames to blend over (`None`: from the matching window up, as few as keep every bone
+    /// within its own speeds in the inputs, as far as the clips allow).
+    pub blend: Option<usize>,
 }
 
 /// A connected clip and how it was made.
@@ -59,6 +62,16 @@ pub struct Connection {
     pub b_kept: Range<usize>,
     /// The move applied to B.
     pub b_move: GroundMove,
+    /// Every bone across the seam against its own speeds in the inputs, worst first.
+    pub bones: Vec<BoneSeam>,
+}
+
+impl Connection {
+    /// The largest per-bone ratio across the seam (at most 1: as smooth as the inputs).
+    #[must_use]
+    pub fn worst_ratio(&self) -> f64 {
+        self.bones.first().map_or(0.0, |b| b.ratio)
+    }
 }
 
 /// Why a connection cannot be made.
@@ -126,17 +139,6 @@ fn backward_starts(a: &Motion, b: &Motion, n: usize, before: usize) -> Range<usi
     start..(a.len() + 1).saturating_sub(n)
 }
 
-/// Frames to insert so that no joint turns more per frame than the inputs' 99th percentile.
-fn auto_insert(skeleton: &Skeleton, from: &[f64], to: &[f64], inputs: &[&Motion]) -> usize {
-    let p99 = inputs
-        .iter()
-        .map(|m| quantile(&steps(skeleton, m).rotation, 0.99))
-        .fold(0.0, f64::max)
-        .max(1e-3);
-    let worst = largest_joint_change(skeleton, from, to);
-    ((worst / p99).ceil() as usize).saturating_sub(1)
-}
-
 /// Connects `a` and `b`.
 ///
 /// # Errors
@@ -164,11 +166,12 @@ pub fn connect(
             let a_part = a.slice(a_keep.clone());
             let b_part = b.slice(b_keep.clone());
             let last = a_part.len() - 1;
-            // First pass with the requested or a provisional count, then the automatic count
-            // from the real end poses.
+            // The requested count, or the automatic one from the real end poses: B's placement
+            // depends on the count (eq. 14 extrapolates over it), so until they agree.
+            let limits = BoneLimits::of(skeleton, &[a, b]);
             let mut ni = p.insert.unwrap_or(0);
             let mut mv = GroundMove::IDENTITY;
-            for _ in 0..2 {
+            for _ in 0..8 {
                 let (facing, pos) = extrapolate(skeleton, &a_part, last, (ni + 1) as f64);
                 let start = DVec3::new(pos.x, heading(skeleton, &b_part, 0).1.y, pos.z);
                 mv = move_to(skeleton, &b_part, 0, facing, start);
@@ -176,7 +179,11 @@ pub fn connect(
                     break;
                 }
                 let b0 = mv.apply_to(skeleton, &b_part.slice(0..1));
-                ni = auto_insert(skeleton, a_part.frame(last), b0.frame(0), &[a, b]);
+                let wanted = limits.frames_between(skeleton, a_part.frame(last), b0.frame(0));
+                if wanted == ni {
+                    break;
+                }
+                ni = wanted;
             }
             let b_moved = mv.apply_to(skeleton, &b_part);
             let mut out = a_part.clone();
@@ -187,40 +194,106 @@ pub fn connect(
                 out.push_frame(&buf);
             }
             out.append(&b_moved);
+            let seam = a_part.len()..a_part.len() + ni;
+            let bones = bone_seam(skeleton, &out, seam.clone(), &limits);
             Ok(Connection {
                 motion: out,
                 matching: m,
-                seam: a_part.len()..a_part.len() + ni,
+                seam,
                 a_kept: a_keep,
                 b_kept: b_keep,
                 b_move: mv,
+                bones,
             })
         }
         Method::Blend => {
             let m = best_match(skeleton, a, b, p, 1)?;
-            let (a_start, b_start) = match p.direction {
-                Direction::Forward => (a.len() - n, m.best),
-                Direction::Backward => (m.best, 0),
+            let limits = BoneLimits::of(skeleton, &[a, b]);
+            // The longest blend the clips allow with the matched windows still aligned at its
+            // end (forward: B's frames before its window; backward: A's frames after it).
+            let longest = match p.direction {
+                Direction::Forward => (m.best + n).min(a.len()),
+                Direction::Backward => (a.len() - m.best).min(b.len()),
             };
-            // eq. (15): B's first overlapping frame takes the facing and place of A's.
-            let (facing, pos) = heading(skeleton, a, a_start);
-            let b_part = b.slice(b_start..b.len());
-            let start = DVec3::new(pos.x, heading(skeleton, &b_part, 0).1.y, pos.z);
-            let mv = move_to(skeleton, &b_part, 0, facing, start);
-            let b_moved = mv.apply_to(skeleton, &b_part);
-            let mut out = a.slice(0..a_start);
-            push_ease_blend(skeleton, &mut out, &a.slice(a_start..a_start + n), &b_moved);
-            out.append(&b_moved.slice(n..b_moved.len()));
+            let blended = |len: usize| blend_over(skeleton, a, b, p.direction, m.best, n, len, &limits);
+            let mut best = blended(p.blend.unwrap_or(n).clamp(1, longest.max(1)));
+            if p.blend.is_none() {
+                // Longer blends spread the change between the clips over more frames: grow
+                // the window until every bone is within its speeds, or the clips end.
+                let mut len = n;
+                while best.1.first().is_some_and(|w| w.ratio > 1.0) && len < longest {
+                    let ratio = best.1.first().map_or(1.0, |w| w.ratio);
+                    len = ((len as f64 * ratio.min(2.0)).ceil() as usize)
+                        .max(len + 1)
+                        .min(longest);
+                    let next = blended(len);
+                    if next.1.first().map_or(0.0, |w| w.ratio) < ratio {
+                        best = next;
+                    }
+                }
+            }
+            let (parts, bones) = best;
             Ok(Connection {
-                motion: out,
+                motion: parts.motion,
                 matching: m,
-                seam: a_start..a_start + n,
-                a_kept: 0..a_start,
-                b_kept: b_start + n..b.len(),
-                b_move: mv,
+                seam: parts.seam,
+                a_kept: parts.a_kept,
+                b_kept: parts.b_kept,
+                b_move: parts.b_move,
+                bones,
             })
         }
     }
+}
+
+/// A blended connection before its report.
+struct Blended {
+    motion: Motion,
+    seam: Range<usize>,
+    a_kept: Range<usize>,
+    b_kept: Range<usize>,
+    b_move: GroundMove,
+}
+
+/// Blends A into B over `len` frames and reports every bone across it. Forward, the blend ends
+/// where A and B's matched window (`n` frames from `best`) end; backward, it starts where A's
+/// matched window and B start.
+#[allow(clippy::too_many_arguments)]
+fn blend_over(
+    skeleton: &Skeleton,
+    a: &Motion,
+    b: &Motion,
+    direction: Direction,
+    best: usize,
+    n: usize,
+    len: usize,
+    limits: &BoneLimits,
+) -> (Blended, Vec<BoneSeam>) {
+    let (a_start, b_start) = match direction {
+        Direction::Forward => (a.len() - len, best + n - len),
+        Direction::Backward => (best, 0),
+    };
+    // eq. (15): B's first overlapping frame takes the facing and place of A's.
+    let (facing, pos) = heading(skeleton, a, a_start);
+    let b_part = b.slice(b_start..b.len());
+    let start = DVec3::new(pos.x, heading(skeleton, &b_part, 0).1.y, pos.z);
+    let mv = move_to(skeleton, &b_part, 0, facing, start);
+    let b_moved = mv.apply_to(skeleton, &b_part);
+    let mut out = a.slice(0..a_start);
+    push_ease_blend(skeleton, &mut out, &a.slice(a_start..a_start + len), &b_moved);
+    out.append(&b_moved.slice(len..b_moved.len()));
+    let seam = a_start..a_start + len;
+    let bones = bone_seam(skeleton, &out, seam.clone(), limits);
+    (
+        Blended {
+            motion: out,
+            seam,
+            a_kept: 0..a_start,
+            b_kept: b_start + len..b.len(),
+            b_move: mv,
+        },
+        bones,
+    )
 }
 
 /// Appends to `out` the ease-in/ease-out blend (eq. 13) of `from` into `to`, frame by frame

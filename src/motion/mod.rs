@@ -10,9 +10,12 @@
 //!   and frame-by-frame blends.
 //! * [`seam`] — per-frame rotation and root changes, to judge a transition.
 //! * [`plot`] — the picture of a connection.
+//! * [`dropouts`] — capture dropouts (a bone's rotation reading exactly zero between far-away
+//!   frames): found and filled from their neighbours.
 
 pub mod clip;
 pub mod connect;
+pub mod dropouts;
 pub mod matching;
 pub mod plot;
 pub mod seam;

@@ -1,8 +1,12 @@
 //! How smooth a clip is from frame to frame: the largest joint rotation change (geodesic
-//! angle, any bone, the root included), the root's displacement and its facing change.
+//! angle, any bone, the root included), the root's displacement and its facing change — and,
+//! bone by bone, each bone's own change against that bone's own speeds in the inputs
+//! ([`BoneLimits`], [`bone_seam`]).
 
 use super::Motion;
-use crate::interp::{facing_angle, largest_joint_change, root_position, root_rotation};
+use crate::interp::{
+    channel_rotation, facing_angle, largest_joint_change, root_position, root_rotation, rotation_angle,
+};
 use crate::math::wrap_near;
 use crate::skeleton::Skeleton;
 use std::ops::Range;
@@ -120,4 +124,154 @@ pub fn seam_report(skeleton: &Skeleton, inputs: &[&Motion], out: &Motion, seam: 
         input_root_p99: tp,
         input_facing_p99: fp,
     }
+}
+
+/// A seam may move a bone per frame up to this many times its own 99th percentile in the
+/// inputs ...
+pub const BONE_FACTOR: f64 = 1.5;
+
+/// ... plus this much (degrees), so that a bone the inputs barely move may still settle.
+pub const BONE_SLACK_DEG: f64 = 1.0;
+
+/// ... and the root's position up to [`BONE_FACTOR`] times its p99 plus this much (metres).
+pub const ROOT_SLACK_M: f64 = 0.001;
+
+/// Each bone's rotation change between two frames (radians): entry 0 the root's orientation,
+/// entry `b` bone `b`'s channel rotation.
+#[must_use]
+pub fn bone_changes(skeleton: &Skeleton, a: &[f64], b: &[f64]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(skeleton.len());
+    out.push(rotation_angle(
+        &root_rotation(skeleton, a),
+        &root_rotation(skeleton, b),
+    ));
+    for bone in &skeleton.bones()[1..] {
+        out.push(rotation_angle(
+            &channel_rotation(bone, a),
+            &channel_rotation(bone, b),
+        ));
+    }
+    out
+}
+
+/// How far each bone, and the root's position, may move per frame across a seam: from the
+/// inputs' own speeds, bone by bone.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoneLimits {
+    /// Per bone (0: the root's orientation): the larger of the inputs' 99th-percentile change
+    /// per frame, radians.
+    pub p99: Vec<f64>,
+    /// The root's position: the larger of the inputs' 99th-percentile displacement per frame,
+    /// file units.
+    pub root_p99: f64,
+    /// Per bone: [`BONE_FACTOR`] × p99 + [`BONE_SLACK_DEG`], radians.
+    pub allowed: Vec<f64>,
+    /// The root's position: [`BONE_FACTOR`] × p99 + [`ROOT_SLACK_M`], file units.
+    pub root_allowed: f64,
+}
+
+impl BoneLimits {
+    /// The limits from `inputs`.
+    #[must_use]
+    pub fn of(skeleton: &Skeleton, inputs: &[&Motion]) -> BoneLimits {
+        let bones = skeleton.len();
+        let mut p99 = vec![0.0f64; bones];
+        let mut root_p99 = 0.0f64;
+        for m in inputs {
+            let mut per_bone: Vec<Vec<f64>> = vec![Vec::with_capacity(m.len()); bones];
+            let mut root = Vec::with_capacity(m.len());
+            for i in 1..m.len() {
+                let (a, b) = (m.frame(i - 1), m.frame(i));
+                for (v, c) in per_bone.iter_mut().zip(bone_changes(skeleton, a, b)) {
+                    v.push(c);
+                }
+                root.push((root_position(skeleton, b) - root_position(skeleton, a)).length());
+            }
+            for (p, v) in p99.iter_mut().zip(&per_bone) {
+                *p = p.max(quantile(v, 0.99));
+            }
+            root_p99 = root_p99.max(quantile(&root, 0.99));
+        }
+        let slack = BONE_SLACK_DEG.to_radians();
+        let unit = f64::from(skeleton.units().meters_per_unit()).max(1e-9);
+        BoneLimits {
+            allowed: p99.iter().map(|p| BONE_FACTOR * p + slack).collect(),
+            root_allowed: BONE_FACTOR * root_p99 + ROOT_SLACK_M / unit,
+            p99,
+            root_p99,
+        }
+    }
+
+    /// Frames to insert between poses `a` and `b` (interpolated at even steps) so that no bone
+    /// and not the root moves more per frame than allowed.
+    #[must_use]
+    pub fn frames_between(&self, skeleton: &Skeleton, a: &[f64], b: &[f64]) -> usize {
+        let mut steps = 1.0f64;
+        for (c, limit) in bone_changes(skeleton, a, b).iter().zip(&self.allowed) {
+            steps = steps.max(c / limit);
+        }
+        let d = (root_position(skeleton, b) - root_position(skeleton, a)).length();
+        steps = steps.max(d / self.root_allowed);
+        (steps.ceil() as usize).saturating_sub(1)
+    }
+}
+
+/// One bone across a seam.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoneSeam {
+    /// The bone (`root` for the root's orientation, `root position` for its place).
+    pub name: String,
+    /// Its largest change per frame across the seam (radians; file units for the position).
+    pub change: f64,
+    /// What it may do ([`BoneLimits`]).
+    pub allowed: f64,
+    /// `change / allowed`: at most 1 for a seam as smooth as its inputs.
+    pub ratio: f64,
+}
+
+/// Every bone's largest change per frame across `seam` of `out` (from the step into its first
+/// frame to the step out of its last; an empty range is the cut between two frames) against
+/// `limits`, worst first.
+#[must_use]
+pub fn bone_seam(
+    skeleton: &Skeleton,
+    out: &Motion,
+    seam: Range<usize>,
+    limits: &BoneLimits,
+) -> Vec<BoneSeam> {
+    // Step i goes from frame i − 1 to frame i.
+    let from = seam.start.max(1);
+    let to = seam.end.min(out.len().saturating_sub(1));
+    let mut worst = vec![0.0f64; skeleton.len()];
+    let mut root = 0.0f64;
+    for i in from..=to {
+        let (a, b) = (out.frame(i - 1), out.frame(i));
+        for (w, c) in worst.iter_mut().zip(bone_changes(skeleton, a, b)) {
+            *w = w.max(c);
+        }
+        root = root.max((root_position(skeleton, b) - root_position(skeleton, a)).length());
+    }
+    let mut bones: Vec<BoneSeam> = worst
+        .iter()
+        .zip(&limits.allowed)
+        .enumerate()
+        .map(|(k, (&change, &allowed))| BoneSeam {
+            name: if k == 0 {
+                "root".to_string()
+            } else {
+                skeleton.bones()[k].name().to_string()
+            },
+            change,
+            allowed,
+            ratio: change / allowed,
+        })
+        .collect();
+    bones.push(BoneSeam {
+        name: "root position".to_string(),
+        change: root,
+        allowed: limits.root_allowed,
+        ratio: root / limits.root_allowed,
+    });
+    bones.sort_by(|a, b| b.ratio.total_cmp(&a.ratio));
+    bones
 }

@@ -51,9 +51,11 @@ pub const XM430_W350: ServoDynamics = ServoDynamics {
 /// Stall torque of the XM430-W350 at 12 V (N·m), the reference of [`dynamics`].
 const XM430_W350_STALL_NM: f64 = 4.1;
 
-/// A servo model's dynamics: the XM430-W350's identified values, the others scaled by their
-/// stall torque (same motor-and-gear family, same time constant `damping/kp` ≈ 51 ms), with
-/// their own mass.
+/// A servo model's dynamics: the XM430-W350's identified values; another XM430 (the same
+/// motor behind another gearhead) scaled by its gear ratio `r` against the W350's — gain and
+/// friction by `r`, damping (back-EMF) and reflected rotor inertia by `r²`, the torque limit by
+/// its stall torque; the other series scaled by their stall torque (same time constant
+/// `damping/kp` ≈ 51 ms), each with its own mass.
 #[must_use]
 pub fn dynamics(model: &ServoModel) -> ServoDynamics {
     let mass = match model.name {
@@ -65,6 +67,17 @@ pub fn dynamics(model: &ServoModel) -> ServoDynamics {
     if model.name == "XM430-W350" {
         return XM430_W350;
     }
+    if model.name.starts_with("XM430") {
+        let r = model.gear_ratio / 353.5;
+        return ServoDynamics {
+            kp: XM430_W350.kp * r,
+            force: XM430_W350.force * model.stall_torque_nm / XM430_W350_STALL_NM,
+            damping: XM430_W350.damping * r * r,
+            armature: XM430_W350.armature * r * r,
+            frictionloss: XM430_W350.frictionloss * r,
+            mass,
+        };
+    }
     let r = model.stall_torque_nm / XM430_W350_STALL_NM;
     ServoDynamics {
         kp: XM430_W350.kp * r,
@@ -73,6 +86,17 @@ pub fn dynamics(model: &ServoModel) -> ServoDynamics {
         armature: XM430_W350.armature * r,
         frictionloss: XM430_W350.frictionloss * r,
         mass,
+    }
+}
+
+/// A servo model's dynamics at a supply of `volts`: the torque limit scales with the voltage
+/// (so does the no-load speed; the back-EMF damping, the torque–speed line's slope, does not).
+#[must_use]
+pub fn dynamics_at(model: &ServoModel, volts: f64) -> ServoDynamics {
+    let d = dynamics(model);
+    ServoDynamics {
+        force: d.force * model.voltage_factor(volts),
+        ..d
     }
 }
 
@@ -263,7 +287,7 @@ pub fn puppet(
     let _ = writeln!(text, "  </worldbody>");
     let _ = writeln!(text, "  <actuator>");
     for (spec, map) in profile.servos.iter().zip(&rig.servos) {
-        let d = dynamics(spec.model);
+        let d = dynamics_at(spec.model, spec.supply_v);
         let (lo, hi) = angle_range(map);
         let _ = writeln!(
             text,

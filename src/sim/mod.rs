@@ -1,6 +1,6 @@
 //! The MuJoCo simulator edge: rig models ([`mjcf`], always available) and, with the `sim`
-//! feature, simulated servos behind the bus interfaces ([`plant`]) and tracking reports
-//! ([`report`]).
+//! feature, simulated servos behind the bus interfaces (`plant`), tracking reports (`report`)
+//! and sizing by inverse dynamics (`size`).
 
 pub mod mjcf;
 
@@ -10,3 +10,5 @@ pub const NOT_BUILT: &str = "needs the MuJoCo simulator, which this build does n
 pub mod plant;
 #[cfg(feature = "sim")]
 pub mod report;
+#[cfg(feature = "sim")]
+pub mod size;

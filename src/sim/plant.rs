@@ -113,37 +113,50 @@ impl std::fmt::Debug for SimPlant {
     }
 }
 
+/// Each profiled servo's actuator and the joint it drives: the actuator named as the servo,
+/// else (a joint-driven servo) the actuator that drives the joint of that name.
+///
+/// # Errors
+/// [`SimError`] for a servo without an actuator.
+pub fn servo_actuators(world: &World, profile: &Profile) -> Result<Vec<(usize, usize)>, SimError> {
+    let mut out = Vec::with_capacity(profile.servos.len());
+    for spec in &profile.servos {
+        let joint_name = match &spec.drive {
+            crate::profile::Drive::Joint(j) => Some(j.as_str()),
+            crate::profile::Drive::Bone { .. } => None,
+        };
+        let by_joint = || {
+            let j = world.joint(joint_name?)?;
+            (0..world.actuator_count()).find(|a| world.actuator_joint(*a) == Some(j))
+        };
+        let Some(actuator) = world.actuator(&spec.name).or_else(by_joint) else {
+            let known: Vec<&str> = (0..world.actuator_count())
+                .filter_map(|a| world.actuator_name(a))
+                .collect();
+            return Err(SimError::NoActuator {
+                id: spec.id,
+                name: spec.name.clone(),
+                joint: joint_name.map_or(String::new(), |j| format!(", or one driving joint `{j}`")),
+                known: known.join(" "),
+            });
+        };
+        let joint = world
+            .actuator_joint(actuator)
+            .ok_or_else(|| SimError::NotAJoint(world.actuator_name(actuator).unwrap_or("?").into()))?;
+        out.push((actuator, joint));
+    }
+    Ok(out)
+}
+
 impl SimPlant {
-    /// Maps each profiled servo to an actuator of `world`: the actuator named as the servo,
-    /// else (a joint-driven servo) the actuator that drives the joint of that name.
+    /// Maps each profiled servo to its actuator ([`servo_actuators`]).
     ///
     /// # Errors
     /// [`SimError`] for a servo without an actuator.
     pub fn new(world: World, profile: &Profile, rig: &Rig) -> Result<SimPlant, SimError> {
         let mut servos = Vec::with_capacity(profile.servos.len());
-        for (spec, map) in profile.servos.iter().zip(&rig.servos) {
-            let joint_name = match &spec.drive {
-                crate::profile::Drive::Joint(j) => Some(j.as_str()),
-                crate::profile::Drive::Bone { .. } => None,
-            };
-            let by_joint = || {
-                let j = world.joint(joint_name?)?;
-                (0..world.actuator_count()).find(|a| world.actuator_joint(*a) == Some(j))
-            };
-            let Some(actuator) = world.actuator(&spec.name).or_else(by_joint) else {
-                let known: Vec<&str> = (0..world.actuator_count())
-                    .filter_map(|a| world.actuator_name(a))
-                    .collect();
-                return Err(SimError::NoActuator {
-                    id: spec.id,
-                    name: spec.name.clone(),
-                    joint: joint_name.map_or(String::new(), |j| format!(", or one driving joint `{j}`")),
-                    known: known.join(" "),
-                });
-            };
-            let joint = world
-                .actuator_joint(actuator)
-                .ok_or_else(|| SimError::NotAJoint(world.actuator_name(actuator).unwrap_or("?").into()))?;
+        let driven = servo_actuators(&world, profile)?;
+        for ((spec, map), (actuator, joint)) in profile.servos.iter().zip(&rig.servos).zip(driven) {
             let force_limit = world
                 .force_range(actuator)
                 .map_or(f64::INFINITY, |(lo, hi)| lo.abs().min(hi.abs()));

@@ -1,0 +1,415 @@
+//! Look-ahead commands: the loop takes inputs ahead of their time into a preview of source
+//! samples (each already solved, retargeted and mapped through the rig), and plans each
+//! servo's goal path over it with [`crate::plan`], leading the servo by its lag so that its
+//! *position* follows the source. Live inputs have no future: their reference is a bounded
+//! extrapolation from the newest two samples (never further ahead than the servo's lead,
+//! never faster than its velocity limit). Everything is allocated before the first tick.
+
+use std::collections::VecDeque;
+
+use glam::{DQuat, DVec3};
+
+use crate::command::CommandStage;
+use crate::plan::{ServoPlan, Window, MAX_KNOTS};
+use crate::rig::Rig;
+use crate::servo::MotionLimits;
+use crate::servo::MAX_SERVOS;
+use crate::skeleton::MAX_CHANNELS;
+
+/// One input, ready for the servos: what a perfect rig would do at `due_ns`.
+#[derive(Clone, Copy, Debug)]
+pub struct SourceSample {
+    /// Loop-clock time it stands for, ns.
+    pub due_ns: u64,
+    /// Clip time (play), seconds; NaN for targets.
+    pub clip_time: f64,
+    /// Joint angle per servo, radians (rig order).
+    pub angles: [f64; MAX_SERVOS],
+    /// The pose's channels (rotations in radians): what the servos do not drive comes from
+    /// here when the present angles are put back into a pose.
+    pub channels: [f64; MAX_CHANNELS],
+    /// Tips of the watched bones (root frame, file units).
+    pub tips: [DVec3; 4],
+    /// Robot effectors at the source (retargeting), metres.
+    pub effectors: [DVec3; 4],
+    /// Where the retargeting placed the robot's base.
+    pub base: (DVec3, DQuat),
+}
+
+impl Default for SourceSample {
+    fn default() -> Self {
+        SourceSample {
+            due_ns: 0,
+            clip_time: f64::NAN,
+            angles: [f64::NAN; MAX_SERVOS],
+            channels: [0.0; MAX_CHANNELS],
+            tips: [DVec3::NAN; 4],
+            effectors: [DVec3::NAN; 4],
+            base: (DVec3::ZERO, DQuat::IDENTITY),
+        }
+    }
+}
+
+/// Samples in time order: a little history (for extrapolation), the current one and the
+/// future ones taken ahead. Fixed capacity: when full, the oldest goes.
+#[derive(Debug)]
+pub struct Preview {
+    samples: VecDeque<SourceSample>,
+    capacity: usize,
+    /// Index of the current sample, when there is one.
+    current: Option<usize>,
+    /// Whether more input may come after the newest sample (a live source: the reference
+    /// past it is extrapolated); false once the input has ended (held).
+    pub live: bool,
+}
+
+/// Past samples kept behind the current one.
+const HISTORY: usize = 2;
+
+impl Preview {
+    /// Room for `capacity` samples (at least four).
+    #[must_use]
+    pub fn new(capacity: usize) -> Preview {
+        let capacity = capacity.max(HISTORY + 2);
+        Preview {
+            samples: VecDeque::with_capacity(capacity),
+            capacity,
+            current: None,
+            live: true,
+        }
+    }
+
+    /// Adds the newest sample. A sample older than the newest (a producer that started over)
+    /// starts the preview anew. Never grows the storage.
+    pub fn push(&mut self, sample: SourceSample) {
+        if self.samples.back().is_some_and(|b| sample.due_ns < b.due_ns) {
+            self.clear();
+        }
+        if self.samples.len() == self.capacity {
+            self.samples.pop_front();
+            self.current = self.current.and_then(|c| c.checked_sub(1));
+        }
+        self.samples.push_back(sample);
+    }
+
+    /// Makes the newest sample due by `due_by` current; returns whether it is a new one.
+    /// Samples older than the history are let go.
+    pub fn advance(&mut self, due_by: u64) -> bool {
+        let newest_due = self.samples.iter().rposition(|s| s.due_ns <= due_by);
+        let fresh = newest_due.is_some() && newest_due != self.current;
+        if let Some(c) = newest_due {
+            let drop = c.saturating_sub(HISTORY);
+            self.samples.drain(..drop);
+            self.current = Some(c - drop);
+        }
+        fresh
+    }
+
+    /// The current sample.
+    #[must_use]
+    pub fn current(&self) -> Option<&SourceSample> {
+        self.current.and_then(|c| self.samples.get(c))
+    }
+
+    /// Whether samples after the current one wait.
+    #[must_use]
+    pub fn has_future(&self) -> bool {
+        self.samples.len() > self.current.map_or(0, |c| c + 1)
+    }
+
+    /// Forgets everything (a restart).
+    pub fn clear(&mut self) {
+        self.samples.clear();
+        self.current = None;
+    }
+
+    /// The newest sample.
+    #[must_use]
+    pub fn newest(&self) -> Option<&SourceSample> {
+        self.samples.back()
+    }
+
+    /// Servo `k`'s source angle at `t_ns`: interpolated between samples; before the first,
+    /// the first; after the newest, the newest moved on by its last slope for at most
+    /// `extrapolate_ns` (0: held), the slope bounded by `max_rate` (radians/s).
+    #[cfg(test)]
+    fn angle_at(&self, k: usize, t_ns: u64, extrapolate_ns: u64, max_rate: f64) -> f64 {
+        let place = self.locate(t_ns, &mut 0);
+        self.angle(k, place, extrapolate_ns, max_rate)
+    }
+
+    /// Where `t_ns` falls, searching forward from sample `cursor` (updated) — for times in
+    /// increasing order.
+    fn locate(&self, t_ns: u64, cursor: &mut usize) -> Place {
+        let n = self.samples.len();
+        let Some(last) = self.samples.back() else {
+            return Place::Empty;
+        };
+        if t_ns >= last.due_ns {
+            return Place::Past(t_ns - last.due_ns);
+        }
+        // The first sample at or after t.
+        let mut i = (*cursor).min(n - 1);
+        if i > 0 && self.samples[i - 1].due_ns >= t_ns {
+            i = self.samples.partition_point(|s| s.due_ns < t_ns);
+        }
+        while self.samples[i].due_ns < t_ns {
+            i += 1;
+        }
+        *cursor = i;
+        if i == 0 {
+            return Place::Between(0, 0.0);
+        }
+        let (a, b) = (&self.samples[i - 1], &self.samples[i]);
+        Place::Between(
+            i - 1,
+            (t_ns - a.due_ns) as f64 / (b.due_ns - a.due_ns).max(1) as f64,
+        )
+    }
+
+    /// Servo `k`'s angle at `place` ([`Preview::angle_at`]).
+    fn angle(&self, k: usize, place: Place, extrapolate_ns: u64, max_rate: f64) -> f64 {
+        let n = self.samples.len();
+        match place {
+            Place::Empty => f64::NAN,
+            Place::Between(i, f) => {
+                let a = self.samples[i].angles[k];
+                if f == 0.0 {
+                    a
+                } else {
+                    a + f * (self.samples[i + 1].angles[k] - a)
+                }
+            }
+            Place::Past(beyond) => {
+                let last = &self.samples[n - 1];
+                let a = last.angles[k];
+                if extrapolate_ns == 0 || n < 2 {
+                    return a;
+                }
+                let before = &self.samples[n - 2];
+                let span = last.due_ns.saturating_sub(before.due_ns);
+                if span == 0 {
+                    return a;
+                }
+                let rate = ((a - before.angles[k]) / (span as f64 * 1e-9)).clamp(-max_rate, max_rate);
+                a + rate * beyond.min(extrapolate_ns) as f64 * 1e-9
+            }
+        }
+    }
+}
+
+/// Where a time falls in a preview.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Place {
+    /// No samples.
+    Empty,
+    /// Between sample `i` and the next, at fraction `f` (before the first: sample 0).
+    Between(usize, f64),
+    /// After the newest, by this many ns.
+    Past(u64),
+}
+
+/// How the look-ahead plans.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LookaheadSettings {
+    /// Knots in the window.
+    pub knots: usize,
+    /// Shortest spacing of knots, seconds (a fast loop plans on a coarser grid than its ticks).
+    pub min_spacing_s: f64,
+}
+
+impl Default for LookaheadSettings {
+    fn default() -> Self {
+        LookaheadSettings {
+            knots: 24,
+            min_spacing_s: 0.004,
+        }
+    }
+}
+
+/// The planner of a rig's servos.
+#[derive(Debug)]
+pub struct Lookahead {
+    window: Window,
+    plans: Vec<ServoPlan>,
+    leads_ns: Vec<u64>,
+    targets: Vec<f64>,
+    reference: [f64; MAX_KNOTS],
+    /// Per knot, where the last lead's times fall in the preview (servos with the same lead
+    /// share them).
+    places: [Place; MAX_KNOTS],
+}
+
+/// Blending the first commands from where the servos stood (the ease-in): the angles, its
+/// start and length, ns.
+#[derive(Clone, Copy, Debug)]
+pub struct EaseIn<'a> {
+    /// Angles the servos stood at, radians.
+    pub from: &'a [f64],
+    /// Loop-clock time the blend starts.
+    pub start_ns: u64,
+    /// Its length.
+    pub length_ns: u64,
+}
+
+impl EaseIn<'_> {
+    /// The smoothstep weight of the source at `t_ns` (1 after the blend).
+    fn weight(&self, t_ns: u64) -> f64 {
+        if self.length_ns == 0 {
+            return 1.0;
+        }
+        let t = (t_ns.saturating_sub(self.start_ns) as f64 / self.length_ns as f64).clamp(0.0, 1.0);
+        t * t * (3.0 - 2.0 * t)
+    }
+}
+
+impl Lookahead {
+    /// A planner for `rig` at `rate_hz`, servo `k` led by `leads_s[k]` seconds (its lag).
+    #[must_use]
+    pub fn new(rig: &Rig, rate_hz: f64, leads_s: &[f64], settings: LookaheadSettings) -> Lookahead {
+        let period = 1.0 / rate_hz;
+        // Knots a whole number of ticks apart, at least the shortest spacing.
+        let ticks_per_knot = (settings.min_spacing_s / period).ceil().max(1.0);
+        let window = Window::new(settings.knots, ticks_per_knot * period);
+        let n = rig.len();
+        Lookahead {
+            window,
+            plans: rig
+                .servos
+                .iter()
+                .map(|s| {
+                    ServoPlan::new(MotionLimits {
+                        velocity: s.max_velocity,
+                        acceleration: s.max_acceleration,
+                        min: f64::from(s.min_tick),
+                        max: f64::from(s.max_tick),
+                    })
+                })
+                .collect(),
+            leads_ns: (0..n)
+                .map(|k| {
+                    let s = leads_s.get(k).copied().unwrap_or(0.0);
+                    if s.is_finite() && s > 0.0 {
+                        (s.min(1.0) * 1e9) as u64
+                    } else {
+                        0
+                    }
+                })
+                .collect(),
+            targets: vec![0.0; n],
+            reference: [0.0; MAX_KNOTS],
+            places: [Place::Empty; MAX_KNOTS],
+        }
+    }
+
+    /// How far ahead of a tick the plan looks: the largest lead and the window, ns.
+    #[must_use]
+    pub fn preview_ns(&self) -> u64 {
+        let lead = self.leads_ns.iter().copied().max().unwrap_or(0);
+        lead + (self.window.knots() as f64 * self.window.spacing_s() * 1e9) as u64
+    }
+
+    /// Servo `k`'s lead, ns.
+    #[must_use]
+    pub fn lead_ns(&self, k: usize) -> u64 {
+        self.leads_ns.get(k).copied().unwrap_or(0)
+    }
+
+    /// This tick's target per servo (fractional ticks) for the goal written at `now_ns`, `dt`
+    /// seconds after the previous one. Past the preview's newest sample the reference is
+    /// extrapolated (bounded) while the preview is live, held once it is not. Allocates
+    /// nothing.
+    pub fn targets(
+        &mut self,
+        rig: &Rig,
+        stage: &CommandStage,
+        preview: &Preview,
+        now_ns: u64,
+        dt: f64,
+        ease: Option<EaseIn<'_>>,
+    ) -> &[f64] {
+        let live = preview.live;
+        let h = self.window.spacing_s();
+        let h_ns = (h * 1e9).round() as u64;
+        let dt_ns = (dt * 1e9).round() as u64;
+        // The previous goal's time: knots lie at t0 + (j+1)·h.
+        let t0 = now_ns.saturating_sub(dt_ns);
+        let knots = self.window.knots();
+        let mut placed: Option<u64> = None;
+        for (k, servo) in rig.servos.iter().enumerate() {
+            let lead = self.leads_ns[k];
+            let tpr = servo.ticks_per_radian().abs().max(1e-12);
+            let max_rate = if servo.max_velocity > 0.0 {
+                servo.max_velocity / tpr
+            } else {
+                f64::INFINITY
+            };
+            let extrapolate = if live { lead.min(100_000_000) } else { 0 };
+            if placed != Some(lead) {
+                let mut cursor = 0;
+                for (j, place) in self.places.iter_mut().enumerate().take(knots) {
+                    *place = preview.locate(t0 + (j as u64 + 1) * h_ns + lead, &mut cursor);
+                }
+                placed = Some(lead);
+            }
+            for j in 0..knots {
+                let t = t0 + (j as u64 + 1) * h_ns;
+                let mut a = preview.angle(k, self.places[j], extrapolate, max_rate);
+                if let Some(e) = &ease {
+                    if let Some(from) = e.from.get(k) {
+                        a = from + e.weight(t) * (a - from);
+                    }
+                }
+                self.reference[j] = servo.angle_to_ticks_exact(a);
+            }
+            let (x0, v0) = stage.state(k).unwrap_or((self.reference[0], 0.0));
+            self.targets[k] = self.plans[k].plan(&self.window, x0, v0, &self.reference[..knots], dt);
+        }
+        &self.targets
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(due_ns: u64, a: f64) -> SourceSample {
+        let mut s = SourceSample {
+            due_ns,
+            ..SourceSample::default()
+        };
+        s.angles[0] = a;
+        s
+    }
+
+    #[test]
+    fn the_preview_interpolates_and_extrapolates_within_bounds() {
+        let mut p = Preview::new(8);
+        for i in 0..5u64 {
+            p.push(sample(i * 10, i as f64));
+        }
+        assert!(p.advance(12));
+        assert_eq!(p.current().unwrap().due_ns, 10);
+        assert!(!p.advance(15));
+        assert!(p.has_future());
+        assert!((p.angle_at(0, 25, 0, 1e9) - 2.5).abs() < 1e-12);
+        // Past the newest (40 ns, angle 4): held, or extrapolated at 0.1/ns for at most 5 ns,
+        // the slope bounded.
+        assert_eq!(p.angle_at(0, 60, 0, 1e9), 4.0);
+        assert!((p.angle_at(0, 60, 5, 1e9) - 4.5).abs() < 1e-9);
+        assert!((p.angle_at(0, 60, 5, 1e6) - (4.0 + 1e6 * 5e-9)).abs() < 1e-12);
+        // Full: the oldest goes, the storage does not grow.
+        let room = p.samples.capacity();
+        for i in 5..20u64 {
+            p.push(sample(i * 10, i as f64));
+        }
+        assert_eq!(p.samples.len(), 8);
+        assert_eq!(p.samples.capacity(), room);
+        // A producer that starts over starts the preview anew.
+        p.advance(150);
+        p.push(sample(5, -1.0));
+        assert_eq!(p.newest().unwrap().angles[0], -1.0);
+        assert!(p.current().is_none());
+        assert!(p.advance(5));
+    }
+}
