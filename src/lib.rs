@@ -55,4 +55,6 @@ pub mod sim;
 
 pub mod plot;
 
+pub mod studio;
+
 pub mod cli;

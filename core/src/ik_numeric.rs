@@ -87,6 +87,10 @@ pub struct Settings {
     /// it. The best result is kept; the iteration cap counts all attempts. `0` for warm-started
     /// streams, where a jump to another pose is worse than a small residual.
     pub restarts: usize,
+    /// Iterations without a 10 % drop of the squared residual after which a solve counts as
+    /// stalled. CCD and the Jacobian transpose converge linearly, slowly near a straight limb or
+    /// a limit: an interactive solve gives them longer than a batch one.
+    pub patience: usize,
 }
 
 impl Default for Settings {
@@ -101,6 +105,7 @@ impl Default for Settings {
             max_step: 0.3,
             move_root: false,
             restarts: 8,
+            patience: 6,
         }
     }
 }
@@ -400,8 +405,6 @@ impl Solver {
         channels: &mut [f64],
         settings: &Settings,
     ) -> Outcome {
-        /// Iterations without a 10 % drop of the squared residual that count as a stall.
-        const STALL: usize = 6;
         let constraints = &constraints[..constraints.len().min(MAX_CONSTRAINTS)];
         self.set_needed(skeleton, constraints);
         let cd = 180.0 / (core::f64::consts::PI * settings.degrees_per_unit.max(1e-9));
@@ -436,7 +439,7 @@ impl Solver {
             } else {
                 since += 1;
             }
-            let moved = since < STALL && {
+            let moved = since < settings.patience.max(1) && {
                 it += 1;
                 self.step(skeleton, constraints, channels, cd, settings, &mut state)
             };

@@ -13,6 +13,8 @@ mod retarget;
 mod rig;
 mod sim;
 mod soak;
+#[cfg(feature = "studio")]
+mod studio;
 
 pub use error::CliError;
 
@@ -75,6 +77,26 @@ enum Command {
         asf: Option<PathBuf>,
         #[command(flatten)]
         args: identify::IdentifyArgs,
+    },
+    /// Serve the studio on 127.0.0.1: drag IK targets in a browser, compare the solvers, and
+    /// drive the rig live (the virtual chain by default, --bus sim or a port).
+    #[cfg(feature = "studio")]
+    Studio {
+        /// The rig profile.
+        profile: PathBuf,
+        /// Skeleton (.asf).
+        asf: PathBuf,
+        /// A clip (.amc) for the timeline: play, scrub, pin limbs while it plays.
+        amc: Option<PathBuf>,
+        /// Port to serve on (0: any free one; the URL is printed).
+        #[arg(long, default_value_t = 8080)]
+        port: u16,
+        /// Listen on this address instead of loopback (the page and the API have no
+        /// authentication: anyone who reaches the port moves the rig).
+        #[arg(long)]
+        listen: Option<std::net::IpAddr>,
+        #[command(flatten)]
+        loop_args: play::LoopArgs,
     },
     /// Follow effector targets (file, stdin or UDP) with inverse kinematics at a fixed rate.
     Follow {
@@ -485,6 +507,26 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
         Command::Identify { profile, asf, args } => {
             identify::identify_cmd(&profile, asf.as_deref(), &args, &mut io::stdout().lock())
         }
+        #[cfg(feature = "studio")]
+        Command::Studio {
+            profile,
+            asf,
+            amc,
+            port,
+            listen,
+            loop_args,
+        } => studio::studio_cmd(
+            &studio::StudioArgs {
+                profile: &profile,
+                asf: &asf,
+                amc: amc.as_deref(),
+                port,
+                listen,
+            },
+            &loop_args,
+            allocations,
+            &mut io::stdout().lock(),
+        ),
         Command::Follow {
             profile,
             asf,

@@ -182,6 +182,9 @@ pub struct LoopArgs {
     /// plans the goal that far, and a period, ahead of the source, so the horn arrives on time).
     #[arg(long)]
     pub lead_ms: Option<f64>,
+    /// Where the loop publishes its goals, present angles and timing (the studio).
+    #[arg(skip)]
+    pub live: Option<Arc<crate::control::live::LiveView>>,
 }
 
 /// The opened bus: the virtual chain (kept alive while the bus is used) or a port.
@@ -240,7 +243,7 @@ fn check(args: &LoopArgs) -> Result<(), CliError> {
 
 /// Messages an input channel holds: a few ticks, plus the look-ahead's longest preview (a
 /// lead of up to a second and the window) so that a lockstep feed never drops one.
-fn input_capacity(rate_hz: f64) -> usize {
+pub(super) fn input_capacity(rate_hz: f64) -> usize {
     INPUT_CAPACITY + (1.25 * rate_hz).ceil() as usize
 }
 
@@ -311,20 +314,20 @@ fn open_bus(
 }
 
 /// What a run of the loop gives back.
-struct Outcome {
-    stats: LoopStats,
-    end: RunEnd,
-    producer: ProducerReport,
+pub(super) struct Outcome {
+    pub(super) stats: LoopStats,
+    pub(super) end: RunEnd,
+    pub(super) producer: ProducerReport,
     /// Why the port failed ([`RunEnd::PortLost`]).
     port_error: Option<std::io::Error>,
 }
 
 /// Starts a producer thread: (clock, first tick, period, how far ahead the loop takes inputs).
-type StartProducer =
+pub(super) type StartProducer =
     Box<dyn FnOnce(SystemClock, u64, u64, u64) -> std::io::Result<JoinHandle<ProducerReport>>>;
 
 /// Where a run's input comes from.
-enum Producer {
+pub(super) enum Producer {
     /// A thread paced by the machine clock, started with (clock, first tick, period, how far
     /// ahead the loop takes inputs).
     Thread(StartProducer),
@@ -404,6 +407,9 @@ fn run_sim(
     }
     if let Some(p) = planner {
         controller.set_lookahead(p);
+    }
+    if let Some(v) = &args.live {
+        controller.set_live_view(Arc::clone(v));
     }
     let period = controller.period_ns();
     let start = bus.now_ns() + period;
@@ -512,7 +518,7 @@ fn loop_config(args: &LoopArgs, allocations: Option<fn() -> u64>) -> LoopConfig 
 
 /// Starts the bus, the loop thread and the status line, and waits for the end.
 #[allow(clippy::too_many_arguments)]
-fn run_loop(
+pub(super) fn run_loop(
     args: &LoopArgs,
     profile: &Profile,
     skeleton: Arc<Skeleton>,
@@ -593,6 +599,9 @@ fn run_loop(
     }
     if let Some(p) = planner {
         controller.set_lookahead(p);
+    }
+    if let Some(v) = &args.live {
+        controller.set_live_view(Arc::clone(v));
     }
     let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
     controller.set_telemetry(ttx);
@@ -703,9 +712,9 @@ fn status_line<T>(
 
 /// `follow` adds nothing to the [`RunReport`].
 #[derive(serde::Serialize)]
-struct NoFigures {}
+pub(super) struct NoFigures {}
 
-fn finish(
+pub(super) fn finish(
     outcome: &Outcome,
     args: &LoopArgs,
     extra: impl serde::Serialize,

@@ -23,6 +23,8 @@ pub struct SourceSample {
     pub due_ns: u64,
     /// Clip time (play), seconds; NaN for targets.
     pub clip_time: f64,
+    /// Loop-clock time the input behind it was made, ns (0 when unknown).
+    pub made_ns: u64,
     /// Joint angle per servo, radians (rig order).
     pub angles: [f64; MAX_SERVOS],
     /// The pose's channels (rotations in radians): what the servos do not drive comes from
@@ -41,6 +43,7 @@ impl Default for SourceSample {
         SourceSample {
             due_ns: 0,
             clip_time: f64::NAN,
+            made_ns: 0,
             angles: [f64::NAN; MAX_SERVOS],
             channels: [0.0; MAX_CHANNELS],
             tips: [DVec3::NAN; 4],

@@ -19,6 +19,7 @@
 pub mod fidelity;
 pub mod identify;
 pub mod input;
+pub mod live;
 pub mod lockstep;
 pub mod lookahead;
 pub mod plot;
@@ -46,6 +47,7 @@ use crate::servo::MAX_SERVOS;
 use crate::servo::{addr, TICKS_PER_TURN};
 use crate::skeleton::{Skeleton, MAX_BONES, MAX_CHANNELS};
 use input::{InputPort, Payload, Target, MAX_EFFECTORS};
+use live::LiveView;
 use lookahead::{EaseIn, Lookahead, Preview, SourceSample};
 use stats::{LoopStats, Stage};
 
@@ -510,6 +512,7 @@ pub struct Controller {
     input: InputPort,
     solve: Solve,
     telemetry: Option<Sender<Telemetry>>,
+    live: Option<Arc<LiveView>>,
     /// The statistics so far.
     pub stats: LoopStats,
     have_input: bool,
@@ -631,6 +634,7 @@ impl Controller {
             input,
             solve,
             telemetry: None,
+            live: None,
             have_input: false,
             clip_time: f64::NAN,
             failures: 0,
@@ -723,6 +727,11 @@ impl Controller {
         let ticks = (self.preview_ns / self.period_ns.max(1)) as usize;
         stage.reserve(ticks + MAX_INGEST + 8);
         self.retarget = Some(Box::new(stage));
+    }
+
+    /// Publishes each tick's goals, present angles and timing in `view` (for the studio).
+    pub fn set_live_view(&mut self, view: Arc<LiveView>) {
+        self.live = Some(view);
     }
 
     /// Sends per-tick figures to `tx` (bounded; a full channel drops the record, counted).
@@ -828,6 +837,7 @@ impl Controller {
             let mut sample = SourceSample {
                 due_ns: due,
                 clip_time,
+                made_ns: msg.made_ns,
                 ..SourceSample::default()
             };
             sample.channels[..n].copy_from_slice(&self.channels[..n]);
@@ -1049,6 +1059,23 @@ impl Controller {
         let missed = done > tick.deadline_ns + self.period_ns;
         if missed {
             self.stats.deadline_misses += 1;
+        }
+        if let Some(mut view) = self.live.as_ref().and_then(|v| v.try_update()) {
+            view.record_tick(done, compute, missed);
+            view.len = len;
+            for (k, (s, (g, p))) in self
+                .rig
+                .servos
+                .iter()
+                .zip(goals[..len].iter().zip(&self.present))
+                .enumerate()
+            {
+                view.goal_rad[k] = s.ticks_to_angle(f64::from(*g));
+                view.present_rad[k] = s.ticks_to_angle(f64::from(*p));
+            }
+            if written.is_ok() && self.have_input && !holding {
+                view.record_carried(current.made_ns, t_write);
+            }
         }
         if let Some(tx) = &self.telemetry {
             let t = Telemetry {

@@ -1,0 +1,149 @@
+//! `marionette studio`: the browser UI over the running loop.
+
+use std::io::Write;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener};
+use std::path::Path;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, OnceLock};
+
+use super::error::CliError;
+use super::play::{finish, input_capacity, run_loop, BusArg, LoopArgs, NoFigures, Producer};
+use crate::control::input::input_channel;
+use crate::control::Solve;
+use crate::formats::{amc, asf};
+use crate::profile::{Drive, Profile};
+use crate::studio::scene::Scene;
+use crate::studio::{server, Feed, LiveFeed, ServoInfo, Studio};
+
+/// Options of `marionette studio`.
+#[derive(Debug)]
+pub struct StudioArgs<'a> {
+    /// Rig profile.
+    pub profile: &'a Path,
+    /// Skeleton.
+    pub asf: &'a Path,
+    /// Clip for the timeline.
+    pub amc: Option<&'a Path>,
+    /// Port on the listening address.
+    pub port: u16,
+    /// Address to listen on (default loopback).
+    pub listen: Option<IpAddr>,
+}
+
+/// Runs `marionette studio` until a stop request (or the loop's own end).
+///
+/// # Errors
+/// [`CliError`].
+pub fn studio_cmd(
+    a: &StudioArgs<'_>,
+    args: &LoopArgs,
+    allocations: Option<fn() -> u64>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    let profile = Profile::load(a.profile)?;
+    let skeleton = Arc::new(asf::load(a.asf)?.skeleton);
+    let clip = a.amc.map(|p| amc::load(&skeleton, p)).transpose()?;
+    let addr = SocketAddr::new(a.listen.unwrap_or(IpAddr::V4(Ipv4Addr::LOCALHOST)), a.port);
+    let listener =
+        TcpListener::bind(addr).map_err(|e| CliError::Usage(format!("cannot listen on {addr}: {e}")))?;
+    let local = listener.local_addr().map_err(CliError::Output)?;
+    let servos = profile
+        .servos
+        .iter()
+        .map(|s| ServoInfo {
+            name: s.name.clone(),
+            bone: match &s.drive {
+                Drive::Bone { bone, .. } => Some(bone.clone()),
+                Drive::Joint(_) => None,
+            },
+        })
+        .collect();
+    let scene = Scene::new(Arc::clone(&skeleton), clip.as_ref());
+    let (tx, port) = input_channel(input_capacity(args.rate));
+    let bus = match &args.bus {
+        BusArg::Virtual => "the virtual chain".to_string(),
+        BusArg::Sim => "the simulator".to_string(),
+        BusArg::Port(p) => p.clone(),
+    };
+    let (studio, producer, lockstep) = if args.bus == BusArg::Sim {
+        let (ptx, prx) = crossbeam_channel::bounded(256);
+        let studio = Arc::new(Studio::new(scene, Feed::Lockstep(ptx), servos, args.rate, bus));
+        let producer = Producer::Lockstep(tx, Box::new(move |_| Box::new(LiveFeed::new(prx))));
+        (studio, producer, true)
+    } else {
+        let feed = Feed::Direct {
+            tx: tx.clone(),
+            clock: OnceLock::new(),
+        };
+        let studio = Arc::new(Studio::new(scene, feed, servos, args.rate, bus));
+        let s = Arc::clone(&studio);
+        let producer = Producer::Thread(Box::new(move |clock, _start, _period, _preview| {
+            s.set_loop_clock(clock);
+            s.republish();
+            std::thread::Builder::new()
+                .name("studio-frames".into())
+                .spawn(move || {
+                    s.run_frames(|| tx.stopped());
+                    s.report()
+                })
+        }));
+        (studio, producer, false)
+    };
+    let frames = if lockstep {
+        studio.republish();
+        let s = Arc::clone(&studio);
+        Some(
+            std::thread::Builder::new()
+                .name("studio-frames".into())
+                .spawn(move || s.run_frames(|| false))
+                .map_err(CliError::Output)?,
+        )
+    } else {
+        None
+    };
+    let s = Arc::clone(&studio);
+    let http = std::thread::Builder::new()
+        .name("studio-server".into())
+        .spawn(move || server::serve(s, listener))
+        .map_err(CliError::Output)?;
+    writeln!(
+        out,
+        "studio: http://{local}/ — {} effectors, {}; Ctrl-C stops (ramp to rest, torque off)",
+        studio.scene().effectors.len(),
+        if clip.is_some() {
+            "timeline on the clip"
+        } else {
+            "rest pose"
+        }
+    )?;
+    out.flush()?;
+    let mut args = args.clone();
+    args.live = Some(Arc::clone(&studio.live));
+    let outcome = run_loop(
+        &args,
+        &profile,
+        skeleton,
+        Solve::Frames,
+        port,
+        producer,
+        allocations,
+        clip.as_ref(),
+        out,
+    );
+    studio.stop.store(true, Ordering::Relaxed);
+    let served = http.join();
+    if let Some(f) = frames {
+        let _ = f.join();
+    }
+    let outcome = outcome?;
+    if let Ok(Err(e)) = served {
+        writeln!(out, "studio server: {e}")?;
+    }
+    let l = studio.latency();
+    writeln!(
+        out,
+        "drag → Sync Write: {} drags carried, p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
+        l.n, l.p50, l.p99, l.max
+    )?;
+    finish(&outcome, &args, NoFigures {}, out)
+}

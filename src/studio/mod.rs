@@ -1,0 +1,447 @@
+//! `marionette studio`: drag IK targets in a browser, compare the solvers, and puppeteer the rig.
+//!
+//! [`scene`] is the pose model (no I/O). [`Studio`] joins it to the running control loop: every
+//! new pose goes into the loop's input channel as a frame, and the loop's [`LiveView`] comes
+//! back as the servos' commanded and present angles. [`server`] serves the page, its WebSocket
+//! and the JSON API.
+
+pub mod scene;
+#[cfg(feature = "studio")]
+pub mod server;
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock, PoisonError};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use glam::DVec3;
+use serde_json::{json, Value};
+
+use crate::clock::SystemClock;
+use crate::control::input::{Input, InputSender};
+use crate::control::live::LiveView;
+use crate::control::lockstep::LockstepSource;
+use crate::control::sources::ProducerReport;
+use crate::schedule::Clock;
+use scene::{Method, Scene, SceneError};
+
+/// Drag latencies kept for the percentiles.
+const LATENCY_WINDOW: usize = 20_000;
+/// How often the studio's own thread advances a playing clip and reads the loop.
+pub const FRAME: Duration = Duration::from_micros(16_667);
+
+/// A servo as the page lists it.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ServoInfo {
+    /// Its name in the profile.
+    pub name: String,
+    /// The bone it moves (a rig of bones), for the marker on the skeleton.
+    pub bone: Option<String>,
+}
+
+/// Where new poses go.
+#[derive(Debug)]
+pub enum Feed {
+    /// Into the loop's input channel, stamped on the loop's clock (set when the loop starts).
+    Direct {
+        /// The channel.
+        tx: InputSender,
+        /// The loop's clock and `wall − loop` in ns.
+        clock: OnceLock<(SystemClock, i128)>,
+    },
+    /// To a [`LiveFeed`] that the simulator's lockstep clock drains.
+    Lockstep(crossbeam_channel::Sender<(Vec<f64>, f64)>),
+    /// Nowhere (tests of the scene and the API alone).
+    None,
+}
+
+/// Drag-to-goal latency: browser event → the first Sync Write that carried the pose.
+#[derive(Debug, Default)]
+struct Latency {
+    /// Poses sent from drags, by `made_ns`, awaiting their Sync Write.
+    pending: VecDeque<u64>,
+    /// Microseconds.
+    samples: VecDeque<f64>,
+    cursor: u64,
+}
+
+/// Quantiles of a sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Quantiles {
+    /// Samples.
+    pub n: usize,
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+impl Quantiles {
+    /// Of `values` (any order).
+    #[must_use]
+    pub fn of(values: impl IntoIterator<Item = f64>) -> Quantiles {
+        let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return Quantiles::default();
+        }
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| v[((q * (v.len() - 1) as f64).round() as usize).min(v.len() - 1)];
+        Quantiles {
+            n: v.len(),
+            p50: at(0.5),
+            p99: at(0.99),
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// The studio: the scene, the feed into the loop and what the loop reports.
+#[derive(Debug)]
+pub struct Studio {
+    scene: Mutex<Scene>,
+    /// Where poses go.
+    pub feed: Feed,
+    /// The loop's live view.
+    pub live: Arc<LiveView>,
+    /// The rig's servos.
+    pub servos: Vec<ServoInfo>,
+    /// The loop's rate, Hz.
+    pub rate_hz: f64,
+    /// The bus, as the summary names it.
+    pub bus: String,
+    latency: Mutex<Latency>,
+    /// Bumped at every change of the scene (the WebSocket pushes then).
+    pub version: AtomicU64,
+    seq: AtomicU64,
+    sent: AtomicU64,
+    /// Set when the studio ends.
+    pub stop: AtomicBool,
+    /// Ticks per second the loop made over the last second.
+    measured_rate: Mutex<(Instant, u64, f64)>,
+}
+
+impl Studio {
+    /// A studio on `scene` sending poses to `feed`.
+    #[must_use]
+    pub fn new(scene: Scene, feed: Feed, servos: Vec<ServoInfo>, rate_hz: f64, bus: String) -> Studio {
+        let mut scene = scene;
+        scene.solve();
+        Studio {
+            scene: Mutex::new(scene),
+            feed,
+            live: Arc::new(LiveView::default()),
+            servos,
+            rate_hz,
+            bus,
+            latency: Mutex::new(Latency::default()),
+            version: AtomicU64::new(1),
+            seq: AtomicU64::new(0),
+            sent: AtomicU64::new(0),
+            stop: AtomicBool::new(false),
+            measured_rate: Mutex::new((Instant::now(), 0, 0.0)),
+        }
+    }
+
+    /// The scene (locked; keep the guard short).
+    pub fn scene(&self) -> MutexGuard<'_, Scene> {
+        self.scene.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Gives the loop's clock to a direct feed (the producer thread calls this as it starts).
+    pub fn set_loop_clock(&self, mut clock: SystemClock) {
+        if let Feed::Direct { clock: slot, .. } = &self.feed {
+            let wall = wall_ns();
+            let offset = wall - i128::from(clock.now_ns());
+            let _ = slot.set((clock, offset));
+        }
+    }
+
+    /// Sends the present primary pose again (the first one, once the loop is there).
+    pub fn republish(&self) {
+        let scene = self.scene();
+        self.send(&scene.primary.channels, scene.timeline.time, None);
+    }
+
+    /// Solves the scene, sends the primary pose to the loop and tells the viewers. `event_ms`
+    /// is the browser's time of the event behind it (ms since the Unix epoch), for the
+    /// latency; `None` for changes of the studio's own (the timeline).
+    pub fn commit(&self, scene: &mut Scene, event_ms: Option<f64>) {
+        scene.solve();
+        let clip_time = scene.timeline.time;
+        self.send(&scene.primary.channels, clip_time, event_ms);
+        self.version.fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn send(&self, channels: &[f64], clip_time: f64, event_ms: Option<f64>) {
+        match &self.feed {
+            Feed::Direct { tx, clock } => {
+                let Some((mut clock, offset)) = clock.get().copied() else {
+                    return;
+                };
+                let now = clock.now_ns();
+                // The event's time on the loop clock: never later than now, never 0 (unknown).
+                let made = event_ms
+                    .filter(|t| t.is_finite())
+                    .map(|t| ((t * 1e6) as i128 - offset).clamp(1, i128::from(now.max(1))) as u64)
+                    .unwrap_or(now.max(1));
+                let seq = self.seq.fetch_add(1, Ordering::Relaxed);
+                if tx
+                    .send_newest(Input::frame(seq, 0, made, channels, clip_time))
+                    .is_ok()
+                {
+                    self.sent.fetch_add(1, Ordering::Relaxed);
+                    if event_ms.is_some() {
+                        let mut l = self.latency.lock().unwrap_or_else(PoisonError::into_inner);
+                        l.pending.push_back(made);
+                        if l.pending.len() > 256 {
+                            l.pending.pop_front();
+                        }
+                    }
+                }
+            }
+            Feed::Lockstep(tx) => {
+                if tx.try_send((channels.to_vec(), clip_time)).is_ok() {
+                    self.sent.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Feed::None => {}
+        }
+    }
+
+    /// One frame of the studio's own thread: advance a playing clip, and match the loop's Sync
+    /// Writes with the drags they carried.
+    pub fn frame(&self, dt: f64) {
+        {
+            let mut scene = self.scene();
+            if scene.advance(dt) {
+                self.commit(&mut scene, None);
+            }
+        }
+        let mut l = self.latency.lock().unwrap_or_else(PoisonError::into_inner);
+        let live = self.live.read();
+        let ticks = live.ticks;
+        let cursor = l.cursor;
+        let mut carried = Vec::new();
+        l.cursor = live.carried_since(cursor, |c| carried.push(c));
+        drop(live);
+        for c in carried {
+            // Drags superseded before a tick took them are never carried: dropped here.
+            while l.pending.front().is_some_and(|&m| m < c.made_ns) {
+                l.pending.pop_front();
+            }
+            if l.pending.front() == Some(&c.made_ns) {
+                l.pending.pop_front();
+                l.samples
+                    .push_back(c.write_ns.saturating_sub(c.made_ns) as f64 * 1e-3);
+                if l.samples.len() > LATENCY_WINDOW {
+                    l.samples.pop_front();
+                }
+            }
+        }
+        drop(l);
+        let mut r = self.measured_rate.lock().unwrap_or_else(PoisonError::into_inner);
+        let elapsed = r.0.elapsed().as_secs_f64();
+        if elapsed >= 1.0 {
+            r.2 = (ticks.saturating_sub(r.1)) as f64 / elapsed;
+            *r = (Instant::now(), ticks, r.2);
+        }
+    }
+
+    /// Runs [`Studio::frame`] every [`FRAME`] until `done` says so.
+    pub fn run_frames(&self, mut done: impl FnMut() -> bool) {
+        let mut last = Instant::now();
+        while !done() && !self.stop.load(Ordering::Relaxed) {
+            std::thread::sleep(FRAME);
+            let now = Instant::now();
+            self.frame((now - last).as_secs_f64());
+            last = now;
+        }
+    }
+
+    /// What was sent to the loop.
+    #[must_use]
+    pub fn report(&self) -> ProducerReport {
+        ProducerReport {
+            sent: self.sent.load(Ordering::Relaxed),
+            ..ProducerReport::default()
+        }
+    }
+
+    /// Drag-to-goal latency so far, µs.
+    #[must_use]
+    pub fn latency(&self) -> Quantiles {
+        let l = self.latency.lock().unwrap_or_else(PoisonError::into_inner);
+        Quantiles::of(l.samples.iter().copied())
+    }
+
+    /// The loop's figures: rate asked and measured, ticks, misses, compute p50/p99, µs.
+    #[must_use]
+    pub fn loop_json(&self) -> Value {
+        let live = self.live.read();
+        let measured = self
+            .measured_rate
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .2;
+        json!({
+            "bus": self.bus,
+            "rate_hz": self.rate_hz,
+            "measured_hz": measured,
+            "ticks": live.ticks,
+            "misses": live.misses,
+            "compute_p50_us": live.compute_quantile_ns(0.5) as f64 * 1e-3,
+            "compute_p99_us": live.compute_quantile_ns(0.99) as f64 * 1e-3,
+        })
+    }
+
+    /// Each servo's commanded (goal) and present angle, degrees (null before the loop ran).
+    #[must_use]
+    pub fn servos_json(&self) -> Value {
+        let live = self.live.read();
+        let deg = |r: f64| {
+            if r.is_finite() {
+                json!(r.to_degrees())
+            } else {
+                Value::Null
+            }
+        };
+        Value::Array(
+            self.servos
+                .iter()
+                .enumerate()
+                .map(|(k, s)| {
+                    let (g, p) = if k < live.len {
+                        (live.goal_rad[k], live.present_rad[k])
+                    } else {
+                        (f64::NAN, f64::NAN)
+                    };
+                    json!({"name": s.name, "goal_deg": deg(g), "present_deg": deg(p)})
+                })
+                .collect(),
+        )
+    }
+
+    /// `GET /api/pose`: every bone's tip in the root's frame, the residual, the solver, the
+    /// servos.
+    #[must_use]
+    pub fn pose_json(&self) -> Value {
+        let scene = self.scene();
+        let tips = scene.tips(&scene.primary.channels);
+        let mut map = serde_json::Map::new();
+        for (b, bone) in scene.skeleton().bones().iter().enumerate() {
+            map.insert(
+                bone.name().to_string(),
+                json!(scene.world_to_root(tips[b]).to_array()),
+            );
+        }
+        let report = scene.primary.report.clone();
+        drop(scene);
+        json!({
+            "tips": map,
+            "residual": report.residual,
+            "solver": report.solver,
+            "iterations": report.iterations,
+            "micros": report.micros,
+            "servos": self.servos_json(),
+        })
+    }
+
+    /// `POST /api/target`: `effector` to `position` (root frame), or released with `None`.
+    ///
+    /// # Errors
+    /// [`SceneError`].
+    pub fn set_target(
+        &self,
+        effector: &str,
+        position: Option<DVec3>,
+        event_ms: Option<f64>,
+    ) -> Result<(), SceneError> {
+        if position.is_some_and(|p| !p.is_finite()) {
+            return Err(SceneError::NotFinite("position"));
+        }
+        let mut scene = self.scene();
+        let k = scene.effector(effector)?;
+        let world = position.map(|p| scene.root_to_world(p));
+        scene.set_target(k, world)?;
+        self.commit(&mut scene, event_ms);
+        Ok(())
+    }
+
+    /// `POST /api/solver`: the method, and optionally one to compare.
+    ///
+    /// # Errors
+    /// [`SceneError::UnknownMethod`].
+    pub fn set_solver(&self, method: &str, compare: Option<&str>) -> Result<(), SceneError> {
+        let m = Method::parse(method).ok_or_else(|| SceneError::UnknownMethod(method.to_string()))?;
+        let c = compare
+            .map(|c| Method::parse(c).ok_or_else(|| SceneError::UnknownMethod(c.to_string())))
+            .transpose()?;
+        let mut scene = self.scene();
+        scene.set_methods(m, c);
+        self.commit(&mut scene, None);
+        Ok(())
+    }
+}
+
+/// Now, ns since the Unix epoch.
+fn wall_ns() -> i128 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as i128)
+}
+
+/// The studio's poses into the simulator's lockstep clock: the newest pose at each tick, the
+/// simulation paced to the wall clock (a person drags in real time).
+#[derive(Debug)]
+pub struct LiveFeed {
+    rx: crossbeam_channel::Receiver<(Vec<f64>, f64)>,
+    started: Option<(Instant, u64)>,
+    seq: u64,
+    sent: u64,
+}
+
+impl LiveFeed {
+    /// A feed from `rx`.
+    #[must_use]
+    pub fn new(rx: crossbeam_channel::Receiver<(Vec<f64>, f64)>) -> LiveFeed {
+        LiveFeed {
+            rx,
+            started: None,
+            seq: 0,
+            sent: 0,
+        }
+    }
+}
+
+impl LockstepSource for LiveFeed {
+    fn feed(&mut self, _start_ns: u64, _until_ns: u64, now_ns: u64, tx: &InputSender) -> bool {
+        let (t0, s0) = *self.started.get_or_insert((Instant::now(), now_ns));
+        let due = t0 + Duration::from_nanos(now_ns.saturating_sub(s0));
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        let mut newest = None;
+        while let Ok(p) = self.rx.try_recv() {
+            newest = Some(p);
+        }
+        if let Some((channels, clip_time)) = newest {
+            self.seq += 1;
+            if tx
+                .send_newest(Input::frame(self.seq, 0, now_ns.max(1), &channels, clip_time))
+                .is_ok()
+            {
+                self.sent += 1;
+            }
+        }
+        !tx.stopped()
+    }
+
+    fn report(&self) -> ProducerReport {
+        ProducerReport {
+            sent: self.sent,
+            ..ProducerReport::default()
+        }
+    }
+}
