@@ -247,6 +247,11 @@ fn control_loop_ticks_allocate_nothing() {
         );
         let (ttx, trx) = crossbeam_channel::bounded(8);
         c.set_telemetry(ttx);
+        // The studio's live view: updated every tick, skipped while a reader holds it.
+        let live = Arc::new(marionette::control::live::LiveView::default());
+        c.set_live_view(Arc::clone(&live));
+        let mut carried = 0;
+        let mut cursor = 0;
         if lookahead {
             use marionette::control::lookahead::{Lookahead, LookaheadSettings};
             let leads = vec![0.02; rig.len()];
@@ -266,19 +271,26 @@ fn control_loop_ticks_allocate_nothing() {
                 track.samples.get(k as usize / 2).map(|(_, t)| Input {
                     seq: k,
                     due_ns: schedule.deadline(k) + ahead,
-                    made_ns: 0,
+                    made_ns: k + 1,
                     payload: Payload::Targets(t.clone()),
                 })
             } else {
                 player
                     .next_sample(&mut buf[..n])
-                    .map(|t| Input::frame(k, schedule.deadline(k) + ahead, 0, &buf[..n], t))
+                    .map(|t| Input::frame(k, schedule.deadline(k) + ahead, k + 1, &buf[..n], t))
             };
             let Some(msg) = msg else { break };
             tx.send_newest(msg).unwrap();
             let tick = schedule.wait(&mut clock);
-            c.tick(&tick, &mut vr, &mut clock);
+            if k % 13 == 0 {
+                let held = live.read();
+                c.tick(&tick, &mut vr, &mut clock);
+                drop(held);
+            } else {
+                c.tick(&tick, &mut vr, &mut clock);
+            }
             ticks += 1;
+            cursor = live.read().carried_since(cursor, |_| carried += 1);
             // The consumer keeps up with some of the records only: drops are counted, not waited for.
             if k % 20 == 0 {
                 while trx.try_recv().is_ok() {}
@@ -302,6 +314,13 @@ fn control_loop_ticks_allocate_nothing() {
         assert!(st.inputs_used > ticks / 3, "{} inputs used", st.inputs_used);
         assert_eq!(st.allocations_in_tick, Some(0));
         assert!(st.telemetry_dropped > 0, "the full-channel path was taken");
+        let view = live.read();
+        assert!(
+            view.ticks > 0 && view.ticks < ticks,
+            "updated, and skipped while held"
+        );
+        assert!(view.goal_rad[..view.len].iter().all(|g| g.is_finite()));
+        assert!(carried > ticks / 4, "{carried} inputs carried to the bus");
         if follow {
             assert_eq!(st.unreachable, 0);
         }

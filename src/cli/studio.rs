@@ -139,11 +139,11 @@ pub fn studio_cmd(
     if let Ok(Err(e)) = served {
         writeln!(out, "studio server: {e}")?;
     }
-    let l = studio.latency();
+    let (l, r) = studio.latency();
     writeln!(
         out,
-        "drag → Sync Write: {} drags carried, p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
-        l.n, l.p50, l.p99, l.max
+        "drag → Sync Write: {} drags carried, p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs from the browser's event (p50 {:.0} µs, p99 {:.0} µs from the server's receipt)",
+        l.n, l.p50, l.p99, l.max, r.p50, r.p99
     )?;
     finish(&outcome, &args, NoFigures {}, out)
 }

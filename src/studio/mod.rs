@@ -58,10 +58,11 @@ pub enum Feed {
 /// Drag-to-goal latency: browser event → the first Sync Write that carried the pose.
 #[derive(Debug, Default)]
 struct Latency {
-    /// Poses sent from drags, by `made_ns`, awaiting their Sync Write.
-    pending: VecDeque<u64>,
-    /// Microseconds.
-    samples: VecDeque<f64>,
+    /// Poses sent from drags, `(made_ns, received_ns)` on the loop clock, awaiting their Sync
+    /// Write.
+    pending: VecDeque<(u64, u64)>,
+    /// Event → write and receipt → write, µs.
+    samples: VecDeque<(f64, f64)>,
     cursor: u64,
 }
 
@@ -194,7 +195,7 @@ impl Studio {
                     self.sent.fetch_add(1, Ordering::Relaxed);
                     if event_ms.is_some() {
                         let mut l = self.latency.lock().unwrap_or_else(PoisonError::into_inner);
-                        l.pending.push_back(made);
+                        l.pending.push_back((made, now));
                         if l.pending.len() > 256 {
                             l.pending.pop_front();
                         }
@@ -228,13 +229,13 @@ impl Studio {
         drop(live);
         for c in carried {
             // Drags superseded before a tick took them are never carried: dropped here.
-            while l.pending.front().is_some_and(|&m| m < c.made_ns) {
+            while l.pending.front().is_some_and(|&(m, _)| m < c.made_ns) {
                 l.pending.pop_front();
             }
-            if l.pending.front() == Some(&c.made_ns) {
+            if let Some(&(made, received)) = l.pending.front().filter(|p| p.0 == c.made_ns) {
                 l.pending.pop_front();
-                l.samples
-                    .push_back(c.write_ns.saturating_sub(c.made_ns) as f64 * 1e-3);
+                let us = |from: u64| c.write_ns.saturating_sub(from) as f64 * 1e-3;
+                l.samples.push_back((us(made), us(received)));
                 if l.samples.len() > LATENCY_WINDOW {
                     l.samples.pop_front();
                 }
@@ -269,11 +270,15 @@ impl Studio {
         }
     }
 
-    /// Drag-to-goal latency so far, µs.
+    /// Drag-to-goal latency so far, µs: from the browser's event, and from the server's
+    /// receipt of it, to the Sync Write that carried it.
     #[must_use]
-    pub fn latency(&self) -> Quantiles {
+    pub fn latency(&self) -> (Quantiles, Quantiles) {
         let l = self.latency.lock().unwrap_or_else(PoisonError::into_inner);
-        Quantiles::of(l.samples.iter().copied())
+        (
+            Quantiles::of(l.samples.iter().map(|s| s.0)),
+            Quantiles::of(l.samples.iter().map(|s| s.1)),
+        )
     }
 
     /// The loop's figures: rate asked and measured, ticks, misses, compute p50/p99, µs.

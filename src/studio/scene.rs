@@ -671,6 +671,51 @@ mod tests {
     }
 
     #[test]
+    fn a_pinned_foot_stays_planted_while_the_clip_plays_and_the_rest_follows_it() {
+        let skel = asf::parse(include_str!("../../data/cmu/16.asf"))
+            .unwrap()
+            .skeleton;
+        let clip = crate::formats::amc::parse(&skel, include_str!("../../data/cmu/16_15.amc")).unwrap();
+        let mut s = Scene::new(Arc::new(skel), Some(&clip));
+        assert!(s.has_clip());
+        s.seek(0.5).unwrap();
+        s.solve();
+        // The stance foot (the lower one) at 0.5 s of the walk.
+        let (l, r) = (s.effector("ltibia").unwrap(), s.effector("rtibia").unwrap());
+        let tips = s.tips(&s.primary.channels);
+        let foot = if tips[s.effectors[l].bone].y < tips[s.effectors[r].bone].y {
+            l
+        } else {
+            r
+        };
+        let hand = s.effector("rradius").unwrap();
+        let bone = s.effectors[foot].bone;
+        s.pin(foot);
+        let planted = s.effectors[foot].target.unwrap();
+        s.timeline.playing = true;
+        let mut hand_path = Vec::new();
+        for k in 0..15 {
+            assert!(s.advance(1.0 / 60.0));
+            s.solve();
+            let tips = s.tips(&s.primary.channels);
+            let slid = (tips[bone] - planted).length();
+            assert!(slid < 1e-3, "the pinned foot slid {slid} units at frame {k}");
+            hand_path.push(tips[s.effectors[hand].bone]);
+        }
+        assert!((s.timeline.time - 0.75).abs() < 1e-9);
+        let travel = (hand_path[14] - hand_path[0]).length();
+        assert!(travel > 1.0, "the free hand follows the clip ({travel} units)");
+        // Looping wraps; stopped at the end without it.
+        s.seek(s.timeline.duration + 0.25).unwrap();
+        assert!((s.timeline.time - 0.25).abs() < 1e-9);
+        s.timeline.looping = false;
+        s.seek(s.timeline.duration - 0.01).unwrap();
+        s.advance(1.0);
+        assert!(!s.timeline.playing);
+        assert!((s.timeline.time - s.timeline.duration).abs() < 1e-9);
+    }
+
+    #[test]
     fn root_frame_round_trips_and_bad_targets_are_refused() {
         let mut s = scene();
         let p = DVec3::new(1.0, 2.0, 3.0);

@@ -126,9 +126,11 @@ async fn stats(State(studio): State<Arc<Studio>>) -> Json<Value> {
     let scene = studio.scene();
     let report = scene.primary.report.clone();
     drop(scene);
+    let (event, receipt) = studio.latency();
     Json(json!({
         "loop": studio.loop_json(),
-        "drag_to_write_us": studio.latency(),
+        "drag_to_write_us": event,
+        "receipt_to_write_us": receipt,
         "solve": report,
     }))
 }
@@ -241,7 +243,7 @@ fn state(studio: &Studio, selected: Option<&str>) -> Value {
     let mut v = v;
     v["servos"] = studio.servos_json();
     v["loop"] = studio.loop_json();
-    v["latency"] = json!(studio.latency());
+    v["latency"] = json!(studio.latency().0);
     v
 }
 

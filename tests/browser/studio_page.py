@@ -122,6 +122,7 @@ try:
 
     stats = api("/api/stats")
     result["drag_to_write_us"] = stats["drag_to_write_us"]
+    result["receipt_to_write_us"] = stats["receipt_to_write_us"]
     result["loop"] = stats["loop"]
     if stats["drag_to_write_us"]["n"] < 5:
         fail(f"few drags reached the bus: {stats['drag_to_write_us']}")
