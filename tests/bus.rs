@@ -668,3 +668,37 @@ fn a_valid_reply_after_a_broken_one_is_not_trusted() {
     let mut bus = PacketBus::new(line, Duration::from_millis(1));
     assert_eq!(bus.read_value(1, addr::PRESENT_POSITION, 4).unwrap(), 2000);
 }
+
+/// A line-timed chain on a pty answers no sooner than a real bus could: every Sync Write +
+/// Sync Read cycle through `dynamixel2` takes at least the planner's wire time, return delays
+/// and USB latency (a lower bound: a loaded machine only makes a cycle longer).
+#[test]
+fn the_line_timed_chain_is_never_faster_than_the_wire() {
+    use marionette::budget::plan;
+    use marionette::bus::virtual_chain::LineTiming;
+
+    for name in ["cmu-puppet.toml", "robotis-op3.toml"] {
+        let p = patient(profile(name));
+        let planned = plan(&p.bus, p.servos.len(), None);
+        let pty = PtyChain::serve_timed(chain_for(&p, |_| 2048), LineTiming::of(&p.bus)).unwrap();
+        let mut bus = Dynamixel2Bus::open(pty.path(), p.bus.baud).unwrap();
+        let mut present = start_up(&mut bus, &p).unwrap();
+        let ids = p.ids();
+        let mut shortest = f64::INFINITY;
+        for _ in 0..50 {
+            let t = Instant::now();
+            bus.write_goals(&ids, &present).unwrap();
+            bus.read_positions(&ids, &mut present).unwrap();
+            shortest = shortest.min(t.elapsed().as_secs_f64() * 1e6);
+        }
+        println!(
+            "{name}: shortest cycle {shortest:.0} µs, planned {:.0} µs",
+            planned.cycle_time_us
+        );
+        assert!(
+            shortest >= 0.99 * planned.cycle_time_us,
+            "{name}: a cycle took {shortest:.0} µs, the wire needs {:.0} µs",
+            planned.cycle_time_us
+        );
+    }
+}

@@ -518,6 +518,57 @@ fn budget_matches_hand_computation() {
     assert_eq!(b.feasible, Some(false));
 }
 
+/// `budget --measure` serves the chain with line time and times the loop's bus work through
+/// the real client; `serve` serves it until its duration. (The figures are printed, not
+/// judged: the machine is shared.)
+#[test]
+fn budget_measures_cycles_on_the_line_timed_chain_and_serve_serves_it() {
+    let out = common::bin()
+        .args([
+            "budget",
+            profile_path("robotis-op3.toml").to_str().unwrap(),
+            "--measure",
+            "50",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    println!("{v}");
+    assert_eq!(v["cycles"].as_u64().unwrap() + v["failed"].as_u64().unwrap(), 50);
+    assert!((v["planned_cycle_us"].as_f64().unwrap() - 3240.0).abs() < 1e-9);
+    // Never faster than the wire.
+    assert!(v["measured_p50_us"].as_f64().unwrap() >= 0.99 * 3240.0);
+
+    let out = common::bin()
+        .args([
+            "serve",
+            profile_path("cmu-puppet.toml").to_str().unwrap(),
+            "--duration",
+            "0.2",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("28 virtual servos on /dev/pts/"), "{text}");
+    assert!(
+        text.contains("line time of 4000000 bit/s and a 1000 µs USB latency"),
+        "{text}"
+    );
+    let out = common::bin()
+        .args([
+            "serve",
+            profile_path("cmu-puppet.toml").to_str().unwrap(),
+            "--duration",
+            "-1",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}
+
 /// The inverse mapping (issue 17's effector fidelity): servo angles back to a skeleton frame.
 /// For every frame of the walk on the puppet (direct channels and re-decomposed bones), the
 /// frame the servos' angles stand for poses every bone the servos move exactly as the source.

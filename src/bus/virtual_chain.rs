@@ -272,13 +272,46 @@ impl std::fmt::Debug for PtyChain {
     }
 }
 
+/// How a served line keeps time (the budget planner's model, `crate::budget`): every byte takes
+/// 10 bits at the baud rate; the line is half duplex, so an instruction and its replies follow
+/// one another; each reply waits its servo's Return Delay Time; the host sees a burst of
+/// replies when the USB adapter's latency timer flushes it after the last byte.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LineTiming {
+    /// Bit/s.
+    pub baud: u32,
+    /// The adapter's latency timer.
+    pub usb_latency: Duration,
+}
+
+impl LineTiming {
+    /// The timing of `bus` (its baud and latency timer).
+    #[must_use]
+    pub fn of(bus: &crate::profile::BusConfig) -> LineTiming {
+        LineTiming {
+            baud: bus.baud,
+            usb_latency: Duration::from_micros(u64::from(bus.usb_latency_us)),
+        }
+    }
+}
+
 impl PtyChain {
-    /// Serves `chain` on a new pseudo-terminal, with optional fault injection.
+    /// Serves `chain` on a new pseudo-terminal, with optional fault injection; replies go out
+    /// as soon as they are made (no line time).
     ///
     /// # Errors
     /// When no pseudo-terminal can be opened.
     pub fn serve(chain: Chain, injector: Option<FaultInjector>) -> io::Result<PtyChain> {
         PtyChain::serve_with(chain, ServoMotion, injector)
+    }
+
+    /// Serves `chain` on a new pseudo-terminal keeping line time: a reply reaches the client
+    /// when it would on a real bus of `timing`.
+    ///
+    /// # Errors
+    /// When no pseudo-terminal can be opened.
+    pub fn serve_timed(chain: Chain, timing: LineTiming) -> io::Result<PtyChain> {
+        PtyChain::spawn(chain, ServoMotion, None, Some(timing))
     }
 
     /// Serves `chain` on a new pseudo-terminal, its servos moved by `plant` on the serving
@@ -288,8 +321,17 @@ impl PtyChain {
     /// When no pseudo-terminal can be opened.
     pub fn serve_with<P: Plant + Send + 'static>(
         chain: Chain,
+        plant: P,
+        injector: Option<FaultInjector>,
+    ) -> io::Result<PtyChain> {
+        PtyChain::spawn(chain, plant, injector, None)
+    }
+
+    fn spawn<P: Plant + Send + 'static>(
+        chain: Chain,
         mut plant: P,
         injector: Option<FaultInjector>,
+        timing: Option<LineTiming>,
     ) -> io::Result<PtyChain> {
         let (mut device_end, client_end) = serialport::TTYPort::pair().map_err(io::Error::other)?;
         close_on_exec(&device_end)?;
@@ -309,7 +351,17 @@ impl PtyChain {
             let stop = Arc::clone(&stop);
             std::thread::Builder::new()
                 .name("virtual-chain".into())
-                .spawn(move || serve_loop(&mut device_end, &chain, &mut plant, &stop, &injector, &log))?
+                .spawn(move || {
+                    serve_loop(
+                        &mut device_end,
+                        &chain,
+                        &mut plant,
+                        &stop,
+                        &injector,
+                        &log,
+                        timing,
+                    );
+                })?
         };
         Ok(PtyChain {
             path,
@@ -388,12 +440,17 @@ fn serve_loop(
     stop: &AtomicBool,
     injector: &Mutex<Option<FaultInjector>>,
     torque_log: &Mutex<Vec<TorqueEvent>>,
+    timing: Option<LineTiming>,
 ) {
     let mut rx = Receiver::default();
     let mut out = vec![0u8; 8 * MAX_PACKET];
     let mut replies = Replies::new();
     let mut buf = [0u8; 512];
     let mut last = Instant::now();
+    // With line time: when the wire is next free, and each packet's replies with the moment
+    // the host may see them.
+    let mut line_free = Instant::now();
+    let mut timed: Vec<(Instant, Vec<u8>)> = Vec::new();
     while !stop.load(Ordering::Relaxed) {
         match port.read(&mut buf) {
             Ok(n) => rx.push(&buf[..n]),
@@ -417,14 +474,38 @@ fn serve_loop(
             rx.consume(n);
             let before: heapless::Vec<bool, MAX_SERVOS> =
                 chain.servos().iter().map(|s| s.torque_on()).collect();
-            respond(
-                &mut chain,
-                &packet,
-                inj.as_mut(),
-                &mut out,
-                &mut replies,
-                &mut push,
-            );
+            match timing {
+                None => respond(
+                    &mut chain,
+                    &packet,
+                    inj.as_mut(),
+                    &mut out,
+                    &mut replies,
+                    &mut push,
+                ),
+                Some(t) => {
+                    // The instruction on the wire after whatever was on it, then each reply
+                    // after its return delay; the burst reaches the host a latency later.
+                    let wire = |bytes: usize| wire_time(bytes, t.baud);
+                    let mut at = line_free.max(Instant::now()) + wire(n);
+                    let mut burst = Vec::new();
+                    respond(
+                        &mut chain,
+                        &packet,
+                        inj.as_mut(),
+                        &mut out,
+                        &mut replies,
+                        |d, b| {
+                            at += d + wire(b.len());
+                            burst.extend_from_slice(b);
+                        },
+                    );
+                    line_free = at;
+                    if !burst.is_empty() {
+                        timed.push((at + t.usb_latency, burst));
+                    }
+                }
+            }
             let at = Instant::now();
             for (s, was) in chain.servos().iter().zip(before) {
                 if s.torque_on() != was {
@@ -447,7 +528,24 @@ fn serve_loop(
             }
             let _ = port.write_all(&bytes);
         }
+        for (due, bytes) in timed.drain(..) {
+            sleep_until(due);
+            let _ = port.write_all(&bytes);
+        }
         let _ = port.flush();
+    }
+}
+
+/// Sleeps until `due`, spinning the last 200 µs (a sleep wakes 50–100 µs late).
+fn sleep_until(due: Instant) {
+    let spin = Duration::from_micros(200);
+    if let Some(left) = due.checked_duration_since(Instant::now()) {
+        if left > spin {
+            std::thread::sleep(left - spin);
+        }
+    }
+    while Instant::now() < due {
+        std::hint::spin_loop();
     }
 }
 

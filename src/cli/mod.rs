@@ -159,6 +159,23 @@ enum Command {
         /// Print JSON.
         #[arg(long)]
         json: bool,
+        /// Measure this many cycles on the profile's virtual chain served with line time (baud,
+        /// return delay, USB latency) through the real client, against the plan.
+        #[arg(long)]
+        measure: Option<usize>,
+    },
+    /// Serve the profile's servos as a virtual chain on a pseudo-terminal (no MuJoCo; `sim
+    /// serve` adds physics), keeping line time: bytes at the profile's baud, return delays, the
+    /// USB adapter's latency. Prints the device path to give any Protocol 2.0 client.
+    Serve {
+        /// The profile.
+        profile: PathBuf,
+        /// Answer at once instead of at line speed.
+        #[arg(long)]
+        no_line_time: bool,
+        /// Stop after this many seconds (default: at Ctrl-C).
+        #[arg(long)]
+        duration: Option<f64>,
     },
     /// A fault soak in virtual time: the whole loop on the in-process virtual chain, playing a
     /// clip through seeded bursts of every bus fault; prints what it counted (panics, corrupt
@@ -567,9 +584,17 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
             rig::profile_cmd(&profile, asf.as_deref(), &mut io::stdout().lock())
         }
         Command::Sim { command } => sim::sim_cmd(&command, &mut io::stdout().lock()),
-        Command::Budget { profile, rate, json } => {
-            rig::budget_cmd(&profile, rate, json, &mut io::stdout().lock())
-        }
+        Command::Serve {
+            profile,
+            no_line_time,
+            duration,
+        } => rig::serve_cmd(&profile, !no_line_time, duration, &mut io::stdout().lock()),
+        Command::Budget {
+            profile,
+            rate,
+            json,
+            measure,
+        } => rig::budget_cmd(&profile, rate, json, measure, &mut io::stdout().lock()),
         Command::Soak {
             profile,
             asf,

@@ -72,8 +72,17 @@ pub fn profile_cmd(path: &Path, asf_path: Option<&Path>, out: &mut dyn Write) ->
 }
 
 /// `marionette budget`.
-pub fn budget_cmd(path: &Path, rate: Option<f64>, json: bool, out: &mut dyn Write) -> Result<(), CliError> {
+pub fn budget_cmd(
+    path: &Path,
+    rate: Option<f64>,
+    json: bool,
+    measure: Option<usize>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
     let profile = Profile::load(path)?;
+    if let Some(cycles) = measure {
+        return measure_cycles(&profile, cycles, json, out);
+    }
     if let Some(r) = rate {
         if !(r.is_finite() && r > 0.0) {
             return Err(CliError::Usage(format!(
@@ -88,6 +97,158 @@ pub fn budget_cmd(path: &Path, rate: Option<f64>, json: bool, out: &mut dyn Writ
     } else {
         write!(out, "{}: {budget}", profile.name)?;
     }
+    Ok(())
+}
+
+/// `budget --measure N`: the profile's chain served on a pseudo-terminal keeping line time (its
+/// baud, Return Delay Time 0 as start-up writes, its USB latency), and N cycles of the loop's
+/// bus work through the real `dynamixel2` client — a Sync Write of goals and a Sync Read of
+/// positions — timed against the planner's cycle.
+fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Write) -> Result<(), CliError> {
+    use std::time::Instant;
+
+    use crate::bus::virtual_chain::LineTiming;
+    use crate::profile::ReadMode;
+
+    if cycles == 0 {
+        return Err(CliError::Usage("--measure needs at least one cycle".into()));
+    }
+    if profile.bus.read != ReadMode::Sync {
+        return Err(CliError::Usage(format!(
+            "--measure times Sync Read cycles; this profile reads with {}",
+            profile.bus.read.name()
+        )));
+    }
+    let planned = plan(&profile.bus, profile.servos.len(), None);
+    let pty = PtyChain::serve_timed(chain_for(profile, |_| 2048), LineTiming::of(&profile.bus))
+        .map_err(CliError::Output)?;
+    let path = pty.path().to_string();
+    let mut bus = Dynamixel2Bus::open(&path, profile.bus.baud).map_err(CliError::at_port(&path))?;
+    let ids = profile.ids();
+    let mut present = vec![0i32; ids.len()];
+    // The loop's start-up first: it writes the profile's Return Delay Time (the factory's is
+    // 500 µs per servo) and reads where the servos stand.
+    present = crate::bus::start_up(&mut bus, profile).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+    let mut took = Vec::with_capacity(cycles);
+    let mut failed = 0usize;
+    for _ in 0..cycles {
+        let t = Instant::now();
+        let ok = bus.write_goals(&ids, &present).is_ok() && bus.read_positions(&ids, &mut present).is_ok();
+        if ok {
+            took.push(t.elapsed().as_secs_f64() * 1e6);
+        } else {
+            failed += 1;
+        }
+    }
+    took.sort_by(f64::total_cmp);
+    let at = |q: f64| {
+        took.get(((took.len().max(1) - 1) as f64 * q).round() as usize)
+            .copied()
+            .unwrap_or(f64::NAN)
+    };
+    let mean = took.iter().sum::<f64>() / took.len().max(1) as f64;
+    let ratio = mean / planned.cycle_time_us;
+    if json {
+        let v = serde_json::json!({
+            "profile": profile.name,
+            "servos": ids.len(),
+            "baud": profile.bus.baud,
+            "planned_cycle_us": planned.cycle_time_us,
+            "planned_max_rate_hz": planned.max_rate_hz,
+            "cycles": took.len(),
+            "failed": failed,
+            "measured_mean_us": mean,
+            "measured_p50_us": at(0.5),
+            "measured_p99_us": at(0.99),
+            "measured_over_planned": ratio,
+        });
+        writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
+    } else {
+        writeln!(
+            out,
+            "{}: {} servos at {} bit/s, Sync Write + Sync Read through dynamixel2 on a line-timed virtual chain",
+            profile.name,
+            ids.len(),
+            profile.bus.baud
+        )?;
+        writeln!(
+            out,
+            "planned  {:>8.1} µs per cycle ({:.0} Hz at most)",
+            planned.cycle_time_us, planned.max_rate_hz
+        )?;
+        writeln!(
+            out,
+            "measured {:>8.1} µs mean, p50 {:.1}, p99 {:.1} over {} cycles ({} failed): {:.1} % of the plan",
+            mean,
+            at(0.5),
+            at(0.99),
+            took.len(),
+            failed,
+            ratio * 100.0
+        )?;
+    }
+    Ok(())
+}
+
+/// `marionette serve PROFILE`: the profile's servos as a virtual chain on a pseudo-terminal,
+/// keeping line time unless `line_time` is false, until a stop signal or `duration` seconds.
+///
+/// # Errors
+/// [`CliError`].
+pub fn serve_cmd(
+    path: &Path,
+    line_time: bool,
+    duration: Option<f64>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    use std::time::{Duration, Instant};
+
+    use crate::bus::virtual_chain::LineTiming;
+
+    if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
+        return Err(CliError::Usage(
+            "--duration must be a positive number of seconds".into(),
+        ));
+    }
+    let profile = Profile::load(path)?;
+    // Each horn at its joint's zero.
+    let chain = chain_for(&profile, |k| {
+        profile.servos[k].zero.round().clamp(0.0, 4095.0) as i32
+    });
+    let pty = if line_time {
+        PtyChain::serve_timed(chain, LineTiming::of(&profile.bus))
+    } else {
+        PtyChain::serve(chain, None)
+    }
+    .map_err(CliError::Output)?;
+    writeln!(
+        out,
+        "{}: {} virtual servos on {}, {}",
+        profile.name,
+        profile.servos.len(),
+        pty.path(),
+        if line_time {
+            format!(
+                "line time of {} bit/s and a {} µs USB latency",
+                profile.bus.baud, profile.bus.usb_latency_us
+            )
+        } else {
+            "no line time".to_string()
+        }
+    )?;
+    writeln!(out, "{}", pty.path())?;
+    out.flush()?;
+    let stop = crate::signals::stop_requests().map_err(CliError::Output)?;
+    let began = Instant::now();
+    while stop.made() == 0 && duration.is_none_or(|d| began.elapsed().as_secs_f64() < d) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let handled = pty.chain().instructions();
+    writeln!(
+        out,
+        "served {handled} instructions in {:.1} s",
+        began.elapsed().as_secs_f64()
+    )?;
     Ok(())
 }
 

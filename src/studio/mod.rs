@@ -298,6 +298,8 @@ impl Studio {
             "misses": live.misses,
             "compute_p50_us": live.compute_quantile_ns(0.5) as f64 * 1e-3,
             "compute_p99_us": live.compute_quantile_ns(0.99) as f64 * 1e-3,
+            // In lockstep with MuJoCo the loop's clock is the simulation's: compute is not timed.
+            "simulated_time": matches!(self.feed, Feed::Lockstep(_)),
         })
     }
 

@@ -86,9 +86,17 @@ function connect() {
   };
 }
 
+let errorShown = null;
 function showError(text) {
   $("connection").textContent = text;
   $("connection").className = "bad";
+  clearTimeout(errorShown);
+  errorShown = setTimeout(() => {
+    if (socket && socket.readyState === WebSocket.OPEN) {
+      $("connection").textContent = "connected";
+      $("connection").className = "good";
+    }
+  }, 3000);
 }
 
 // ---- panels ----------------------------------------------------------------------------------
@@ -151,7 +159,10 @@ function update(state) {
     $("looping").checked = t.looping;
   }
   const lp = state.loop;
-  $("loop").textContent = `loop ${fmt(lp.measured_hz, 1)} of ${lp.rate_hz} Hz on ${lp.bus} · ${lp.ticks} ticks, ${lp.misses} misses · compute p50 ${fmt(lp.compute_p50_us, 0)} µs, p99 ${fmt(lp.compute_p99_us, 0)} µs`;
+  const compute = lp.simulated_time
+    ? "compute not timed (the loop runs on the simulator's time)"
+    : `compute p50 ${fmt(lp.compute_p50_us, 0)} µs, p99 ${fmt(lp.compute_p99_us, 0)} µs`;
+  $("loop").textContent = `loop ${fmt(lp.measured_hz, 1)} of ${lp.rate_hz} Hz on ${lp.bus} · ${lp.ticks} ticks, ${lp.misses} misses · ${compute}`;
   const l = state.latency;
   $("latency").textContent = l.n ? `drag → Sync Write: p50 ${fmt(l.p50 / 1000)} ms, p99 ${fmt(l.p99 / 1000)} ms (${l.n} drags)` : "drag → Sync Write: no drag yet";
   const rows = $("servos").tBodies[0].rows;
