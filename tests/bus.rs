@@ -702,3 +702,82 @@ fn the_line_timed_chain_is_never_faster_than_the_wire() {
         );
     }
 }
+
+/// Fast Sync Read (0x8A) on the project's own device and host, in virtual time: the same data
+/// as Sync Read in one reply; the transaction takes exactly the request's and the reply's wire
+/// time and one return delay (the planner's model); a corrupt block names its servo while the
+/// others' data is used; a silent servo is named as missing.
+#[test]
+fn fast_sync_read_matches_sync_read_in_one_reply_and_names_a_bad_servo() {
+    use marionette::budget::plan;
+    use marionette::bus::packet::wire_time;
+    use marionette::profile::ReadMode;
+
+    for name in ["cmu-puppet.toml", "robotis-op3.toml"] {
+        let p = profile(name);
+        let ids = p.ids();
+        let n = ids.len();
+        let mut bus = in_process(&p, 7);
+        let mut slow = vec![0u8; 4 * n];
+        bus.sync_read(addr::PRESENT_POSITION, 4, &ids, &mut slow).unwrap();
+        let mut fast = vec![0u8; 4 * n];
+        let mut valid = vec![false; n];
+        let before = bus.link().now();
+        bus.fast_sync_read(addr::PRESENT_POSITION, 4, &ids, &mut fast, &mut valid)
+            .unwrap();
+        let took = bus.link().now() - before;
+        assert_eq!(fast, slow, "{name}");
+        assert!(valid.iter().all(|v| *v));
+        // Request 14 + N bytes, one reply of 8 + 8N, the first servo's return delay (factory
+        // 500 µs: the chain is not started up here).
+        let delay = Duration::from_micros(u64::from(bus.link().chain().servos()[0].return_delay_us()));
+        let expected = wire_time(14 + n, p.bus.baud) + delay + wire_time(8 + 8 * n, p.bus.baud);
+        assert!(
+            took.abs_diff(expected) <= wire_time(1, p.bus.baud),
+            "{name}: {took:?} against {expected:?}"
+        );
+        let mut fast_bus = p.bus.clone();
+        fast_bus.read = ReadMode::FastSync;
+        let planned = plan(&fast_bus, n, None);
+        assert_eq!(planned.read_reply_bytes as usize, 8 + 8 * n);
+
+        // A corrupt CRC in the last block: that servo is named, the others' data stands.
+        bus.link_mut().injector = Some(FaultInjector::new(1, 0.0, &[], 2_600));
+        bus.link_mut().injector.as_mut().unwrap().arm(Fault::BadCrc, 0);
+        let mut data = vec![0u8; 4 * n];
+        let e = bus
+            .fast_sync_read(addr::PRESENT_POSITION, 4, &ids, &mut data, &mut valid)
+            .unwrap_err();
+        assert!(
+            matches!(e, BusError::Crc { id } if id == ids[n - 1]),
+            "{name}: {e}"
+        );
+        assert_eq!(&data[..4 * (n - 1)], &slow[..4 * (n - 1)]);
+        assert!(valid[..n - 1].iter().all(|v| *v) && !valid[n - 1]);
+        bus.link_mut().injector = None;
+
+        // A servo that does not answer (Status Return Level 0): named as missing.
+        let quiet = ids[n / 2];
+        // (Its own reply to this write is the first it leaves out.)
+        let _ = bus.write(quiet, addr::STATUS_RETURN_LEVEL, &[0]);
+        let e = bus
+            .fast_sync_read(addr::PRESENT_POSITION, 4, &ids, &mut data, &mut valid)
+            .unwrap_err();
+        assert!(
+            matches!(e, BusError::Timeout { id } if id == quiet),
+            "{name}: {e}"
+        );
+        assert_eq!(valid.iter().filter(|v| !**v).count(), 1);
+        // The loop's read through it is all or nothing.
+        let mut bus = bus.with_fast_reads(true);
+        let mut present = vec![0i32; n];
+        assert!(bus.read_positions(&ids, &mut present).is_err());
+        bus.write(quiet, addr::STATUS_RETURN_LEVEL, &[2]).unwrap();
+        bus.read_positions(&ids, &mut present).unwrap();
+        let expect: Vec<i32> = slow
+            .chunks_exact(4)
+            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        assert_eq!(present, expect);
+    }
+}

@@ -541,6 +541,43 @@ fn budget_measures_cycles_on_the_line_timed_chain_and_serve_serves_it() {
     // Never faster than the wire.
     assert!(v["measured_p50_us"].as_f64().unwrap() >= 0.99 * 3240.0);
 
+    // A profile that reads with Fast Sync Read: the loop's bus is then the project's own host
+    // over the port (dynamixel2 0.9.1 has no Fast Sync Read); measured, and played.
+    let dir = common::tempdir("fast-sync-profile");
+    let fast = dir.join("puppet-fast.toml");
+    let text = std::fs::read_to_string(profile_path("cmu-puppet.toml")).unwrap();
+    assert!(text.contains("read = \"sync\""));
+    std::fs::write(&fast, text.replace("read = \"sync\"", "read = \"fast-sync\"")).unwrap();
+    let out = common::bin()
+        .args(["budget", fast.to_str().unwrap(), "--measure", "50", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    println!("{v}");
+    // The write 14 + 5 · 28, the request 14 + 28, one reply of 8 + 8 · 28: 428 B at 4 Mbps
+    // (1070 µs) + 1 ms USB latency.
+    assert!(
+        (v["planned_cycle_us"].as_f64().unwrap() - 2070.0).abs() < 1e-9,
+        "{v}"
+    );
+    assert!(v["cycles"].as_u64().unwrap() >= 45, "{v}");
+    assert!(v["measured_p50_us"].as_f64().unwrap() >= 0.99 * 2070.0);
+    let out = common::bin()
+        .args(["play", fast.to_str().unwrap()])
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .args(["--rate", "200", "--duration", "1", "-q"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("torque off, acknowledged by 28 servos"), "{text}");
+
     let out = common::bin()
         .args([
             "serve",

@@ -589,6 +589,10 @@ impl Chain {
                     }
                 }
             }
+            instruction::FAST_SYNC_READ if broadcast && params.len() >= 4 => {
+                let (a, n) = (le16(params), usize::from(le16(&params[2..])));
+                w.fast_sync(&mut self.servos, a, n, &params[4..]);
+            }
             instruction::BULK_READ if broadcast => {
                 for item in params.chunks_exact(5) {
                     let (sid, a, n) = (item[0], le16(&item[1..]), usize::from(le16(&item[3..])));
@@ -636,6 +640,66 @@ struct Writer<'o, 'r> {
 }
 
 impl Writer<'_, '_> {
+    /// Appends the one status packet of a Fast Sync Read: header, broadcast id, length,
+    /// STATUS, then per listed servo that answers (in the listed order) its error, id, `n`
+    /// data bytes and a CRC of the packet up to there — the last of which is the packet's own
+    /// CRC. Not byte-stuffed (each servo appends to the stream as it passes). The first
+    /// answering servo's return delay precedes it.
+    fn fast_sync(&mut self, servos: &mut [VirtualServo], a: u16, n: usize, ids: &[u8]) {
+        let start = self.used;
+        let out = &mut self.out[start..];
+        let mut at = 8;
+        let mut first: Option<(u8, u32)> = None;
+        for &sid in ids {
+            let Some(s) = servos.iter_mut().find(|s| s.id() == sid) else {
+                continue;
+            };
+            if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 || at + 4 + n > out.len() {
+                continue;
+            }
+            s.note_reply(a, n);
+            let alert = s.alert();
+            let (error, data) = match s.read(a, n) {
+                Some(d) => (0, Some(d)),
+                None => (status_error::DATA_RANGE, None),
+            };
+            out[at] = error | alert;
+            out[at + 1] = sid;
+            match data {
+                Some(d) => out[at + 2..at + 2 + n].copy_from_slice(d),
+                None => out[at + 2..at + 2 + n].fill(0),
+            }
+            first.get_or_insert((sid, s.return_delay_us()));
+            // Error, id, data, and room for the block's CRC.
+            at += 4 + n;
+        }
+        let Some((id, delay_us)) = first else {
+            return;
+        };
+        // The CRCs run over the header onwards, length included: written once it is known.
+        let length = (at - 7) as u16;
+        out[..4].copy_from_slice(&protocol::HEADER);
+        out[4] = BROADCAST_ID;
+        out[5..7].copy_from_slice(&length.to_le_bytes());
+        out[7] = instruction::STATUS;
+        let mut p = 8;
+        while p + 4 + n <= at {
+            let end = p + 2 + n;
+            let crc = protocol::crc16(&out[..end]);
+            out[end..end + 2].copy_from_slice(&crc.to_le_bytes());
+            p = end + 2;
+        }
+        let reply = Reply {
+            id,
+            start,
+            len: at,
+            delay_us,
+        };
+        if self.replies.push(reply).is_ok() {
+            self.used += at;
+        }
+    }
+
     /// Appends a status packet from `s` (dropped silently when the buffer is full: the host
     /// then sees a timeout, as with a real collision).
     fn status(&mut self, s: &VirtualServo, error: u8, data: &[u8]) {

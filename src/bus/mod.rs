@@ -10,6 +10,7 @@
 pub mod dxl;
 pub mod faults;
 pub mod packet;
+pub mod serial;
 pub mod virtual_chain;
 
 use std::fmt;
@@ -454,4 +455,25 @@ pub fn shut_down(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(), BusErr
         }
     }
     first.map_or(Ok(()), Err)
+}
+
+/// Opens the loop's bus on a serial port for `profile`: `dynamixel2` for Sync and Bulk Read,
+/// the project's own host ([`packet::PacketBus`] over [`serial::SerialTransport`]) for Fast
+/// Sync Read, which `dynamixel2` 0.9.1 lacks. The tick's reads wait for their wire time plus
+/// the profile's USB latency and 2 ms; start-up's single transactions four times that.
+///
+/// # Errors
+/// The port cannot be opened.
+pub fn open_port(path: &str, baud: u32, profile: &Profile) -> std::io::Result<Box<dyn ServoBus + Send>> {
+    Ok(match profile.bus.read {
+        crate::profile::ReadMode::FastSync => {
+            let margin = std::time::Duration::from_micros(u64::from(profile.bus.usb_latency_us) + 2000);
+            Box::new(
+                packet::PacketBus::new(serial::SerialTransport::open(path, baud)?, margin)
+                    .with_fast_reads(true)
+                    .with_single_margin(4 * margin),
+            )
+        }
+        _ => Box::new(dxl::Dynamixel2Bus::open(path, baud)?),
+    })
 }

@@ -10,6 +10,7 @@ use std::time::Duration;
 use super::{invalid_request, BusError, PingInfo, ServoBus};
 use crate::device::{Received, Receiver, MAX_PACKET};
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
+use crate::servo::addr;
 
 /// A byte link to a bus.
 pub trait Transport {
@@ -47,6 +48,10 @@ pub struct PacketBus<T> {
     params: [u8; MAX_PACKET],
     margin: Duration,
     quiet: Duration,
+    /// Positions read with Fast Sync Read instead of Sync Read.
+    fast: bool,
+    /// The margin of single transactions (ping, read, write, reboot).
+    single_margin: Duration,
 }
 
 impl<T: Transport> PacketBus<T> {
@@ -60,6 +65,115 @@ impl<T: Transport> PacketBus<T> {
             params: [0; MAX_PACKET],
             margin,
             quiet: 2 * margin,
+            fast: false,
+            single_margin: margin,
+        }
+    }
+
+    /// Waits `margin` past the wire time for the reply to a single transaction (start-up,
+    /// configuration) instead of the tick's margin: they need not fit in a tick.
+    #[must_use]
+    pub fn with_single_margin(mut self, margin: Duration) -> PacketBus<T> {
+        self.single_margin = margin;
+        self
+    }
+
+    /// Reads positions (the loop's read) with Fast Sync Read: one reply for all servos.
+    #[must_use]
+    pub fn with_fast_reads(mut self, fast: bool) -> PacketBus<T> {
+        self.fast = fast;
+        self
+    }
+
+    /// Fast Sync Read (0x8A) of `len` bytes at `address` from `ids`: one status packet from the
+    /// broadcast id whose blocks each hold a servo's error, id, data and the CRC of the packet
+    /// up to there. Every block is checked on its own (its id among those asked, its CRC), so
+    /// a silent or corrupt servo is named while the others' data, whose checks hold, is
+    /// written to `out` (`len` bytes per id, in `ids` order); `valid` says whose.
+    ///
+    /// # Errors
+    /// The first servo without a good block: [`BusError::Timeout`] when it is missing,
+    /// [`BusError::Crc`] when its block is corrupt, [`BusError::Servo`] for its error; the
+    /// others' data is in `out` all the same.
+    pub fn fast_sync_read(
+        &mut self,
+        address: u16,
+        len: u16,
+        ids: &[u8],
+        out: &mut [u8],
+        valid: &mut [bool],
+    ) -> Result<(), BusError> {
+        let n = usize::from(len);
+        let expect = 8 + (4 + n) * ids.len();
+        if ids.is_empty()
+            || 4 + ids.len() > MAX_PACKET
+            || expect > MAX_PACKET
+            || out.len() < ids.len() * n
+            || valid.len() < ids.len()
+        {
+            return Err(invalid_request(
+                "fast sync read too large, or output shorter than ids × len",
+            ));
+        }
+        let mut p = [0u8; MAX_PACKET];
+        p[..2].copy_from_slice(&address.to_le_bytes());
+        p[2..4].copy_from_slice(&len.to_le_bytes());
+        p[4..4 + ids.len()].copy_from_slice(ids);
+        self.send(BROADCAST_ID, instruction::FAST_SYNC_READ, &p[..4 + ids.len()])?;
+        valid[..ids.len()].fill(false);
+        let mut errors = [0u8; crate::servo::MAX_SERVOS];
+        let timeout = wire_time(expect, self.link.baud()) + self.margin;
+        let deadline = self.link.now() + timeout;
+        let mut raw = [0u8; MAX_PACKET];
+        let got = loop {
+            if let Received::Packet(packet) = self.rx.next_packet() {
+                let k = packet.len();
+                raw[..k].copy_from_slice(packet);
+                self.rx.consume(k);
+                if raw[4] == BROADCAST_ID && raw[7] == instruction::STATUS {
+                    break k;
+                }
+                continue;
+            }
+            let now = self.link.now();
+            if now >= deadline {
+                break 0;
+            }
+            let mut buf = [0u8; 512];
+            let r = self.link.recv(&mut buf, deadline - now)?;
+            self.rx.push(&buf[..r]);
+        };
+        // Blocks: error, id, data, CRC of everything before the CRC.
+        let mut at = 8;
+        while got > 0 && at + 4 + n <= got {
+            let (error, id) = (raw[at], raw[at + 1]);
+            let end = at + 2 + n;
+            let crc = u16::from_le_bytes([raw[end], raw[end + 1]]);
+            if protocol::crc16(&raw[..end]) != crc {
+                // Everything after a corrupt block is suspect: its length is not to be trusted.
+                break;
+            }
+            if let Some(k) = ids.iter().position(|&i| i == id) {
+                out[k * n..(k + 1) * n].copy_from_slice(&raw[at + 2..end]);
+                errors[k] = error & 0x7F;
+                valid[k] = error & 0x7F == 0;
+            }
+            at = end + 2;
+        }
+        let broken = got > 0 && at != got;
+        match ids.iter().zip(valid.iter()).position(|(_, v)| !v) {
+            None => Ok(()),
+            Some(k) => {
+                self.drain();
+                let id = ids[k];
+                Err(if errors[k] != 0 {
+                    BusError::Servo { id, error: errors[k] }
+                } else if broken {
+                    BusError::Crc { id }
+                } else {
+                    BusError::Timeout { id }
+                })
+            }
         }
     }
 
@@ -96,9 +210,9 @@ impl<T: Transport> PacketBus<T> {
 
     /// Waits for one status packet from `id` with exactly `len` data bytes (any length when
     /// `None`); returns the data length, the data in `self.params[1..]`.
-    fn status(&mut self, id: u8, len: Option<usize>) -> Result<usize, BusError> {
+    fn status(&mut self, id: u8, len: Option<usize>, margin: Duration) -> Result<usize, BusError> {
         let expect = len.unwrap_or(3);
-        let timeout = wire_time(11 + expect, self.link.baud()) + self.margin;
+        let timeout = wire_time(11 + expect, self.link.baud()) + margin;
         let deadline = self.link.now() + timeout;
         loop {
             match self.take_packet() {
@@ -170,7 +284,9 @@ impl<T: Transport> PacketBus<T> {
 
     fn transact(&mut self, id: u8, inst: u8, params: &[u8], len: Option<usize>) -> Result<usize, BusError> {
         self.send(id, inst, params)?;
-        let r = self.status(id, len);
+        // Single transactions (start-up, configuration) are not the tick's: they wait longer
+        // than its reads, which must cost at most a tick.
+        let r = self.status(id, len, self.single_margin);
         if r.is_err() {
             self.drain();
         }
@@ -293,7 +409,7 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         // Collect into a scratch copy: `out` is written only when every reply passed.
         let mut scratch = [0u8; MAX_PACKET];
         for (k, &id) in ids.iter().enumerate() {
-            if let Err(e) = self.status(id, Some(len)) {
+            if let Err(e) = self.status(id, Some(len), self.margin) {
                 self.drain();
                 return Err(e);
             }
@@ -305,5 +421,27 @@ impl<T: Transport> ServoBus for PacketBus<T> {
 
     fn reboot(&mut self, id: u8) -> Result<(), BusError> {
         self.transact(id, instruction::REBOOT, &[], Some(0)).map(|_| ())
+    }
+
+    fn read_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), BusError> {
+        let n = ids.len().min(crate::servo::MAX_SERVOS).min(out.len());
+        let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
+        if self.fast {
+            // All or nothing for the loop: a tick uses a read only when every servo's held.
+            let mut valid = [false; crate::servo::MAX_SERVOS];
+            self.fast_sync_read(
+                addr::PRESENT_POSITION,
+                4,
+                &ids[..n],
+                &mut data[..4 * n],
+                &mut valid,
+            )?;
+        } else {
+            self.sync_read(addr::PRESENT_POSITION, 4, &ids[..n], &mut data[..4 * n])?;
+        }
+        for (k, o) in out.iter_mut().enumerate().take(n) {
+            *o = i32::from_le_bytes([data[4 * k], data[4 * k + 1], data[4 * k + 2], data[4 * k + 3]]);
+        }
+        Ok(())
     }
 }

@@ -274,8 +274,8 @@ impl std::fmt::Debug for PtyChain {
 
 /// How a served line keeps time (the budget planner's model, `crate::budget`): every byte takes
 /// 10 bits at the baud rate; the line is half duplex, so an instruction and its replies follow
-/// one another; each reply waits its servo's Return Delay Time; the host sees a burst of
-/// replies when the USB adapter's latency timer flushes it after the last byte.
+/// one another; each reply waits its servo's Return Delay Time; the host sees a reply when the
+/// USB adapter's latency timer flushes it after its last byte.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LineTiming {
     /// Bit/s.
@@ -485,10 +485,10 @@ fn serve_loop(
                 ),
                 Some(t) => {
                     // The instruction on the wire after whatever was on it, then each reply
-                    // after its return delay; the burst reaches the host a latency later.
+                    // after its return delay; each reaches the host a latency timer after its
+                    // last byte (a long burst trickles in as it comes).
                     let wire = |bytes: usize| wire_time(bytes, t.baud);
                     let mut at = line_free.max(Instant::now()) + wire(n);
-                    let mut burst = Vec::new();
                     respond(
                         &mut chain,
                         &packet,
@@ -497,13 +497,10 @@ fn serve_loop(
                         &mut replies,
                         |d, b| {
                             at += d + wire(b.len());
-                            burst.extend_from_slice(b);
+                            timed.push((at + t.usb_latency, b.to_vec()));
                         },
                     );
                     line_free = at;
-                    if !burst.is_empty() {
-                        timed.push((at + t.usb_latency, burst));
-                    }
                 }
             }
             let at = Instant::now();

@@ -15,7 +15,6 @@ use clap::{Args, ValueEnum};
 
 use super::error::CliError;
 use crate::budget::plan;
-use crate::bus::dxl::Dynamixel2Bus;
 use crate::bus::start_up;
 use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::clock::SystemClock;
@@ -189,7 +188,7 @@ pub struct LoopArgs {
 
 /// The opened bus: the virtual chain (kept alive while the bus is used) or a port.
 struct OpenBus {
-    bus: Dynamixel2Bus,
+    bus: Box<dyn crate::bus::ServoBus + Send>,
     _chain: Option<PtyChain>,
     label: String,
 }
@@ -280,7 +279,7 @@ fn open_bus(
             let chain = PtyChain::serve(chain_for(profile, |k| rest[k]), None).map_err(CliError::Output)?;
             let path = chain.path().to_string();
             let baud = args.baud.unwrap_or(profile.bus.baud);
-            let bus = Dynamixel2Bus::open(&path, baud).map_err(CliError::at_port(&path))?;
+            let bus = crate::bus::open_port(&path, baud, profile).map_err(CliError::at_port(&path))?;
             Ok(OpenBus {
                 bus,
                 label: format!("virtual chain of {} servos on {path}", profile.servos.len()),
@@ -303,10 +302,10 @@ fn open_bus(
                     1e6 / args.rate
                 )?;
             }
-            let bus = Dynamixel2Bus::open(port, baud).map_err(CliError::at_port(port))?;
+            let bus = crate::bus::open_port(port, baud, profile).map_err(CliError::at_port(port))?;
             Ok(OpenBus {
                 bus,
-                label: format!("{port} at {baud} bit/s"),
+                label: format!("{port} at {baud} bit/s ({} read)", profile.bus.read.name()),
                 _chain: None,
             })
         }
@@ -587,7 +586,7 @@ pub(super) fn run_loop(
         _chain,
         label,
     } = open_bus(args, profile, &rig, out)?;
-    let present = start_up(&mut bus, profile)?;
+    let present = start_up(bus.as_mut(), profile)?;
     writeln!(out, "{label}: {} servos up, torque on", present.len())?;
     let mut config = loop_config(args, allocations);
     config.effector_metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
@@ -620,7 +619,7 @@ pub(super) fn run_loop(
         .spawn(move || {
             let warnings = rt.apply();
             let mut schedule = Schedule::new(start, period);
-            let end = controller.run(&mut schedule, &mut bus, &mut clock, &stop);
+            let end = controller.run(&mut schedule, bus.as_mut(), &mut clock, &stop);
             (controller.stats, end, controller.port_error, warnings)
         })
         .map_err(CliError::Output)?;

@@ -102,8 +102,9 @@ pub fn budget_cmd(
 
 /// `budget --measure N`: the profile's chain served on a pseudo-terminal keeping line time (its
 /// baud, Return Delay Time 0 as start-up writes, its USB latency), and N cycles of the loop's
-/// bus work through the real `dynamixel2` client — a Sync Write of goals and a Sync Read of
-/// positions — timed against the planner's cycle.
+/// bus work through the client the loop would use — a Sync Write of goals and a Sync Read
+/// (`dynamixel2`) or Fast Sync Read (the project's host) of positions — timed against the
+/// planner's cycle.
 fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Write) -> Result<(), CliError> {
     use std::time::Instant;
 
@@ -113,22 +114,24 @@ fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Wr
     if cycles == 0 {
         return Err(CliError::Usage("--measure needs at least one cycle".into()));
     }
-    if profile.bus.read != ReadMode::Sync {
-        return Err(CliError::Usage(format!(
-            "--measure times Sync Read cycles; this profile reads with {}",
-            profile.bus.read.name()
-        )));
+    if profile.bus.read == ReadMode::Bulk {
+        return Err(CliError::Usage(
+            "--measure times Sync and Fast Sync Read cycles; this profile reads with bulk".into(),
+        ));
     }
     let planned = plan(&profile.bus, profile.servos.len(), None);
     let pty = PtyChain::serve_timed(chain_for(profile, |_| 2048), LineTiming::of(&profile.bus))
         .map_err(CliError::Output)?;
     let path = pty.path().to_string();
-    let mut bus = Dynamixel2Bus::open(&path, profile.bus.baud).map_err(CliError::at_port(&path))?;
+    // What the loop would open: dynamixel2 for Sync Read, the project's host for Fast Sync.
+    let mut bus =
+        crate::bus::open_port(&path, profile.bus.baud, profile).map_err(CliError::at_port(&path))?;
     let ids = profile.ids();
     let mut present = vec![0i32; ids.len()];
     // The loop's start-up first: it writes the profile's Return Delay Time (the factory's is
     // 500 µs per servo) and reads where the servos stand.
-    present = crate::bus::start_up(&mut bus, profile).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+    present =
+        crate::bus::start_up(bus.as_mut(), profile).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
     let mut took = Vec::with_capacity(cycles);
     let mut failed = 0usize;
     for _ in 0..cycles {
@@ -166,10 +169,11 @@ fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Wr
     } else {
         writeln!(
             out,
-            "{}: {} servos at {} bit/s, Sync Write + Sync Read through dynamixel2 on a line-timed virtual chain",
+            "{}: {} servos at {} bit/s, Sync Write + {} read on a line-timed virtual chain",
             profile.name,
             ids.len(),
-            profile.bus.baud
+            profile.bus.baud,
+            profile.bus.read.name()
         )?;
         writeln!(
             out,
