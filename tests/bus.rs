@@ -462,7 +462,8 @@ fn watchdog_stops_servos_when_the_host_goes_quiet() {
         .iter()
         .zip(&stopped)
         .all(|(s, p)| s.position() == *p));
-    // Goal writes are refused; the watchdog register reads −1.
+    // Goal writes are refused (Data Range Error, as the e-manual gives it); the watchdog
+    // register reads −1.
     let e = bus
         .write(1, addr::GOAL_POSITION, &2048i32.to_le_bytes())
         .unwrap_err();
@@ -471,7 +472,7 @@ fn watchdog_stops_servos_when_the_host_goes_quiet() {
             e,
             BusError::Servo {
                 id: 1,
-                error: status_error::ACCESS
+                error: status_error::DATA_RANGE
             }
         ),
         "{e:?}"

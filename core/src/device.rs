@@ -41,7 +41,51 @@ pub struct VirtualServo {
     write_count: u32,
     velocity_report: Option<i32>,
     reported_position: Option<i32>,
+    /// Milliseconds since power-on (Realtime Tick).
+    clock_ms: f64,
+    /// A write held by Reg Write until Action: address and data.
+    registered: Option<(u16, heapless::Vec<u8, 128>)>,
 }
+
+/// Baud Rate register codes (e-manual): 9,600 … 4.5 Mbps.
+const BAUD_CODES: [u32; 8] = [
+    9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000,
+];
+/// Realtime Tick (2 bytes, ms, wraps at 32,767).
+const REALTIME_TICK: u16 = 120;
+/// LED.
+const LED: u16 = 65;
+/// Registered Instruction: 1 while a Reg Write waits for Action (read-only).
+const REGISTERED_INSTRUCTION: u16 = 69;
+
+/// The multi-byte items of the writable part of the X-series control table, `(address, size)`:
+/// a write must cover each it touches whole (else Data Length Error).
+const WIDE_ITEMS: [(u16, usize); 24] = [
+    (20, 4),
+    (24, 4),
+    (32, 2),
+    (34, 2),
+    (36, 2),
+    (38, 2),
+    (44, 4),
+    (48, 4),
+    (52, 4),
+    (76, 2),
+    (78, 2),
+    (80, 2),
+    (82, 2),
+    (84, 2),
+    (88, 2),
+    (90, 2),
+    (100, 2),
+    (102, 2),
+    (104, 4),
+    (108, 4),
+    (112, 4),
+    (116, 4),
+    (168, 2),
+    (170, 2),
+];
 
 impl VirtualServo {
     /// A servo at rest at `position` ticks with factory defaults.
@@ -58,9 +102,19 @@ impl VirtualServo {
             write_count: 0,
             velocity_report: None,
             reported_position: None,
+            clock_ms: 0.0,
+            registered: None,
         };
         s.factory_defaults(id);
         s
+    }
+
+    /// Sets the Baud Rate register to the code of `baud` (the line the servo is on); a baud
+    /// with no code leaves it.
+    pub fn set_baud(&mut self, baud: u32) {
+        if let Some(code) = BAUD_CODES.iter().position(|&b| b == baud) {
+            self.table[usize::from(addr::BAUD_RATE)] = code as u8;
+        }
     }
 
     fn factory_defaults(&mut self, id: u8) {
@@ -92,6 +146,7 @@ impl VirtualServo {
         }
         self.put(addr::STATUS_RETURN_LEVEL, 1, 2);
         self.put(addr::POSITION_P_GAIN, 2, u32::from(self.model.position_p_gain));
+        self.registered = None;
         self.velocity = 0.0;
         self.watchdog_expired = false;
         self.since_packet = 0.0;
@@ -300,6 +355,8 @@ impl VirtualServo {
     }
 
     fn run_watchdog(&mut self, dt: f64) {
+        self.clock_ms = libm::fmod(self.clock_ms + dt * 1e3, 32_768.0);
+        self.put(REALTIME_TICK, 2, self.clock_ms as u32);
         let wd = self.table[usize::from(addr::BUS_WATCHDOG)];
         self.since_packet += dt;
         if self.torque_on()
@@ -324,13 +381,22 @@ impl VirtualServo {
             return status_error::DATA_LENGTH;
         }
         for reg in start..end {
-            let writable = matches!(reg, 7..=13 | 20..=63 | 64..=69 | 76..=119);
+            let writable = matches!(reg, 7..=13 | 20..=63 | 64..=68 | 76..=119);
             if !writable {
                 return status_error::ACCESS;
             }
             if reg < usize::from(addr::TORQUE_ENABLE) && self.torque_on() {
                 return status_error::ACCESS;
             }
+        }
+        // A multi-byte item written in part.
+        let cut = |(r, n): &(u16, usize)| {
+            let (r, n) = (usize::from(*r), *n);
+            let overlaps = start < r + n && r < end;
+            overlaps && (start > r || end < r + n)
+        };
+        if WIDE_ITEMS.iter().any(cut) {
+            return status_error::DATA_LENGTH;
         }
         let covers = |r: u16, n: usize| start <= usize::from(r) && usize::from(r) + n <= end;
         let value = |r: u16, n: usize| {
@@ -340,9 +406,23 @@ impl VirtualServo {
                 .rev()
                 .fold(0u32, |acc, &b| (acc << 8) | u32::from(b))
         };
+        // Values outside each item's range (e-manual): Data Range Error, nothing written.
+        let byte = |r: u16| covers(r, 1).then(|| data[usize::from(r) - start]);
+        let out_of_range = byte(addr::BAUD_RATE).is_some_and(|v| usize::from(v) >= BAUD_CODES.len())
+            || byte(addr::OPERATING_MODE).is_some_and(|v| !matches!(v, 0 | 1 | 3 | 4 | 5 | 16))
+            || byte(addr::TORQUE_ENABLE).is_some_and(|v| v > 1)
+            || byte(LED).is_some_and(|v| v > 1)
+            || byte(addr::STATUS_RETURN_LEVEL).is_some_and(|v| v > 2)
+            || [addr::MAX_POSITION_LIMIT, addr::MIN_POSITION_LIMIT]
+                .iter()
+                .any(|&r| covers(r, 4) && value(r, 4) > MAX_TICK as u32);
+        if out_of_range {
+            return status_error::DATA_RANGE;
+        }
         if covers(addr::GOAL_POSITION, 4) {
             if self.watchdog_expired {
-                return status_error::ACCESS;
+                // The e-manual's answer to a goal after Bus Watchdog expiry.
+                return status_error::DATA_RANGE;
             }
             let g = value(addr::GOAL_POSITION, 4) as i32;
             let (lo, hi) = (
@@ -544,9 +624,41 @@ impl Chain {
                     }
                 }
             }
+            instruction::REG_WRITE => {
+                // Held, not applied, until Action; the Registered Instruction flag says so.
+                if params.len() < 3 || params.len() - 2 > 128 {
+                    if let Some(s) = self.servos.iter().find(|s| s.id() == id) {
+                        w.status(s, status_error::DATA_LENGTH, &[]);
+                    }
+                    return;
+                }
+                let a = le16(params);
+                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                    let mut data = heapless::Vec::new();
+                    let _ = data.extend_from_slice(&params[2..]);
+                    s.registered = Some((a, data));
+                    s.table[usize::from(REGISTERED_INSTRUCTION)] = 1;
+                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
+                        w.status(s, 0, &[]);
+                    }
+                }
+            }
+            instruction::ACTION => {
+                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                    let e = match s.registered.take() {
+                        Some((a, data)) => s.write(a, &data),
+                        None => 0,
+                    };
+                    s.table[usize::from(REGISTERED_INSTRUCTION)] = 0;
+                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
+                        w.status(s, e, &[]);
+                    }
+                }
+            }
             instruction::REBOOT => {
                 for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
-                    if !broadcast {
+                    // Only a read or a ping is answered below Status Return Level 2.
+                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
                         w.status(s, 0, &[]);
                     }
                     s.table[usize::from(addr::HARDWARE_ERROR_STATUS)] = 0;
@@ -554,13 +666,21 @@ impl Chain {
                 }
             }
             instruction::FACTORY_RESET => {
+                // 0xFF resets everything, 0x01 all but the id, 0x02 all but id and baud. A
+                // broadcast 0xFF is ignored (firmware 42 and later): it would renumber the bus.
+                let option = params.first().copied().unwrap_or(0xFF);
+                if broadcast && option == 0xFF {
+                    return;
+                }
                 for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
-                    let keep_id = params.first() == Some(&0x01) || params.first() == Some(&0x02);
-                    let sid = s.id();
-                    if !broadcast {
+                    let (sid, baud) = (s.id(), s.table[usize::from(addr::BAUD_RATE)]);
+                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
                         w.status(s, 0, &[]);
                     }
-                    s.factory_defaults(if keep_id { sid } else { 1 });
+                    s.factory_defaults(if option == 0xFF { 1 } else { sid });
+                    if option == 0x02 {
+                        s.table[usize::from(addr::BAUD_RATE)] = baud;
+                    }
                 }
             }
             instruction::SYNC_WRITE if broadcast && params.len() >= 4 => {

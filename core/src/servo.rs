@@ -197,7 +197,7 @@ pub const MODELS: [ServoModel; 5] = [
     },
     ServoModel {
         name: "XH540-W270",
-        model_number: 1110,
+        model_number: 1100,
         max_baud: 4_500_000,
         no_load_rpm: 30.0,
         stall_torque_nm: 10.6,

@@ -22,7 +22,10 @@ use crate::servo::MAX_SERVOS;
 pub fn chain_for(profile: &Profile, position: impl Fn(usize) -> i32) -> Chain {
     let mut chain = Chain::new();
     for (k, s) in profile.servos.iter().enumerate() {
-        let _ = chain.add(VirtualServo::new(s.id, s.model, position(k)));
+        let mut servo = VirtualServo::new(s.id, s.model, position(k));
+        // Set to the bus's baud, as the rig's servos are.
+        servo.set_baud(profile.bus.baud);
+        let _ = chain.add(servo);
     }
     chain
 }
