@@ -782,3 +782,46 @@ fn fast_sync_read_matches_sync_read_in_one_reply_and_names_a_bad_servo() {
         assert_eq!(present, expect);
     }
 }
+
+/// Indirect Address/Data: four indirect bytes pointed at Goal Position carry a whole goal in
+/// one write (a run of consecutive targets is one item), and read back what they point at; a
+/// write that covers part of an Indirect Address is refused.
+#[test]
+fn indirect_data_reads_and_writes_what_its_addresses_point_at() {
+    let p = profile("robotis-op3.toml");
+    let mut bus = in_process(&p, 3);
+    let id = p.ids()[0];
+    for k in 0..4u16 {
+        bus.write(id, 168 + 2 * k, &(addr::GOAL_POSITION + k).to_le_bytes())
+            .unwrap();
+    }
+    bus.write(id, addr::TORQUE_ENABLE, &[1]).unwrap();
+    let present = bus.read_value(id, addr::PRESENT_POSITION, 4).unwrap() as i32;
+    let goal = present + 100;
+    bus.write(id, 224, &goal.to_le_bytes()).unwrap();
+    assert_eq!(bus.read_value(id, addr::GOAL_POSITION, 4).unwrap() as i32, goal);
+    assert_eq!(bus.read_value(id, 224, 4).unwrap() as i32, goal);
+    // Two of the four bytes alone: part of Goal Position, refused.
+    let e = bus.write(id, 224, &[0, 0]).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            BusError::Servo {
+                error: status_error::DATA_LENGTH,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    let e = bus.write(id, 169, &[0]).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            BusError::Servo {
+                error: status_error::DATA_LENGTH,
+                ..
+            }
+        ),
+        "{e}"
+    );
+}

@@ -55,6 +55,10 @@ const BAUD_CODES: [u32; 8] = [
 const REALTIME_TICK: u16 = 120;
 /// LED.
 const LED: u16 = 65;
+/// Indirect Address 1–28 (2 bytes each) and Indirect Data 1–28 (1 byte each).
+const INDIRECT_ADDRESS: usize = 168;
+const INDIRECT_DATA: usize = 224;
+const INDIRECT_COUNT: usize = 28;
 /// Registered Instruction: 1 while a Reg Write waits for Action (read-only).
 const REGISTERED_INSTRUCTION: u16 = 69;
 
@@ -146,6 +150,10 @@ impl VirtualServo {
         }
         self.put(addr::STATUS_RETURN_LEVEL, 1, 2);
         self.put(addr::POSITION_P_GAIN, 2, u32::from(self.model.position_p_gain));
+        // Indirect Address k points at Indirect Data k until set.
+        for k in 0..INDIRECT_COUNT {
+            self.put((INDIRECT_ADDRESS + 2 * k) as u16, 2, (INDIRECT_DATA + k) as u32);
+        }
         self.registered = None;
         self.velocity = 0.0;
         self.watchdog_expired = false;
@@ -302,6 +310,43 @@ impl VirtualServo {
         self.put(addr::MOVING, 1, u32::from(self.velocity != 0.0));
         self.put(addr::PRESENT_INPUT_VOLTAGE, 2, 120);
         self.put(addr::PRESENT_TEMPERATURE, 1, 35);
+        self.mirror_indirect();
+    }
+
+    /// Where Indirect Data `k` points (its Indirect Address), when inside the table and not
+    /// itself indirect data.
+    fn indirect_target(&self, k: usize) -> Option<usize> {
+        let a = self.get((INDIRECT_ADDRESS + 2 * k) as u16, 2) as usize;
+        (a < TABLE_LEN && !(INDIRECT_DATA..INDIRECT_DATA + INDIRECT_COUNT).contains(&a)).then_some(a)
+    }
+
+    /// Indirect Data reads the bytes its addresses point at.
+    fn mirror_indirect(&mut self) {
+        for k in 0..INDIRECT_COUNT {
+            let v = self.indirect_target(k).map_or(0, |a| self.table[a]);
+            self.table[INDIRECT_DATA + k] = v;
+        }
+    }
+
+    /// A write to Indirect Data: each run of bytes whose addresses follow one another becomes
+    /// one write there (so a 4-byte goal through four indirect bytes is one whole item).
+    fn write_indirect(&mut self, first: usize, data: &[u8]) -> u8 {
+        let mut k = 0;
+        while k < data.len() {
+            let Some(target) = self.indirect_target(first + k) else {
+                return status_error::ACCESS;
+            };
+            let mut n = 1;
+            while k + n < data.len() && self.indirect_target(first + k + n) == Some(target + n) {
+                n += 1;
+            }
+            let e = self.write(target as u16, &data[k..k + n]);
+            if e != 0 {
+                return e;
+            }
+            k += n;
+        }
+        0
     }
 
     /// Advances the servo `dt` seconds: watchdog, then motion towards the goal.
@@ -380,8 +425,13 @@ impl VirtualServo {
         if data.is_empty() || end > TABLE_LEN {
             return status_error::DATA_LENGTH;
         }
+        if start >= INDIRECT_DATA && end <= INDIRECT_DATA + INDIRECT_COUNT {
+            let e = self.write_indirect(start - INDIRECT_DATA, data);
+            self.mirror_indirect();
+            return e;
+        }
         for reg in start..end {
-            let writable = matches!(reg, 7..=13 | 20..=63 | 64..=68 | 76..=119);
+            let writable = matches!(reg, 7..=13 | 20..=63 | 64..=68 | 76..=119 | 168..=223);
             if !writable {
                 return status_error::ACCESS;
             }
@@ -395,7 +445,8 @@ impl VirtualServo {
             let overlaps = start < r + n && r < end;
             overlaps && (start > r || end < r + n)
         };
-        if WIDE_ITEMS.iter().any(cut) {
+        let indirect_cut = (0..INDIRECT_COUNT).any(|k| cut(&((INDIRECT_ADDRESS + 2 * k) as u16, 2)));
+        if WIDE_ITEMS.iter().any(cut) || indirect_cut {
             return status_error::DATA_LENGTH;
         }
         let covers = |r: u16, n: usize| start <= usize::from(r) && usize::from(r) + n <= end;
