@@ -205,8 +205,6 @@ pub fn serve_cmd(
     duration: Option<f64>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
-    use std::time::{Duration, Instant};
-
     use crate::bus::virtual_chain::LineTiming;
 
     if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
@@ -240,6 +238,21 @@ pub fn serve_cmd(
             "no line time".to_string()
         }
     )?;
+    serve_until_stopped(&pty, duration, out)
+}
+
+/// Prints a served chain's path (a line of its own, for scripts), serves until a stop signal
+/// or `duration` seconds, then says how many instructions it answered (`serve`, `sim serve`).
+///
+/// # Errors
+/// Output, or the signal handlers cannot be installed.
+pub(super) fn serve_until_stopped(
+    pty: &PtyChain,
+    duration: Option<f64>,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    use std::time::{Duration, Instant};
+
     writeln!(out, "{}", pty.path())?;
     out.flush()?;
     let stop = crate::signals::stop_requests().map_err(CliError::Output)?;

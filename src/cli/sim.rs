@@ -244,8 +244,6 @@ fn serve(
     duration: Option<f64>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
-    use std::time::{Duration, Instant};
-
     use crate::bus::virtual_chain::{chain_for, PtyChain};
     use crate::sim::plant::{load_world, rest_angles, SimPlant};
 
@@ -279,18 +277,5 @@ fn serve(
         timestep * 1e3,
         chain.path()
     )?;
-    writeln!(out, "{}", chain.path())?;
-    out.flush()?;
-    let stop = crate::signals::stop_requests().map_err(CliError::Output)?;
-    let began = Instant::now();
-    while stop.made() == 0 && duration.is_none_or(|d| began.elapsed().as_secs_f64() < d) {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let handled = chain.chain().instructions();
-    writeln!(
-        out,
-        "served {handled} instructions in {:.1} s",
-        began.elapsed().as_secs_f64()
-    )?;
-    Ok(())
+    super::rig::serve_until_stopped(&chain, duration, out)
 }
