@@ -11,6 +11,7 @@
 //! read = "sync"             # sync | bulk | fast-sync
 //! read_fields = ["position"] # position, velocity, current
 //! usb_latency_us = 1000     # the adapter's latency timer
+//! pipeline = true           # request the read after the write, take it next tick
 //! watchdog_ms = 100         # Bus Watchdog armed at start-up (20…2540, 0 = off)
 //!
 //! [[bone]]                  # optional: the rig's own axis order for a bone
@@ -149,6 +150,9 @@ pub struct BusConfig {
     pub usb_latency_us: u32,
     /// Bus Watchdog, ms (0 = off).
     pub watchdog_ms: u32,
+    /// Pipelined reads: the read is requested after each tick's Sync Write and its replies
+    /// taken at the start of the next tick (default on).
+    pub pipeline: bool,
 }
 
 /// What drives a servo, as written in the profile.
@@ -403,6 +407,8 @@ struct RawBus {
     usb_latency_us: Option<Spanned<i64>>,
     #[serde(default)]
     watchdog_ms: Option<Spanned<i64>>,
+    #[serde(default)]
+    pipeline: Option<bool>,
 }
 
 #[derive(Deserialize)]
@@ -916,6 +922,7 @@ fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextE
         read_fields,
         usb_latency_us,
         watchdog_ms,
+        pipeline: b.pipeline.unwrap_or(true),
     })
 }
 

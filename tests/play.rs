@@ -124,7 +124,9 @@ fn kept_time(v: &serde_json::Value) -> bool {
 fn play_streams_the_whole_clip_over_the_virtual_chain() {
     let _serial = serial();
     let dir = tempdir("play");
-    for rate in ["120", "500"] {
+    // Both within the puppet's wire limit (393 Hz: `marionette budget`), as the virtual chain
+    // keeps line time.
+    for rate in ["120", "250"] {
         let stats = dir.join(format!("stats-{rate}.json"));
         let out = ok(&run(&[
             "play",
@@ -176,7 +178,7 @@ fn follow_drives_the_puppet_from_a_clips_wrist_and_ankle_paths() {
     let text = std::fs::read_to_string(&csv).unwrap();
     assert!(text.starts_with("t,effector,x,y,z\n"));
     assert_eq!(text.lines().count(), 1 + 4 * 471);
-    for (file, rate) in [(&csv, "120"), (&jsonl, "500")] {
+    for (file, rate) in [(&csv, "120"), (&jsonl, "250")] {
         let stats = dir.join(format!("follow-{rate}.json"));
         let out = ok(&run(&[
             "follow",

@@ -292,6 +292,28 @@ pub trait ServoBus {
         }
         Ok(())
     }
+
+    /// Sends a read of present positions and returns without waiting: the servos answer while
+    /// the host computes, and [`ServoBus::collect_positions`] takes the replies (a pipelined
+    /// read). Any other transaction first waits out the replies. Buses that cannot split a
+    /// read do nothing here and read in full when collecting.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn request_positions(&mut self, ids: &[u8]) -> Result<(), BusError> {
+        let _ = ids;
+        Ok(())
+    }
+
+    /// The present positions asked by the last [`ServoBus::request_positions`] for the same
+    /// ids, each reply due by its wire time and the bus's margin counted from the request; a
+    /// read now when none is pending.
+    ///
+    /// # Errors
+    /// [`BusError`]; `out` is untouched then.
+    fn collect_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), BusError> {
+        self.read_positions(ids, out)
+    }
 }
 
 /// A servo the profile names that is missing or of the wrong model.
@@ -353,8 +375,9 @@ pub enum StartupError {
 /// Brings a profiled rig up safely and returns the present positions (ticks):
 /// scan; check every profiled id answers with the right model and no hardware error; torque
 /// off (EEPROM is writable only then); Return Delay Time, Status Return Level 2, the position
-/// limits, the profile's Position P Gain (when it gives one) and the Bus Watchdog; read present positions and copy them into the goals; only then
-/// torque on — so no servo jumps.
+/// limits, the profile's Position P Gain (when it gives one); read present positions and copy
+/// them into the goals; only then torque on — so no servo jumps; last, the Bus Watchdog on all
+/// servos at once (the caller's first command must follow within it).
 ///
 /// # Errors
 /// [`StartupError`]; torque stays off on every servo.
@@ -433,11 +456,24 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
             }));
         }
     }
-    let wd = (profile.bus.watchdog_ms / 20).min(127) as u8;
     for s in &profile.servos {
         bus.set_torque(s.id, true)?;
-        if wd > 0 {
-            bus.write(s.id, addr::BUS_WATCHDOG, &[wd])?;
+    }
+    // The watchdog armed on every servo at once, last: armed one by one, the first servos'
+    // would run out while the others are still being set up (28 acknowledged writes take
+    // longer than 100 ms on a bus with a 1 ms adapter latency). Read back, as a Sync Write is
+    // not acknowledged.
+    let wd = (profile.bus.watchdog_ms / 20).min(127) as u8;
+    if wd > 0 {
+        let n = ids.len();
+        bus.sync_write(addr::BUS_WATCHDOG, 1, &ids, &vec![wd; n])?;
+        let mut armed = vec![0u8; n];
+        bus.sync_read(addr::BUS_WATCHDOG, 1, &ids, &mut armed)?;
+        if let Some(k) = armed.iter().position(|a| *a != wd) {
+            return Err(StartupError::Bus(BusError::Malformed {
+                id: ids[k],
+                what: "bus watchdog read back differs from the one written",
+            }));
         }
     }
     Ok(present)
@@ -457,23 +493,31 @@ pub fn shut_down(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(), BusErr
     first.map_or(Ok(()), Err)
 }
 
-/// Opens the loop's bus on a serial port for `profile`: `dynamixel2` for Sync and Bulk Read,
-/// the project's own host ([`packet::PacketBus`] over [`serial::SerialTransport`]) for Fast
-/// Sync Read, which `dynamixel2` 0.9.1 lacks. The tick's reads wait for their wire time plus
-/// the profile's USB latency and 2 ms; start-up's single transactions four times that.
+/// How much later than its wire time the loop waits for a read's replies on `bus`: the
+/// adapter's latency timer, every servo's Return Delay Time and 1 ms for the host's scheduling
+/// — so a silent servo costs at most about a tick.
+#[must_use]
+pub fn reply_margin(bus: &crate::profile::BusConfig, servos: usize) -> std::time::Duration {
+    std::time::Duration::from_micros(
+        u64::from(bus.usb_latency_us) + servos as u64 * u64::from(bus.return_delay_us) + 1000,
+    )
+}
+
+/// Opens the loop's bus on a serial port for `profile`: the project's own host
+/// ([`packet::PacketBus`] over [`serial::SerialTransport`]) for Sync and Fast Sync Read — its
+/// reads can be pipelined and wait only their wire time and [`reply_margin`] — and `dynamixel2`
+/// for Bulk Read. Start-up's single transactions wait four times the margin.
 ///
 /// # Errors
 /// The port cannot be opened.
 pub fn open_port(path: &str, baud: u32, profile: &Profile) -> std::io::Result<Box<dyn ServoBus + Send>> {
+    let margin = reply_margin(&profile.bus, profile.servos.len());
     Ok(match profile.bus.read {
-        crate::profile::ReadMode::FastSync => {
-            let margin = std::time::Duration::from_micros(u64::from(profile.bus.usb_latency_us) + 2000);
-            Box::new(
-                packet::PacketBus::new(serial::SerialTransport::open(path, baud)?, margin)
-                    .with_fast_reads(true)
-                    .with_single_margin(4 * margin),
-            )
-        }
-        _ => Box::new(dxl::Dynamixel2Bus::open(path, baud)?),
+        crate::profile::ReadMode::Bulk => Box::new(dxl::Dynamixel2Bus::open(path, baud)?),
+        read => Box::new(
+            packet::PacketBus::new(serial::SerialTransport::open(path, baud)?, margin)
+                .with_fast_reads(read == crate::profile::ReadMode::FastSync)
+                .with_single_margin(4 * margin),
+        ),
     })
 }

@@ -20,7 +20,8 @@ pub trait Transport {
     /// I/O.
     fn send(&mut self, bytes: &[u8]) -> io::Result<()>;
 
-    /// Reads what arrives within `timeout`; `Ok(0)` when nothing did.
+    /// Reads what arrives within `timeout` (what has arrived, without waiting, when it is
+    /// zero); `Ok(0)` when nothing did.
     ///
     /// # Errors
     /// I/O.
@@ -52,6 +53,20 @@ pub struct PacketBus<T> {
     fast: bool,
     /// The margin of single transactions (ping, read, write, reboot).
     single_margin: Duration,
+    /// When the line is next free, as far as the host knows (transport time): the end of the
+    /// last instruction sent and of the replies it asked for. Reply deadlines count from it.
+    line_free: Duration,
+    /// A read sent by [`ServoBus::request_positions`] whose replies are not collected yet.
+    pending: Option<PendingRead>,
+}
+
+/// A position read on the wire whose replies the host has not taken yet.
+#[derive(Clone, Copy, Debug)]
+struct PendingRead {
+    ids: [u8; crate::servo::MAX_SERVOS],
+    n: usize,
+    /// When the request's last byte left (transport time).
+    sent: Duration,
 }
 
 impl<T: Transport> PacketBus<T> {
@@ -67,6 +82,8 @@ impl<T: Transport> PacketBus<T> {
             quiet: 2 * margin,
             fast: false,
             single_margin: margin,
+            line_free: Duration::ZERO,
+            pending: None,
         }
     }
 
@@ -103,27 +120,43 @@ impl<T: Transport> PacketBus<T> {
         out: &mut [u8],
         valid: &mut [bool],
     ) -> Result<(), BusError> {
-        let n = usize::from(len);
-        let expect = 8 + (4 + n) * ids.len();
-        if ids.is_empty()
-            || 4 + ids.len() > MAX_PACKET
-            || expect > MAX_PACKET
-            || out.len() < ids.len() * n
-            || valid.len() < ids.len()
-        {
-            return Err(invalid_request(
-                "fast sync read too large, or output shorter than ids × len",
-            ));
+        let sent = self.fast_sync_request(address, len, ids)?;
+        self.fast_sync_replies(len, ids, out, valid, sent)
+    }
+
+    /// Sends a Fast Sync Read request; returns when its last byte leaves.
+    fn fast_sync_request(&mut self, address: u16, len: u16, ids: &[u8]) -> Result<Duration, BusError> {
+        let expect = 8 + (4 + usize::from(len)) * ids.len();
+        if ids.is_empty() || 4 + ids.len() > MAX_PACKET || expect > MAX_PACKET {
+            return Err(invalid_request("fast sync read too large"));
         }
         let mut p = [0u8; MAX_PACKET];
         p[..2].copy_from_slice(&address.to_le_bytes());
         p[2..4].copy_from_slice(&len.to_le_bytes());
         p[4..4 + ids.len()].copy_from_slice(ids);
-        self.send(BROADCAST_ID, instruction::FAST_SYNC_READ, &p[..4 + ids.len()])?;
+        let sent = self.send(BROADCAST_ID, instruction::FAST_SYNC_READ, &p[..4 + ids.len()])?;
+        self.line_free = self.line_free.max(sent + wire_time(expect, self.link.baud()));
+        Ok(sent)
+    }
+
+    /// Takes the one reply of a Fast Sync Read whose request left at `sent`: due by its wire
+    /// time and the margin.
+    fn fast_sync_replies(
+        &mut self,
+        len: u16,
+        ids: &[u8],
+        out: &mut [u8],
+        valid: &mut [bool],
+        sent: Duration,
+    ) -> Result<(), BusError> {
+        let n = usize::from(len);
+        let expect = 8 + (4 + n) * ids.len();
+        if out.len() < ids.len() * n || valid.len() < ids.len() {
+            return Err(invalid_request("output shorter than ids × len"));
+        }
         valid[..ids.len()].fill(false);
         let mut errors = [0u8; crate::servo::MAX_SERVOS];
-        let timeout = wire_time(expect, self.link.baud()) + self.margin;
-        let deadline = self.link.now() + timeout;
+        let deadline = sent + wire_time(expect, self.link.baud()) + self.margin;
         let mut raw = [0u8; MAX_PACKET];
         let got = loop {
             if let Received::Packet(packet) = self.rx.next_packet() {
@@ -135,12 +168,14 @@ impl<T: Transport> PacketBus<T> {
                 }
                 continue;
             }
-            let now = self.link.now();
-            if now >= deadline {
+            // Past the deadline, what has already come in still counts (a pipelined read
+            // taken late): one look without waiting.
+            let left = deadline.saturating_sub(self.link.now());
+            let mut buf = [0u8; 512];
+            let r = self.link.recv(&mut buf, left)?;
+            if r == 0 && left.is_zero() {
                 break 0;
             }
-            let mut buf = [0u8; 512];
-            let r = self.link.recv(&mut buf, deadline - now)?;
             self.rx.push(&buf[..r]);
         };
         // Blocks: error, id, data, CRC of everything before the CRC.
@@ -177,6 +212,79 @@ impl<T: Transport> PacketBus<T> {
         }
     }
 
+    /// Sends a Sync Read request; returns when its last byte leaves.
+    fn sync_read_request(&mut self, address: u16, len: u16, ids: &[u8]) -> Result<Duration, BusError> {
+        let n = usize::from(len);
+        if 4 + ids.len() > MAX_PACKET || ids.len() * n > MAX_PACKET {
+            return Err(invalid_request("sync read too large"));
+        }
+        let mut p = [0u8; MAX_PACKET];
+        p[..2].copy_from_slice(&address.to_le_bytes());
+        p[2..4].copy_from_slice(&len.to_le_bytes());
+        p[4..4 + ids.len()].copy_from_slice(ids);
+        let sent = self.send(BROADCAST_ID, instruction::SYNC_READ, &p[..4 + ids.len()])?;
+        self.line_free = self
+            .line_free
+            .max(sent + wire_time((11 + n) * ids.len(), self.link.baud()));
+        Ok(sent)
+    }
+
+    /// Takes the replies of a Sync Read whose request left at `sent`, in id order: servo `k`'s
+    /// is due by the wire time of the replies up to its own and the margin, or a reply's wire
+    /// time and the margin after the one before. `out` is written only when every reply passed.
+    fn sync_read_replies(
+        &mut self,
+        len: u16,
+        ids: &[u8],
+        out: &mut [u8],
+        sent: Duration,
+    ) -> Result<(), BusError> {
+        let len = usize::from(len);
+        if out.len() < ids.len() * len {
+            return Err(invalid_request("output shorter than ids × len"));
+        }
+        let mut scratch = [0u8; MAX_PACKET];
+        let one = wire_time(11 + len, self.link.baud());
+        for (k, &id) in ids.iter().enumerate() {
+            // Due by the wire time of the replies so far, and at least a reply's wire time
+            // after the previous one came (return delays the host does not know).
+            let due = (sent + one * (k as u32 + 1)).max(self.link.now() + one) + self.margin;
+            if let Err(e) = self.status_by(id, Some(len), due) {
+                self.drain();
+                return Err(e);
+            }
+            scratch[k * len..(k + 1) * len].copy_from_slice(&self.params[1..=len]);
+        }
+        out[..ids.len() * len].copy_from_slice(&scratch[..ids.len() * len]);
+        Ok(())
+    }
+
+    /// Takes the replies of the pending position read (if any) and throws them away: the line
+    /// is quiet for the next instruction.
+    fn settle(&mut self) {
+        if let Some(p) = self.pending.take() {
+            let mut out = [0i32; crate::servo::MAX_SERVOS];
+            let _ = self.take_positions(&p, &mut out);
+        }
+    }
+
+    /// The positions of a read on the wire.
+    fn take_positions(&mut self, p: &PendingRead, out: &mut [i32]) -> Result<(), BusError> {
+        let ids = &p.ids[..p.n];
+        let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
+        if self.fast {
+            // All or nothing for the loop: a tick uses a read only when every servo's held.
+            let mut valid = [false; crate::servo::MAX_SERVOS];
+            self.fast_sync_replies(4, ids, &mut data[..4 * p.n], &mut valid, p.sent)?;
+        } else {
+            self.sync_read_replies(4, ids, &mut data[..4 * p.n], p.sent)?;
+        }
+        for (k, o) in out.iter_mut().enumerate().take(p.n) {
+            *o = i32::from_le_bytes([data[4 * k], data[4 * k + 1], data[4 * k + 2], data[4 * k + 3]]);
+        }
+        Ok(())
+    }
+
     /// The transport.
     pub fn link(&self) -> &T {
         &self.link
@@ -187,12 +295,17 @@ impl<T: Transport> PacketBus<T> {
         &mut self.link
     }
 
-    fn send(&mut self, id: u8, inst: u8, params: &[u8]) -> Result<(), BusError> {
+    /// Sends an instruction (after the replies of a pending read); returns when its last byte
+    /// leaves: after whatever was on the line (half duplex) and its own wire time.
+    fn send(&mut self, id: u8, inst: u8, params: &[u8]) -> Result<Duration, BusError> {
+        self.settle();
         let n = protocol::encode(id, inst, params, &mut self.tx)
             .map_err(|_| invalid_request("instruction too long"))?;
         self.rx.clear();
+        let start = self.link.now().max(self.line_free);
         self.link.send(&self.tx[..n])?;
-        Ok(())
+        self.line_free = start + wire_time(n, self.link.baud());
+        Ok(self.line_free)
     }
 
     /// The next complete packet received, decoded (parameters in `self.params`) and removed
@@ -210,10 +323,19 @@ impl<T: Transport> PacketBus<T> {
 
     /// Waits for one status packet from `id` with exactly `len` data bytes (any length when
     /// `None`); returns the data length, the data in `self.params[1..]`.
-    fn status(&mut self, id: u8, len: Option<usize>, margin: Duration) -> Result<usize, BusError> {
+    fn status(
+        &mut self,
+        id: u8,
+        len: Option<usize>,
+        sent: Duration,
+        margin: Duration,
+    ) -> Result<usize, BusError> {
         let expect = len.unwrap_or(3);
-        let timeout = wire_time(11 + expect, self.link.baud()) + margin;
-        let deadline = self.link.now() + timeout;
+        self.status_by(id, len, sent + wire_time(11 + expect, self.link.baud()) + margin)
+    }
+
+    /// [`Self::status`] by an absolute deadline (transport time).
+    fn status_by(&mut self, id: u8, len: Option<usize>, deadline: Duration) -> Result<usize, BusError> {
         loop {
             match self.take_packet() {
                 Some(decoded) => {
@@ -259,12 +381,13 @@ impl<T: Transport> PacketBus<T> {
                     return Ok(plen - 1);
                 }
                 None => {
-                    let now = self.link.now();
-                    if now >= deadline {
+                    // Past the deadline, what has already come in still counts.
+                    let left = deadline.saturating_sub(self.link.now());
+                    let mut buf = [0u8; 512];
+                    let got = self.link.recv(&mut buf, left)?;
+                    if got == 0 && left.is_zero() {
                         return Err(BusError::Timeout { id });
                     }
-                    let mut buf = [0u8; 512];
-                    let got = self.link.recv(&mut buf, deadline - now)?;
                     self.rx.push(&buf[..got]);
                 }
             }
@@ -283,10 +406,10 @@ impl<T: Transport> PacketBus<T> {
     }
 
     fn transact(&mut self, id: u8, inst: u8, params: &[u8], len: Option<usize>) -> Result<usize, BusError> {
-        self.send(id, inst, params)?;
+        let sent = self.send(id, inst, params)?;
         // Single transactions (start-up, configuration) are not the tick's: they wait longer
         // than its reads, which must cost at most a tick.
-        let r = self.status(id, len, self.single_margin);
+        let r = self.status(id, len, sent, self.single_margin);
         if r.is_err() {
             self.drain();
         }
@@ -368,7 +491,9 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         p[..2].copy_from_slice(&a);
         p[2..2 + data.len()].copy_from_slice(data);
         if id == BROADCAST_ID {
-            return self.send(id, instruction::WRITE, &p[..2 + data.len()]);
+            return self
+                .send(id, instruction::WRITE, &p[..2 + data.len()])
+                .map(|_| ());
         }
         self.transact(id, instruction::WRITE, &p[..2 + data.len()], Some(0))
             .map(|_| ())
@@ -391,32 +516,15 @@ impl<T: Transport> ServoBus for PacketBus<T> {
             at += 1 + len;
         }
         self.send(BROADCAST_ID, instruction::SYNC_WRITE, &p[..at])
+            .map(|_| ())
     }
 
     fn sync_read(&mut self, address: u16, len: u16, ids: &[u8], out: &mut [u8]) -> Result<(), BusError> {
-        let n = usize::from(len);
-        if 4 + ids.len() > MAX_PACKET || ids.len() * n > MAX_PACKET || out.len() < ids.len() * n {
-            return Err(invalid_request(
-                "sync read too large, or output shorter than ids × len",
-            ));
+        if out.len() < ids.len() * usize::from(len) {
+            return Err(invalid_request("output shorter than ids × len"));
         }
-        let mut p = [0u8; MAX_PACKET];
-        p[..2].copy_from_slice(&address.to_le_bytes());
-        p[2..4].copy_from_slice(&len.to_le_bytes());
-        p[4..4 + ids.len()].copy_from_slice(ids);
-        self.send(BROADCAST_ID, instruction::SYNC_READ, &p[..4 + ids.len()])?;
-        let len = n;
-        // Collect into a scratch copy: `out` is written only when every reply passed.
-        let mut scratch = [0u8; MAX_PACKET];
-        for (k, &id) in ids.iter().enumerate() {
-            if let Err(e) = self.status(id, Some(len), self.margin) {
-                self.drain();
-                return Err(e);
-            }
-            scratch[k * len..(k + 1) * len].copy_from_slice(&self.params[1..=len]);
-        }
-        out[..ids.len() * len].copy_from_slice(&scratch[..ids.len() * len]);
-        Ok(())
+        let sent = self.sync_read_request(address, len, ids)?;
+        self.sync_read_replies(len, ids, out, sent)
     }
 
     fn reboot(&mut self, id: u8) -> Result<(), BusError> {
@@ -424,24 +532,40 @@ impl<T: Transport> ServoBus for PacketBus<T> {
     }
 
     fn read_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), BusError> {
-        let n = ids.len().min(crate::servo::MAX_SERVOS).min(out.len());
-        let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
-        if self.fast {
-            // All or nothing for the loop: a tick uses a read only when every servo's held.
-            let mut valid = [false; crate::servo::MAX_SERVOS];
-            self.fast_sync_read(
-                addr::PRESENT_POSITION,
-                4,
-                &ids[..n],
-                &mut data[..4 * n],
-                &mut valid,
-            )?;
+        self.request_positions(ids)?;
+        self.collect_positions(ids, out)
+    }
+
+    fn request_positions(&mut self, ids: &[u8]) -> Result<(), BusError> {
+        let n = ids.len().min(crate::servo::MAX_SERVOS);
+        let sent = if self.fast {
+            self.fast_sync_request(addr::PRESENT_POSITION, 4, &ids[..n])?
         } else {
-            self.sync_read(addr::PRESENT_POSITION, 4, &ids[..n], &mut data[..4 * n])?;
-        }
-        for (k, o) in out.iter_mut().enumerate().take(n) {
-            *o = i32::from_le_bytes([data[4 * k], data[4 * k + 1], data[4 * k + 2], data[4 * k + 3]]);
-        }
+            self.sync_read_request(addr::PRESENT_POSITION, 4, &ids[..n])?
+        };
+        let mut p = PendingRead {
+            ids: [0; crate::servo::MAX_SERVOS],
+            n,
+            sent,
+        };
+        p.ids[..n].copy_from_slice(&ids[..n]);
+        self.pending = Some(p);
         Ok(())
+    }
+
+    fn collect_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), BusError> {
+        if out.len() < ids.len() || ids.len() > crate::servo::MAX_SERVOS {
+            return Err(invalid_request("more ids than outputs or servos"));
+        }
+        match self.pending.take() {
+            Some(p) if p.ids[..p.n] == *ids => self.take_positions(&p, out),
+            other => {
+                // Nothing asked, or asked for other servos: read now.
+                self.pending = other;
+                self.settle();
+                self.request_positions(ids)?;
+                self.collect_positions(ids, out)
+            }
+        }
     }
 }

@@ -1,6 +1,5 @@
 //! A serial port (or pseudo-terminal) as a [`Transport`] for the project's own Protocol 2.0
-//! host ([`super::packet::PacketBus`]): what the loop uses where `dynamixel2` 0.9.1 cannot go
-//! (Fast Sync Read).
+//! host ([`super::packet::PacketBus`]), the loop's bus for Sync and Fast Sync Read.
 
 use std::io::{self, Read, Write};
 use std::time::{Duration, Instant};
@@ -35,6 +34,38 @@ impl SerialTransport {
     }
 }
 
+impl SerialTransport {
+    /// Waits up to `timeout` (to the microsecond) for input; a hang-up or error on the
+    /// descriptor counts as readable so that the read reports it.
+    #[allow(unsafe_code)]
+    fn readable_within(&self, timeout: Duration) -> io::Result<bool> {
+        use std::os::fd::AsRawFd;
+        let mut fd = libc::pollfd {
+            fd: self.port.as_raw_fd(),
+            events: libc::POLLIN,
+            revents: 0,
+        };
+        let ts = libc::timespec {
+            tv_sec: timeout.as_secs() as libc::time_t,
+            tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32),
+        };
+        // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+        let r = unsafe { libc::ppoll(&mut fd, 1, &ts, std::ptr::null()) };
+        match r {
+            0 => Ok(false),
+            r if r > 0 => Ok(true),
+            _ => {
+                let e = io::Error::last_os_error();
+                if e.kind() == io::ErrorKind::Interrupted {
+                    Ok(false)
+                } else {
+                    Err(e)
+                }
+            }
+        }
+    }
+}
+
 impl Transport for SerialTransport {
     fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
         self.port.clear(ClearBuffer::Input).map_err(io::Error::from)?;
@@ -43,10 +74,11 @@ impl Transport for SerialTransport {
     }
 
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
-        if timeout.is_zero() {
+        if !self.readable_within(timeout)? {
             return Ok(0);
         }
-        self.port.set_timeout(timeout).map_err(io::Error::from)?;
+        // Input is waiting: the read returns at once (its own timeout error, which allocates,
+        // is never reached inside a tick).
         match self.port.read(buf) {
             Ok(n) => Ok(n),
             Err(e) if matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::Interrupted) => Ok(0),

@@ -87,15 +87,21 @@ fn respond(
     }
 }
 
-/// The chain in-process, in virtual time: sending advances the clock by the wire time, replies
-/// arrive after their return delays and wire time, waiting advances the clock. No thread, no
-/// sleeping, deterministic. Step the servos with [`InProcess::advance`]; the plant moves them.
+/// The chain in-process, in virtual time, keeping line time as [`LineTiming`] describes: an
+/// instruction goes on the wire when the line is free (half duplex) and takes its wire time
+/// (the host does not wait for it, as a write to an adapter returns at once); each reply
+/// follows its return delay and wire time and reaches the host the adapter's latency after its
+/// last byte; waiting advances the clock. No thread, no sleeping, deterministic. Step the
+/// servos with [`InProcess::advance`]; the plant moves them.
 #[derive(Debug)]
 pub struct InProcess<P: Plant = ServoMotion> {
     chain: Chain,
     plant: P,
     baud: u32,
+    usb_latency: Duration,
     clock: Duration,
+    /// When the last byte on the wire ends.
+    line_free: Duration,
     /// The time up to which the servos have moved.
     stepped: Duration,
     rx: Receiver,
@@ -122,7 +128,9 @@ impl<P: Plant> InProcess<P> {
             chain,
             plant,
             baud,
+            usb_latency: Duration::ZERO,
             clock: Duration::ZERO,
+            line_free: Duration::ZERO,
             stepped: Duration::ZERO,
             rx: Receiver::default(),
             pending: VecDeque::with_capacity(16 * MAX_PACKET),
@@ -130,6 +138,14 @@ impl<P: Plant> InProcess<P> {
             replies: Replies::new(),
             injector: None,
         }
+    }
+
+    /// The same with the USB adapter's latency timer: a reply reaches the host `latency`
+    /// after its last byte.
+    #[must_use]
+    pub fn with_usb_latency(mut self, latency: Duration) -> InProcess<P> {
+        self.usb_latency = latency;
+        self
     }
 
     /// The chain.
@@ -160,12 +176,17 @@ impl<P: Plant> InProcess<P> {
         self.catch_up();
     }
 
-    /// Moves the servos up to the clock (time spent on the wire passes for them too).
+    /// Moves the servos up to the clock.
     fn catch_up(&mut self) {
-        if self.clock > self.stepped {
+        self.step_to(self.clock);
+    }
+
+    /// Moves the servos up to `t` (an instruction's arrival may lie ahead of the host's clock).
+    fn step_to(&mut self, t: Duration) {
+        if t > self.stepped {
             self.plant
-                .advance(&mut self.chain, (self.clock - self.stepped).as_secs_f64());
-            self.stepped = self.clock;
+                .advance(&mut self.chain, (t - self.stepped).as_secs_f64());
+            self.stepped = t;
         }
     }
 }
@@ -176,19 +197,20 @@ impl<P: Plant> Transport for InProcess<P> {
         while self.pending.front().is_some_and(|(t, _)| *t <= self.clock) {
             self.pending.pop_front();
         }
-        self.clock += wire_time(bytes.len(), self.baud);
-        self.catch_up();
+        // On the wire once the line is free; the servos act on it when its last byte is in.
+        let arrived = self.clock.max(self.line_free) + wire_time(bytes.len(), self.baud);
+        self.step_to(arrived);
+        self.line_free = arrived;
         self.rx.push(bytes);
-        let mut at = self
-            .clock
-            .max(self.pending.back().map_or(Duration::ZERO, |(t, _)| *t));
         while let Received::Packet(raw) = self.rx.next_packet() {
             let n = raw.len();
             let mut packet = [0u8; MAX_PACKET];
             packet[..n].copy_from_slice(raw);
             self.rx.consume(n);
             let baud = self.baud;
+            let latency = self.usb_latency;
             let pending = &mut self.pending;
+            let mut at = self.line_free;
             respond(
                 &mut self.chain,
                 &packet[..n],
@@ -199,10 +221,11 @@ impl<P: Plant> Transport for InProcess<P> {
                     at += delay;
                     for &byte in b {
                         at += wire_time(1, baud);
-                        pending.push_back((at, byte));
+                        pending.push_back((at + latency, byte));
                     }
                 },
             );
+            self.line_free = at;
         }
         Ok(())
     }
@@ -580,6 +603,22 @@ impl<P: Plant> VirtualRig<P> {
         )))
     }
 
+    /// The same with the USB adapter's latency timer ([`InProcess::with_usb_latency`]).
+    #[must_use]
+    pub fn with_usb_latency(self, latency: Duration) -> VirtualRig<P> {
+        self.with(|t| t.usb_latency = latency);
+        self
+    }
+
+    /// A virtual rig keeping the line time of `bus` (baud, the adapter's latency), replies
+    /// waited for as the loop's bus does ([`super::reply_margin`]).
+    #[must_use]
+    pub fn keeping_time_of(chain: Chain, plant: P, bus: &crate::profile::BusConfig) -> VirtualRig<P> {
+        let margin = super::reply_margin(bus, chain.servos().len());
+        VirtualRig::with_plant(chain, plant, bus.baud, margin)
+            .with_usb_latency(Duration::from_micros(u64::from(bus.usb_latency_us)))
+    }
+
     /// Runs `f` on the transport (the chain, the plant, the injector, the clock).
     pub fn with<R>(&self, f: impl FnOnce(&mut InProcess<P>) -> R) -> R {
         f(self.0.borrow_mut().link_mut())
@@ -613,6 +652,15 @@ impl<P: Plant> super::ServoBus for VirtualRig<P> {
     }
     fn reboot(&mut self, id: u8) -> Result<(), super::BusError> {
         self.0.borrow_mut().reboot(id)
+    }
+    fn read_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), super::BusError> {
+        self.0.borrow_mut().read_positions(ids, out)
+    }
+    fn request_positions(&mut self, ids: &[u8]) -> Result<(), super::BusError> {
+        self.0.borrow_mut().request_positions(ids)
+    }
+    fn collect_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), super::BusError> {
+        self.0.borrow_mut().collect_positions(ids, out)
     }
 }
 

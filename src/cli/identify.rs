@@ -115,10 +115,10 @@ pub fn identify_cmd(
     let responses = match &args.bus {
         BusArg::Virtual => {
             let rest: Vec<i32> = rig.servos.iter().map(crate::rig::ServoMap::rest_tick).collect();
-            let mut bus = VirtualRig::new(
+            let mut bus = VirtualRig::keeping_time_of(
                 chain_for(&profile, |k| rest[k]),
-                profile.bus.baud,
-                std::time::Duration::from_millis(2),
+                crate::bus::virtual_chain::ServoMotion,
+                &profile.bus,
             );
             let present = start_up(&mut bus, &profile)?;
             let mut clock = bus.clone();

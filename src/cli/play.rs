@@ -16,7 +16,7 @@ use clap::{Args, ValueEnum};
 use super::error::CliError;
 use crate::budget::plan;
 use crate::bus::start_up;
-use crate::bus::virtual_chain::{chain_for, PtyChain};
+use crate::bus::virtual_chain::{chain_for, LineTiming, PtyChain};
 use crate::clock::SystemClock;
 use crate::control::input::{input_channel, InputPort, InputSender};
 use crate::control::lockstep::{LockstepSource, PlayerFeed, TrackFeed};
@@ -181,6 +181,10 @@ pub struct LoopArgs {
     /// plans the goal that far, and a period, ahead of the source, so the horn arrives on time).
     #[arg(long)]
     pub lead_ms: Option<f64>,
+    /// The virtual chain answers as soon as it can instead of keeping line time (the wire's
+    /// baud, return delays, the adapter's latency): for loop rates beyond what the bus allows.
+    #[arg(long)]
+    pub no_line_time: bool,
     /// Where the loop publishes its goals, present angles and timing (the studio).
     #[arg(skip)]
     pub live: Option<Arc<crate::control::live::LiveView>>,
@@ -276,13 +280,30 @@ fn open_bus(
         BusArg::Virtual => {
             // Servos powered up at their zero angle (inside their limits).
             let rest: Vec<i32> = rig.servos.iter().map(crate::rig::ServoMap::rest_tick).collect();
-            let chain = PtyChain::serve(chain_for(profile, |k| rest[k]), None).map_err(CliError::Output)?;
+            let chain = chain_for(profile, |k| rest[k]);
+            let chain = if args.no_line_time {
+                PtyChain::serve(chain, None)
+            } else {
+                warn_if_over_budget(args, &profile.bus, profile.servos.len(), out)?;
+                PtyChain::serve_timed(chain, LineTiming::of(&profile.bus))
+            }
+            .map_err(CliError::Output)?;
             let path = chain.path().to_string();
             let baud = args.baud.unwrap_or(profile.bus.baud);
             let bus = crate::bus::open_port(&path, baud, profile).map_err(CliError::at_port(&path))?;
+            let timing = if args.no_line_time {
+                "answering at once"
+            } else {
+                "keeping line time"
+            };
             Ok(OpenBus {
                 bus,
-                label: format!("virtual chain of {} servos on {path}", profile.servos.len()),
+                label: format!(
+                    "virtual chain of {} servos on {path} ({timing}, {} read{})",
+                    profile.servos.len(),
+                    profile.bus.read.name(),
+                    if profile.bus.pipeline { ", pipelined" } else { "" }
+                ),
                 _chain: Some(chain),
             })
         }
@@ -292,16 +313,7 @@ fn open_bus(
             let baud = args.baud.unwrap_or(profile.bus.baud);
             let mut cfg = profile.bus.clone();
             cfg.baud = baud;
-            let b = plan(&cfg, profile.servos.len(), Some(args.rate));
-            if b.feasible == Some(false) {
-                writeln!(
-                    out,
-                    "warning: a bus cycle takes {:.0} µs ({:.0} % of the {:.0} µs period): expect deadline misses (`marionette budget`)",
-                    b.cycle_time_us,
-                    100.0 * b.utilisation.unwrap_or(0.0),
-                    1e6 / args.rate
-                )?;
-            }
+            warn_if_over_budget(args, &cfg, profile.servos.len(), out)?;
             let bus = crate::bus::open_port(port, baud, profile).map_err(CliError::at_port(port))?;
             Ok(OpenBus {
                 bus,
@@ -310,6 +322,26 @@ fn open_bus(
             })
         }
     }
+}
+
+/// Warns when a bus cycle does not fit the loop's period.
+fn warn_if_over_budget(
+    args: &LoopArgs,
+    bus: &crate::profile::BusConfig,
+    servos: usize,
+    out: &mut dyn Write,
+) -> Result<(), CliError> {
+    let b = plan(bus, servos, Some(args.rate));
+    if b.feasible == Some(false) {
+        writeln!(
+            out,
+            "warning: a bus cycle takes {:.0} µs ({:.0} % of the {:.0} µs period): expect deadline misses (`marionette budget`)",
+            b.cycle_time_us,
+            100.0 * b.utilisation.unwrap_or(0.0),
+            1e6 / args.rate
+        )?;
+    }
+    Ok(())
 }
 
 /// What a run of the loop gives back.
@@ -397,6 +429,7 @@ fn run_sim(
     // count would be the simulator's; the loop's own ticks are counted on the other buses.
     let _ = allocations;
     let mut config = loop_config(args, None);
+    config.pipelined = profile.bus.pipeline;
     config.effector_metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
     let planner = lookahead(args, profile, &rig);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
@@ -511,6 +544,7 @@ fn loop_config(args: &LoopArgs, allocations: Option<fn() -> u64>) -> LoopConfig 
         max_ticks: args.duration.map(|d| (d * args.rate).round().max(1.0) as u64),
         ease_in_s: args.ease_in,
         effector_metres_per_unit: 0.0,
+        pipelined: false,
         allocations,
     }
 }
@@ -589,6 +623,8 @@ pub(super) fn run_loop(
     let present = start_up(bus.as_mut(), profile)?;
     writeln!(out, "{label}: {} servos up, torque on", present.len())?;
     let mut config = loop_config(args, allocations);
+    // Dynamixel2 (Bulk Read) cannot split a read: its request does nothing, its collect reads.
+    config.pipelined = profile.bus.pipeline;
     config.effector_metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
     let planner = lookahead(args, profile, &rig);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
@@ -607,7 +643,12 @@ pub(super) fn run_loop(
     let period = controller.period_ns();
     let mut clock = SystemClock::new(200_000);
     // The first tick a little ahead, so the producer has filled the channel.
-    let start = clock.now_ns() + 50_000_000;
+    // (At most half the Bus Watchdog away: it was armed at the end of the start-up.)
+    let lead_ns = match profile.bus.watchdog_ms {
+        0 => 50_000_000,
+        w => (u64::from(w) * 500_000).min(50_000_000),
+    };
+    let start = clock.now_ns() + lead_ns;
     let producer = start_producer(clock, start, period, controller.preview_ns()).map_err(CliError::Output)?;
     let rt = RealTime {
         priority: args.rt_priority,

@@ -96,6 +96,10 @@ pub struct LoopConfig {
     /// Metres per skeleton file unit at the rig's size, for effector distances (the puppet's
     /// scale times the skeleton's unit; a robot's are in its own metres).
     pub effector_metres_per_unit: f64,
+    /// Pipelined reads: each tick requests the present positions after its Sync Write and
+    /// takes the replies at the start of the next tick, so the servos answer while the loop
+    /// sleeps ([`ServoBus::request_positions`]).
+    pub pipelined: bool,
 }
 
 impl Default for LoopConfig {
@@ -109,6 +113,7 @@ impl Default for LoopConfig {
             allocations: None,
             ease_in_s: 0.0,
             effector_metres_per_unit: 0.0,
+            pipelined: false,
         }
     }
 }
@@ -492,6 +497,30 @@ impl RetargetStage {
     }
 }
 
+/// What a read taken after a tick's Sync Write belongs to (kept until a pipelined read's
+/// replies are taken).
+#[derive(Clone, Copy)]
+struct ReadContext {
+    /// The tick's source sample (the fidelity's reference).
+    sample: SourceSample,
+    /// Whether the tick held its last command.
+    holding: bool,
+    /// The goals it wrote.
+    goals: [i32; MAX_SERVOS],
+    /// The goals written a tick before, which the servos had a period to reach.
+    tracked: Option<[i32; MAX_SERVOS]>,
+    /// Whether the read counts for fidelity (input flowing, not held, eased in, past the
+    /// pre-roll).
+    record: bool,
+}
+
+/// What a read gave.
+struct Absorbed {
+    ok: bool,
+    tracking: f64,
+    end: Option<RunEnd>,
+}
+
 /// The loop's state: everything a tick touches, allocated before the first tick.
 pub struct Controller {
     skeleton: Arc<Skeleton>,
@@ -504,6 +533,8 @@ pub struct Controller {
     angles: Vec<f64>,
     present: Vec<i32>,
     read_buf: Vec<i32>,
+    /// A pipelined read on the wire and the tick it belongs to.
+    in_flight: Option<ReadContext>,
     /// Goals of the previous tick's write: what the servos had a period to reach.
     previous_goals: Vec<i32>,
     have_previous: bool,
@@ -627,6 +658,7 @@ impl Controller {
             angles,
             present: present.to_vec(),
             read_buf: vec![0; n],
+            in_flight: None,
             previous_goals: vec![0; n],
             have_previous: false,
             pose: Box::default(),
@@ -647,6 +679,62 @@ impl Controller {
 
     /// Source against present for this tick (after a valid read): joints, and effectors by
     /// forward kinematics of both. Allocates nothing.
+    /// Takes a read made after the Sync Write of the tick described by `context`: the present
+    /// positions, tracking against the goals the servos had a period to reach, fidelity
+    /// against that tick's source; a failure counted, and torque off after the torque-off
+    /// time without a valid read. Returns what it found and why the port failed, if it did.
+    fn absorb_read(
+        &mut self,
+        read: Result<(), BusError>,
+        at_ns: u64,
+        context: &ReadContext,
+        bus: &mut dyn ServoBus,
+    ) -> (Absorbed, Option<std::io::Error>) {
+        let len = self.ids.len();
+        let mut found = Absorbed {
+            ok: read.is_ok(),
+            tracking: f64::NAN,
+            end: None,
+        };
+        match read {
+            Ok(()) => {
+                self.present.copy_from_slice(&self.read_buf);
+                self.stats.reads_ok += 1;
+                self.failures = 0;
+                self.last_valid_read_ns = at_ns;
+                if context.holding {
+                    // Back from a hold: the next command starts, at rest, from the one held.
+                    self.stage.start_from(&self.rig, &context.goals[..len]);
+                }
+                if let Some(goals) = &context.tracked {
+                    let mut sq = 0.0;
+                    for (s, (g, p)) in self.rig.servos.iter().zip(goals.iter().zip(&self.present)) {
+                        let deg =
+                            f64::from(g - p) * 360.0 / f64::from(TICKS_PER_TURN) / s.gear.abs().max(1e-9);
+                        self.stats.tracking(deg);
+                        sq += deg * deg;
+                    }
+                    found.tracking = (sq / len.max(1) as f64).sqrt();
+                }
+                if context.record {
+                    self.record_fidelity(&context.sample);
+                }
+                (found, None)
+            }
+            Err(e) => {
+                self.stats.bus_error(e.kind());
+                self.failures = self.failures.saturating_add(1);
+                let lost = e.port_failure();
+                let silent_ms = (at_ns.saturating_sub(self.last_valid_read_ns)) as f64 * 1e-6;
+                if lost.is_none() && silent_ms >= self.config.torque_off_after_ms {
+                    self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
+                    found.end = Some(RunEnd::ReadsFailed);
+                }
+                (found, lost)
+            }
+        }
+    }
+
     fn record_fidelity(&mut self, sample: &SourceSample) {
         let source_tips = &sample.tips;
         for ((p, s), t) in self
@@ -657,7 +745,8 @@ impl Controller {
         {
             *p = s.ticks_to_angle(f64::from(*t));
         }
-        self.fidelity.record(&self.source_angles, &self.present_angles);
+        let n = self.present_angles.len();
+        self.fidelity.record(&sample.angles[..n], &self.present_angles);
         if let Some(r) = &mut self.retarget {
             let present = r.present_effectors(&self.rig, &self.present_angles, sample.base);
             self.fidelity.record_effectors(&sample.effectors, &present);
@@ -891,6 +980,28 @@ impl Controller {
             self.last_valid_read_ns = start;
         }
 
+        // Pipelined: the replies to the last tick's request (they came in while the loop slept),
+        // before deciding whether to hold.
+        let mut absorbed = None;
+        let mut collect_ns = 0;
+        if let Some(context) = self.in_flight.take() {
+            let t0 = clock.now_ns();
+            let read = bus.collect_positions(&self.ids, &mut self.read_buf);
+            let t1 = clock.now_ns();
+            collect_ns = t1 - t0;
+            let (r, l) = self.absorb_read(read, t1, &context, bus);
+            if let Some(why) = l {
+                // The port is gone: command nothing more.
+                self.port_error = Some(why);
+                self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
+                return Some(RunEnd::PortLost);
+            }
+            if r.end.is_some() {
+                return r.end;
+            }
+            absorbed = Some(r);
+        }
+
         // Input: every one due by the look-ahead's horizon becomes a source sample (solved,
         // retargeted, mapped); the newest due in this tick's half-period window is current
         // (inputs stamped with their ideal times, such as a 120 Hz file at 120 Hz, land on the
@@ -984,58 +1095,50 @@ impl Controller {
         let t_read = clock.now_ns();
         self.stats.stage_mut(Stage::BusWrite).record(t_read - t_write);
 
-        // Bus read: used only when every reply passed every check.
-        let read = bus.read_positions(&self.ids, &mut self.read_buf);
-        let t_after = clock.now_ns();
-        self.stats.stage_mut(Stage::BusRead).record(t_after - t_read);
+        // Bus read: used only when every reply passed every check. Pipelined, the request
+        // goes out now and the replies are taken at the start of the next tick.
+        // Not in a pre-roll (negative clip times; targets have none).
+        let pre_roll = current.clip_time < 0.0;
+        let mut context = ReadContext {
+            sample: current,
+            holding,
+            goals,
+            tracked: None,
+            record: self.have_input && !holding && self.eased >= self.ease_ticks && !pre_roll,
+        };
+        if self.have_previous {
+            let mut g = [0i32; MAX_SERVOS];
+            g[..len].copy_from_slice(&self.previous_goals);
+            context.tracked = Some(g);
+        }
+        let mut read_ok = false;
         let mut tracking = f64::NAN;
         let mut end = None;
-        let read_ok = read.is_ok();
-        match read {
-            Ok(()) => {
-                self.present.copy_from_slice(&self.read_buf);
-                self.stats.reads_ok += 1;
-                self.failures = 0;
-                self.last_valid_read_ns = t_after;
-                if holding {
-                    // Back from a hold: the next command starts, at rest, from the one held.
-                    self.stage.start_from(&self.rig, &goals[..len]);
-                }
-                // Tracking: the present position against the goal the servo had a period to
-                // reach (the one written a tick ago).
-                if self.have_previous {
-                    let mut sq = 0.0;
-                    for (s, (g, p)) in self
-                        .rig
-                        .servos
-                        .iter()
-                        .zip(self.previous_goals.iter().zip(&self.present))
-                    {
-                        let deg =
-                            f64::from(g - p) * 360.0 / f64::from(TICKS_PER_TURN) / s.gear.abs().max(1e-9);
-                        self.stats.tracking(deg);
-                        sq += deg * deg;
-                    }
-                    tracking = (sq / len.max(1) as f64).sqrt();
-                }
-                // The clip proper: not while easing in from where the servos stood, nor in a
-                // pre-roll (negative clip times).
-                let pre_roll = current.clip_time < 0.0;
-                if self.have_input && !holding && self.eased >= self.ease_ticks && !pre_roll {
-                    self.record_fidelity(&current);
+        let t_after;
+        if self.config.pipelined {
+            let requested = bus.request_positions(&self.ids);
+            t_after = clock.now_ns();
+            match requested {
+                Ok(()) => self.in_flight = Some(context),
+                Err(e) => {
+                    let (r, l) = self.absorb_read(Err(e), t_after, &context, bus);
+                    (end, lost) = (r.end, lost.or(l));
                 }
             }
-            Err(e) => {
-                self.stats.bus_error(e.kind());
-                self.failures = self.failures.saturating_add(1);
-                lost = lost.or_else(|| e.port_failure());
-                let silent_ms = (t_after.saturating_sub(self.last_valid_read_ns)) as f64 * 1e-6;
-                if lost.is_none() && silent_ms >= self.config.torque_off_after_ms {
-                    self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
-                    end = Some(RunEnd::ReadsFailed);
-                }
+            if let Some(r) = absorbed {
+                (read_ok, tracking) = (r.ok, r.tracking);
+                end = end.or(r.end);
             }
+        } else {
+            let read = bus.read_positions(&self.ids, &mut self.read_buf);
+            t_after = clock.now_ns();
+            let (r, l) = self.absorb_read(read, t_after, &context, bus);
+            (read_ok, tracking, end) = (r.ok, r.tracking, r.end);
+            lost = lost.or(l);
         }
+        self.stats
+            .stage_mut(Stage::BusRead)
+            .record(t_after - t_read + collect_ns);
         if let Some(why) = lost {
             // The port is gone: command nothing more; one torque-off (its Sync Write fails
             // too, so no servo is asked on its own).
@@ -1051,7 +1154,7 @@ impl Controller {
 
         // Telemetry and timing.
         let done = clock.now_ns();
-        let bus_ns = t_after - t_write;
+        let bus_ns = t_after - t_write + collect_ns;
         let total = done - start;
         let compute = total.saturating_sub(bus_ns);
         self.stats.tick_total.record(total);

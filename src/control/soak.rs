@@ -147,7 +147,14 @@ pub fn soak(
     let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     let limits: Vec<(i32, i32)> = rig.servos.iter().map(|s| (s.min_tick, s.max_tick)).collect();
     let delay_us = u32::try_from(config.delay.as_micros()).unwrap_or(u32::MAX);
-    let mut vr = VirtualRig::new(chain_for(profile, |k| rest[k]), profile.bus.baud, config.margin);
+    // The adapter's latency comes on top of every reply, and so of the host's margin.
+    let latency = Duration::from_micros(u64::from(profile.bus.usb_latency_us));
+    let mut vr = VirtualRig::new(
+        chain_for(profile, |k| rest[k]),
+        profile.bus.baud,
+        config.margin + latency,
+    )
+    .with_usb_latency(latency);
     vr.with(|t| t.injector = Some(FaultInjector::new(config.seed, 0.0, &Fault::ALL, delay_us)));
     let applied = |vr: &VirtualRig| vr.with(|t| t.injector.as_ref().map_or(0, FaultInjector::total));
     let mut rng = Rng::new(config.seed ^ 0x5eed_5eed);
@@ -155,9 +162,11 @@ pub fn soak(
         recovery_ticks: vec![0; RECOVERY_BINS + 1],
         ..SoakReport::default()
     };
+    let pipelined = profile.bus.pipeline;
     let loop_config = LoopConfig {
         rate_hz: config.rate_hz,
         stop: StopMode::Hold { hold_s: 0.0 },
+        pipelined,
         ..LoopConfig::default()
     };
     let n = skeleton.channel_count();
@@ -199,8 +208,11 @@ pub fn soak(
         let ahead = c.preview_ns();
         let period = c.period_ns();
         let mut clock = vr.clone();
+        // What the chain last reported, and pipelined, what it reported a tick before (the
+        // replies a pipelined tick uses were made in the tick before it).
         let mut reported: Vec<Option<i32>> =
             vr.with(|t| t.chain().servos().iter().map(|s| s.reported_position()).collect());
+        let mut reported_before = reported.clone();
         let session_start = clock.now_ns();
         let mut schedule = Schedule::new(session_start + period, period);
         // Burst state: ticks left in the burst or in the quiet after it.
@@ -242,7 +254,7 @@ pub fn soak(
             let held = c.stats.held_ticks > held_before;
             // The chain's record against what the loop did.
             vr.with(|t| {
-                for ((((servo, used), command), (lo, hi)), before) in t
+                for (((((servo, used), command), (lo, hi)), last), older) in t
                     .chain()
                     .servos()
                     .iter()
@@ -250,16 +262,19 @@ pub fn soak(
                     .zip(c.last_command())
                     .zip(&limits)
                     .zip(reported.iter_mut())
+                    .zip(reported_before.iter_mut())
                 {
                     let now = servo.reported_position();
-                    if read_used && now != Some(*used) {
-                        if *before == Some(*used) {
+                    let (truth, stale) = if pipelined { (*last, *older) } else { (now, *last) };
+                    if read_used && truth != Some(*used) {
+                        if stale == Some(*used) {
                             report.stale_values_used += 1;
                         } else {
                             report.corrupt_values_used += 1;
                         }
                     }
-                    *before = now;
+                    *older = *last;
+                    *last = now;
                     if !(lo..=hi).contains(&command) {
                         report.commands_outside_limits += 1;
                     }

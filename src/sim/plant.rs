@@ -8,7 +8,6 @@
 //! ([`SimBus`]), the wall clock on a pseudo-terminal.
 
 use std::path::Path;
-use std::time::Duration;
 
 use marionette_sim::World;
 
@@ -341,7 +340,7 @@ pub fn rest_angles(rig: &Rig) -> Vec<f64> {
 pub type SimBus = VirtualRig<SimPlant>;
 
 /// A lockstep simulated rig powered up with every servo where the model rests (clamped into
-/// its limits), at the profile's baud rate; replies waited for up to 2 ms.
+/// its limits), keeping the line time of the profile's bus.
 ///
 /// # Errors
 /// [`SimError`] when the model does not fit the profile.
@@ -350,12 +349,7 @@ pub fn sim_bus(world: World, profile: &Profile, rig: &Rig) -> Result<SimBus, Sim
     plant.set_angles(&rest_angles(rig));
     let present = plant.present_ticks();
     let chain = chain_for(profile, |k| present[k]);
-    Ok(VirtualRig::with_plant(
-        chain,
-        plant,
-        profile.bus.baud,
-        Duration::from_millis(2),
-    ))
+    Ok(VirtualRig::keeping_time_of(chain, plant, &profile.bus))
 }
 
 /// Loads a model: a given MJCF file, or the puppet generated from the skeleton and profile.
