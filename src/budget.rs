@@ -4,8 +4,9 @@
 //! Packet sizes (Protocol 2.0, 10-byte frame + parameters, `d` data bytes per servo):
 //! Sync Write `14 + (1 + 4)·N`; Sync Read request `14 + N` and `N` replies of `11 + d`; Bulk
 //! Read request `10 + 5·N` and `N` replies of `11 + d`; Fast Sync Read request `14 + N` and one
-//! reply of `8 + (4 + d)·N`. Every byte is 10 bits on the line (start, 8 data, stop). Each
-//! replying servo waits its Return Delay Time (one wait for Fast Sync Read), and the host sees
+//! reply of `8 + (4 + d)·N`; Fast Bulk Read request `10 + 5·N` and the same one reply. Every
+//! byte is 10 bits on the line (start, 8 data, stop). Each replying servo waits its Return
+//! Delay Time (one wait for the fast reads), and the host sees
 //! the reply only when the USB adapter's latency timer flushes it (once per read).
 
 use serde::Serialize;
@@ -62,6 +63,7 @@ pub fn plan(bus: &BusConfig, servos: usize, rate_hz: Option<f64>) -> Budget {
         ReadMode::Sync => (14 + n, n * (11 + d), n),
         ReadMode::Bulk => (10 + 5 * n, n * (11 + d), n),
         ReadMode::FastSync => (14 + n, 8 + (4 + d) * n, 1),
+        ReadMode::FastBulk => (10 + 5 * n, 8 + (4 + d) * n, 1),
     };
     let bytes_per_cycle = write_bytes + read_request_bytes + read_reply_bytes;
     let wire_time_us = f64::from(bytes_per_cycle) * f64::from(BITS_PER_BYTE) * 1e6 / f64::from(bus.baud);
@@ -96,6 +98,7 @@ impl std::fmt::Display for Budget {
             ReadMode::Sync => "Sync Read",
             ReadMode::Bulk => "Bulk Read",
             ReadMode::FastSync => "Fast Sync Read",
+            ReadMode::FastBulk => "Fast Bulk Read",
         };
         writeln!(
             f,

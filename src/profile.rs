@@ -8,7 +8,7 @@
 //! [bus]
 //! baud = 4_000_000          # bit/s, a Dynamixel rate every servo supports
 //! return_delay_us = 0       # Return Delay Time written at start-up (0…508, even)
-//! read = "sync"             # sync | bulk | fast-sync
+//! read = "sync"             # sync | bulk | fast-sync | fast-bulk
 //! read_fields = ["position"] # position, velocity, current
 //! usb_latency_us = 1000     # the adapter's latency timer
 //! pipeline = true           # request the read after the write, take it next tick
@@ -96,16 +96,20 @@ pub enum ReadMode {
     Bulk,
     /// Fast Sync Read (0x8A, X firmware ≥ 45): one request, one combined reply.
     FastSync,
+    /// Fast Bulk Read (0x9A, X firmware ≥ 45): one request naming each servo's address, one
+    /// combined reply.
+    FastBulk,
 }
 
 impl ReadMode {
-    /// Its name in profiles (`sync`, `bulk`, `fast-sync`).
+    /// Its name in profiles (`sync`, `bulk`, `fast-sync`, `fast-bulk`).
     #[must_use]
     pub fn name(self) -> &'static str {
         match self {
             ReadMode::Sync => "sync",
             ReadMode::Bulk => "bulk",
             ReadMode::FastSync => "fast-sync",
+            ReadMode::FastBulk => "fast-bulk",
         }
     }
 }
@@ -872,10 +876,13 @@ fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextE
         None | Some((_, "sync")) => ReadMode::Sync,
         Some((_, "bulk")) => ReadMode::Bulk,
         Some((_, "fast-sync")) => ReadMode::FastSync,
+        Some((_, "fast-bulk")) => ReadMode::FastBulk,
         Some((r, other)) => {
             return Err(ck.at(
                 r,
-                format!("expected read = \"sync\", \"bulk\" or \"fast-sync\", found \"{other}\""),
+                format!(
+                    "expected read = \"sync\", \"bulk\", \"fast-sync\" or \"fast-bulk\", found \"{other}\""
+                ),
             ))
         }
     };

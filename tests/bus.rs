@@ -701,7 +701,86 @@ fn the_line_timed_chain_is_never_faster_than_the_wire() {
             "{name}: a cycle took {shortest:.0} µs, the wire needs {:.0} µs",
             planned.cycle_time_us
         );
+        // In process and in real time (the loop's `--bus virtual`), through the project's
+        // host, pipelined as the loop reads: never sooner than the wire either.
+        let link = InProcess::new(chain_for(&p, |_| 2048), p.bus.baud)
+            .with_usb_latency(Duration::from_micros(u64::from(p.bus.usb_latency_us)))
+            .real_time();
+        let margin = marionette::bus::reply_margin(&p.bus, p.servos.len());
+        let mut bus = PacketBus::new(link, margin).with_single_margin(4 * margin);
+        let mut present = start_up(&mut bus, &p).unwrap();
+        let mut shortest = f64::INFINITY;
+        for _ in 0..50 {
+            let t = Instant::now();
+            bus.write_goals(&ids, &present).unwrap();
+            bus.request_positions(&ids).unwrap();
+            bus.collect_positions(&ids, &mut present).unwrap();
+            shortest = shortest.min(t.elapsed().as_secs_f64() * 1e6);
+        }
+        println!("{name}: in process, shortest cycle {shortest:.0} µs");
+        assert!(
+            shortest >= 0.99 * planned.cycle_time_us,
+            "{name}: in process, a cycle took {shortest:.0} µs, the wire needs {:.0} µs",
+            planned.cycle_time_us
+        );
     }
+}
+
+/// The servo's motor model: Present Current in the model's units from the horn's torque
+/// (stall torque ↔ stall current), Present Load for models without current sensing, Present
+/// PWM from speed and torque; zero while limp. Moving follows the Moving Threshold.
+#[test]
+fn present_current_pwm_and_moving_follow_the_motor_model() {
+    use marionette::servo::model_by_name;
+
+    // The OP3's servos are XM430-W350s.
+    let p = profile("robotis-op3.toml");
+    let mut bus = in_process(&p, 5);
+    let ids = p.ids();
+    let (a, b) = (ids[0], ids[1]);
+    let xm = model_by_name("XM430-W350").unwrap();
+    let signed = |v: u32| i32::from(v as u16 as i16);
+    for id in [a, b] {
+        bus.write(id, addr::TORQUE_ENABLE, &[1]).unwrap();
+    }
+    let set_load = |bus: &mut PacketBus<InProcess>, k: usize, nm: f64| {
+        bus.link_mut().chain_mut().servos_mut()[k].set_load(nm);
+    };
+    set_load(&mut bus, 0, xm.stall_torque_nm / 2.0);
+    set_load(&mut bus, 1, -xm.stall_torque_nm / 4.0);
+    bus.link_mut().advance(Duration::from_millis(1));
+    // Half the stall torque: half of 2.3 A in 2.69 mA units; the duty for that torque at rest.
+    let current = signed(bus.read_value(a, addr::PRESENT_CURRENT, 2).unwrap());
+    assert_eq!(current, (1150.0f64 / 2.69).round() as i32);
+    let pwm = signed(bus.read_value(a, 124, 2).unwrap());
+    assert_eq!(pwm, (0.5f64 * 885.0).round() as i32);
+    assert!(signed(bus.read_value(b, addr::PRESENT_CURRENT, 2).unwrap()) < 0);
+    // Limp: no current, no PWM.
+    bus.write(b, addr::TORQUE_ENABLE, &[0]).unwrap();
+    bus.link_mut().advance(Duration::from_millis(1));
+    assert_eq!(bus.read_value(b, addr::PRESENT_CURRENT, 2).unwrap(), 0);
+    assert_eq!(bus.read_value(b, 124, 2).unwrap(), 0);
+    // Moving: 0 at rest, 1 while the horn turns faster than the Moving Threshold; PWM grows
+    // with speed.
+    set_load(&mut bus, 0, 0.0);
+    bus.link_mut().advance(Duration::from_millis(1));
+    assert_eq!(bus.read_value(a, addr::MOVING, 1).unwrap(), 0);
+    let here = bus.read_value(a, addr::PRESENT_POSITION, 4).unwrap() as i32;
+    let goal = if here < 2048 { here + 600 } else { here - 600 };
+    bus.write(a, addr::GOAL_POSITION, &goal.to_le_bytes()).unwrap();
+    bus.link_mut().advance(Duration::from_millis(60));
+    assert_eq!(bus.read_value(a, addr::MOVING, 1).unwrap(), 1);
+    let pwm = signed(bus.read_value(a, 124, 2).unwrap());
+    assert!(pwm.abs() > 100, "{pwm}");
+    // XL430-W250s report Present Load (0.1 % of the maximum torque) there instead.
+    let xl = model_by_name("XL430-W250").unwrap();
+    let mut chain = marionette::device::Chain::new();
+    let _ = chain.add(marionette::device::VirtualServo::new(9, xl, 2048));
+    let mut one = PacketBus::new(InProcess::new(chain, 1_000_000), Duration::from_millis(2));
+    one.write(9, addr::TORQUE_ENABLE, &[1]).unwrap();
+    one.link_mut().chain_mut().servos_mut()[0].set_load(xl.stall_torque_nm * 0.3);
+    one.link_mut().advance(Duration::from_millis(1));
+    assert_eq!(signed(one.read_value(9, addr::PRESENT_CURRENT, 2).unwrap()), 300);
 }
 
 /// Fast Sync Read (0x8A) on the project's own device and host, in virtual time: the same data
@@ -780,6 +859,88 @@ fn fast_sync_read_matches_sync_read_in_one_reply_and_names_a_bad_servo() {
             .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect();
         assert_eq!(present, expect);
+    }
+}
+
+/// Bulk Read and Fast Bulk Read (0x9A) on the project's own host and device: entries of
+/// different addresses and lengths per servo (the case `dynamixel2` 0.9.1 gets wrong) read the
+/// same bytes as single reads; a Fast Bulk Read's one reply takes the request's and its own
+/// wire time and one return delay; a silent servo is named while the others' blocks are used;
+/// a loop reading with `fast-bulk` or `bulk` gets the same positions as Sync Read.
+#[test]
+fn bulk_and_fast_bulk_read_entries_of_their_own_address_and_length() {
+    use marionette::bus::packet::wire_time;
+    use marionette::profile::ReadMode;
+
+    let p = profile("robotis-op3.toml");
+    let ids = p.ids();
+    let mut bus = in_process(&p, 11);
+    // Present Position (4), Moving (1), Present Temperature (1), Model Number (2), cycling.
+    let items = [(addr::PRESENT_POSITION, 4u16), (122, 1), (146, 1), (0, 2)];
+    let entries: Vec<(u8, u16, u16)> = ids
+        .iter()
+        .enumerate()
+        .map(|(k, &id)| (id, items[k % 4].0, items[k % 4].1))
+        .collect();
+    let total: usize = entries.iter().map(|e| usize::from(e.2)).sum();
+    let mut single = Vec::new();
+    for &(id, a, l) in &entries {
+        let mut b = vec![0u8; usize::from(l)];
+        bus.read(id, a, &mut b).unwrap();
+        single.extend_from_slice(&b);
+    }
+    let mut bulk = vec![0u8; total];
+    bus.bulk_read(&entries, &mut bulk).unwrap();
+    assert_eq!(bulk, single);
+    let mut fast = vec![0u8; total];
+    let mut valid = vec![false; entries.len()];
+    let before = bus.link().now();
+    bus.fast_bulk_read(&entries, &mut fast, &mut valid).unwrap();
+    let took = bus.link().now() - before;
+    assert_eq!(fast, single);
+    assert!(valid.iter().all(|v| *v));
+    // Request 10 + 5N, one reply of 8 + 4N + data, the first servo's return delay (the
+    // factory's 500 µs: not started up), the reply handed over at once (no USB latency here).
+    let n = entries.len();
+    let delay = Duration::from_micros(u64::from(bus.link().chain().servos()[0].return_delay_us()));
+    let expected = wire_time(10 + 5 * n, p.bus.baud) + delay + wire_time(8 + 4 * n + total, p.bus.baud);
+    assert!(
+        took.abs_diff(expected) <= wire_time(1, p.bus.baud),
+        "{took:?} against {expected:?}"
+    );
+    // A silent servo: named, the others' data stands.
+    let quiet = ids[3];
+    let _ = bus.write(quiet, addr::STATUS_RETURN_LEVEL, &[0]);
+    fast.fill(0);
+    let e = bus.fast_bulk_read(&entries, &mut fast, &mut valid).unwrap_err();
+    assert!(matches!(e, BusError::Timeout { id } if id == quiet), "{e}");
+    assert_eq!(valid.iter().filter(|v| !**v).count(), 1);
+    assert!(!valid[3]);
+    let at: usize = entries[..3].iter().map(|e| usize::from(e.2)).sum();
+    assert_eq!(fast[..at], single[..at]);
+    // Bulk Read at Status Return Level 0: no reply, as for Sync Read.
+    let e = bus.bulk_read(&entries[3..4], &mut bulk).unwrap_err();
+    assert!(matches!(e, BusError::Timeout { id } if id == quiet), "{e}");
+    bus.write(quiet, addr::STATUS_RETURN_LEVEL, &[2]).unwrap();
+    // The loop's read with each mode: the positions Sync Read gives.
+    let mut expect = vec![0i32; ids.len()];
+    bus.read_positions(&ids, &mut expect).unwrap();
+    for mode in [
+        ReadMode::Bulk,
+        ReadMode::FastBulk,
+        ReadMode::FastSync,
+        ReadMode::Sync,
+    ] {
+        let mut bus = in_process(&p, 11).with_read_mode(mode);
+        let mut got = vec![0i32; ids.len()];
+        bus.read_positions(&ids, &mut got).unwrap();
+        assert_eq!(got, expect, "{mode:?}");
+        // Pipelined: requested now, collected later, the same.
+        bus.request_positions(&ids).unwrap();
+        bus.link_mut().advance(Duration::from_millis(5));
+        got.fill(0);
+        bus.collect_positions(&ids, &mut got).unwrap();
+        assert_eq!(got, expect, "{mode:?} pipelined");
     }
 }
 

@@ -1,5 +1,5 @@
-//! ROBOTIS's own Python SDK (`dynamixel-sdk` 4.1.0) as a client of `marionette serve`, both
-//! shipped profiles: the checks of `tests/conformance/sdk_check.py` (model numbers, pings,
+//! ROBOTIS's own Python SDK (`dynamixel-sdk` 4.1.0) as a client of `marionette serve` and
+//! `marionette sim serve`, both shipped profiles: the checks of `tests/conformance/sdk_check.py` (model numbers, pings,
 //! register ranges and access, error codes, sync/bulk/fast reads, Reg Write/Action, Status
 //! Return Levels, reboot, watchdog, factory reset rules). At least 95 % must hold; the rest are
 //! printed by name.
@@ -9,43 +9,80 @@ mod common;
 use std::io::{BufRead, BufReader};
 use std::process::Stdio;
 
+/// Runs the SDK checks against a chain served by `marionette ARGS`; returns (passed, total,
+/// the failed checks).
+fn sdk_checks(args: &[&str], profile: &str, sim: bool) -> (u64, u64, serde_json::Value) {
+    let mut serve = common::bin()
+        .args(args)
+        .args(["--duration", "180"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(serve.stdout.take().unwrap()).lines();
+    // The path comes on a line of its own.
+    let path = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .find(|l| l.starts_with("/dev/pts/"))
+        .expect("the served chain's path");
+    assert!(path.starts_with("/dev/pts/"), "{path}");
+    let out = std::process::Command::new("python3")
+        .arg("tests/conformance/sdk_check.py")
+        .arg(&path)
+        .arg(profile)
+        .arg("--json")
+        .args(sim.then_some("--sim"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("python3 with dynamixel-sdk 4.1.0 (see .ci/run)");
+    let _ = serve.kill();
+    let _ = serve.wait();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("{args:?}:\n{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "the SDK checks did not run");
+    let v: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    (
+        v["passed"].as_u64().unwrap(),
+        v["total"].as_u64().unwrap(),
+        v["failed"].clone(),
+    )
+}
+
 #[test]
 fn robotis_sdk_finds_the_served_servos_as_the_e_manual_describes_them() {
     for profile in [
         "firmware-profile/cmu-puppet.toml",
         "firmware-profile/robotis-op3.toml",
     ] {
-        let mut serve = common::bin()
-            .args(["serve", profile, "--duration", "120"])
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let mut lines = BufReader::new(serve.stdout.take().unwrap()).lines();
-        let _ = lines.next();
-        let path = lines.next().unwrap().unwrap();
-        assert!(path.starts_with("/dev/pts/"), "{path}");
-        let out = std::process::Command::new("python3")
-            .arg("tests/conformance/sdk_check.py")
-            .arg(&path)
-            .arg(profile)
-            .arg("--json")
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .output()
-            .expect("python3 with dynamixel-sdk 4.1.0 (see .ci/run)");
-        let _ = serve.kill();
-        let _ = serve.wait();
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        println!("{profile}:\n{stdout}{}", String::from_utf8_lossy(&out.stderr));
-        assert!(out.status.success(), "the SDK checks did not run");
-        let v: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
-        let (passed, total) = (v["passed"].as_u64().unwrap(), v["total"].as_u64().unwrap());
+        let (passed, total, failed) = sdk_checks(&["serve", profile], profile, false);
         assert!(total >= 45, "{total} checks");
         assert!(
             passed * 100 >= 95 * total,
-            "{profile}: {passed} of {total}; different: {}",
-            v["failed"]
+            "{profile}: {passed} of {total}; different: {failed}"
+        );
+    }
+}
+
+/// The same checks against the servos simulated in MuJoCo (`sim serve`, line time kept).
+#[cfg(feature = "sim")]
+#[test]
+fn robotis_sdk_finds_the_simulated_servos_as_the_e_manual_describes_them() {
+    for (profile, extra) in [
+        ("firmware-profile/cmu-puppet.toml", Some("data/cmu/16.asf")),
+        (
+            "firmware-profile/robotis-op3.toml",
+            Some("--model=sim/models/robotis_op3/op3.xml"),
+        ),
+    ] {
+        let mut args = vec!["sim", "serve", profile];
+        args.extend(extra);
+        let (passed, total, failed) = sdk_checks(&args, profile, true);
+        assert!(total >= 45, "{total} checks");
+        assert!(
+            passed * 100 >= 95 * total,
+            "{profile} in MuJoCo: {passed} of {total}; different: {failed}"
         );
     }
 }

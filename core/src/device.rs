@@ -45,7 +45,14 @@ pub struct VirtualServo {
     clock_ms: f64,
     /// A write held by Reg Write until Action: address and data.
     registered: Option<(u16, heapless::Vec<u8, 128>)>,
+    /// Torque at the horn, N·m, as the plant last measured it (0 without a load model).
+    load_nm: f64,
+    /// Where the firmware's motion profile stands (ticks, ticks/s) while one is under way.
+    profile: Option<(f64, f64)>,
 }
+
+/// PWM Limit's factory value and full scale (0.113 % units).
+const PWM_FULL: f64 = 885.0;
 
 /// Baud Rate register codes (e-manual): 9,600 … 4.5 Mbps.
 const BAUD_CODES: [u32; 8] = [
@@ -59,6 +66,10 @@ const LED: u16 = 65;
 const INDIRECT_ADDRESS: usize = 168;
 const INDIRECT_DATA: usize = 224;
 const INDIRECT_COUNT: usize = 28;
+/// Temperature Limit, 1 byte, °C.
+const TEMPERATURE_LIMIT: u16 = 31;
+/// Max Voltage Limit (2 bytes, 0.1 V); Min Voltage Limit follows it.
+const MAX_VOLTAGE_LIMIT: u16 = 32;
 /// Registered Instruction: 1 while a Reg Write waits for Action (read-only).
 const REGISTERED_INSTRUCTION: u16 = 69;
 
@@ -108,6 +119,8 @@ impl VirtualServo {
             reported_position: None,
             clock_ms: 0.0,
             registered: None,
+            load_nm: 0.0,
+            profile: None,
         };
         s.factory_defaults(id);
         s
@@ -131,6 +144,12 @@ impl VirtualServo {
         self.put(addr::OPERATING_MODE, 1, 3);
         let vlimit = libm::round(self.model.no_load_rpm / RPM_PER_VELOCITY_UNIT) as u32;
         self.put(addr::VELOCITY_LIMIT, 4, vlimit);
+        self.put(addr::MOVING_THRESHOLD, 4, 10);
+        self.put(TEMPERATURE_LIMIT, 1, u32::from(self.model.temperature_limit));
+        self.put(MAX_VOLTAGE_LIMIT, 2, u32::from(self.model.voltage_limits.0));
+        self.put(MAX_VOLTAGE_LIMIT + 2, 2, u32::from(self.model.voltage_limits.1));
+        self.put(addr::PWM_LIMIT, 2, PWM_FULL as u32);
+        self.put(addr::CURRENT_LIMIT, 2, u32::from(self.model.current_limit));
         self.put(addr::MAX_POSITION_LIMIT, 4, MAX_TICK as u32);
         self.put(addr::MIN_POSITION_LIMIT, 4, 0);
         self.put(
@@ -156,6 +175,8 @@ impl VirtualServo {
         }
         self.registered = None;
         self.velocity = 0.0;
+        self.load_nm = 0.0;
+        self.profile = None;
         self.watchdog_expired = false;
         self.since_packet = 0.0;
         let p = self.present_tick();
@@ -307,8 +328,18 @@ impl VirtualServo {
             .velocity_report
             .unwrap_or(libm::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32);
         self.put(addr::PRESENT_VELOCITY, 4, v as u32);
-        self.put(addr::MOVING, 1, u32::from(self.velocity != 0.0));
-        self.put(addr::PRESENT_INPUT_VOLTAGE, 2, 120);
+        // Moving above the Moving Threshold (e-manual); Moving Status: in position within
+        // it as well, a profile under way.
+        let threshold = self.get(addr::MOVING_THRESHOLD, 4) as i32;
+        self.put(addr::MOVING, 1, u32::from(v.abs() > threshold));
+        let in_position = (self.goal_tick() - p).abs() <= threshold.max(1);
+        let status = u32::from(in_position) | (u32::from(self.profile.is_some()) << 1);
+        self.put(addr::MOVING_STATUS, 1, status);
+        let (current, pwm) = self.motor_readings();
+        self.put(addr::PRESENT_CURRENT, 2, u32::from(current as u16));
+        self.put(addr::PRESENT_PWM, 2, u32::from(pwm as u16));
+        let supply = libm::round(self.model.rated_v * 10.0) as u32;
+        self.put(addr::PRESENT_INPUT_VOLTAGE, 2, supply);
         self.put(addr::PRESENT_TEMPERATURE, 1, 35);
         self.mirror_indirect();
     }
@@ -318,6 +349,63 @@ impl VirtualServo {
     fn indirect_target(&self, k: usize) -> Option<usize> {
         let a = self.get((INDIRECT_ADDRESS + 2 * k) as u16, 2) as usize;
         (a < TABLE_LEN && !(INDIRECT_DATA..INDIRECT_DATA + INDIRECT_COUNT).contains(&a)).then_some(a)
+    }
+
+    /// Present Current (or Load) and PWM from a DC motor model at the rated voltage: the
+    /// current in proportion to the horn's torque (stall torque ↔ stall current), the PWM duty
+    /// the speed and torque need (no-load speed ↔ full duty, stall torque ↔ full duty), both
+    /// signed as the horn turns. Zero while limp.
+    fn motor_readings(&self) -> (i16, i16) {
+        if !self.torque_on() {
+            return (0, 0);
+        }
+        let torque = self.load_nm / self.model.stall_torque_nm;
+        let no_load = self.model.no_load_rpm / 60.0 * f64::from(TICKS_PER_TURN);
+        let duty = (self.velocity / no_load + torque).clamp(-1.0, 1.0);
+        let current = if self.model.current_unit_ma > 0.0 {
+            torque * self.model.stall_current_a * 1e3 / self.model.current_unit_ma
+        } else {
+            // Present Load: 0.1 % of the maximum torque.
+            torque * 1000.0
+        };
+        let limit = f64::from(i16::MAX);
+        (
+            libm::round(current.clamp(-limit, limit)) as i16,
+            libm::round(duty * PWM_FULL) as i16,
+        )
+    }
+
+    /// Sets the torque at the horn, N·m (the plant's measurement; signed as positions grow),
+    /// for Present Current, Load and PWM.
+    pub fn set_load(&mut self, torque_nm: f64) {
+        self.load_nm = if torque_nm.is_finite() { torque_nm } else { 0.0 };
+    }
+
+    /// The position (ticks) the firmware's motion profile commands after `dt` more seconds,
+    /// for a plant that moves the horn itself: with Profile Velocity 0 the goal at once,
+    /// otherwise the profile towards the goal at Profile Velocity and Acceleration (0:
+    /// unlimited), started from where the horn stands. `None` while limp.
+    pub fn profile_target(&mut self, dt: f64) -> Option<f64> {
+        let Some(goal) = self.drive_goal().map(f64::from) else {
+            self.profile = None;
+            return None;
+        };
+        let pv = self.get(addr::PROFILE_VELOCITY, 4);
+        if pv == 0 {
+            self.profile = None;
+            return Some(goal);
+        }
+        let v = f64::from(pv) * TICKS_PER_S_PER_VELOCITY_UNIT;
+        let pa = self.get(addr::PROFILE_ACCELERATION, 4);
+        let a = if pa == 0 {
+            f64::INFINITY
+        } else {
+            f64::from(pa) * TICKS_PER_S2_PER_ACCELERATION_UNIT
+        };
+        let (p, vel) = self.profile.unwrap_or((self.position, 0.0));
+        let (p, vel) = step_towards(p, vel, goal, v, a, dt);
+        self.profile = (p != goal).then_some((p, vel));
+        Some(p)
     }
 
     /// Indirect Data reads the bytes its addresses point at.
@@ -466,7 +554,8 @@ impl VirtualServo {
             || byte(addr::STATUS_RETURN_LEVEL).is_some_and(|v| v > 2)
             || [addr::MAX_POSITION_LIMIT, addr::MIN_POSITION_LIMIT]
                 .iter()
-                .any(|&r| covers(r, 4) && value(r, 4) > MAX_TICK as u32);
+                .any(|&r| covers(r, 4) && value(r, 4) > MAX_TICK as u32)
+            || self.beyond_limit(&covers, &value);
         if out_of_range {
             return status_error::DATA_RANGE;
         }
@@ -511,6 +600,24 @@ impl VirtualServo {
             self.velocity = 0.0;
         }
         0
+    }
+
+    /// Whether a write sets one of these items beyond its range (e-manual): Moving Threshold
+    /// 0–1023, Temperature Limit 0–100, PWM Limit 0–885, Current Limit up to the model's
+    /// factory value, Velocity Limit 0–1023, Profile Acceleration and Velocity 0–32767.
+    fn beyond_limit(&self, covers: &impl Fn(u16, usize) -> bool, value: &impl Fn(u16, usize) -> u32) -> bool {
+        let current_limit = u32::from(self.model.current_limit);
+        [
+            (addr::MOVING_THRESHOLD, 4, 1023),
+            (TEMPERATURE_LIMIT, 1, 100),
+            (addr::PWM_LIMIT, 2, PWM_FULL as u32),
+            (addr::CURRENT_LIMIT, 2, current_limit),
+            (addr::VELOCITY_LIMIT, 4, 1023),
+            (addr::PROFILE_ACCELERATION, 4, 32_767),
+            (addr::PROFILE_VELOCITY, 4, 32_767),
+        ]
+        .iter()
+        .any(|&(r, n, max)| covers(r, n) && value(r, n) > max)
     }
 
     fn read(&self, a: u16, n: usize) -> Option<&[u8]> {
@@ -762,12 +869,23 @@ impl Chain {
             }
             instruction::FAST_SYNC_READ if broadcast && params.len() >= 4 => {
                 let (a, n) = (le16(params), usize::from(le16(&params[2..])));
-                w.fast_sync(&mut self.servos, a, n, &params[4..]);
+                let ids = &params[4..];
+                w.fast_chain(&mut self.servos, ids.len(), |k| (ids[k], a, n));
+            }
+            instruction::FAST_BULK_READ if broadcast => {
+                let items = &params[..params.len() / 5 * 5];
+                w.fast_chain(&mut self.servos, items.len() / 5, |k| {
+                    let item = &items[5 * k..5 * k + 5];
+                    (item[0], le16(&item[1..]), usize::from(le16(&item[3..])))
+                });
             }
             instruction::BULK_READ if broadcast => {
                 for item in params.chunks_exact(5) {
                     let (sid, a, n) = (item[0], le16(&item[1..]), usize::from(le16(&item[3..])));
                     for s in self.servos.iter_mut().filter(|s| s.id() == sid) {
+                        if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
+                            continue;
+                        }
                         s.note_reply(a, n);
                         match s.read(a, n) {
                             Some(data) => w.status(s, 0, data),
@@ -811,21 +929,34 @@ struct Writer<'o, 'r> {
 }
 
 impl Writer<'_, '_> {
-    /// Appends the one status packet of a Fast Sync Read: header, broadcast id, length,
-    /// STATUS, then per listed servo that answers (in the listed order) its error, id, `n`
-    /// data bytes and a CRC of the packet up to there — the last of which is the packet's own
-    /// CRC. Not byte-stuffed (each servo appends to the stream as it passes). The first
-    /// answering servo's return delay precedes it.
-    fn fast_sync(&mut self, servos: &mut [VirtualServo], a: u16, n: usize, ids: &[u8]) {
+    /// Appends the one status packet of a Fast Sync or Fast Bulk Read: header, broadcast id,
+    /// length, STATUS, then per listed servo that answers (in the listed order) its error, id,
+    /// its `n` data bytes from its address and a CRC of the packet up to there — the last of
+    /// which is the packet's own CRC. Not byte-stuffed (each servo appends to the stream as it
+    /// passes). The first answering servo's return delay precedes it. `entry(k)` is the k-th
+    /// of `count` listed (id, address, length).
+    fn fast_chain(
+        &mut self,
+        servos: &mut [VirtualServo],
+        count: usize,
+        entry: impl Fn(usize) -> (u8, u16, usize),
+    ) {
         let start = self.used;
         let out = &mut self.out[start..];
         let mut at = 8;
         let mut first: Option<(u8, u32)> = None;
-        for &sid in ids {
+        // Where each block's data ends (its CRC follows).
+        let mut ends = [0u16; 256];
+        let mut blocks = 0;
+        for k in 0..count {
+            let (sid, a, n) = entry(k);
             let Some(s) = servos.iter_mut().find(|s| s.id() == sid) else {
                 continue;
             };
-            if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 || at + 4 + n > out.len() {
+            if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0
+                || at + 4 + n > out.len()
+                || blocks == ends.len()
+            {
                 continue;
             }
             s.note_reply(a, n);
@@ -841,6 +972,8 @@ impl Writer<'_, '_> {
                 None => out[at + 2..at + 2 + n].fill(0),
             }
             first.get_or_insert((sid, s.return_delay_us()));
+            ends[blocks] = (at + 2 + n) as u16;
+            blocks += 1;
             // Error, id, data, and room for the block's CRC.
             at += 4 + n;
         }
@@ -853,12 +986,10 @@ impl Writer<'_, '_> {
         out[4] = BROADCAST_ID;
         out[5..7].copy_from_slice(&length.to_le_bytes());
         out[7] = instruction::STATUS;
-        let mut p = 8;
-        while p + 4 + n <= at {
-            let end = p + 2 + n;
+        for &end in &ends[..blocks] {
+            let end = usize::from(end);
             let crc = protocol::crc16(&out[..end]);
             out[end..end + 2].copy_from_slice(&crc.to_le_bytes());
-            p = end + 2;
         }
         let reply = Reply {
             id,

@@ -31,6 +31,7 @@ pub mod instruction {
     pub const FAST_SYNC_READ: u8 = 0x8A;
     pub const BULK_READ: u8 = 0x92;
     pub const BULK_WRITE: u8 = 0x93;
+    pub const FAST_BULK_READ: u8 = 0x9A;
 }
 
 const fn crc_table() -> [u16; 256] {

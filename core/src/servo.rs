@@ -43,7 +43,18 @@ pub mod addr {
     pub const GOAL_POSITION: u16 = 116;
     /// Moving, 1 byte.
     pub const MOVING: u16 = 122;
-    /// Present current, 2 bytes (signed).
+    /// Moving Threshold, 4 bytes, 0.229 rpm units: Moving is 1 above it.
+    pub const MOVING_THRESHOLD: u16 = 24;
+    /// PWM Limit, 2 bytes, 0.113 % units.
+    pub const PWM_LIMIT: u16 = 36;
+    /// Current Limit, 2 bytes, the model's current units.
+    pub const CURRENT_LIMIT: u16 = 38;
+    /// Moving Status, 1 byte: bit 0 in position, bit 1 a profile under way.
+    pub const MOVING_STATUS: u16 = 123;
+    /// Present PWM, 2 bytes (signed), 0.113 % units.
+    pub const PRESENT_PWM: u16 = 124;
+    /// Present current, 2 bytes (signed), the model's units (Present Load, 0.1 %, on models
+    /// without current sensing).
     pub const PRESENT_CURRENT: u16 = 126;
     /// Present velocity, 4 bytes (signed), 0.229 rpm units.
     pub const PRESENT_VELOCITY: u16 = 128;
@@ -123,6 +134,17 @@ pub struct ServoModel {
     pub min_v: f64,
     /// Highest supply, volts.
     pub max_v: f64,
+    /// Stall current at the rated voltage, A (e-manual).
+    pub stall_current_a: f64,
+    /// mA per unit of Present Current (126); 0 for models that report Present Load there
+    /// (0.1 % of the maximum torque) instead.
+    pub current_unit_ma: f64,
+    /// Current Limit's factory value (38), its units; 0 where the model has none.
+    pub current_limit: u16,
+    /// Temperature Limit's factory value (31), °C.
+    pub temperature_limit: u8,
+    /// Max and Min Voltage Limit's factory values (32, 34), 0.1 V.
+    pub voltage_limits: (u16, u16),
 }
 
 impl ServoModel {
@@ -170,6 +192,11 @@ pub const MODELS: [ServoModel; 5] = [
         rated_v: 5.0,
         min_v: 3.7,
         max_v: 6.0,
+        stall_current_a: 1.47,
+        current_unit_ma: 1.0,
+        current_limit: 1750,
+        temperature_limit: 70,
+        voltage_limits: (70, 35),
     },
     ServoModel {
         name: "XL430-W250",
@@ -182,6 +209,11 @@ pub const MODELS: [ServoModel; 5] = [
         rated_v: 11.1,
         min_v: 6.5,
         max_v: 12.0,
+        stall_current_a: 1.3,
+        current_unit_ma: 0.0,
+        current_limit: 0,
+        temperature_limit: 72,
+        voltage_limits: (140, 60),
     },
     ServoModel {
         name: "XM430-W350",
@@ -194,6 +226,11 @@ pub const MODELS: [ServoModel; 5] = [
         rated_v: 12.0,
         min_v: 10.0,
         max_v: 14.8,
+        stall_current_a: 2.3,
+        current_unit_ma: 2.69,
+        current_limit: 1193,
+        temperature_limit: 80,
+        voltage_limits: (160, 95),
     },
     ServoModel {
         name: "XH540-W270",
@@ -206,6 +243,11 @@ pub const MODELS: [ServoModel; 5] = [
         rated_v: 12.0,
         min_v: 10.0,
         max_v: 14.8,
+        stall_current_a: 4.4,
+        current_unit_ma: 2.69,
+        current_limit: 2047,
+        temperature_limit: 80,
+        voltage_limits: (160, 95),
     },
     ServoModel {
         name: "XM430-W210",
@@ -218,6 +260,11 @@ pub const MODELS: [ServoModel; 5] = [
         rated_v: 12.0,
         min_v: 10.0,
         max_v: 14.8,
+        stall_current_a: 2.3,
+        current_unit_ma: 2.69,
+        current_limit: 1193,
+        temperature_limit: 80,
+        voltage_limits: (160, 95),
     },
 ];
 

@@ -468,7 +468,15 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
         let n = ids.len();
         bus.sync_write(addr::BUS_WATCHDOG, 1, &ids, &vec![wd; n])?;
         let mut armed = vec![0u8; n];
-        bus.sync_read(addr::BUS_WATCHDOG, 1, &ids, &mut armed)?;
+        // Three tries: a read that need not fit in a tick may meet a busy line or host.
+        let mut read = bus.sync_read(addr::BUS_WATCHDOG, 1, &ids, &mut armed);
+        for _ in 0..2 {
+            if read.is_ok() {
+                break;
+            }
+            read = bus.sync_read(addr::BUS_WATCHDOG, 1, &ids, &mut armed);
+        }
+        read?;
         if let Some(k) = armed.iter().position(|a| *a != wd) {
             return Err(StartupError::Bus(BusError::Malformed {
                 id: ids[k],
@@ -504,20 +512,19 @@ pub fn reply_margin(bus: &crate::profile::BusConfig, servos: usize) -> std::time
 }
 
 /// Opens the loop's bus on a serial port for `profile`: the project's own host
-/// ([`packet::PacketBus`] over [`serial::SerialTransport`]) for Sync and Fast Sync Read — its
-/// reads can be pipelined and wait only their wire time and [`reply_margin`] — and `dynamixel2`
-/// for Bulk Read. Start-up's single transactions wait four times the margin.
+/// ([`packet::PacketBus`] over [`serial::SerialTransport`]), reading positions as the profile
+/// says (Sync, Bulk, Fast Sync or Fast Bulk Read — `dynamixel2` 0.9.1 has no fast reads and
+/// builds a wrong Bulk Read for more than one servo); its reads can be pipelined and wait only
+/// their wire time and [`reply_margin`]. Start-up's single transactions wait four times the
+/// margin.
 ///
 /// # Errors
 /// The port cannot be opened.
 pub fn open_port(path: &str, baud: u32, profile: &Profile) -> std::io::Result<Box<dyn ServoBus + Send>> {
     let margin = reply_margin(&profile.bus, profile.servos.len());
-    Ok(match profile.bus.read {
-        crate::profile::ReadMode::Bulk => Box::new(dxl::Dynamixel2Bus::open(path, baud)?),
-        read => Box::new(
-            packet::PacketBus::new(serial::SerialTransport::open(path, baud)?, margin)
-                .with_fast_reads(read == crate::profile::ReadMode::FastSync)
-                .with_single_margin(4 * margin),
-        ),
-    })
+    Ok(Box::new(
+        packet::PacketBus::new(serial::SerialTransport::open(path, baud)?, margin)
+            .with_read_mode(profile.bus.read)
+            .with_single_margin(4 * margin),
+    ))
 }

@@ -9,8 +9,9 @@ use std::time::Duration;
 
 use super::{invalid_request, BusError, PingInfo, ServoBus};
 use crate::device::{Received, Receiver, MAX_PACKET};
+use crate::profile::ReadMode;
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
-use crate::servo::addr;
+use crate::servo::{addr, MAX_SERVOS};
 
 /// A byte link to a bus.
 pub trait Transport {
@@ -49,8 +50,8 @@ pub struct PacketBus<T> {
     params: [u8; MAX_PACKET],
     margin: Duration,
     quiet: Duration,
-    /// Positions read with Fast Sync Read instead of Sync Read.
-    fast: bool,
+    /// How the loop's positions are read.
+    read: ReadMode,
     /// The margin of single transactions (ping, read, write, reboot).
     single_margin: Duration,
     /// When the line is next free, as far as the host knows (transport time): the end of the
@@ -80,7 +81,7 @@ impl<T: Transport> PacketBus<T> {
             params: [0; MAX_PACKET],
             margin,
             quiet: 2 * margin,
-            fast: false,
+            read: ReadMode::Sync,
             single_margin: margin,
             line_free: Duration::ZERO,
             pending: None,
@@ -97,9 +98,96 @@ impl<T: Transport> PacketBus<T> {
 
     /// Reads positions (the loop's read) with Fast Sync Read: one reply for all servos.
     #[must_use]
-    pub fn with_fast_reads(mut self, fast: bool) -> PacketBus<T> {
-        self.fast = fast;
+    pub fn with_fast_reads(self, fast: bool) -> PacketBus<T> {
+        self.with_read_mode(if fast { ReadMode::FastSync } else { ReadMode::Sync })
+    }
+
+    /// Reads positions (the loop's read) with `mode`.
+    #[must_use]
+    pub fn with_read_mode(mut self, mode: ReadMode) -> PacketBus<T> {
+        self.read = mode;
         self
+    }
+
+    /// Bulk Read (0x92): each entry (id, address, length) answered by its own status packet,
+    /// in entry order; `out` holds the entries' data one after another and is written only
+    /// when every reply passed.
+    ///
+    /// # Errors
+    /// The first reply that failed ([`BusError`]).
+    pub fn bulk_read(&mut self, entries: &[(u8, u16, u16)], out: &mut [u8]) -> Result<(), BusError> {
+        let total: usize = entries.iter().map(|e| usize::from(e.2)).sum();
+        if out.len() < total || entries.len() > MAX_SERVOS {
+            return Err(invalid_request(
+                "bulk read of more than 32 entries, or output too short",
+            ));
+        }
+        let sent = self.bulk_request(instruction::BULK_READ, entries)?;
+        let mut scratch = [0u8; MAX_PACKET];
+        let mut at = 0;
+        let mut due = sent;
+        for &(id, _, len) in entries {
+            let len = usize::from(len);
+            let one = wire_time(11 + len, self.link.baud());
+            due += one;
+            if let Err(e) = self.status_by(id, Some(len), due.max(self.link.now() + one) + self.single_margin)
+            {
+                self.drain();
+                return Err(e);
+            }
+            scratch[at..at + len].copy_from_slice(&self.params[1..=len]);
+            at += len;
+        }
+        out[..total].copy_from_slice(&scratch[..total]);
+        Ok(())
+    }
+
+    /// Fast Bulk Read (0x9A): each entry (id, address, length) a block of one combined reply,
+    /// checked on its own as in [`PacketBus::fast_sync_read`]; `out` holds the entries' data
+    /// one after another, `valid` says whose holds.
+    ///
+    /// # Errors
+    /// As [`PacketBus::fast_sync_read`]: the first entry without a good block; the others'
+    /// data is in `out` all the same.
+    pub fn fast_bulk_read(
+        &mut self,
+        entries: &[(u8, u16, u16)],
+        out: &mut [u8],
+        valid: &mut [bool],
+    ) -> Result<(), BusError> {
+        if entries.len() > MAX_SERVOS {
+            return Err(invalid_request("fast bulk read of more than 32 entries"));
+        }
+        let mut ids = [0u8; MAX_SERVOS];
+        let mut lens = [0u16; MAX_SERVOS];
+        for (k, e) in entries.iter().enumerate() {
+            (ids[k], lens[k]) = (e.0, e.2);
+        }
+        let n = entries.len();
+        let sent = self.bulk_request(instruction::FAST_BULK_READ, entries)?;
+        self.fast_replies(&ids[..n], &lens[..n], out, valid, (sent, self.single_margin))
+    }
+
+    /// Sends a Bulk or Fast Bulk Read request; returns when its last byte leaves.
+    fn bulk_request(&mut self, inst: u8, entries: &[(u8, u16, u16)]) -> Result<Duration, BusError> {
+        let data: usize = entries.iter().map(|e| usize::from(e.2)).sum();
+        if entries.is_empty() || 5 * entries.len() > MAX_PACKET || 8 + 4 * entries.len() + data > MAX_PACKET {
+            return Err(invalid_request("bulk read too large"));
+        }
+        let mut p = [0u8; MAX_PACKET];
+        for (k, &(id, a, l)) in entries.iter().enumerate() {
+            p[5 * k] = id;
+            p[5 * k + 1..5 * k + 3].copy_from_slice(&a.to_le_bytes());
+            p[5 * k + 3..5 * k + 5].copy_from_slice(&l.to_le_bytes());
+        }
+        let sent = self.send(BROADCAST_ID, inst, &p[..5 * entries.len()])?;
+        let reply = if inst == instruction::FAST_BULK_READ {
+            8 + 4 * entries.len() + data
+        } else {
+            11 * entries.len() + data
+        };
+        self.line_free = self.line_free.max(sent + wire_time(reply, self.link.baud()));
+        Ok(sent)
     }
 
     /// Fast Sync Read (0x8A) of `len` bytes at `address` from `ids`: one status packet from the
@@ -121,7 +209,7 @@ impl<T: Transport> PacketBus<T> {
         valid: &mut [bool],
     ) -> Result<(), BusError> {
         let sent = self.fast_sync_request(address, len, ids)?;
-        self.fast_sync_replies(len, ids, out, valid, sent)
+        self.fast_sync_replies(len, ids, out, valid, (sent, self.single_margin))
     }
 
     /// Sends a Fast Sync Read request; returns when its last byte leaves.
@@ -147,16 +235,40 @@ impl<T: Transport> PacketBus<T> {
         ids: &[u8],
         out: &mut [u8],
         valid: &mut [bool],
-        sent: Duration,
+        (sent, margin): (Duration, Duration),
     ) -> Result<(), BusError> {
-        let n = usize::from(len);
-        let expect = 8 + (4 + n) * ids.len();
-        if out.len() < ids.len() * n || valid.len() < ids.len() {
-            return Err(invalid_request("output shorter than ids × len"));
+        if ids.len() > 256 {
+            return Err(invalid_request("fast sync read of more than 256 servos"));
+        }
+        let lens = [len; 256];
+        self.fast_replies(ids, &lens[..ids.len()], out, valid, (sent, margin))
+    }
+
+    /// Takes the one combined reply of a Fast Sync or Fast Bulk Read whose request left at
+    /// `sent` (due by its wire time and the margin): blocks of error, id, data (`lens[k]`
+    /// bytes for `ids[k]`) and the CRC of the packet up to there, each checked on its own.
+    fn fast_replies(
+        &mut self,
+        ids: &[u8],
+        lens: &[u16],
+        out: &mut [u8],
+        valid: &mut [bool],
+        (sent, margin): (Duration, Duration),
+    ) -> Result<(), BusError> {
+        let total: usize = lens.iter().map(|l| usize::from(*l)).sum();
+        let expect = 8 + 4 * ids.len() + total;
+        if out.len() < total || valid.len() < ids.len() || ids.len() > 256 || expect > MAX_PACKET {
+            return Err(invalid_request(
+                "output shorter than the data asked, or too large",
+            ));
+        }
+        let mut offsets = [0usize; 256];
+        for k in 1..ids.len() {
+            offsets[k] = offsets[k - 1] + usize::from(lens[k - 1]);
         }
         valid[..ids.len()].fill(false);
-        let mut errors = [0u8; crate::servo::MAX_SERVOS];
-        let deadline = sent + wire_time(expect, self.link.baud()) + self.margin;
+        let mut errors = [0u8; 256];
+        let deadline = sent + wire_time(expect, self.link.baud()) + margin;
         let mut raw = [0u8; MAX_PACKET];
         let got = loop {
             if let Received::Packet(packet) = self.rx.next_packet() {
@@ -180,19 +292,30 @@ impl<T: Transport> PacketBus<T> {
         };
         // Blocks: error, id, data, CRC of everything before the CRC.
         let mut at = 8;
-        while got > 0 && at + 4 + n <= got {
+        while got > 0 && at + 4 <= got {
             let (error, id) = (raw[at], raw[at + 1]);
+            // An id not asked (or asked already) leaves the block's length unknown: the rest
+            // is not to be trusted.
+            let Some(k) = ids
+                .iter()
+                .position(|&i| i == id)
+                .filter(|k| !valid[*k] && errors[*k] == 0)
+            else {
+                break;
+            };
+            let n = usize::from(lens[k]);
             let end = at + 2 + n;
-            let crc = u16::from_le_bytes([raw[end], raw[end + 1]]);
-            if protocol::crc16(&raw[..end]) != crc {
-                // Everything after a corrupt block is suspect: its length is not to be trusted.
+            if end + 2 > got {
                 break;
             }
-            if let Some(k) = ids.iter().position(|&i| i == id) {
-                out[k * n..(k + 1) * n].copy_from_slice(&raw[at + 2..end]);
-                errors[k] = error & 0x7F;
-                valid[k] = error & 0x7F == 0;
+            let crc = u16::from_le_bytes([raw[end], raw[end + 1]]);
+            if protocol::crc16(&raw[..end]) != crc {
+                // Everything after a corrupt block is suspect.
+                break;
             }
+            out[offsets[k]..offsets[k] + n].copy_from_slice(&raw[at + 2..end]);
+            errors[k] = error & 0x7F;
+            valid[k] = error & 0x7F == 0;
             at = end + 2;
         }
         let broken = got > 0 && at != got;
@@ -238,6 +361,7 @@ impl<T: Transport> PacketBus<T> {
         ids: &[u8],
         out: &mut [u8],
         sent: Duration,
+        margin: Duration,
     ) -> Result<(), BusError> {
         let len = usize::from(len);
         if out.len() < ids.len() * len {
@@ -248,7 +372,7 @@ impl<T: Transport> PacketBus<T> {
         for (k, &id) in ids.iter().enumerate() {
             // Due by the wire time of the replies so far, and at least a reply's wire time
             // after the previous one came (return delays the host does not know).
-            let due = (sent + one * (k as u32 + 1)).max(self.link.now() + one) + self.margin;
+            let due = (sent + one * (k as u32 + 1)).max(self.link.now() + one) + margin;
             if let Err(e) = self.status_by(id, Some(len), due) {
                 self.drain();
                 return Err(e);
@@ -272,12 +396,13 @@ impl<T: Transport> PacketBus<T> {
     fn take_positions(&mut self, p: &PendingRead, out: &mut [i32]) -> Result<(), BusError> {
         let ids = &p.ids[..p.n];
         let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
-        if self.fast {
+        if matches!(self.read, ReadMode::FastSync | ReadMode::FastBulk) {
             // All or nothing for the loop: a tick uses a read only when every servo's held.
             let mut valid = [false; crate::servo::MAX_SERVOS];
-            self.fast_sync_replies(4, ids, &mut data[..4 * p.n], &mut valid, p.sent)?;
+            self.fast_sync_replies(4, ids, &mut data[..4 * p.n], &mut valid, (p.sent, self.margin))?;
         } else {
-            self.sync_read_replies(4, ids, &mut data[..4 * p.n], p.sent)?;
+            // Sync and Bulk Read: a status packet per servo, in order.
+            self.sync_read_replies(4, ids, &mut data[..4 * p.n], p.sent, self.margin)?;
         }
         for (k, o) in out.iter_mut().enumerate().take(p.n) {
             *o = i32::from_le_bytes([data[4 * k], data[4 * k + 1], data[4 * k + 2], data[4 * k + 3]]);
@@ -524,7 +649,8 @@ impl<T: Transport> ServoBus for PacketBus<T> {
             return Err(invalid_request("output shorter than ids × len"));
         }
         let sent = self.sync_read_request(address, len, ids)?;
-        self.sync_read_replies(len, ids, out, sent)
+        // Not the tick's read (that is `read_positions`): the single transactions' margin.
+        self.sync_read_replies(len, ids, out, sent, self.single_margin)
     }
 
     fn reboot(&mut self, id: u8) -> Result<(), BusError> {
@@ -538,10 +664,15 @@ impl<T: Transport> ServoBus for PacketBus<T> {
 
     fn request_positions(&mut self, ids: &[u8]) -> Result<(), BusError> {
         let n = ids.len().min(crate::servo::MAX_SERVOS);
-        let sent = if self.fast {
-            self.fast_sync_request(addr::PRESENT_POSITION, 4, &ids[..n])?
-        } else {
-            self.sync_read_request(addr::PRESENT_POSITION, 4, &ids[..n])?
+        let mut entries = [(0u8, addr::PRESENT_POSITION, 4u16); MAX_SERVOS];
+        for (e, &id) in entries.iter_mut().zip(&ids[..n]) {
+            e.0 = id;
+        }
+        let sent = match self.read {
+            ReadMode::Sync => self.sync_read_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
+            ReadMode::FastSync => self.fast_sync_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
+            ReadMode::Bulk => self.bulk_request(instruction::BULK_READ, &entries[..n])?,
+            ReadMode::FastBulk => self.bulk_request(instruction::FAST_BULK_READ, &entries[..n])?,
         };
         let mut p = PendingRead {
             ids: [0; crate::servo::MAX_SERVOS],

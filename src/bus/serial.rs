@@ -35,32 +35,36 @@ impl SerialTransport {
 }
 
 impl SerialTransport {
-    /// Waits up to `timeout` (to the microsecond) for input; a hang-up or error on the
-    /// descriptor counts as readable so that the read reports it.
-    #[allow(unsafe_code)]
     fn readable_within(&self, timeout: Duration) -> io::Result<bool> {
         use std::os::fd::AsRawFd;
-        let mut fd = libc::pollfd {
-            fd: self.port.as_raw_fd(),
-            events: libc::POLLIN,
-            revents: 0,
-        };
-        let ts = libc::timespec {
-            tv_sec: timeout.as_secs() as libc::time_t,
-            tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32),
-        };
-        // SAFETY: one valid pollfd, a valid timespec, no signal mask.
-        let r = unsafe { libc::ppoll(&mut fd, 1, &ts, std::ptr::null()) };
-        match r {
-            0 => Ok(false),
-            r if r > 0 => Ok(true),
-            _ => {
-                let e = io::Error::last_os_error();
-                if e.kind() == io::ErrorKind::Interrupted {
-                    Ok(false)
-                } else {
-                    Err(e)
-                }
+        readable_within(self.port.as_raw_fd(), timeout)
+    }
+}
+
+/// Waits up to `timeout` (to the microsecond; zero: a look without waiting) for input on `fd`;
+/// a hang-up or error on the descriptor counts as readable so that a read reports it.
+#[allow(unsafe_code)]
+pub(crate) fn readable_within(fd: std::os::fd::RawFd, timeout: Duration) -> io::Result<bool> {
+    let mut fd = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ts = libc::timespec {
+        tv_sec: timeout.as_secs() as libc::time_t,
+        tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32),
+    };
+    // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+    let r = unsafe { libc::ppoll(&mut fd, 1, &ts, std::ptr::null()) };
+    match r {
+        0 => Ok(false),
+        r if r > 0 => Ok(true),
+        _ => {
+            let e = io::Error::last_os_error();
+            if e.kind() == io::ErrorKind::Interrupted {
+                Ok(false)
+            } else {
+                Err(e)
             }
         }
     }

@@ -106,6 +106,8 @@ pub struct InProcess<P: Plant = ServoMotion> {
     stepped: Duration,
     rx: Receiver,
     pending: VecDeque<(Duration, u8)>,
+    /// In real time: the wall-clock instant the clock counts from.
+    wall: Option<Instant>,
     out: Box<[u8; 8 * MAX_PACKET]>,
     replies: Replies,
     /// Optional fault injection.
@@ -134,6 +136,7 @@ impl<P: Plant> InProcess<P> {
             stepped: Duration::ZERO,
             rx: Receiver::default(),
             pending: VecDeque::with_capacity(16 * MAX_PACKET),
+            wall: None,
             out: Box::new([0; 8 * MAX_PACKET]),
             replies: Replies::new(),
             injector: None,
@@ -146,6 +149,21 @@ impl<P: Plant> InProcess<P> {
     pub fn with_usb_latency(mut self, latency: Duration) -> InProcess<P> {
         self.usb_latency = latency;
         self
+    }
+
+    /// The same in real time: the clock is the wall clock from now on, a reply reaches the
+    /// host when the wall clock passes its time (the host waits for it, sleeping), and the
+    /// servos move by the wall clock's time at each instruction and read. The line keeps its
+    /// time exactly, with no serving thread to wake (the loop's bus for `--bus virtual`).
+    #[must_use]
+    pub fn real_time(mut self) -> InProcess<P> {
+        self.wall = Some(Instant::now() - self.clock);
+        self
+    }
+
+    /// The wall clock's time (real time), else the virtual clock's.
+    fn wall_now(&self) -> Duration {
+        self.wall.map_or(self.clock, |w| w.elapsed().max(self.clock))
     }
 
     /// The chain.
@@ -176,6 +194,13 @@ impl<P: Plant> InProcess<P> {
         self.catch_up();
     }
 
+    /// In real time, sleeps until the wall clock reaches `t` (on the clock's scale).
+    fn wait_until(&self, t: Duration) {
+        if let Some(w) = self.wall {
+            sleep_until(w + t);
+        }
+    }
+
     /// Moves the servos up to the clock.
     fn catch_up(&mut self) {
         self.step_to(self.clock);
@@ -193,6 +218,7 @@ impl<P: Plant> InProcess<P> {
 
 impl<P: Plant> Transport for InProcess<P> {
     fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.clock = self.wall_now();
         // Input already arrived is flushed; bytes still in flight are not.
         while self.pending.front().is_some_and(|(t, _)| *t <= self.clock) {
             self.pending.pop_front();
@@ -231,17 +257,17 @@ impl<P: Plant> Transport for InProcess<P> {
     }
 
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        self.clock = self.wall_now();
         let deadline = self.clock + timeout;
-        let Some(&(first, _)) = self.pending.front() else {
-            self.clock = deadline;
-            return Ok(0);
+        let first = match self.pending.front() {
+            Some(&(first, _)) if first <= deadline => first,
+            _ => {
+                self.wait_until(deadline);
+                self.clock = deadline;
+                return Ok(0);
+            }
         };
-        if first > deadline {
-            self.clock = deadline;
-            return Ok(0);
-        }
         self.clock = self.clock.max(first);
-        self.catch_up();
         // Everything that has arrived by now (a reply's bytes come together).
         let mut n = 0;
         while n < buf.len() {
@@ -255,11 +281,14 @@ impl<P: Plant> Transport for InProcess<P> {
                 _ => break,
             }
         }
+        // In real time the host sees them only when they have come.
+        self.wait_until(self.clock);
+        self.catch_up();
         Ok(n)
     }
 
     fn now(&self) -> Duration {
-        self.clock
+        self.wall_now()
     }
 
     fn baud(&self) -> u32 {
@@ -308,16 +337,27 @@ pub struct LineTiming {
     pub baud: u32,
     /// The adapter's latency timer.
     pub usb_latency: Duration,
+    /// `SCHED_FIFO` priority of the serving thread, which stands for hardware that keeps its
+    /// own time (`None`: normal priority; refused, it runs at normal priority all the same).
+    pub priority: Option<i32>,
 }
 
 impl LineTiming {
-    /// The timing of `bus` (its baud and latency timer).
+    /// The timing of `bus` (its baud and latency timer), served at normal priority.
     #[must_use]
     pub fn of(bus: &crate::profile::BusConfig) -> LineTiming {
         LineTiming {
             baud: bus.baud,
             usb_latency: Duration::from_micros(u64::from(bus.usb_latency_us)),
+            priority: None,
         }
+    }
+
+    /// The same, the serving thread at `SCHED_FIFO` `priority` when given.
+    #[must_use]
+    pub fn at_priority(mut self, priority: Option<i32>) -> LineTiming {
+        self.priority = priority;
+        self
     }
 }
 
@@ -353,6 +393,18 @@ impl PtyChain {
         PtyChain::spawn(chain, plant, injector, None)
     }
 
+    /// Serves `chain`, moved by `plant`, keeping line time ([`PtyChain::serve_timed`]).
+    ///
+    /// # Errors
+    /// When no pseudo-terminal can be opened.
+    pub fn serve_timed_with<P: Plant + Send + 'static>(
+        chain: Chain,
+        plant: P,
+        timing: LineTiming,
+    ) -> io::Result<PtyChain> {
+        PtyChain::spawn(chain, plant, None, Some(timing))
+    }
+
     fn spawn<P: Plant + Send + 'static>(
         chain: Chain,
         mut plant: P,
@@ -378,6 +430,14 @@ impl PtyChain {
             std::thread::Builder::new()
                 .name("virtual-chain".into())
                 .spawn(move || {
+                    if let Some(p) = timing.and_then(|t| t.priority) {
+                        // Best effort: a refusal leaves the thread at normal priority.
+                        let _ = crate::control::rt::RealTime {
+                            priority: Some(p),
+                            ..Default::default()
+                        }
+                        .apply();
+                    }
                     serve_loop(
                         &mut device_end,
                         &chain,

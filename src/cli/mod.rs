@@ -176,6 +176,10 @@ enum Command {
         /// Stop after this many seconds (default: at Ctrl-C).
         #[arg(long)]
         duration: Option<f64>,
+        /// Serve at this `SCHED_FIFO` priority (1–99; needs CAP_SYS_NICE), as hardware keeps
+        /// its own time whatever else the machine does.
+        #[arg(long)]
+        rt_priority: Option<i32>,
     },
     /// A fault soak in virtual time: the whole loop on the in-process virtual chain, playing a
     /// clip through seeded bursts of every bus fault; prints what it counted (panics, corrupt
@@ -588,7 +592,13 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
             profile,
             no_line_time,
             duration,
-        } => rig::serve_cmd(&profile, !no_line_time, duration, &mut io::stdout().lock()),
+            rt_priority,
+        } => rig::serve_cmd(
+            &profile,
+            (!no_line_time).then_some(rt_priority),
+            duration,
+            &mut io::stdout().lock(),
+        ),
         Command::Budget {
             profile,
             rate,

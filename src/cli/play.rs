@@ -15,8 +15,9 @@ use clap::{Args, ValueEnum};
 
 use super::error::CliError;
 use crate::budget::plan;
+use crate::bus::packet::PacketBus;
 use crate::bus::start_up;
-use crate::bus::virtual_chain::{chain_for, LineTiming, PtyChain};
+use crate::bus::virtual_chain::{chain_for, InProcess, PtyChain};
 use crate::clock::SystemClock;
 use crate::control::input::{input_channel, InputPort, InputSender};
 use crate::control::lockstep::{LockstepSource, PlayerFeed, TrackFeed};
@@ -281,30 +282,43 @@ fn open_bus(
             // Servos powered up at their zero angle (inside their limits).
             let rest: Vec<i32> = rig.servos.iter().map(crate::rig::ServoMap::rest_tick).collect();
             let chain = chain_for(profile, |k| rest[k]);
-            let chain = if args.no_line_time {
-                PtyChain::serve(chain, None)
-            } else {
-                warn_if_over_budget(args, &profile.bus, profile.servos.len(), out)?;
-                PtyChain::serve_timed(chain, LineTiming::of(&profile.bus))
+            let n = profile.servos.len();
+            let read = format!(
+                "{} read{}",
+                profile.bus.read.name(),
+                if profile.bus.pipeline { ", pipelined" } else { "" }
+            );
+            if args.no_line_time {
+                // On a pty, answering as soon as the serving thread can.
+                let chain = PtyChain::serve(chain, None).map_err(CliError::Output)?;
+                let path = chain.path().to_string();
+                let baud = args.baud.unwrap_or(profile.bus.baud);
+                let bus = crate::bus::open_port(&path, baud, profile).map_err(CliError::at_port(&path))?;
+                return Ok(OpenBus {
+                    bus,
+                    label: format!("virtual chain of {n} servos on {path} (answering at once, {read})"),
+                    _chain: Some(chain),
+                });
             }
-            .map_err(CliError::Output)?;
-            let path = chain.path().to_string();
-            let baud = args.baud.unwrap_or(profile.bus.baud);
-            let bus = crate::bus::open_port(&path, baud, profile).map_err(CliError::at_port(&path))?;
-            let timing = if args.no_line_time {
-                "answering at once"
-            } else {
-                "keeping line time"
-            };
+            // In process and in real time, keeping line time exactly: the loop's own host on
+            // it, as on a port.
+            warn_if_over_budget(args, &profile.bus, n, out)?;
+            let mut bus_config = profile.bus.clone();
+            bus_config.baud = args.baud.unwrap_or(profile.bus.baud);
+            let margin = crate::bus::reply_margin(&bus_config, n);
+            let link = InProcess::new(chain, bus_config.baud)
+                .with_usb_latency(Duration::from_micros(u64::from(bus_config.usb_latency_us)))
+                .real_time();
+            let bus = PacketBus::new(link, margin)
+                .with_read_mode(profile.bus.read)
+                .with_single_margin(4 * margin);
             Ok(OpenBus {
-                bus,
+                bus: Box::new(bus),
                 label: format!(
-                    "virtual chain of {} servos on {path} ({timing}, {} read{})",
-                    profile.servos.len(),
-                    profile.bus.read.name(),
-                    if profile.bus.pipeline { ", pipelined" } else { "" }
+                    "virtual chain of {n} servos at {} bit/s, {} µs USB latency (line time kept, {read})",
+                    bus_config.baud, bus_config.usb_latency_us
                 ),
-                _chain: Some(chain),
+                _chain: None,
             })
         }
         // Clips and target files reach the simulator in lockstep (`run_sim`) before this.

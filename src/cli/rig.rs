@@ -102,28 +102,22 @@ pub fn budget_cmd(
 
 /// `budget --measure N`: the profile's chain served on a pseudo-terminal keeping line time (its
 /// baud, Return Delay Time 0 as start-up writes, its USB latency), and N cycles of the loop's
-/// bus work through the client the loop would use — a Sync Write of goals and a Sync Read
-/// (`dynamixel2`) or Fast Sync Read (the project's host) of positions — timed against the
-/// planner's cycle.
+/// bus work through the client the loop would use — a Sync Write of goals and the profile's
+/// read of positions (Sync, Bulk, Fast Sync or Fast Bulk Read, through the project's host) —
+/// timed against the planner's cycle.
 fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Write) -> Result<(), CliError> {
     use std::time::Instant;
 
     use crate::bus::virtual_chain::LineTiming;
-    use crate::profile::ReadMode;
 
     if cycles == 0 {
         return Err(CliError::Usage("--measure needs at least one cycle".into()));
-    }
-    if profile.bus.read == ReadMode::Bulk {
-        return Err(CliError::Usage(
-            "--measure times Sync and Fast Sync Read cycles; this profile reads with bulk".into(),
-        ));
     }
     let planned = plan(&profile.bus, profile.servos.len(), None);
     let pty = PtyChain::serve_timed(chain_for(profile, |_| 2048), LineTiming::of(&profile.bus))
         .map_err(CliError::Output)?;
     let path = pty.path().to_string();
-    // What the loop would open: dynamixel2 for Sync Read, the project's host for Fast Sync.
+    // What the loop would open: the project's host, reading as the profile says.
     let mut bus =
         crate::bus::open_port(&path, profile.bus.baud, profile).map_err(CliError::at_port(&path))?;
     let ids = profile.ids();
@@ -195,13 +189,14 @@ fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Wr
 }
 
 /// `marionette serve PROFILE`: the profile's servos as a virtual chain on a pseudo-terminal,
-/// keeping line time unless `line_time` is false, until a stop signal or `duration` seconds.
+/// keeping line time when `line_time` is given (served at its `SCHED_FIFO` priority, if any),
+/// until a stop signal or `duration` seconds.
 ///
 /// # Errors
 /// [`CliError`].
 pub fn serve_cmd(
     path: &Path,
-    line_time: bool,
+    line_time: Option<Option<i32>>,
     duration: Option<f64>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
@@ -217,8 +212,8 @@ pub fn serve_cmd(
     let chain = chain_for(&profile, |k| {
         profile.servos[k].zero.round().clamp(0.0, 4095.0) as i32
     });
-    let pty = if line_time {
-        PtyChain::serve_timed(chain, LineTiming::of(&profile.bus))
+    let pty = if let Some(priority) = line_time {
+        PtyChain::serve_timed(chain, LineTiming::of(&profile.bus).at_priority(priority))
     } else {
         PtyChain::serve(chain, None)
     }
@@ -229,7 +224,7 @@ pub fn serve_cmd(
         profile.name,
         profile.servos.len(),
         pty.path(),
-        if line_time {
+        if line_time.is_some() {
             format!(
                 "line time of {} bit/s and a {} µs USB latency",
                 profile.bus.baud, profile.bus.usb_latency_us

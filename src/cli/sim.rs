@@ -47,6 +47,9 @@ pub enum SimCommand {
         /// Stop after this many seconds (default: at Ctrl-C).
         #[arg(long)]
         duration: Option<f64>,
+        /// Answer at once instead of keeping line time (baud, return delays, USB latency).
+        #[arg(long)]
+        no_line_time: bool,
     },
     /// What a clip asks of each servo: inverse dynamics (MuJoCo's mj_inverse) of the clip on the
     /// rig's model → peak and RMS torque, peak speed and acceleration per servo against its
@@ -94,12 +97,13 @@ pub fn sim_cmd(cmd: &SimCommand, out: &mut dyn Write) -> Result<(), CliError> {
             model,
             scale,
             duration,
+            no_line_time,
         } => serve(
             profile,
             asf_path.as_deref(),
             model.as_deref(),
             *scale,
-            *duration,
+            (*duration, !*no_line_time),
             out,
         ),
         SimCommand::Size {
@@ -229,7 +233,7 @@ fn serve(
     _asf: Option<&Path>,
     _model: Option<&Path>,
     _scale: f64,
-    _duration: Option<f64>,
+    _run: (Option<f64>, bool),
     _out: &mut dyn Write,
 ) -> Result<(), CliError> {
     Err(CliError::NoSimulator("sim serve"))
@@ -241,10 +245,10 @@ fn serve(
     asf_path: Option<&Path>,
     model: Option<&Path>,
     scale: f64,
-    duration: Option<f64>,
+    (duration, line_time): (Option<f64>, bool),
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
-    use crate::bus::virtual_chain::{chain_for, PtyChain};
+    use crate::bus::virtual_chain::{chain_for, LineTiming, PtyChain};
     use crate::sim::plant::{load_world, rest_angles, SimPlant};
 
     if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
@@ -267,15 +271,28 @@ fn serve(
     plant.set_angles(&rest_angles(&rig));
     let present = plant.present_ticks();
     let timestep = plant.world().timestep();
-    let chain =
-        PtyChain::serve_with(chain_for(&profile, |k| present[k]), plant, None).map_err(CliError::Output)?;
+    let chain = chain_for(&profile, |k| present[k]);
+    let chain = if line_time {
+        PtyChain::serve_timed_with(chain, plant, LineTiming::of(&profile.bus))
+    } else {
+        PtyChain::serve_with(chain, plant, None)
+    }
+    .map_err(CliError::Output)?;
     writeln!(
         out,
-        "{}: {} simulated servos (MuJoCo, time step {} ms) on {}",
+        "{}: {} simulated servos (MuJoCo, time step {} ms) on {}{}",
         profile.name,
         profile.servos.len(),
         timestep * 1e3,
-        chain.path()
+        chain.path(),
+        if line_time {
+            format!(
+                ", line time of {} bit/s and a {} µs USB latency",
+                profile.bus.baud, profile.bus.usb_latency_us
+            )
+        } else {
+            String::new()
+        }
     )?;
     super::rig::serve_until_stopped(&chain, duration, out)
 }

@@ -15,6 +15,7 @@ use crate::bus::virtual_chain::{chain_for, Plant, VirtualRig};
 use crate::device::Chain;
 use crate::profile::Profile;
 use crate::rig::{Rig, ServoMap};
+use crate::servo::TICKS_PER_TURN;
 
 /// Most physics samples kept by a recorder (an hour at 1 kHz would be too many to plot).
 const MAX_SAMPLES: usize = 2_000_000;
@@ -243,8 +244,9 @@ impl SimPlant {
 
     /// One physics step with the chain's present goals. A written Position P Gain scales the
     /// actuator's gain (the firmware's `K_P = gain / 128` is linear in it).
-    fn step_physics(&mut self, chain: &Chain) {
-        for (s, servo) in self.servos.iter_mut().zip(chain.servos()) {
+    fn step_physics(&mut self, chain: &mut Chain) {
+        let h = self.world.timestep();
+        for (s, servo) in self.servos.iter_mut().zip(chain.servos_mut()) {
             let gain = servo.position_p_gain();
             if gain != s.p_gain {
                 s.p_gain = gain;
@@ -252,8 +254,10 @@ impl SimPlant {
                 self.world
                     .set_position_gain(s.actuator, s.base_kp * f64::from(gain) / factory);
             }
-            let ctrl = match servo.drive_goal() {
-                Some(goal) => s.map.ticks_to_angle(f64::from(goal)),
+            // The firmware's motion profile (Profile Velocity/Acceleration) between the goal
+            // and the motor, as on the servo.
+            let ctrl = match servo.profile_target(h) {
+                Some(target) => s.map.ticks_to_angle(target),
                 // Limp: the actuator's spring is relaxed where the joint is.
                 None => self.world.joint_position(s.joint),
             };
@@ -317,7 +321,14 @@ impl Plant for SimPlant {
         for (servo, s) in chain.servos_mut().iter_mut().zip(&self.servos) {
             let q = self.world.joint_position(s.joint);
             let v = self.world.joint_velocity(s.joint);
-            servo.step_driven(dt, s.map.angle_to_ticks_exact(q), v * s.map.ticks_per_radian());
+            // The actuator's torque on the joint, as the horn feels it (per tick of the horn:
+            // the gear and direction of the mapping).
+            let per_tick = s.map.ticks_per_radian();
+            let horn_nm = self.world.actuator_force(s.actuator) * f64::from(TICKS_PER_TURN)
+                / core::f64::consts::TAU
+                / per_tick;
+            servo.set_load(horn_nm);
+            servo.step_driven(dt, s.map.angle_to_ticks_exact(q), v * per_tick);
         }
     }
 }

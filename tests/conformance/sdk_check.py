@@ -1,6 +1,7 @@
 """ROBOTIS's own Python SDK (`dynamixel-sdk` 4.1.0 from PyPI) as a client of a served chain:
 checks of X-series behaviour as the e-manual gives it, each printed PASS/FAIL, then the pass
-rate. Usage: sdk_check.py PORT PROFILE.toml [--json].
+rate. Usage: sdk_check.py PORT PROFILE.toml [--json] [--sim] (--sim: the servos carry a load,
+MuJoCo's).
 
 Start the chain first: `marionette serve PROFILE` (or `marionette sim serve PROFILE ASF`).
 Every check names what the e-manual expects; a FAIL is a difference of the virtual servo.
@@ -20,6 +21,13 @@ MODEL_NUMBERS = {"XL330-M288": 1200, "XL430-W250": 1060, "XM430-W210": 1030,
 # Baud Rate register codes.
 BAUD_CODES = {9600: 0, 57600: 1, 115200: 2, 1_000_000: 3, 2_000_000: 4, 3_000_000: 5,
               4_000_000: 6, 4_500_000: 7}
+# Current Limit's factory value (e-manual; models without current sensing have none).
+CURRENT_LIMITS = {"XL330-M288": 1750, "XM430-W210": 1193, "XM430-W350": 1193, "XH540-W270": 2047}
+# Temperature Limit and Max/Min Voltage Limit factory values.
+TEMPERATURE_LIMITS = {"XL330-M288": 70, "XL430-W250": 72, "XM430-W210": 80, "XM430-W350": 80,
+                      "XH540-W270": 80}
+VOLTAGE_LIMITS = {"XL330-M288": (70, 35), "XL430-W250": (140, 60), "XM430-W210": (160, 95),
+                  "XM430-W350": (160, 95), "XH540-W270": (160, 95)}
 # Protocol 2.0 status error numbers.
 RANGE, LENGTH, ACCESS = 4, 5, 7
 
@@ -71,8 +79,9 @@ check("Realtime Tick advances", r1 == r2 == COMM_SUCCESS and t1 != t2, f"{t1} {t
 
 for addr, size, value, name in [(8, 1, 9, "Baud Rate 9"), (11, 1, 2, "Operating Mode 2"),
                                 (48, 4, 4096, "Max Position Limit 4096"), (64, 1, 2, "Torque Enable 2"),
-                                (68, 1, 3, "Status Return Level 3")]:
-    write = {1: ph.write1ByteTxRx, 4: ph.write4ByteTxRx}[size]
+                                (68, 1, 3, "Status Return Level 3"), (24, 4, 1024, "Moving Threshold 1024"),
+                                (36, 2, 886, "PWM Limit 886"), (112, 4, 32768, "Profile Velocity 32768")]:
+    write = {1: ph.write1ByteTxRx, 2: ph.write2ByteTxRx, 4: ph.write4ByteTxRx}[size]
     r, e = write(port, first, addr, value)
     check(f"out of range: {name} answers Data Range Error", error_of(r, e) == RANGE, f"{r} {e}")
 r, e = ph.write1ByteTxRx(port, first, 69, 1)
@@ -135,6 +144,49 @@ check("Reboot not answered at Status Return Level 1", r != COMM_SUCCESS, f"{r}")
 time.sleep(0.1)
 ph.write1ByteTxRx(port, first, 68, 2)
 
+# Profile Velocity (0.229 rpm units) sets the speed of a move: 20 units are 312.6 ticks/s, so
+# 180 ticks take 0.58 s (Profile Acceleration 0: no ramp).
+ph.write4ByteTxRx(port, first, 108, 0)
+ph.write4ByteTxRx(port, first, 112, 20)
+ph.write1ByteTxRx(port, first, 64, 1)
+time.sleep(0.2)
+start_pos, _, _ = ph.read4ByteTxRx(port, first, 132)
+lo, _, _ = ph.read4ByteTxRx(port, first, 52)
+hi, _, _ = ph.read4ByteTxRx(port, first, 48)
+step = 180 if start_pos + 200 <= hi else -180
+ph.write4ByteTxRx(port, first, 116, start_pos + step)
+began = time.monotonic()
+pwm_seen, moving_seen, took = 0, 0, None
+while time.monotonic() - began < 3.0:
+    pos, _, _ = ph.read4ByteTxRx(port, first, 132)
+    pwm, _, _ = ph.read2ByteTxRx(port, first, 124)
+    mov, _, _ = ph.read1ByteTxRx(port, first, 122)
+    pwm_seen = max(pwm_seen, abs(pwm - 65536 if pwm >= 32768 else pwm))
+    moving_seen |= mov
+    pos = pos - (1 << 32) if pos >= 1 << 31 else pos
+    if took is None and abs(pos - start_pos) >= 0.9 * abs(step):
+        took = time.monotonic() - began
+        break
+    time.sleep(0.005)
+check("Profile Velocity 20: a 180-tick move takes about 0.52 s to 90 %",
+      took is not None and 0.35 <= took <= 0.8, f"{took}")
+check("Moving reads 1 during a move", moving_seen == 1, f"{moving_seen}")
+check("Present PWM is not zero during a move", pwm_seen > 0, f"{pwm_seen}")
+ph.write4ByteTxRx(port, first, 112, 0)
+if "--sim" in sys.argv:
+    # Gravity loads the rig: with torque on, some servo draws current to hold it.
+    for i in ids:
+        ph.write1ByteTxRx(port, i, 64, 1)
+    time.sleep(0.3)
+    currents = []
+    for i in ids:
+        c, _, _ = ph.read2ByteTxRx(port, i, 126)
+        currents.append(c - 65536 if c >= 32768 else c)
+    check("Present Current under load: some servo draws current", any(abs(c) >= 5 for c in currents),
+          f"{currents}")
+    for i in ids[1:]:
+        ph.write1ByteTxRx(port, i, 64, 0)
+
 ph.write1ByteTxRx(port, first, 98, 1)
 ph.write1ByteTxRx(port, first, 64, 1)
 time.sleep(0.1)
@@ -156,6 +208,21 @@ time.sleep(0.1)
 _, r2, _ = ph.ping(port, second)
 v, _, _ = ph.read1ByteTxRx(port, second, 8)
 check("Factory Reset 0x02 keeps id and baud", r == COMM_SUCCESS and r2 == COMM_SUCCESS and v == BAUD_CODES.get(baud), f"{r} {r2} {v}")
+
+# Factory Reset 0x02 put every other item back to its factory value.
+second_model = dict(servos)[second]
+for addr, size, value, name in [(9, 1, 250, "Return Delay Time 250"), (11, 1, 3, "Operating Mode 3"),
+                                (24, 4, 10, "Moving Threshold 10"), (36, 2, 885, "PWM Limit 885"),
+                                (48, 4, 4095, "Max Position Limit 4095"), (52, 4, 0, "Min Position Limit 0"),
+                                (68, 1, 2, "Status Return Level 2"),
+                                (31, 1, TEMPERATURE_LIMITS[second_model], "Temperature Limit"),
+                                (32, 2, VOLTAGE_LIMITS[second_model][0], "Max Voltage Limit"),
+                                (34, 2, VOLTAGE_LIMITS[second_model][1], "Min Voltage Limit")] + (
+        [(38, 2, CURRENT_LIMITS[second_model], f"Current Limit {CURRENT_LIMITS[second_model]}")]
+        if second_model in CURRENT_LIMITS else []):
+    read = {1: ph.read1ByteTxRx, 2: ph.read2ByteTxRx, 4: ph.read4ByteTxRx}[size]
+    v, r, _ = read(port, second, addr)
+    check(f"factory value after reset: {name}", r == COMM_SUCCESS and v == value, f"{v}")
 
 passed = sum(ok for _, ok, _ in results)
 print(f"checks: {passed} of {len(results)} as the e-manual says")
