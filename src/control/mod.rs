@@ -133,7 +133,8 @@ pub struct Telemetry {
     pub total_ns: u64,
     /// Whether the tick ended after the next deadline.
     pub missed: bool,
-    /// Whether the read succeeded.
+    /// Whether the read succeeded (pipelined: the replies taken and the request sent this
+    /// tick; the first tick has only a request).
     pub read_ok: bool,
     /// Whether the tick held the last command.
     pub held: bool,
@@ -1111,13 +1112,14 @@ impl Controller {
             g[..len].copy_from_slice(&self.previous_goals);
             context.tracked = Some(g);
         }
-        let mut read_ok = false;
+        let read_ok;
         let mut tracking = f64::NAN;
         let mut end = None;
         let t_after;
         if self.config.pipelined {
             let requested = bus.request_positions(&self.ids);
             t_after = clock.now_ns();
+            let request_ok = requested.is_ok();
             match requested {
                 Ok(()) => self.in_flight = Some(context),
                 Err(e) => {
@@ -1125,9 +1127,13 @@ impl Controller {
                     (end, lost) = (r.end, lost.or(l));
                 }
             }
-            if let Some(r) = absorbed {
-                (read_ok, tracking) = (r.ok, r.tracking);
-                end = end.or(r.end);
+            match absorbed {
+                Some(r) => {
+                    (read_ok, tracking) = (r.ok && request_ok, r.tracking);
+                    end = end.or(r.end);
+                }
+                // The first tick has no replies to take: only its request can fail.
+                None => read_ok = request_ok,
             }
         } else {
             let read = bus.read_positions(&self.ids, &mut self.read_buf);
