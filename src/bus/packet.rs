@@ -214,16 +214,30 @@ impl<T: Transport> PacketBus<T> {
 
     /// Sends a Fast Sync Read request; returns when its last byte leaves.
     fn fast_sync_request(&mut self, address: u16, len: u16, ids: &[u8]) -> Result<Duration, BusError> {
-        let expect = 8 + (4 + usize::from(len)) * ids.len();
-        if ids.is_empty() || 4 + ids.len() > MAX_PACKET || expect > MAX_PACKET {
-            return Err(invalid_request("fast sync read too large"));
+        self.sync_request(instruction::FAST_SYNC_READ, address, len, ids)
+    }
+
+    /// Sends a Sync or Fast Sync Read request (address, length, ids); returns when its last
+    /// byte leaves, the line taken until the replies' wire time has passed.
+    fn sync_request(&mut self, inst: u8, address: u16, len: u16, ids: &[u8]) -> Result<Duration, BusError> {
+        let n = usize::from(len);
+        let fast = inst == instruction::FAST_SYNC_READ;
+        // One reply packet (fast), or replies whose data is collected in one packet's room.
+        let (reply, too_large) = if fast {
+            let reply = 8 + (4 + n) * ids.len();
+            (reply, ids.is_empty() || reply > MAX_PACKET)
+        } else {
+            ((11 + n) * ids.len(), ids.len() * n > MAX_PACKET)
+        };
+        if too_large || 4 + ids.len() > MAX_PACKET {
+            return Err(invalid_request("sync read too large"));
         }
         let mut p = [0u8; MAX_PACKET];
         p[..2].copy_from_slice(&address.to_le_bytes());
         p[2..4].copy_from_slice(&len.to_le_bytes());
         p[4..4 + ids.len()].copy_from_slice(ids);
-        let sent = self.send(BROADCAST_ID, instruction::FAST_SYNC_READ, &p[..4 + ids.len()])?;
-        self.line_free = self.line_free.max(sent + wire_time(expect, self.link.baud()));
+        let sent = self.send(BROADCAST_ID, inst, &p[..4 + ids.len()])?;
+        self.line_free = self.line_free.max(sent + wire_time(reply, self.link.baud()));
         Ok(sent)
     }
 
@@ -337,19 +351,7 @@ impl<T: Transport> PacketBus<T> {
 
     /// Sends a Sync Read request; returns when its last byte leaves.
     fn sync_read_request(&mut self, address: u16, len: u16, ids: &[u8]) -> Result<Duration, BusError> {
-        let n = usize::from(len);
-        if 4 + ids.len() > MAX_PACKET || ids.len() * n > MAX_PACKET {
-            return Err(invalid_request("sync read too large"));
-        }
-        let mut p = [0u8; MAX_PACKET];
-        p[..2].copy_from_slice(&address.to_le_bytes());
-        p[2..4].copy_from_slice(&len.to_le_bytes());
-        p[4..4 + ids.len()].copy_from_slice(ids);
-        let sent = self.send(BROADCAST_ID, instruction::SYNC_READ, &p[..4 + ids.len()])?;
-        self.line_free = self
-            .line_free
-            .max(sent + wire_time((11 + n) * ids.len(), self.link.baud()));
-        Ok(sent)
+        self.sync_request(instruction::SYNC_READ, address, len, ids)
     }
 
     /// Takes the replies of a Sync Read whose request left at `sent`, in id order: servo `k`'s
@@ -664,15 +666,21 @@ impl<T: Transport> ServoBus for PacketBus<T> {
 
     fn request_positions(&mut self, ids: &[u8]) -> Result<(), BusError> {
         let n = ids.len().min(crate::servo::MAX_SERVOS);
-        let mut entries = [(0u8, addr::PRESENT_POSITION, 4u16); MAX_SERVOS];
-        for (e, &id) in entries.iter_mut().zip(&ids[..n]) {
-            e.0 = id;
-        }
         let sent = match self.read {
             ReadMode::Sync => self.sync_read_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
             ReadMode::FastSync => self.fast_sync_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
-            ReadMode::Bulk => self.bulk_request(instruction::BULK_READ, &entries[..n])?,
-            ReadMode::FastBulk => self.bulk_request(instruction::FAST_BULK_READ, &entries[..n])?,
+            bulk => {
+                let mut entries = [(0u8, addr::PRESENT_POSITION, 4u16); MAX_SERVOS];
+                for (e, &id) in entries.iter_mut().zip(&ids[..n]) {
+                    e.0 = id;
+                }
+                let inst = if bulk == ReadMode::Bulk {
+                    instruction::BULK_READ
+                } else {
+                    instruction::FAST_BULK_READ
+                };
+                self.bulk_request(inst, &entries[..n])?
+            }
         };
         let mut p = PendingRead {
             ids: [0; crate::servo::MAX_SERVOS],
