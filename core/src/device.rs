@@ -7,19 +7,16 @@
 //! delay before it; [`Receiver`] cuts a byte stream into packets. Everything is fixed-size, so
 //! the chain also runs in the embedded build.
 
+use crate::control_table::{self, indirect_blocks, Access, Item};
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
-use crate::servo::{
-    addr, hardware_error, status_error, step_towards, ServoModel, MAX_SERVOS, MAX_TICK,
-    RPM2_PER_ACCELERATION_UNIT,
-};
+use crate::servo::{addr, status_error, step_towards, ServoModel, MAX_SERVOS, RPM2_PER_ACCELERATION_UNIT};
 use crate::servo::{RPM_PER_VELOCITY_UNIT, TICKS_PER_TURN};
 
-/// Bytes of control table each virtual servo keeps (addresses 0…255).
-pub const TABLE_LEN: usize = 256;
+/// Bytes of control table each virtual servo keeps (addresses 0…661: Indirect Data 56 last).
+pub const TABLE_LEN: usize = 662;
 /// Largest packet (stuffed) the chain accepts or sends.
 pub const MAX_PACKET: usize = 1024;
-/// Firmware version the virtual servos report.
-pub const FIRMWARE_VERSION: u8 = 48;
+pub use crate::control_table::FIRMWARE_VERSION;
 
 /// Ticks/s per unit of Profile Velocity.
 const TICKS_PER_S_PER_VELOCITY_UNIT: f64 = RPM_PER_VELOCITY_UNIT / 60.0 * TICKS_PER_TURN as f64;
@@ -49,6 +46,8 @@ pub struct VirtualServo {
     load_nm: f64,
     /// Where the firmware's motion profile stands (ticks, ticks/s) while one is under way.
     profile: Option<(f64, f64)>,
+    /// An Indirect Address was written since power-on: Indirect Data must follow writes.
+    indirect_in_use: bool,
 }
 
 /// PWM Limit's factory value and full scale (0.113 % units).
@@ -60,47 +59,17 @@ const BAUD_CODES: [u32; 8] = [
 ];
 /// Realtime Tick (2 bytes, ms, wraps at 32,767).
 const REALTIME_TICK: u16 = 120;
-/// LED.
-const LED: u16 = 65;
-/// Indirect Address 1–28 (2 bytes each) and Indirect Data 1–28 (1 byte each).
-const INDIRECT_ADDRESS: usize = 168;
-const INDIRECT_DATA: usize = 224;
-const INDIRECT_COUNT: usize = 28;
-/// Temperature Limit, 1 byte, °C.
-const TEMPERATURE_LIMIT: u16 = 31;
-/// Max Voltage Limit (2 bytes, 0.1 V); Min Voltage Limit follows it.
-const MAX_VOLTAGE_LIMIT: u16 = 32;
+/// Secondary (Shadow) ID: 253 and above switch it off.
+const SECONDARY_ID: usize = 12;
+/// Protocol Type: the servo answers Protocol 2.0 only while it holds 2.
+const PROTOCOL_TYPE: usize = 13;
+/// Homing Offset, 4 bytes signed: Present Position = the horn's position + the offset.
+const HOMING_OFFSET: u16 = 20;
+/// Velocity Trajectory and Position Trajectory (4 bytes each): the profile's set point.
+const VELOCITY_TRAJECTORY: u16 = 136;
+const POSITION_TRAJECTORY: u16 = 140;
 /// Registered Instruction: 1 while a Reg Write waits for Action (read-only).
 const REGISTERED_INSTRUCTION: u16 = 69;
-
-/// The multi-byte items of the writable part of the X-series control table, `(address, size)`:
-/// a write must cover each it touches whole (else Data Length Error).
-const WIDE_ITEMS: [(u16, usize); 24] = [
-    (20, 4),
-    (24, 4),
-    (32, 2),
-    (34, 2),
-    (36, 2),
-    (38, 2),
-    (44, 4),
-    (48, 4),
-    (52, 4),
-    (76, 2),
-    (78, 2),
-    (80, 2),
-    (82, 2),
-    (84, 2),
-    (88, 2),
-    (90, 2),
-    (100, 2),
-    (102, 2),
-    (104, 4),
-    (108, 4),
-    (112, 4),
-    (116, 4),
-    (168, 2),
-    (170, 2),
-];
 
 impl VirtualServo {
     /// A servo at rest at `position` ticks with factory defaults.
@@ -121,6 +90,7 @@ impl VirtualServo {
             registered: None,
             load_nm: 0.0,
             profile: None,
+            indirect_in_use: false,
         };
         s.factory_defaults(id);
         s
@@ -134,54 +104,64 @@ impl VirtualServo {
         }
     }
 
+    /// Every item at its factory value ([`control_table`]), the id given.
     fn factory_defaults(&mut self, id: u8) {
         self.table = [0; TABLE_LEN];
-        self.put(addr::MODEL_NUMBER, 2, u32::from(self.model.model_number));
-        self.put(addr::FIRMWARE_VERSION, 1, u32::from(FIRMWARE_VERSION));
+        let model = self.model;
+        control_table::for_each_item(model, |i| {
+            if let (Some(v), true) = (i.factory, i.eeprom()) {
+                self.put(i.address, usize::from(i.size), v);
+            }
+        });
         self.put(addr::ID, 1, u32::from(id));
-        self.put(addr::BAUD_RATE, 1, 1);
-        self.put(addr::RETURN_DELAY_TIME, 1, 250);
-        self.put(addr::OPERATING_MODE, 1, 3);
-        let vlimit = libm::round(self.model.no_load_rpm / RPM_PER_VELOCITY_UNIT) as u32;
-        self.put(addr::VELOCITY_LIMIT, 4, vlimit);
-        self.put(addr::MOVING_THRESHOLD, 4, 10);
-        self.put(TEMPERATURE_LIMIT, 1, u32::from(self.model.temperature_limit));
-        self.put(MAX_VOLTAGE_LIMIT, 2, u32::from(self.model.voltage_limits.0));
-        self.put(MAX_VOLTAGE_LIMIT + 2, 2, u32::from(self.model.voltage_limits.1));
-        self.put(addr::PWM_LIMIT, 2, PWM_FULL as u32);
-        self.put(addr::CURRENT_LIMIT, 2, u32::from(self.model.current_limit));
-        self.put(addr::MAX_POSITION_LIMIT, 4, MAX_TICK as u32);
-        self.put(addr::MIN_POSITION_LIMIT, 4, 0);
-        self.put(
-            addr::SHUTDOWN,
-            1,
-            u32::from(
-                hardware_error::OVERHEATING | hardware_error::ELECTRICAL_SHOCK | hardware_error::OVERLOAD,
-            ),
-        );
         self.clear_ram();
     }
 
-    /// RAM at power-on: torque off, no errors, watchdog off, goal = present.
+    /// RAM at power-on: every RAM item at its initial value (torque off, no errors, watchdog
+    /// off, indirect addresses at their own data), goal = present.
     fn clear_ram(&mut self) {
         for b in &mut self.table[usize::from(addr::TORQUE_ENABLE)..] {
             *b = 0;
         }
-        self.put(addr::STATUS_RETURN_LEVEL, 1, 2);
-        self.put(addr::POSITION_P_GAIN, 2, u32::from(self.model.position_p_gain));
-        // Indirect Address k points at Indirect Data k until set.
-        for k in 0..INDIRECT_COUNT {
-            self.put((INDIRECT_ADDRESS + 2 * k) as u16, 2, (INDIRECT_DATA + k) as u32);
-        }
+        let model = self.model;
+        control_table::for_each_item(model, |i| {
+            if let (Some(v), false) = (i.factory, i.eeprom()) {
+                self.put(i.address, usize::from(i.size), v);
+            }
+        });
         self.registered = None;
         self.velocity = 0.0;
         self.load_nm = 0.0;
         self.profile = None;
+        self.indirect_in_use = false;
         self.watchdog_expired = false;
         self.since_packet = 0.0;
-        let p = self.present_tick();
+        let p = self.present_tick() + self.homing_offset();
         self.put(addr::GOAL_POSITION, 4, p as u32);
         self.refresh_present();
+    }
+
+    /// Homing Offset, ticks.
+    fn homing_offset(&self) -> i32 {
+        self.get(HOMING_OFFSET, 4) as i32
+    }
+
+    /// Whether the servo answers Protocol 2.0 (Protocol Type 2) and hears `id` as its own —
+    /// the primary id, or the Secondary ID (which executes but never answers).
+    fn hears(&self, id: u8) -> bool {
+        let secondary = self.table[SECONDARY_ID];
+        self.speaks_protocol_2()
+            && (id == BROADCAST_ID || id == self.id() || (secondary < 253 && id == secondary))
+    }
+
+    /// Protocol Type 2: after any other is written the servo is silent to Protocol 2.0.
+    fn speaks_protocol_2(&self) -> bool {
+        self.table[PROTOCOL_TYPE] == 2
+    }
+
+    /// Whether a packet to `id` is answered by this servo: its own primary id, on Protocol 2.0.
+    fn answers(&self, id: u8) -> bool {
+        self.speaks_protocol_2() && id == self.id()
     }
 
     fn get(&self, a: u16, n: usize) -> u32 {
@@ -246,10 +226,10 @@ impl VirtualServo {
         libm::round(self.position) as i32
     }
 
-    /// Goal Position register.
+    /// Where the horn is sent (ticks): the Goal Position register less the Homing Offset.
     #[must_use]
     pub fn goal_tick(&self) -> i32 {
-        self.get(addr::GOAL_POSITION, 4) as i32
+        (self.get(addr::GOAL_POSITION, 4) as i32).wrapping_sub(self.homing_offset())
     }
 
     /// Torque Enable register.
@@ -323,7 +303,8 @@ impl VirtualServo {
 
     fn refresh_present(&mut self) {
         let p = self.present_tick();
-        self.put(addr::PRESENT_POSITION, 4, p as u32);
+        let offset = self.homing_offset();
+        self.put(addr::PRESENT_POSITION, 4, p.wrapping_add(offset) as u32);
         let v = self
             .velocity_report
             .unwrap_or(libm::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32);
@@ -341,14 +322,35 @@ impl VirtualServo {
         let supply = libm::round(self.model.rated_v * 10.0) as u32;
         self.put(addr::PRESENT_INPUT_VOLTAGE, 2, supply);
         self.put(addr::PRESENT_TEMPERATURE, 1, 35);
+        // The profile's set point while one runs; otherwise the goal (torque on) or where it is.
+        let (tp, tv) = match (self.profile, self.torque_on()) {
+            (Some((tp, tv)), _) => (
+                libm::round(tp) as i32,
+                libm::round(tv / TICKS_PER_S_PER_VELOCITY_UNIT) as i32,
+            ),
+            (None, true) => (self.goal_tick(), 0),
+            (None, false) => (p, 0),
+        };
+        self.put(POSITION_TRAJECTORY, 4, tp.wrapping_add(offset) as u32);
+        self.put(VELOCITY_TRAJECTORY, 4, tv as u32);
         self.mirror_indirect();
     }
 
-    /// Where Indirect Data `k` points (its Indirect Address), when inside the table and not
-    /// itself indirect data.
-    fn indirect_target(&self, k: usize) -> Option<usize> {
-        let a = self.get((INDIRECT_ADDRESS + 2 * k) as u16, 2) as usize;
-        (a < TABLE_LEN && !(INDIRECT_DATA..INDIRECT_DATA + INDIRECT_COUNT).contains(&a)).then_some(a)
+    /// Where the Indirect Data byte at `data` points (its Indirect Address), when that is
+    /// inside the table and not itself indirect data; `None` for any other address.
+    fn indirect_target(&self, data: usize) -> Option<usize> {
+        let blocks = indirect_blocks(self.model);
+        let is_data = |a: usize| {
+            blocks
+                .iter()
+                .any(|b| (usize::from(b.data)..usize::from(b.data + b.count)).contains(&a))
+        };
+        let b = blocks
+            .iter()
+            .find(|b| (usize::from(b.data)..usize::from(b.data + b.count)).contains(&data))?;
+        let k = data - usize::from(b.data);
+        let a = self.get(b.address + 2 * k as u16, 2) as usize;
+        (a < usize::from(control_table::table_end(self.model)) && !is_data(a)).then_some(a)
     }
 
     /// Present Current (or Load) and PWM from a DC motor model at the rated voltage: the
@@ -410,9 +412,13 @@ impl VirtualServo {
 
     /// Indirect Data reads the bytes its addresses point at.
     fn mirror_indirect(&mut self) {
-        for k in 0..INDIRECT_COUNT {
-            let v = self.indirect_target(k).map_or(0, |a| self.table[a]);
-            self.table[INDIRECT_DATA + k] = v;
+        if !self.indirect_in_use {
+            return;
+        }
+        for b in indirect_blocks(self.model) {
+            for d in usize::from(b.data)..usize::from(b.data + b.count) {
+                self.table[d] = self.indirect_target(d).map_or(0, |a| self.table[a]);
+            }
         }
     }
 
@@ -506,91 +512,115 @@ impl VirtualServo {
         }
     }
 
-    /// Applies a write; returns the status error number (0 = done).
+    /// Applies a write; returns the status error number (0 = done). Checked item by item
+    /// against the model's control table ([`control_table`]) before anything is stored:
+    /// Access Error for a read-only item or EEPROM while torque is on, Data Length Error for
+    /// an item covered in part, Data Range Error beyond an item's range (Data Limit Error for
+    /// a goal beyond the position limits). Reserved bytes inside a write are skipped; Indirect
+    /// Data is forwarded to the addresses it points at.
     fn write(&mut self, a: u16, data: &[u8]) -> u8 {
         let start = usize::from(a);
         let end = start + data.len();
-        if data.is_empty() || end > TABLE_LEN {
+        if data.is_empty() || end > usize::from(control_table::table_end(self.model)) {
             return status_error::DATA_LENGTH;
         }
-        if start >= INDIRECT_DATA && end <= INDIRECT_DATA + INDIRECT_COUNT {
-            let e = self.write_indirect(start - INDIRECT_DATA, data);
-            self.mirror_indirect();
-            return e;
-        }
-        for reg in start..end {
-            let writable = matches!(reg, 7..=13 | 20..=63 | 64..=68 | 76..=119 | 168..=223);
-            if !writable {
+        let base = control_table::base_items(self.model);
+        let mut items: heapless::Vec<Item, 64> = heapless::Vec::new();
+        let mut indirect = false;
+        let mut cut = false;
+        let mut at = start;
+        while at < end {
+            let Some(i) = control_table::item_at(self.model, &base, at as u16) else {
+                at += 1;
+                continue;
+            };
+            let (first, last) = (usize::from(i.address), usize::from(i.address + i.size));
+            at = last;
+            if i.access == Access::Read || (i.eeprom() && self.torque_on()) {
                 return status_error::ACCESS;
             }
-            if reg < usize::from(addr::TORQUE_ENABLE) && self.torque_on() {
-                return status_error::ACCESS;
+            cut |= first < start || last > end;
+            if i.name == "Indirect Data" {
+                indirect = true;
+            } else if items.push(i).is_err() {
+                return status_error::DATA_LENGTH;
             }
         }
-        // A multi-byte item written in part.
-        let cut = |(r, n): &(u16, usize)| {
-            let (r, n) = (usize::from(*r), *n);
-            let overlaps = start < r + n && r < end;
-            overlaps && (start > r || end < r + n)
-        };
-        let indirect_cut = (0..INDIRECT_COUNT).any(|k| cut(&((INDIRECT_ADDRESS + 2 * k) as u16, 2)));
-        if WIDE_ITEMS.iter().any(cut) || indirect_cut {
+        if items.is_empty() && !indirect {
+            return status_error::ACCESS;
+        }
+        if cut {
             return status_error::DATA_LENGTH;
         }
-        let covers = |r: u16, n: usize| start <= usize::from(r) && usize::from(r) + n <= end;
-        let value = |r: u16, n: usize| {
+        let covered = |r: u16, n: u16| start <= usize::from(r) && usize::from(r + n) <= end;
+        let value = |r: u16, n: u16| {
             let o = usize::from(r) - start;
-            data[o..o + n]
+            data[o..o + usize::from(n)]
                 .iter()
                 .rev()
                 .fold(0u32, |acc, &b| (acc << 8) | u32::from(b))
         };
-        // Values outside each item's range (e-manual): Data Range Error, nothing written.
-        let byte = |r: u16| covers(r, 1).then(|| data[usize::from(r) - start]);
-        let out_of_range = byte(addr::BAUD_RATE).is_some_and(|v| usize::from(v) >= BAUD_CODES.len())
-            || byte(addr::OPERATING_MODE).is_some_and(|v| !matches!(v, 0 | 1 | 3 | 4 | 5 | 16))
-            || byte(addr::TORQUE_ENABLE).is_some_and(|v| v > 1)
-            || byte(LED).is_some_and(|v| v > 1)
-            || byte(addr::STATUS_RETURN_LEVEL).is_some_and(|v| v > 2)
-            || [addr::MAX_POSITION_LIMIT, addr::MIN_POSITION_LIMIT]
-                .iter()
-                .any(|&r| covers(r, 4) && value(r, 4) > MAX_TICK as u32)
-            || self.beyond_limit(&covers, &value);
-        if out_of_range {
-            return status_error::DATA_RANGE;
-        }
-        if covers(addr::GOAL_POSITION, 4) {
-            if self.watchdog_expired {
-                // The e-manual's answer to a goal after Bus Watchdog expiry.
+        // Limits held by other items: the value this write sets, else the table's.
+        let register = |r: u16, n: u16| {
+            if covered(r, n) {
+                value(r, n)
+            } else {
+                self.get(r, usize::from(n))
+            }
+        };
+        for i in &items {
+            let v = value(i.address, i.size);
+            if i.address == addr::GOAL_POSITION {
+                if self.watchdog_expired {
+                    // The e-manual's answer to a goal after Bus Watchdog expiry.
+                    return status_error::DATA_RANGE;
+                }
+                // Position limits bound the goal in Position Control Mode only.
+                let position_mode = register(addr::OPERATING_MODE, 1) == 3;
+                if position_mode && !i.accepts(v, register) {
+                    return status_error::DATA_LIMIT;
+                }
+            } else if !i.accepts(v, register) {
                 return status_error::DATA_RANGE;
             }
-            let g = value(addr::GOAL_POSITION, 4) as i32;
-            let (lo, hi) = (
-                self.get(addr::MIN_POSITION_LIMIT, 4) as i32,
-                self.get(addr::MAX_POSITION_LIMIT, 4) as i32,
-            );
-            if g < lo || g > hi {
-                return status_error::DATA_LIMIT;
-            }
         }
-        if covers(addr::BUS_WATCHDOG, 1) && value(addr::BUS_WATCHDOG, 1) > 127 {
-            return status_error::DATA_RANGE;
-        }
-        if covers(addr::RETURN_DELAY_TIME, 1) && value(addr::RETURN_DELAY_TIME, 1) > 254 {
-            return status_error::DATA_RANGE;
-        }
-        if covers(addr::TORQUE_ENABLE, 1) {
+        if covered(addr::TORQUE_ENABLE, 1) {
             let on = value(addr::TORQUE_ENABLE, 1) != 0;
             if on && self.hardware_error() & self.table[usize::from(addr::SHUTDOWN)] != 0 {
                 return status_error::RESULT_FAIL;
             }
         }
         let was_on = self.torque_on();
-        self.table[start..end].copy_from_slice(data);
-        if covers(addr::BUS_WATCHDOG, 1) && data[usize::from(addr::BUS_WATCHDOG) - start] == 0 {
+        for i in &items {
+            let (first, last) = (usize::from(i.address), usize::from(i.address + i.size));
+            self.table[first..last].copy_from_slice(&data[first - start..last - start]);
+        }
+        if indirect {
+            // Each run of Indirect Data bytes forwarded on its own.
+            let is_data = |d: usize| {
+                indirect_blocks(self.model)
+                    .iter()
+                    .any(|b| (usize::from(b.data)..usize::from(b.data + b.count)).contains(&d))
+            };
+            let mut d = start;
+            while d < end {
+                let n = (d..end).take_while(|&x| is_data(x)).count();
+                if n == 0 {
+                    d += 1;
+                    continue;
+                }
+                let e = self.write_indirect(d, &data[d - start..d - start + n]);
+                self.mirror_indirect();
+                if e != 0 {
+                    return e;
+                }
+                d += n;
+            }
+        }
+        if covered(addr::BUS_WATCHDOG, 1) && value(addr::BUS_WATCHDOG, 1) == 0 {
             self.watchdog_expired = false;
         }
-        if covers(addr::GOAL_POSITION, 4) {
+        if covered(addr::GOAL_POSITION, 4) {
             self.write_count += 1;
         }
         if !was_on && self.torque_on() {
@@ -599,30 +629,19 @@ impl VirtualServo {
             }
             self.velocity = 0.0;
         }
+        self.indirect_in_use |= items.iter().any(|i| i.name == "Indirect Address");
+        if covered(HOMING_OFFSET, 4) {
+            self.refresh_present();
+        } else {
+            self.mirror_indirect();
+        }
         0
-    }
-
-    /// Whether a write sets one of these items beyond its range (e-manual): Moving Threshold
-    /// 0–1023, Temperature Limit 0–100, PWM Limit 0–885, Current Limit up to the model's
-    /// factory value, Velocity Limit 0–1023, Profile Acceleration and Velocity 0–32767.
-    fn beyond_limit(&self, covers: &impl Fn(u16, usize) -> bool, value: &impl Fn(u16, usize) -> u32) -> bool {
-        let current_limit = u32::from(self.model.current_limit);
-        [
-            (addr::MOVING_THRESHOLD, 4, 1023),
-            (TEMPERATURE_LIMIT, 1, 100),
-            (addr::PWM_LIMIT, 2, PWM_FULL as u32),
-            (addr::CURRENT_LIMIT, 2, current_limit),
-            (addr::VELOCITY_LIMIT, 4, 1023),
-            (addr::PROFILE_ACCELERATION, 4, 32_767),
-            (addr::PROFILE_VELOCITY, 4, 32_767),
-        ]
-        .iter()
-        .any(|&(r, n, max)| covers(r, n) && value(r, n) > max)
     }
 
     fn read(&self, a: u16, n: usize) -> Option<&[u8]> {
         let start = usize::from(a);
-        self.table.get(start..start.checked_add(n)?)
+        let end = start.checked_add(n)?;
+        (end <= usize::from(control_table::table_end(self.model))).then(|| &self.table[start..end])
     }
 }
 
@@ -737,20 +756,24 @@ impl Chain {
     fn execute(&mut self, id: u8, inst: u8, params: &[u8], w: &mut Writer<'_, '_>) {
         // Any instruction meant for a servo resets its watchdog timer.
         for s in &mut self.servos {
-            if id == BROADCAST_ID || s.id() == id {
+            if s.hears(id) {
                 s.since_packet = 0.0;
             }
         }
         let broadcast = id == BROADCAST_ID;
         match inst {
             instruction::PING => {
-                for s in self.servos.iter().filter(|s| broadcast || s.id() == id) {
+                for s in self
+                    .servos
+                    .iter()
+                    .filter(|s| s.speaks_protocol_2() && (broadcast || s.id() == id))
+                {
                     let m = s.model.model_number.to_le_bytes();
                     w.status(s, 0, &[m[0], m[1], FIRMWARE_VERSION]);
                 }
             }
             instruction::READ if !broadcast => {
-                let Some(s) = self.servos.iter_mut().find(|s| s.id() == id) else {
+                let Some(s) = self.servos.iter_mut().find(|s| s.answers(id)) else {
                     return;
                 };
                 if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
@@ -769,15 +792,18 @@ impl Chain {
             }
             instruction::WRITE => {
                 if params.len() < 3 {
-                    if let Some(s) = self.servos.iter().find(|s| s.id() == id) {
+                    if let Some(s) = self.servos.iter().find(|s| s.answers(id)) {
                         w.status(s, status_error::DATA_LENGTH, &[]);
                     }
                     return;
                 }
                 let a = le16(params);
-                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                for s in self.servos.iter_mut().filter(|s| s.hears(id)) {
+                    // Answered in the protocol the packet came in (a write of Protocol Type
+                    // takes effect after it), at the Status Return Level the write leaves.
+                    let answers = s.answers(id);
                     let e = s.write(a, &params[2..]);
-                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
+                    if answers && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
                         w.status(s, e, &[]);
                     }
                 }
@@ -785,38 +811,38 @@ impl Chain {
             instruction::REG_WRITE => {
                 // Held, not applied, until Action; the Registered Instruction flag says so.
                 if params.len() < 3 || params.len() - 2 > 128 {
-                    if let Some(s) = self.servos.iter().find(|s| s.id() == id) {
+                    if let Some(s) = self.servos.iter().find(|s| s.answers(id)) {
                         w.status(s, status_error::DATA_LENGTH, &[]);
                     }
                     return;
                 }
                 let a = le16(params);
-                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                for s in self.servos.iter_mut().filter(|s| s.hears(id)) {
                     let mut data = heapless::Vec::new();
                     let _ = data.extend_from_slice(&params[2..]);
                     s.registered = Some((a, data));
                     s.table[usize::from(REGISTERED_INSTRUCTION)] = 1;
-                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
+                    if s.answers(id) && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
                         w.status(s, 0, &[]);
                     }
                 }
             }
             instruction::ACTION => {
-                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                for s in self.servos.iter_mut().filter(|s| s.hears(id)) {
                     let e = match s.registered.take() {
                         Some((a, data)) => s.write(a, &data),
                         None => 0,
                     };
                     s.table[usize::from(REGISTERED_INSTRUCTION)] = 0;
-                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
+                    if s.answers(id) && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
                         w.status(s, e, &[]);
                     }
                 }
             }
             instruction::REBOOT => {
-                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                for s in self.servos.iter_mut().filter(|s| s.hears(id)) {
                     // Only a read or a ping is answered below Status Return Level 2.
-                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
+                    if s.answers(id) && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
                         w.status(s, 0, &[]);
                     }
                     s.table[usize::from(addr::HARDWARE_ERROR_STATUS)] = 0;
@@ -830,9 +856,9 @@ impl Chain {
                 if broadcast && option == 0xFF {
                     return;
                 }
-                for s in self.servos.iter_mut().filter(|s| broadcast || s.id() == id) {
+                for s in self.servos.iter_mut().filter(|s| s.hears(id)) {
                     let (sid, baud) = (s.id(), s.table[usize::from(addr::BAUD_RATE)]);
-                    if !broadcast && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
+                    if s.answers(id) && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
                         w.status(s, 0, &[]);
                     }
                     s.factory_defaults(if option == 0xFF { 1 } else { sid });
@@ -847,7 +873,7 @@ impl Chain {
                     return;
                 }
                 for chunk in params[4..].chunks_exact(1 + n) {
-                    for s in self.servos.iter_mut().filter(|s| s.id() == chunk[0]) {
+                    for s in self.servos.iter_mut().filter(|s| s.answers(chunk[0])) {
                         let _ = s.write(a, &chunk[1..]);
                     }
                 }
@@ -855,7 +881,7 @@ impl Chain {
             instruction::SYNC_READ if broadcast && params.len() >= 4 => {
                 let (a, n) = (le16(params), usize::from(le16(&params[2..])));
                 for &sid in &params[4..] {
-                    for s in self.servos.iter_mut().filter(|s| s.id() == sid) {
+                    for s in self.servos.iter_mut().filter(|s| s.answers(sid)) {
                         if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
                             continue;
                         }
@@ -882,7 +908,7 @@ impl Chain {
             instruction::BULK_READ if broadcast => {
                 for item in params.chunks_exact(5) {
                     let (sid, a, n) = (item[0], le16(&item[1..]), usize::from(le16(&item[3..])));
-                    for s in self.servos.iter_mut().filter(|s| s.id() == sid) {
+                    for s in self.servos.iter_mut().filter(|s| s.answers(sid)) {
                         if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
                             continue;
                         }
@@ -901,7 +927,7 @@ impl Chain {
                     if rest.len() < 5 + n {
                         break;
                     }
-                    for s in self.servos.iter_mut().filter(|s| s.id() == sid) {
+                    for s in self.servos.iter_mut().filter(|s| s.answers(sid)) {
                         let _ = s.write(a, &rest[5..5 + n]);
                     }
                     rest = &rest[5 + n..];
@@ -909,7 +935,7 @@ impl Chain {
             }
             _ => {
                 if !broadcast {
-                    if let Some(s) = self.servos.iter().find(|s| s.id() == id) {
+                    if let Some(s) = self.servos.iter().find(|s| s.answers(id)) {
                         w.status(s, status_error::INSTRUCTION, &[]);
                     }
                 }
@@ -950,7 +976,7 @@ impl Writer<'_, '_> {
         let mut blocks = 0;
         for k in 0..count {
             let (sid, a, n) = entry(k);
-            let Some(s) = servos.iter_mut().find(|s| s.id() == sid) else {
+            let Some(s) = servos.iter_mut().find(|s| s.answers(sid)) else {
                 continue;
             };
             if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0

@@ -20,7 +20,8 @@
 //! * [`retarget`] — a human pose onto a robot of other proportions: arm directions, legs to
 //!   the feet in closed form, head, planted feet, balance over the support polygon.
 //! * [`servo`] — X-series servo models, control-table addresses, the velocity- and
-//!   acceleration-limited step, [`servo::MAX_SERVOS`].
+//!   acceleration-limited step, [`servo::MAX_SERVOS`]; [`control_table`] — each model's
+//!   control table item by item (factory values, ranges, access).
 //! * [`plan`] — look-ahead: one servo's least-deviation goal path over a preview window
 //!   within its velocity and acceleration limits (ADMM on a banded system).
 //! * [`rig`] — joint sources and angle ↔ tick mapping, Euler re-decomposition.
@@ -59,6 +60,8 @@ pub mod ik_numeric;
 pub mod retarget;
 
 pub mod servo;
+
+pub mod control_table;
 
 pub mod plan;
 

@@ -145,6 +145,32 @@ pub struct ServoModel {
     pub temperature_limit: u8,
     /// Max and Min Voltage Limit's factory values (32, 34), 0.1 V.
     pub voltage_limits: (u16, u16),
+    /// The range both voltage limits accept, 0.1 V.
+    pub voltage_range: (u16, u16),
+    /// Velocity Limit's factory value (44) and the largest it accepts, 0.229 rev/min.
+    pub velocity_limit: (u16, u16),
+    /// Factory Velocity I and P Gains (76, 78) and Position D Gain (80).
+    pub velocity_i_gain: u16,
+    /// Factory Velocity P Gain (78).
+    pub velocity_p_gain: u16,
+    /// Factory Position D Gain (80).
+    pub position_d_gain: u16,
+    /// The control-table family: which items the model has.
+    pub family: Family,
+}
+
+/// Control-table families of the X series: where the items of one model differ from another's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Family {
+    /// XL330/XC330: Baud Rate up to 4 Mbps, PWM Slope (62), Indirect Address/Data 1–20 at
+    /// 168/208, Protocol Type 2–22.
+    X330,
+    /// XL430: no Current Limit or Goal Current (Present Load at 126), operating modes 1, 3, 4, 16.
+    Xl430,
+    /// XM430/XH430: the common layout, Indirect Address/Data 1–56.
+    X430,
+    /// XM540/XH540: the common layout plus External Ports (56–58, 152–157).
+    X540,
 }
 
 impl ServoModel {
@@ -197,6 +223,12 @@ pub const MODELS: [ServoModel; 5] = [
         current_limit: 1750,
         temperature_limit: 70,
         voltage_limits: (70, 35),
+        voltage_range: (31, 70),
+        velocity_limit: (445, 2047),
+        velocity_i_gain: 1600,
+        velocity_p_gain: 180,
+        position_d_gain: 0,
+        family: Family::X330,
     },
     ServoModel {
         name: "XL430-W250",
@@ -214,6 +246,12 @@ pub const MODELS: [ServoModel; 5] = [
         current_limit: 0,
         temperature_limit: 72,
         voltage_limits: (140, 60),
+        voltage_range: (60, 140),
+        velocity_limit: (265, 1023),
+        velocity_i_gain: 1000,
+        velocity_p_gain: 100,
+        position_d_gain: 4000,
+        family: Family::Xl430,
     },
     ServoModel {
         name: "XM430-W350",
@@ -231,6 +269,12 @@ pub const MODELS: [ServoModel; 5] = [
         current_limit: 1193,
         temperature_limit: 80,
         voltage_limits: (160, 95),
+        voltage_range: (95, 160),
+        velocity_limit: (200, 1023),
+        velocity_i_gain: 1920,
+        velocity_p_gain: 100,
+        position_d_gain: 0,
+        family: Family::X430,
     },
     ServoModel {
         name: "XH540-W270",
@@ -248,6 +292,12 @@ pub const MODELS: [ServoModel; 5] = [
         current_limit: 2047,
         temperature_limit: 80,
         voltage_limits: (160, 95),
+        voltage_range: (95, 160),
+        velocity_limit: (167, 1023),
+        velocity_i_gain: 1920,
+        velocity_p_gain: 100,
+        position_d_gain: 0,
+        family: Family::X540,
     },
     ServoModel {
         name: "XM430-W210",
@@ -265,6 +315,12 @@ pub const MODELS: [ServoModel; 5] = [
         current_limit: 1193,
         temperature_limit: 80,
         voltage_limits: (160, 95),
+        voltage_range: (95, 160),
+        velocity_limit: (330, 1023),
+        velocity_i_gain: 1920,
+        velocity_p_gain: 100,
+        position_d_gain: 0,
+        family: Family::X430,
     },
 ];
 

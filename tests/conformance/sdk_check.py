@@ -111,6 +111,130 @@ check("Bulk Read of two servos, two items", r == COMM_SUCCESS and b.isAvailable(
 r = b.fastBulkRead() if hasattr(b, "fastBulkRead") else -1
 check("Fast Bulk Read of two servos", r == COMM_SUCCESS, f"{r}")
 
+
+# ---- The control table item by item (e-manual pages of each model, firmware 46+) ----
+# (address, size, name, access, factory value or None, (lo, hi) or None; signed where lo < 0).
+def control_table(model):
+    x330, xl430, x540 = model.startswith("XL330"), model.startswith("XL430"), model.startswith("XH540")
+    velocity = {"XL330-M288": (445, 2047), "XL430-W250": (265, 1023), "XM430-W350": (200, 1023),
+                "XM430-W210": (330, 1023), "XH540-W270": (167, 1023)}[model]
+    volts = {"XL330-M288": (31, 70), "XL430-W250": (60, 140)}.get(model, (95, 160))
+    gains = {"XL330-M288": (1600, 180, 0, 400), "XL430-W250": (1000, 100, 4000, 640)}.get(model, (1920, 100, 0, 800))
+    current = CURRENT_LIMITS.get(model)
+    items = [
+        (0, 2, "Model Number", "R", MODEL_NUMBERS[model], None),
+        (2, 4, "Model Information", "R", None, None),
+        (6, 1, "Firmware Version", "R", None, None),
+        (7, 1, "ID", "RW", None, (0, 252)),
+        (8, 1, "Baud Rate", "RW", None, (0, 6 if x330 else 7)),
+        (9, 1, "Return Delay Time", "RW", None, (0, 254)),
+        (10, 1, "Drive Mode", "RW", 0, (0, 13)),
+        (11, 1, "Operating Mode", "RW", 3, None),
+        (12, 1, "Secondary(Shadow) ID", "RW", 255, (0, 255)),
+        (13, 1, "Protocol Type", "RW", 2, (2, 22) if x330 else (1, 2)),
+        (20, 4, "Homing Offset", "RW", 0, (-1044479, 1044479)),
+        (24, 4, "Moving Threshold", "RW", 10, (0, 1023)),
+        (31, 1, "Temperature Limit", "RW", TEMPERATURE_LIMITS[model], (0, 100)),
+        (32, 2, "Max Voltage Limit", "RW", VOLTAGE_LIMITS[model][0], volts),
+        (34, 2, "Min Voltage Limit", "RW", VOLTAGE_LIMITS[model][1], volts),
+        (36, 2, "PWM Limit", "RW", 885, (0, 885)),
+    ] + ([(38, 2, "Current Limit", "RW", current, (0, current))] if current else []) + [
+        (44, 4, "Velocity Limit", "RW", velocity[0], (0, velocity[1])),
+        (48, 4, "Max Position Limit", "RW", 4095, (0, 4095)),
+        (52, 4, "Min Position Limit", "RW", 0, (0, 4095)),
+    ] + ([(56 + k, 1, f"External Port Mode {k + 1}", "RW", 3, (0, 3)) for k in range(3)] if x540 else []) + [
+        (60, 1, "Startup Configuration", "RW", 0, (0, 3)),
+    ] + ([(62, 1, "PWM Slope", "RW", 140, (1, 255))] if x330 else []) + [
+        (63, 1, "Shutdown", "RW", 53 if x330 else 52, None),
+        (64, 1, "Torque Enable", "RW", 0, (0, 1)),
+        (65, 1, "LED", "RW", 0, (0, 1)),
+        (68, 1, "Status Return Level", "RW", 2, (0, 2)),
+        (69, 1, "Registered Instruction", "R", 0, None),
+        (70, 1, "Hardware Error Status", "R", 0, None),
+        (76, 2, "Velocity I Gain", "RW", gains[0], (0, 16383)),
+        (78, 2, "Velocity P Gain", "RW", gains[1], (0, 16383)),
+        (80, 2, "Position D Gain", "RW", gains[2], (0, 16383)),
+        (82, 2, "Position I Gain", "RW", 0, (0, 16383)),
+        (84, 2, "Position P Gain", "RW", gains[3], (0, 16383)),
+        (88, 2, "Feedforward 2nd Gain", "RW", 0, (0, 16383)),
+        (90, 2, "Feedforward 1st Gain", "RW", 0, (0, 16383)),
+        (98, 1, "Bus Watchdog", "RW", 0, (0, 127)),
+        (100, 2, "Goal PWM", "RW", 885, (-885, 885)),
+    ] + ([(102, 2, "Goal Current", "RW", current, (-current, current))] if current else []) + [
+        (104, 4, "Goal Velocity", "RW", 0, (-velocity[0], velocity[0])),
+        (108, 4, "Profile Acceleration", "RW", 0, (0, 32767)),
+        (112, 4, "Profile Velocity", "RW", 0, (0, 32767)),
+        (116, 4, "Goal Position", "RW", None, None),
+        (120, 2, "Realtime Tick", "R", None, None),
+        (122, 1, "Moving", "R", 0, None),
+        (123, 1, "Moving Status", "R", None, None),
+        (124, 2, "Present PWM", "R", None, None),
+        (126, 2, "Present Load" if xl430 else "Present Current", "R", None, None),
+        (128, 4, "Present Velocity", "R", None, None),
+        (132, 4, "Present Position", "R", None, None),
+        (136, 4, "Velocity Trajectory", "R", None, None),
+        (140, 4, "Position Trajectory", "R", None, None),
+        (144, 2, "Present Input Voltage", "R", None, None),
+        (146, 1, "Present Temperature", "R", None, None),
+        (147, 1, "Backup Ready", "R", 0, None),
+    ] + ([(152 + 2 * k, 2, f"External Port Data {k + 1}", "RW", 0, None) for k in range(3)] if x540 else [])
+    blocks = [(168, 208, 20)] if x330 else [(168, 224, 28), (578, 634, 28)]
+    last = max(d + n for _, d, n in blocks) - 1
+    for a, d, n in blocks:
+        items += [(a + 2 * k, 2, "Indirect Address", "RW", d + k, (64, last)) for k in range(n)]
+        items += [(d + k, 1, "Indirect Data", "RW", 0, None) for k in range(n)]
+    return items
+
+
+READS = {1: ph.read1ByteTxRx, 2: ph.read2ByteTxRx, 4: ph.read4ByteTxRx}
+WRITES = {1: ph.write1ByteTxRx, 2: ph.write2ByteTxRx, 4: ph.write4ByteTxRx}
+one_of_each = {}
+for i, m in servos:
+    one_of_each.setdefault(m, i)
+for model, sid in one_of_each.items():
+    rows = control_table(model)
+    ph.write1ByteTxRx(port, sid, 64, 0)
+    indirect_problems, indirect_items = [], 0
+    for a, n, name, access, factory, rng in rows:
+        v, r, e = READS[n](port, sid, a)
+        problems = []
+        if r != COMM_SUCCESS or e != 0:
+            problems.append(f"read {r} {e}")
+        elif factory is not None and v != factory:
+            problems.append(f"reads {v}, factory {factory}")
+        if access == "R":
+            r2, e2 = WRITES[n](port, sid, a, v)
+            if error_of(r2, e2) != ACCESS:
+                problems.append(f"write to read-only answered {r2} {e2}")
+        elif rng is not None:
+            lo, hi = rng
+            beyond = [hi + 1] if hi + 1 < 1 << (8 * n) and lo >= 0 else []
+            if lo < 0:
+                beyond = [(lo - 1) & ((1 << (8 * n)) - 1)]
+            for b in beyond:
+                r2, e2 = WRITES[n](port, sid, a, b)
+                if error_of(r2, e2) != RANGE:
+                    problems.append(f"{b} answered {r2} {e2}, not Data Range Error")
+        if name.startswith("Indirect"):
+            # One check for all of them, not ~100 that would swamp the pass rate.
+            indirect_items += 1
+            indirect_problems += [f"{name} ({a}): {p}" for p in problems]
+        else:
+            check(f"{model} {name} ({a})", not problems, "; ".join(problems))
+    check(f"{model} Indirect Address and Data, {indirect_items} items", not indirect_problems,
+          "; ".join(indirect_problems[:4]))
+    # EEPROM with torque on: every writable item refuses.
+    ph.write1ByteTxRx(port, sid, 64, 1)
+    locked = []
+    for a, n, name, access, factory, rng in rows:
+        if a < 64 and access == "RW":
+            v, _, _ = READS[n](port, sid, a)
+            r2, e2 = WRITES[n](port, sid, a, v)
+            if error_of(r2, e2) != ACCESS:
+                locked.append(name)
+    ph.write1ByteTxRx(port, sid, 64, 0)
+    check(f"{model}: every EEPROM item refuses writes while torque is on", not locked, ", ".join(locked))
+
 r, e = ph.regWriteTxRx(port, first, 112, 4, [10, 0, 0, 0])
 v, _, _ = ph.read4ByteTxRx(port, first, 112)
 reg, _, _ = ph.read1ByteTxRx(port, first, 69)
@@ -121,12 +245,16 @@ time.sleep(0.01)
 v, _, _ = ph.read4ByteTxRx(port, first, 112)
 check("Action applies the registered write", v == 10, f"{v}")
 
-# Indirect Address 1 at the Model Number's low byte: Indirect Data 1 reads it.
-r, e = ph.write2ByteTxRx(port, first, 168, 0)
-v, r2, e2 = ph.read1ByteTxRx(port, first, 224)
+# Indirect Address 1 at Status Return Level (RAM: indirect addresses start at 64): Indirect
+# Data 1 (208 on the XL330, 224 on the others) reads it.
 model = dict(servos)[first]
+r, e = ph.write2ByteTxRx(port, first, 168, 68)
+v, r2, e2 = ph.read1ByteTxRx(port, first, 208 if model.startswith("XL330") else 224)
 check("Indirect Data 1 reads the byte Indirect Address 1 points at",
-      r == COMM_SUCCESS and e == 0 and r2 == COMM_SUCCESS and v == MODEL_NUMBERS[model] & 0xFF, f"{r} {e} {r2} {v}")
+      r == COMM_SUCCESS and e == 0 and r2 == COMM_SUCCESS and v == 2, f"{r} {e} {r2} {v}")
+r, e = ph.write2ByteTxRx(port, first, 168, 7)
+check("Indirect Address 1 at an EEPROM item (ID) answers Data Range Error", error_of(r, e) == RANGE, f"{r} {e}")
+ph.write2ByteTxRx(port, first, 168, 208 if model.startswith("XL330") else 224)
 
 ph.write1ByteTxRx(port, first, 68, 1)
 v, r, e = ph.read4ByteTxRx(port, first, 132)

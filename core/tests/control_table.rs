@@ -1,0 +1,248 @@
+//! Every model's virtual servo against its control table, item by item: factory values,
+//! range edges, read-only and EEPROM locking, plus Homing Offset, Secondary ID and Protocol
+//! Type as the e-manual describes them.
+
+use marionette_core::control_table::{self, Access, Item, Range};
+use marionette_core::device::{Chain, Replies, VirtualServo, MAX_PACKET};
+use marionette_core::protocol::{self, instruction, BROADCAST_ID};
+use marionette_core::servo::{addr, status_error, ServoModel, MODELS};
+
+/// Sends one instruction; the replies as (id, error, data).
+fn send(chain: &mut Chain, id: u8, inst: u8, params: &[u8]) -> Vec<(u8, u8, Vec<u8>)> {
+    let mut packet = [0u8; MAX_PACKET];
+    let n = protocol::encode(id, inst, params, &mut packet).unwrap();
+    let mut out = [0u8; 4 * MAX_PACKET];
+    let mut replies = Replies::new();
+    chain.handle(&packet[..n], &mut out, &mut replies).unwrap();
+    replies
+        .iter()
+        .map(|r| {
+            let mut buf = [0u8; MAX_PACKET];
+            let (p, _) = protocol::decode(&out[r.start..r.start + r.len], &mut buf).unwrap();
+            let (error, data) = p.status().unwrap();
+            (p.id, error, data.to_vec())
+        })
+        .collect()
+}
+
+fn write(chain: &mut Chain, id: u8, address: u16, data: &[u8]) -> Option<u8> {
+    let mut params = address.to_le_bytes().to_vec();
+    params.extend_from_slice(data);
+    send(chain, id, instruction::WRITE, &params).first().map(|r| r.1)
+}
+
+fn read(chain: &mut Chain, id: u8, address: u16, n: u16) -> Option<(u8, u32)> {
+    let mut params = address.to_le_bytes().to_vec();
+    params.extend_from_slice(&n.to_le_bytes());
+    send(chain, id, instruction::READ, &params).first().map(|r| {
+        let v = r.2.iter().rev().fold(0u32, |acc, &b| (acc << 8) | u32::from(b));
+        (r.1, v)
+    })
+}
+
+fn chain_of(model: &'static ServoModel) -> Chain {
+    let mut chain = Chain::new();
+    chain.add(VirtualServo::new(1, model, 2048)).unwrap();
+    chain
+}
+
+fn le(v: u32, size: u16) -> Vec<u8> {
+    v.to_le_bytes()[..usize::from(size)].to_vec()
+}
+
+/// Items whose writes change how the servo talks (id, baud, protocol, status level) or
+/// arm it: checked for their range edges only beyond the range.
+fn changes_the_link(i: &Item) -> bool {
+    matches!(i.address, 7 | 8 | 13 | 64 | 68 | 98)
+}
+
+#[test]
+fn every_item_of_every_model_reads_its_factory_value_and_keeps_its_range() {
+    for model in &MODELS {
+        let mut chain = chain_of(model);
+        let mut checked = 0;
+        control_table::for_each_item(model, |i| {
+            let what = format!("{} {} ({})", model.name, i.name, i.address);
+            if let Some(v) = i.factory {
+                assert_eq!(
+                    read(&mut chain, 1, i.address, i.size),
+                    Some((0, v)),
+                    "{what}: factory value"
+                );
+            }
+            let value = read(&mut chain, 1, i.address, i.size).unwrap().1;
+            if i.access == Access::Read {
+                assert_eq!(
+                    write(&mut chain, 1, i.address, &le(value, i.size)),
+                    Some(status_error::ACCESS),
+                    "{what}"
+                );
+                return;
+            }
+            // Beyond the range (where one byte more exists), and its edges inside.
+            let (lo, hi) = match i.range {
+                Range::Unsigned(lo, hi) => (lo as i64, hi as i64),
+                Range::Signed(lo, hi) => (i64::from(lo), i64::from(hi)),
+                _ => return,
+            };
+            let max = (1i64 << (8 * i.size)) - 1;
+            if hi < max && !matches!(i.range, Range::Signed(..)) {
+                let e = write(&mut chain, 1, i.address, &le((hi + 1) as u32, i.size));
+                assert_eq!(
+                    e,
+                    Some(status_error::DATA_RANGE),
+                    "{what}: {} beyond {hi}",
+                    hi + 1
+                );
+            }
+            if let Range::Signed(lo, _) = i.range {
+                let e = write(&mut chain, 1, i.address, &le((lo - 1) as u32, i.size));
+                assert_eq!(e, Some(status_error::DATA_RANGE), "{what}: below {lo}");
+            }
+            if !changes_the_link(&i) {
+                for edge in [lo, hi] {
+                    assert_eq!(
+                        write(&mut chain, 1, i.address, &le(edge as u32, i.size)),
+                        Some(0),
+                        "{what} = {edge}"
+                    );
+                    assert_eq!(
+                        read(&mut chain, 1, i.address, i.size).unwrap().1,
+                        le_u32(edge, i.size),
+                        "{what}"
+                    );
+                }
+                assert_eq!(
+                    write(&mut chain, 1, i.address, &le(value, i.size)),
+                    Some(0),
+                    "{what}: restore"
+                );
+            }
+            checked += 1;
+        });
+        assert!(checked >= 20, "{}: {checked} items checked", model.name);
+        // EEPROM locked while torque is on, RAM not.
+        assert_eq!(write(&mut chain, 1, addr::TORQUE_ENABLE, &[1]), Some(0));
+        control_table::for_each_item(model, |i| {
+            if i.access == Access::ReadWrite && i.eeprom() {
+                let v = read(&mut chain, 1, i.address, i.size).unwrap().1;
+                let e = write(&mut chain, 1, i.address, &le(v, i.size));
+                assert_eq!(
+                    e,
+                    Some(status_error::ACCESS),
+                    "{} {} with torque on",
+                    model.name,
+                    i.name
+                );
+            }
+        });
+        assert_eq!(write(&mut chain, 1, 84, &le(500, 2)), Some(0));
+    }
+}
+
+fn le_u32(v: i64, size: u16) -> u32 {
+    let bits = 8 * u32::from(size);
+    (v as u64 & ((1u64 << bits) - 1)) as u32
+}
+
+#[test]
+fn limits_held_by_other_items_bound_the_goals() {
+    let model = &MODELS[2];
+    let mut chain = chain_of(model);
+    assert_eq!(write(&mut chain, 1, 36, &le(300, 2)), Some(0));
+    assert_eq!(write(&mut chain, 1, 100, &le(300, 2)), Some(0));
+    assert_eq!(
+        write(&mut chain, 1, 100, &le((-301i32) as u32, 2)),
+        Some(status_error::DATA_RANGE)
+    );
+    assert_eq!(
+        write(&mut chain, 1, 104, &le(201, 4)),
+        Some(status_error::DATA_RANGE)
+    );
+    assert_eq!(write(&mut chain, 1, 104, &le((-200i32) as u32, 4)), Some(0));
+    assert_eq!(write(&mut chain, 1, 48, &le(3000, 4)), Some(0));
+    assert_eq!(
+        write(&mut chain, 1, addr::GOAL_POSITION, &le(3001, 4)),
+        Some(status_error::DATA_LIMIT)
+    );
+    // Extended Position Control Mode: the position limits do not apply.
+    assert_eq!(write(&mut chain, 1, addr::OPERATING_MODE, &[4]), Some(0));
+    assert_eq!(write(&mut chain, 1, addr::GOAL_POSITION, &le(9000, 4)), Some(0));
+    // Reserved bytes inside a write are skipped; a write of reserved bytes alone is refused.
+    assert_eq!(write(&mut chain, 1, 14, &[1, 2]), Some(status_error::ACCESS));
+    assert_eq!(write(&mut chain, 1, 24, &[5, 0, 0, 0, 9, 9, 9, 60]), Some(0));
+    assert_eq!(read(&mut chain, 1, 24, 8).map(|r| r.1), Some(5));
+    assert_eq!(read(&mut chain, 1, 31, 1), Some((0, 60)));
+}
+
+#[test]
+fn homing_offset_shifts_present_and_goal() {
+    let mut chain = chain_of(&MODELS[2]);
+    let present = read(&mut chain, 1, addr::PRESENT_POSITION, 4).unwrap().1 as i32;
+    assert_eq!(write(&mut chain, 1, 20, &le(1000, 4)), Some(0));
+    assert_eq!(
+        read(&mut chain, 1, addr::PRESENT_POSITION, 4).unwrap().1 as i32,
+        present + 1000
+    );
+    // A goal in the offset frame moves the horn to goal − offset.
+    assert_eq!(write(&mut chain, 1, addr::TORQUE_ENABLE, &[1]), Some(0));
+    assert_eq!(write(&mut chain, 1, addr::GOAL_POSITION, &le(3500, 4)), Some(0));
+    for _ in 0..400 {
+        chain.step(0.005);
+    }
+    assert_eq!(chain.servo(1).unwrap().present_tick(), 2500);
+    assert_eq!(read(&mut chain, 1, addr::PRESENT_POSITION, 4).unwrap().1, 3500);
+}
+
+#[test]
+fn secondary_id_executes_without_answering_and_protocol_type_silences() {
+    let mut chain = Chain::new();
+    for id in 1..=3 {
+        chain.add(VirtualServo::new(id, &MODELS[2], 2048)).unwrap();
+    }
+    for id in [1, 2] {
+        assert_eq!(write(&mut chain, id, 12, &[10]), Some(0));
+    }
+    // A write to the secondary id: both take it, neither answers.
+    assert!(send(&mut chain, 10, instruction::WRITE, &[65, 0, 1]).is_empty());
+    assert_eq!(read(&mut chain, 1, 65, 1), Some((0, 1)));
+    assert_eq!(read(&mut chain, 2, 65, 1), Some((0, 1)));
+    assert_eq!(read(&mut chain, 3, 65, 1), Some((0, 0)));
+    assert!(send(&mut chain, 10, instruction::PING, &[]).is_empty());
+    // 255 switches it off again.
+    assert_eq!(write(&mut chain, 1, 12, &[255]), Some(0));
+    let _ = send(&mut chain, 10, instruction::WRITE, &[65, 0, 0]);
+    assert_eq!(read(&mut chain, 1, 65, 1), Some((0, 1)));
+    // Protocol Type 1: silent to Protocol 2.0 from then on, the others unaffected.
+    assert_eq!(write(&mut chain, 3, 13, &[1]), Some(0));
+    assert!(read(&mut chain, 3, 0, 2).is_none());
+    let found: Vec<u8> = send(&mut chain, BROADCAST_ID, instruction::PING, &[])
+        .iter()
+        .map(|r| r.0)
+        .collect();
+    assert_eq!(found, vec![1, 2]);
+}
+
+#[test]
+fn indirect_layouts_follow_the_model() {
+    // XL330: Indirect Address 1–20 at 168, data at 208; X430: 1–28 at 168/224, 29–56 at 578/634.
+    for (model, data1, last_data) in [(&MODELS[0], 208u16, 227u16), (&MODELS[2], 224, 661)] {
+        let mut chain = chain_of(model);
+        assert_eq!(read(&mut chain, 1, 168, 2), Some((0, u32::from(data1))));
+        // Indirect addresses reach RAM only (64 and up).
+        assert_eq!(
+            write(&mut chain, 1, 168, &le(u32::from(addr::ID), 2)),
+            Some(status_error::DATA_RANGE)
+        );
+        assert_eq!(
+            write(&mut chain, 1, 168, &le(u32::from(addr::STATUS_RETURN_LEVEL), 2)),
+            Some(0)
+        );
+        assert_eq!(read(&mut chain, 1, data1, 1), Some((0, 2)));
+        assert!(read(&mut chain, 1, last_data, 1).is_some_and(|r| r.0 == 0));
+        assert_eq!(
+            read(&mut chain, 1, last_data + 1, 1).map(|r| r.0),
+            Some(status_error::DATA_RANGE)
+        );
+    }
+}
