@@ -986,3 +986,76 @@ fn indirect_data_reads_and_writes_what_its_addresses_point_at() {
         "{e}"
     );
 }
+
+/// A servo that misses one read costs that tick's read and nothing more: in virtual time at
+/// 95 % of the planner's wire-limit rate, pipelined as the loop reads, every tick's bus work
+/// (collect, Sync Write, request) ends before the next tick starts, the silent tick included,
+/// and the next read is whole again.
+#[test]
+fn a_silent_servo_costs_at_most_its_own_tick() {
+    use marionette::budget::plan;
+    use marionette::profile::ReadMode;
+
+    for (name, mode) in [
+        ("cmu-puppet.toml", ReadMode::Sync),
+        ("robotis-op3.toml", ReadMode::Sync),
+        ("robotis-op3.toml", ReadMode::FastSync),
+    ] {
+        let mut p = profile(name);
+        p.bus.read = mode;
+        let ids = p.ids();
+        let n = ids.len();
+        let planned = plan(&p.bus, n, None);
+        let period = Duration::from_secs_f64(1.0 / (0.95 * planned.max_rate_hz));
+        let link = InProcess::new(chain_for(&p, |_| 2048), p.bus.baud)
+            .with_usb_latency(Duration::from_micros(u64::from(p.bus.usb_latency_us)));
+        let margin = marionette::bus::reply_margin(&p.bus, n);
+        let mut bus = PacketBus::new(link, margin).with_read_mode(mode);
+        let mut present = vec![2048; n];
+        for id in &ids {
+            bus.write(*id, addr::RETURN_DELAY_TIME, &[(p.bus.return_delay_us / 2) as u8])
+                .unwrap();
+            bus.write(*id, addr::TORQUE_ENABLE, &[1]).unwrap();
+        }
+        let quiet = n / 2;
+        let start = bus.link().now() + period;
+        let mut failed = Vec::new();
+        let mut late = Vec::new();
+        for k in 0..40u32 {
+            let tick = start + period * k;
+            let now = bus.link().now();
+            if now < tick {
+                bus.link_mut().advance(tick - now);
+            }
+            // The servo in the middle misses the read requested in tick 20.
+            let silent = k == 21;
+            if k > 0 && bus.collect_positions(&ids, &mut present).is_err() {
+                failed.push(k);
+            }
+            if silent {
+                bus.link_mut().chain_mut().servos_mut()[quiet].poke(addr::STATUS_RETURN_LEVEL, &[2]);
+            }
+            bus.write_goals(&ids, &present).unwrap();
+            if k == 20 {
+                bus.link_mut().chain_mut().servos_mut()[quiet].poke(addr::STATUS_RETURN_LEVEL, &[0]);
+            }
+            bus.request_positions(&ids).unwrap();
+            if bus.link().now() > tick + period {
+                late.push((k, (bus.link().now() - tick).as_micros()));
+            }
+        }
+        println!(
+            "{name} {mode:?}: period {} µs, failed reads {failed:?}, late ticks {late:?}",
+            period.as_micros()
+        );
+        assert_eq!(
+            failed,
+            vec![21],
+            "{name} {mode:?}: only the silent tick's read fails"
+        );
+        assert!(
+            late.is_empty(),
+            "{name} {mode:?}: ticks whose bus work ran into the next: {late:?}"
+        );
+    }
+}

@@ -279,6 +279,15 @@ impl VirtualServo {
         }
     }
 
+    /// Sets control-table bytes directly, bypassing the write checks — a fixture for a
+    /// servo that goes silent (Status Return Level 0) or misbehaves mid-run.
+    pub fn poke(&mut self, address: u16, data: &[u8]) {
+        let a = usize::from(address);
+        if let Some(t) = self.table.get_mut(a..a + data.len()) {
+            t.copy_from_slice(data);
+        }
+    }
+
     /// Sets the position directly (a hand moving the horn with torque off).
     pub fn set_position(&mut self, ticks: f64) {
         self.position = ticks;

@@ -2,7 +2,11 @@
 //!
 //! Every reply is checked before its data is used: CRC, stuffing, length, instruction, id,
 //! error byte and parameter count. After a failed reply the line is drained until quiet, so a
-//! late or extra reply cannot be taken for the answer to the next instruction.
+//! late or extra reply cannot be taken for the answer to the next instruction — except where
+//! a servo simply did not answer and the rest of the read came whole and in order (a later
+//! servo's reply in its slot, or a fast reply missing its block): then nothing more is due and
+//! the silent servo costs that read only. Bytes that came before an instruction are dropped
+//! when it is sent.
 
 use std::io;
 use std::time::Duration;
@@ -336,7 +340,12 @@ impl<T: Transport> PacketBus<T> {
         match ids.iter().zip(valid.iter()).position(|(_, v)| !v) {
             None => Ok(()),
             Some(k) => {
-                self.drain();
+                if broken || got == 0 {
+                    self.drain();
+                } else {
+                    // The one reply came whole, a servo's block missing: nothing more is due.
+                    self.rx.clear();
+                }
                 let id = ids[k];
                 Err(if errors[k] != 0 {
                     BusError::Servo { id, error: errors[k] }
@@ -376,7 +385,18 @@ impl<T: Transport> PacketBus<T> {
             // after the previous one came (return delays the host does not know).
             let due = (sent + one * (k as u32 + 1)).max(self.link.now() + one) + margin;
             if let Err(e) = self.status_by(id, Some(len), due) {
-                self.drain();
+                // A servo that did not answer, a later servo's reply in its slot: the rest of
+                // the read is well-formed and ends by its wire time — take it and go on, so the
+                // silent servo costs this read only. An empty slot (the chain stalled, a reply
+                // late) or anything garbled: drain until quiet, late bytes must not reach the
+                // next read.
+                match e {
+                    BusError::WrongId { got, .. } if ids[k + 1..].contains(&got) => {
+                        let after = k + 1 + ids[k + 1..].iter().position(|&i| i == got).unwrap_or(0);
+                        self.finish_read(&ids[after + 1..], sent + one * ids.len() as u32 + margin);
+                    }
+                    _ => self.drain(),
+                }
                 return Err(e);
             }
             scratch[k * len..(k + 1) * len].copy_from_slice(&self.params[1..=len]);
@@ -428,7 +448,14 @@ impl<T: Transport> PacketBus<T> {
         self.settle();
         let n = protocol::encode(id, inst, params, &mut self.tx)
             .map_err(|_| invalid_request("instruction too long"))?;
+        // Whatever came in before this instruction is no reply to it: dropped unread.
         self.rx.clear();
+        let mut buf = [0u8; 512];
+        while let Ok(n) = self.link.recv(&mut buf, Duration::ZERO) {
+            if n == 0 {
+                break;
+            }
+        }
         let start = self.link.now().max(self.line_free);
         self.link.send(&self.tx[..n])?;
         self.line_free = start + wire_time(n, self.link.baud());
@@ -519,6 +546,37 @@ impl<T: Transport> PacketBus<T> {
                 }
             }
         }
+    }
+
+    /// After a read that lost a servo's reply, a later servo's in its slot: takes the replies
+    /// still due — `rest`, in order, by the read's `deadline` — and drops them. Anything else
+    /// (a reply out of order, a broken or corrupt packet, the deadline passing) means the line
+    /// is not what a silent servo leaves: drained until quiet.
+    fn finish_read(&mut self, rest: &[u8], deadline: Duration) {
+        let mut buf = [0u8; 512];
+        let mut next = 0;
+        while next < rest.len() {
+            match self.take_packet() {
+                Some(Ok((id, inst, _)))
+                    if inst == instruction::STATUS && id == rest[next] && self.rx.take_broken() == 0 =>
+                {
+                    next += 1;
+                }
+                Some(Ok((_, inst, _))) if inst != instruction::STATUS => {}
+                Some(_) => return self.drain(),
+                None => {
+                    let left = deadline.saturating_sub(self.link.now());
+                    match self.link.recv(&mut buf, left) {
+                        Ok(n) if n > 0 => self.rx.push(&buf[..n]),
+                        _ => return self.drain(),
+                    }
+                }
+            }
+        }
+        if self.rx.pending() > 0 {
+            return self.drain();
+        }
+        self.rx.clear();
     }
 
     /// After a failure: read until the line has been quiet for a while, and drop it all.
