@@ -538,8 +538,13 @@ fn budget_measures_cycles_on_the_line_timed_chain_and_serve_serves_it() {
     println!("{v}");
     assert_eq!(v["cycles"].as_u64().unwrap() + v["failed"].as_u64().unwrap(), 50);
     assert!((v["planned_cycle_us"].as_f64().unwrap() - 3240.0).abs() < 1e-9);
-    // Never faster than the wire.
+    // Never faster than the wire, served or in process.
     assert!(v["measured_p50_us"].as_f64().unwrap() >= 0.99 * 3240.0);
+    assert_eq!(
+        v["in_process"]["cycles"].as_u64().unwrap() + v["in_process"]["failed"].as_u64().unwrap(),
+        50
+    );
+    assert!(v["in_process"]["measured_p50_us"].as_f64().unwrap() >= 0.99 * 3240.0);
 
     // A profile that reads with Fast Sync Read: the loop's bus is then the project's own host
     // over the port (dynamixel2 0.9.1 has no Fast Sync Read); measured, and played.

@@ -1,7 +1,7 @@
 //! The X-series control table item by item, per model: address, size, access, area, factory
 //! value and the range a write must respect (ROBOTIS e-manual, firmware 46 and later).
 //!
-//! [`items`] lists one model's items; [`item_at`] finds the item a byte belongs to. The
+//! [`item_at`] finds the item a byte belongs to; [`for_each_item`] walks a model's table. The
 //! virtual servo (the `device` module) takes its factory values, its write checks (Access Error
 //! for read-only items and for EEPROM while torque is on, Data Length Error for an item
 //! written in part, Data Range Error beyond a range) and its indirect layout from here.
@@ -158,355 +158,192 @@ fn highest_baud_code(model: &ServoModel) -> u32 {
 const OPERATING_MODES: [u32; 6] = [0, 1, 3, 4, 5, 16];
 const OPERATING_MODES_XL430: [u32; 4] = [1, 3, 4, 16];
 
-/// The model's items other than the indirect ones, in address order.
-#[must_use]
-pub fn base_items(model: &ServoModel) -> heapless::Vec<Item, 64> {
-    use Access::{Read as R, ReadWrite as RW};
-    let fam = model.family;
-    let has_current = fam != Family::Xl430;
-    let item = |name, address, size, access, range, factory| Item {
-        name,
-        address,
-        size,
-        access,
-        range,
-        factory,
-    };
-    let gain = Range::Unsigned(0, 16_383);
-    let (vl, vl_max) = model.velocity_limit;
-    let (v_lo, v_hi) = model.voltage_range;
-    let mut v = heapless::Vec::new();
-    let mut add = |i: Item, present: bool| {
-        if present {
-            let _ = v.push(i);
-        }
-    };
-    add(
-        item(
-            "Model Number",
-            0,
-            2,
-            R,
-            Range::Any,
-            Some(u32::from(model.model_number)),
-        ),
-        true,
-    );
-    add(item("Model Information", 2, 4, R, Range::Any, Some(0)), true);
-    add(
-        item(
-            "Firmware Version",
-            6,
-            1,
-            R,
-            Range::Any,
-            Some(u32::from(FIRMWARE_VERSION)),
-        ),
-        true,
-    );
-    add(item("ID", 7, 1, RW, Range::Unsigned(0, 252), Some(1)), true);
-    add(
-        item(
-            "Baud Rate",
-            8,
-            1,
-            RW,
-            Range::Unsigned(0, highest_baud_code(model)),
-            Some(1),
-        ),
-        true,
-    );
-    add(
-        item("Return Delay Time", 9, 1, RW, Range::Unsigned(0, 254), Some(250)),
-        true,
-    );
-    // Bits: reverse, time-based profile, torque on by goal update (firmware 46+).
-    add(
-        item("Drive Mode", 10, 1, RW, Range::Unsigned(0, 13), Some(0)),
-        true,
-    );
-    let modes: &'static [u32] = if fam == Family::Xl430 {
-        &OPERATING_MODES_XL430
-    } else {
-        &OPERATING_MODES
-    };
-    add(
-        item("Operating Mode", 11, 1, RW, Range::OneOf(modes), Some(3)),
-        true,
-    );
-    // 253 and above switch it off (the factory 255 included).
-    add(
-        item(
-            "Secondary(Shadow) ID",
-            12,
-            1,
-            RW,
-            Range::Unsigned(0, 255),
-            Some(255),
-        ),
-        true,
-    );
-    let protocols = if fam == Family::X330 {
-        Range::Unsigned(2, 22)
-    } else {
-        Range::Unsigned(1, 2)
-    };
-    add(item("Protocol Type", 13, 1, RW, protocols, Some(2)), true);
-    add(
-        item(
-            "Homing Offset",
-            20,
-            4,
-            RW,
-            Range::Signed(-1_044_479, 1_044_479),
-            Some(0),
-        ),
-        true,
-    );
-    add(
-        item("Moving Threshold", 24, 4, RW, Range::Unsigned(0, 1023), Some(10)),
-        true,
-    );
-    add(
-        item(
-            "Temperature Limit",
-            31,
-            1,
-            RW,
-            Range::Unsigned(0, 100),
-            Some(u32::from(model.temperature_limit)),
-        ),
-        true,
-    );
-    // The XM430-W350 page gives 110–300 with a factory Min of 95: the 24 V models' range
-    // copied; 95–160 as on its siblings' pages.
-    let volts = Range::Unsigned(u32::from(v_lo), u32::from(v_hi));
-    add(
-        item(
-            "Max Voltage Limit",
-            32,
-            2,
-            RW,
-            volts,
-            Some(u32::from(model.voltage_limits.0)),
-        ),
-        true,
-    );
-    add(
-        item(
-            "Min Voltage Limit",
-            34,
-            2,
-            RW,
-            volts,
-            Some(u32::from(model.voltage_limits.1)),
-        ),
-        true,
-    );
-    add(
-        item("PWM Limit", 36, 2, RW, Range::Unsigned(0, 885), Some(885)),
-        true,
-    );
-    let cl = u32::from(model.current_limit);
-    add(
-        item("Current Limit", 38, 2, RW, Range::Unsigned(0, cl), Some(cl)),
-        has_current,
-    );
-    add(
-        item(
-            "Velocity Limit",
-            44,
-            4,
-            RW,
-            Range::Unsigned(0, u32::from(vl_max)),
-            Some(u32::from(vl)),
-        ),
-        true,
-    );
-    add(
-        item(
-            "Max Position Limit",
-            48,
-            4,
-            RW,
-            Range::Unsigned(0, 4095),
-            Some(4095),
-        ),
-        true,
-    );
-    add(
-        item("Min Position Limit", 52, 4, RW, Range::Unsigned(0, 4095), Some(0)),
-        true,
-    );
-    for (k, name) in [
-        "External Port Mode 1",
-        "External Port Mode 2",
-        "External Port Mode 3",
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        add(
-            item(name, 56 + k as u16, 1, RW, Range::Unsigned(0, 3), Some(3)),
-            fam == Family::X540,
-        );
-    }
-    add(
-        item("Startup Configuration", 60, 1, RW, Range::Unsigned(0, 3), Some(0)),
-        true,
-    );
-    add(
-        item("PWM Slope", 62, 1, RW, Range::Unsigned(1, 255), Some(140)),
-        fam == Family::X330,
-    );
-    let shutdown = if fam == Family::X330 { 53 } else { 52 };
-    add(item("Shutdown", 63, 1, RW, Range::Any, Some(shutdown)), true);
-    add(
-        item("Torque Enable", 64, 1, RW, Range::Unsigned(0, 1), Some(0)),
-        true,
-    );
-    add(item("LED", 65, 1, RW, Range::Unsigned(0, 1), Some(0)), true);
-    add(
-        item("Status Return Level", 68, 1, RW, Range::Unsigned(0, 2), Some(2)),
-        true,
-    );
-    add(
-        item("Registered Instruction", 69, 1, R, Range::Any, Some(0)),
-        true,
-    );
-    add(item("Hardware Error Status", 70, 1, R, Range::Any, Some(0)), true);
-    add(
-        item(
-            "Velocity I Gain",
-            76,
-            2,
-            RW,
-            gain,
-            Some(u32::from(model.velocity_i_gain)),
-        ),
-        true,
-    );
-    add(
-        item(
-            "Velocity P Gain",
-            78,
-            2,
-            RW,
-            gain,
-            Some(u32::from(model.velocity_p_gain)),
-        ),
-        true,
-    );
-    add(
-        item(
-            "Position D Gain",
-            80,
-            2,
-            RW,
-            gain,
-            Some(u32::from(model.position_d_gain)),
-        ),
-        true,
-    );
-    add(item("Position I Gain", 82, 2, RW, gain, Some(0)), true);
-    add(
-        item(
-            "Position P Gain",
-            84,
-            2,
-            RW,
-            gain,
-            Some(u32::from(model.position_p_gain)),
-        ),
-        true,
-    );
-    add(item("Feedforward 2nd Gain", 88, 2, RW, gain, Some(0)), true);
-    add(item("Feedforward 1st Gain", 90, 2, RW, gain, Some(0)), true);
-    // 0 switches it off; 1–127 arm it (20 ms units).
-    add(
-        item("Bus Watchdog", 98, 1, RW, Range::Unsigned(0, 127), Some(0)),
-        true,
-    );
-    add(
-        item("Goal PWM", 100, 2, RW, Range::WithinLimit(36), Some(885)),
-        true,
-    );
-    add(
-        item("Goal Current", 102, 2, RW, Range::WithinLimit(38), Some(cl)),
-        has_current,
-    );
-    add(
-        item("Goal Velocity", 104, 4, RW, Range::WithinLimit(44), Some(0)),
-        true,
-    );
-    add(
-        item(
-            "Profile Acceleration",
-            108,
-            4,
-            RW,
-            Range::Unsigned(0, 32_767),
-            Some(0),
-        ),
-        true,
-    );
-    add(
-        item(
-            "Profile Velocity",
-            112,
-            4,
-            RW,
-            Range::Unsigned(0, 32_767),
-            Some(0),
-        ),
-        true,
-    );
-    add(
-        item("Goal Position", 116, 4, RW, Range::PositionLimits, None),
-        true,
-    );
-    add(item("Realtime Tick", 120, 2, R, Range::Any, None), true);
-    add(item("Moving", 122, 1, R, Range::Any, Some(0)), true);
-    add(item("Moving Status", 123, 1, R, Range::Any, None), true);
-    add(item("Present PWM", 124, 2, R, Range::Any, None), true);
-    let load = if has_current {
-        "Present Current"
-    } else {
-        "Present Load"
-    };
-    add(item(load, 126, 2, R, Range::Any, None), true);
-    add(item("Present Velocity", 128, 4, R, Range::Any, None), true);
-    add(item("Present Position", 132, 4, R, Range::Any, None), true);
-    add(item("Velocity Trajectory", 136, 4, R, Range::Any, None), true);
-    add(item("Position Trajectory", 140, 4, R, Range::Any, None), true);
-    add(item("Present Input Voltage", 144, 2, R, Range::Any, None), true);
-    add(item("Present Temperature", 146, 1, R, Range::Any, None), true);
-    add(item("Backup Ready", 147, 1, R, Range::Any, Some(0)), true);
-    for (k, name) in [
-        "External Port Data 1",
-        "External Port Data 2",
-        "External Port Data 3",
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        add(
-            item(name, 152 + 2 * k as u16, 2, RW, Range::Any, Some(0)),
-            fam == Family::X540,
-        );
-    }
-    v
+/// A value that may depend on the model.
+#[derive(Clone, Copy)]
+enum Value {
+    Fixed(u32),
+    ModelNumber,
+    TemperatureLimit,
+    MaxVoltageLimit,
+    MinVoltageLimit,
+    CurrentLimit,
+    VelocityLimit,
+    VelocityIGain,
+    VelocityPGain,
+    PositionDGain,
+    PositionPGain,
+    Shutdown,
+    /// Computed by the servo (present values).
+    Live,
 }
 
-/// The item that byte `address` belongs to, indirect ones included (named "Indirect
-/// Address" / "Indirect Data"); `None` for reserved bytes and beyond the table.
+/// A range that may depend on the model.
+#[derive(Clone, Copy)]
+enum Spec {
+    Is(Range),
+    BaudCodes,
+    OperatingModes,
+    ProtocolTypes,
+    Volts,
+    UpToCurrentLimit,
+    UpToVelocityMax,
+}
+
+/// Which models have an item.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Present {
+    All,
+    /// Models with current sensing (all but the XL430).
+    CurrentSensing,
+    /// XL330/XC330.
+    X330,
+    /// XM540/XH540.
+    X540,
+}
+
+/// An item as the table lists it, model-dependent parts unresolved.
+#[derive(Clone, Copy)]
+struct Row(&'static str, u16, u16, Access, Spec, Value, Present);
+
+const GAIN: Spec = Spec::Is(Range::Unsigned(0, 16_383));
+
+/// The X-series items other than the indirect ones, in address order.
+#[rustfmt::skip]
+const ROWS: &[Row] = {
+    use Access::{Read as R, ReadWrite as RW};
+    use Present::{All, CurrentSensing, X330, X540};
+    use Range::{Any, Signed, Unsigned, WithinLimit};
+    use Value::{Fixed, Live};
+    &[
+        Row("Model Number", 0, 2, R, Spec::Is(Any), Value::ModelNumber, All),
+        Row("Model Information", 2, 4, R, Spec::Is(Any), Fixed(0), All),
+        Row("Firmware Version", 6, 1, R, Spec::Is(Any), Fixed(FIRMWARE_VERSION as u32), All),
+        Row("ID", 7, 1, RW, Spec::Is(Unsigned(0, 252)), Fixed(1), All),
+        Row("Baud Rate", 8, 1, RW, Spec::BaudCodes, Fixed(1), All),
+        Row("Return Delay Time", 9, 1, RW, Spec::Is(Unsigned(0, 254)), Fixed(250), All),
+        // Bits: reverse, time-based profile, torque on by goal update (firmware 46+).
+        Row("Drive Mode", 10, 1, RW, Spec::Is(Unsigned(0, 13)), Fixed(0), All),
+        Row("Operating Mode", 11, 1, RW, Spec::OperatingModes, Fixed(3), All),
+        // 253 and above switch it off (the factory 255 included).
+        Row("Secondary(Shadow) ID", 12, 1, RW, Spec::Is(Unsigned(0, 255)), Fixed(255), All),
+        Row("Protocol Type", 13, 1, RW, Spec::ProtocolTypes, Fixed(2), All),
+        Row("Homing Offset", 20, 4, RW, Spec::Is(Signed(-1_044_479, 1_044_479)), Fixed(0), All),
+        Row("Moving Threshold", 24, 4, RW, Spec::Is(Unsigned(0, 1023)), Fixed(10), All),
+        Row("Temperature Limit", 31, 1, RW, Spec::Is(Unsigned(0, 100)), Value::TemperatureLimit, All),
+        // The XM430-W350 page gives 110–300 with a factory Min of 95: the 24 V models' range
+        // copied; 95–160 as on its siblings' pages.
+        Row("Max Voltage Limit", 32, 2, RW, Spec::Volts, Value::MaxVoltageLimit, All),
+        Row("Min Voltage Limit", 34, 2, RW, Spec::Volts, Value::MinVoltageLimit, All),
+        Row("PWM Limit", 36, 2, RW, Spec::Is(Unsigned(0, 885)), Fixed(885), All),
+        Row("Current Limit", 38, 2, RW, Spec::UpToCurrentLimit, Value::CurrentLimit, CurrentSensing),
+        Row("Velocity Limit", 44, 4, RW, Spec::UpToVelocityMax, Value::VelocityLimit, All),
+        Row("Max Position Limit", 48, 4, RW, Spec::Is(Unsigned(0, 4095)), Fixed(4095), All),
+        Row("Min Position Limit", 52, 4, RW, Spec::Is(Unsigned(0, 4095)), Fixed(0), All),
+        Row("External Port Mode 1", 56, 1, RW, Spec::Is(Unsigned(0, 3)), Fixed(3), X540),
+        Row("External Port Mode 2", 57, 1, RW, Spec::Is(Unsigned(0, 3)), Fixed(3), X540),
+        Row("External Port Mode 3", 58, 1, RW, Spec::Is(Unsigned(0, 3)), Fixed(3), X540),
+        Row("Startup Configuration", 60, 1, RW, Spec::Is(Unsigned(0, 3)), Fixed(0), All),
+        Row("PWM Slope", 62, 1, RW, Spec::Is(Unsigned(1, 255)), Fixed(140), X330),
+        Row("Shutdown", 63, 1, RW, Spec::Is(Any), Value::Shutdown, All),
+        Row("Torque Enable", 64, 1, RW, Spec::Is(Unsigned(0, 1)), Fixed(0), All),
+        Row("LED", 65, 1, RW, Spec::Is(Unsigned(0, 1)), Fixed(0), All),
+        Row("Status Return Level", 68, 1, RW, Spec::Is(Unsigned(0, 2)), Fixed(2), All),
+        Row("Registered Instruction", 69, 1, R, Spec::Is(Any), Fixed(0), All),
+        Row("Hardware Error Status", 70, 1, R, Spec::Is(Any), Fixed(0), All),
+        Row("Velocity I Gain", 76, 2, RW, GAIN, Value::VelocityIGain, All),
+        Row("Velocity P Gain", 78, 2, RW, GAIN, Value::VelocityPGain, All),
+        Row("Position D Gain", 80, 2, RW, GAIN, Value::PositionDGain, All),
+        Row("Position I Gain", 82, 2, RW, GAIN, Fixed(0), All),
+        Row("Position P Gain", 84, 2, RW, GAIN, Value::PositionPGain, All),
+        Row("Feedforward 2nd Gain", 88, 2, RW, GAIN, Fixed(0), All),
+        Row("Feedforward 1st Gain", 90, 2, RW, GAIN, Fixed(0), All),
+        // 0 switches it off; 1–127 arm it (20 ms units).
+        Row("Bus Watchdog", 98, 1, RW, Spec::Is(Unsigned(0, 127)), Fixed(0), All),
+        Row("Goal PWM", 100, 2, RW, Spec::Is(WithinLimit(36)), Fixed(885), All),
+        Row("Goal Current", 102, 2, RW, Spec::Is(WithinLimit(38)), Value::CurrentLimit, CurrentSensing),
+        Row("Goal Velocity", 104, 4, RW, Spec::Is(WithinLimit(44)), Fixed(0), All),
+        Row("Profile Acceleration", 108, 4, RW, Spec::Is(Unsigned(0, 32_767)), Fixed(0), All),
+        Row("Profile Velocity", 112, 4, RW, Spec::Is(Unsigned(0, 32_767)), Fixed(0), All),
+        Row("Goal Position", 116, 4, RW, Spec::Is(Range::PositionLimits), Live, All),
+        Row("Realtime Tick", 120, 2, R, Spec::Is(Any), Live, All),
+        Row("Moving", 122, 1, R, Spec::Is(Any), Fixed(0), All),
+        Row("Moving Status", 123, 1, R, Spec::Is(Any), Live, All),
+        Row("Present PWM", 124, 2, R, Spec::Is(Any), Live, All),
+        Row("Present Current", 126, 2, R, Spec::Is(Any), Live, CurrentSensing),
+        // The XL430's item at 126: 0.1 % of the maximum torque.
+        Row("Present Load", 126, 2, R, Spec::Is(Any), Live, All),
+        Row("Present Velocity", 128, 4, R, Spec::Is(Any), Live, All),
+        Row("Present Position", 132, 4, R, Spec::Is(Any), Live, All),
+        Row("Velocity Trajectory", 136, 4, R, Spec::Is(Any), Live, All),
+        Row("Position Trajectory", 140, 4, R, Spec::Is(Any), Live, All),
+        Row("Present Input Voltage", 144, 2, R, Spec::Is(Any), Live, All),
+        Row("Present Temperature", 146, 1, R, Spec::Is(Any), Live, All),
+        Row("Backup Ready", 147, 1, R, Spec::Is(Any), Fixed(0), All),
+        Row("External Port Data 1", 152, 2, RW, Spec::Is(Any), Fixed(0), X540),
+        Row("External Port Data 2", 154, 2, RW, Spec::Is(Any), Fixed(0), X540),
+        Row("External Port Data 3", 156, 2, RW, Spec::Is(Any), Fixed(0), X540),
+    ]
+};
+
+impl Row {
+    fn present(&self, model: &ServoModel) -> bool {
+        let current = model.family != Family::Xl430;
+        match self.6 {
+            Present::All if self.0 == "Present Load" => !current,
+            Present::All => true,
+            Present::CurrentSensing => current,
+            Present::X330 => model.family == Family::X330,
+            Present::X540 => model.family == Family::X540,
+        }
+    }
+
+    fn resolve(&self, m: &ServoModel) -> Item {
+        let range = match self.4 {
+            Spec::Is(r) => r,
+            Spec::BaudCodes => Range::Unsigned(0, highest_baud_code(m)),
+            Spec::OperatingModes if m.family == Family::Xl430 => Range::OneOf(&OPERATING_MODES_XL430),
+            Spec::OperatingModes => Range::OneOf(&OPERATING_MODES),
+            Spec::ProtocolTypes if m.family == Family::X330 => Range::Unsigned(2, 22),
+            Spec::ProtocolTypes => Range::Unsigned(1, 2),
+            Spec::Volts => Range::Unsigned(u32::from(m.voltage_range.0), u32::from(m.voltage_range.1)),
+            Spec::UpToCurrentLimit => Range::Unsigned(0, u32::from(m.current_limit)),
+            Spec::UpToVelocityMax => Range::Unsigned(0, u32::from(m.velocity_limit.1)),
+        };
+        let factory = match self.5 {
+            Value::Fixed(v) => Some(v),
+            Value::ModelNumber => Some(u32::from(m.model_number)),
+            Value::TemperatureLimit => Some(u32::from(m.temperature_limit)),
+            Value::MaxVoltageLimit => Some(u32::from(m.voltage_limits.0)),
+            Value::MinVoltageLimit => Some(u32::from(m.voltage_limits.1)),
+            Value::CurrentLimit => Some(u32::from(m.current_limit)),
+            Value::VelocityLimit => Some(u32::from(m.velocity_limit.0)),
+            Value::VelocityIGain => Some(u32::from(m.velocity_i_gain)),
+            Value::VelocityPGain => Some(u32::from(m.velocity_p_gain)),
+            Value::PositionDGain => Some(u32::from(m.position_d_gain)),
+            Value::PositionPGain => Some(u32::from(m.position_p_gain)),
+            Value::Shutdown => Some(if m.family == Family::X330 { 53 } else { 52 }),
+            Value::Live => None,
+        };
+        Item {
+            name: self.0,
+            address: self.1,
+            size: self.2,
+            access: self.3,
+            range,
+            factory,
+        }
+    }
+}
+
+/// The item that byte `address` belongs to on `model`, indirect ones included (named
+/// "Indirect Address" / "Indirect Data"); `None` for reserved bytes and beyond the table.
 #[must_use]
-pub fn item_at(model: &ServoModel, base: &[Item], address: u16) -> Option<Item> {
-    if let Some(i) = base
+pub fn item_at(model: &ServoModel, address: u16) -> Option<Item> {
+    if let Some(r) = ROWS
         .iter()
-        .find(|i| (i.address..i.address + i.size).contains(&address))
+        .find(|r| (r.1..r.1.saturating_add(r.2)).contains(&address) && r.present(model))
     {
-        return Some(*i);
+        return Some(r.resolve(model));
     }
     let end = table_end(model);
     for b in indirect_blocks(model) {
@@ -537,11 +374,10 @@ pub fn item_at(model: &ServoModel, base: &[Item], address: u16) -> Option<Item> 
 
 /// Every item of the model, indirect ones included, in address order: calls `f` for each.
 pub fn for_each_item(model: &ServoModel, mut f: impl FnMut(Item)) {
-    let base = base_items(model);
     let mut a = 0;
     let end = table_end(model);
     while a < end {
-        match item_at(model, &base, a) {
+        match item_at(model, a) {
             Some(i) => {
                 f(i);
                 a = i.address + i.size;
@@ -576,10 +412,9 @@ mod tests {
     #[test]
     fn factory_values_are_inside_their_ranges() {
         for m in &MODELS {
-            let base = base_items(m);
             let register = |a: u16, n: u16| {
-                base.iter()
-                    .find(|i| i.address == a && i.size == n)
+                item_at(m, a)
+                    .filter(|i| i.size == n)
                     .and_then(|i| i.factory)
                     .unwrap_or(0)
             };
@@ -594,11 +429,10 @@ mod tests {
     #[test]
     fn signed_ranges_read_twos_complement() {
         let m = &MODELS[2];
-        let base = base_items(m);
-        let homing = item_at(m, &base, 20).unwrap();
+        let homing = item_at(m, 20).unwrap();
         assert!(homing.accepts((-1_044_479i32) as u32, |_, _| 0));
         assert!(!homing.accepts((-1_044_480i32) as u32, |_, _| 0));
-        let pwm = item_at(m, &base, 100).unwrap();
+        let pwm = item_at(m, 100).unwrap();
         let limit = |a: u16, _| if a == 36 { 885 } else { 0 };
         assert!(pwm.accepts(u32::from((-885i16) as u16), limit));
         assert!(!pwm.accepts(u32::from((-886i16) as u16), limit));

@@ -533,13 +533,12 @@ impl VirtualServo {
         if data.is_empty() || end > usize::from(control_table::table_end(self.model)) {
             return status_error::DATA_LENGTH;
         }
-        let base = control_table::base_items(self.model);
         let mut items: heapless::Vec<Item, 64> = heapless::Vec::new();
         let mut indirect = false;
         let mut cut = false;
         let mut at = start;
         while at < end {
-            let Some(i) = control_table::item_at(self.model, &base, at as u16) else {
+            let Some(i) = control_table::item_at(self.model, at as u16) else {
                 at += 1;
                 continue;
             };

@@ -543,6 +543,8 @@ fn serve_loop(
             Err(e) if e.kind() == io::ErrorKind::TimedOut || e.kind() == io::ErrorKind::Interrupted => {}
             Err(_) => std::thread::sleep(Duration::from_millis(1)),
         }
+        // When the bytes were seen: an instruction's wire time counts from here, not from
+        // after the servos were stepped.
         let now = Instant::now();
         let mut chain = chain.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         plant.advance(&mut chain, (now - last).as_secs_f64());
@@ -574,7 +576,7 @@ fn serve_loop(
                     // after its return delay; each reaches the host a latency timer after its
                     // last byte (a long burst trickles in as it comes).
                     let wire = |bytes: usize| wire_time(bytes, t.baud);
-                    let mut at = line_free.max(Instant::now()) + wire(n);
+                    let mut at = line_free.max(now) + wire(n);
                     respond(
                         &mut chain,
                         &packet,

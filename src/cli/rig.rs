@@ -100,32 +100,121 @@ pub fn budget_cmd(
     Ok(())
 }
 
-/// `budget --measure N`: the profile's chain served on a pseudo-terminal keeping line time (its
-/// baud, Return Delay Time 0 as start-up writes, its USB latency), and N cycles of the loop's
-/// bus work through the client the loop would use — a Sync Write of goals and the profile's
-/// read of positions (Sync, Bulk, Fast Sync or Fast Bulk Read, through the project's host) —
-/// timed against the planner's cycle.
+/// `budget --measure N`: N cycles of the loop's bus work — a Sync Write of goals and the
+/// profile's read of positions (Sync, Bulk, Fast Sync or Fast Bulk Read), through the project's
+/// host as the loop would use it — timed against the planner's cycle on the profile's line-timed
+/// chain twice: in process and in real time (the loop's `--bus virtual`: exact line time), and
+/// served on a pseudo-terminal (what an outside client sees: the pty adds the serving thread's
+/// and the host's wake-ups). The chain starts up as the loop does (the profile's Return Delay
+/// Time written; the factory's is 500 µs per servo).
 fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Write) -> Result<(), CliError> {
-    use std::time::Instant;
+    use std::time::Duration;
 
-    use crate::bus::virtual_chain::LineTiming;
+    use crate::bus::packet::PacketBus;
+    use crate::bus::virtual_chain::{InProcess, LineTiming};
 
     if cycles == 0 {
         return Err(CliError::Usage("--measure needs at least one cycle".into()));
     }
     let planned = plan(&profile.bus, profile.servos.len(), None);
+    let margin = crate::bus::reply_margin(&profile.bus, profile.servos.len());
+    let link = InProcess::new(chain_for(profile, |_| 2048), profile.bus.baud)
+        .with_usb_latency(Duration::from_micros(u64::from(profile.bus.usb_latency_us)))
+        .real_time();
+    let mut in_process = PacketBus::new(link, margin)
+        .with_read_mode(profile.bus.read)
+        .with_single_margin(4 * margin);
+    let in_process = time_cycles(&mut in_process, profile, cycles, "in process")?;
     let pty = PtyChain::serve_timed(chain_for(profile, |_| 2048), LineTiming::of(&profile.bus))
         .map_err(CliError::Output)?;
     let path = pty.path().to_string();
-    // What the loop would open: the project's host, reading as the profile says.
     let mut bus =
         crate::bus::open_port(&path, profile.bus.baud, profile).map_err(CliError::at_port(&path))?;
+    let served = time_cycles(bus.as_mut(), profile, cycles, &path)?;
+    if json {
+        let v = serde_json::json!({
+            "profile": profile.name,
+            "servos": profile.servos.len(),
+            "baud": profile.bus.baud,
+            "planned_cycle_us": planned.cycle_time_us,
+            "planned_max_rate_hz": planned.max_rate_hz,
+            "cycles": served.took.len(),
+            "failed": served.failed,
+            "measured_mean_us": served.mean(),
+            "measured_p50_us": served.at(0.5),
+            "measured_p99_us": served.at(0.99),
+            "measured_over_planned": served.mean() / planned.cycle_time_us,
+            "in_process": {
+                "cycles": in_process.took.len(),
+                "failed": in_process.failed,
+                "measured_mean_us": in_process.mean(),
+                "measured_p50_us": in_process.at(0.5),
+                "measured_p99_us": in_process.at(0.99),
+                "measured_over_planned": in_process.mean() / planned.cycle_time_us,
+            },
+        });
+        writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
+    } else {
+        writeln!(
+            out,
+            "{}: {} servos at {} bit/s, Sync Write + {} read on a line-timed virtual chain",
+            profile.name,
+            profile.servos.len(),
+            profile.bus.baud,
+            profile.bus.read.name()
+        )?;
+        writeln!(
+            out,
+            "planned      {:>8.1} µs per cycle ({:.0} Hz at most)",
+            planned.cycle_time_us, planned.max_rate_hz
+        )?;
+        for (name, m) in [("in process", &in_process), ("on a pty  ", &served)] {
+            writeln!(
+                out,
+                "{name}   {:>8.1} µs mean, p50 {:.1}, p99 {:.1} over {} cycles ({} failed): {:.1} % of the plan",
+                m.mean(),
+                m.at(0.5),
+                m.at(0.99),
+                m.took.len(),
+                m.failed,
+                m.mean() / planned.cycle_time_us * 100.0
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// Cycle times (µs, sorted) of the cycles whose bus work succeeded, and how many failed.
+struct Cycles {
+    took: Vec<f64>,
+    failed: usize,
+}
+
+impl Cycles {
+    fn mean(&self) -> f64 {
+        self.took.iter().sum::<f64>() / self.took.len().max(1) as f64
+    }
+
+    fn at(&self, q: f64) -> f64 {
+        self.took
+            .get(((self.took.len().max(1) - 1) as f64 * q).round() as usize)
+            .copied()
+            .unwrap_or(f64::NAN)
+    }
+}
+
+/// Starts `bus` up as the loop does, then times `cycles` cycles of Sync Write + read.
+fn time_cycles(
+    bus: &mut dyn ServoBus,
+    profile: &Profile,
+    cycles: usize,
+    name: &str,
+) -> Result<Cycles, CliError> {
+    use std::time::Instant;
+
     let ids = profile.ids();
-    let mut present = vec![0i32; ids.len()];
-    // The loop's start-up first: it writes the profile's Return Delay Time (the factory's is
-    // 500 µs per servo) and reads where the servos stand.
-    present =
-        crate::bus::start_up(bus.as_mut(), profile).map_err(|e| CliError::Usage(format!("{path}: {e}")))?;
+    let mut present =
+        crate::bus::start_up(bus, profile).map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
     let mut took = Vec::with_capacity(cycles);
     let mut failed = 0usize;
     for _ in 0..cycles {
@@ -138,54 +227,7 @@ fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Wr
         }
     }
     took.sort_by(f64::total_cmp);
-    let at = |q: f64| {
-        took.get(((took.len().max(1) - 1) as f64 * q).round() as usize)
-            .copied()
-            .unwrap_or(f64::NAN)
-    };
-    let mean = took.iter().sum::<f64>() / took.len().max(1) as f64;
-    let ratio = mean / planned.cycle_time_us;
-    if json {
-        let v = serde_json::json!({
-            "profile": profile.name,
-            "servos": ids.len(),
-            "baud": profile.bus.baud,
-            "planned_cycle_us": planned.cycle_time_us,
-            "planned_max_rate_hz": planned.max_rate_hz,
-            "cycles": took.len(),
-            "failed": failed,
-            "measured_mean_us": mean,
-            "measured_p50_us": at(0.5),
-            "measured_p99_us": at(0.99),
-            "measured_over_planned": ratio,
-        });
-        writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
-    } else {
-        writeln!(
-            out,
-            "{}: {} servos at {} bit/s, Sync Write + {} read on a line-timed virtual chain",
-            profile.name,
-            ids.len(),
-            profile.bus.baud,
-            profile.bus.read.name()
-        )?;
-        writeln!(
-            out,
-            "planned  {:>8.1} µs per cycle ({:.0} Hz at most)",
-            planned.cycle_time_us, planned.max_rate_hz
-        )?;
-        writeln!(
-            out,
-            "measured {:>8.1} µs mean, p50 {:.1}, p99 {:.1} over {} cycles ({} failed): {:.1} % of the plan",
-            mean,
-            at(0.5),
-            at(0.99),
-            took.len(),
-            failed,
-            ratio * 100.0
-        )?;
-    }
-    Ok(())
+    Ok(Cycles { took, failed })
 }
 
 /// `marionette serve PROFILE`: the profile's servos as a virtual chain on a pseudo-terminal,
