@@ -11,6 +11,7 @@ use glam::{DMat3, DQuat, DVec3};
 use crate::fk::{ancestors, fk64, fk64_bones, Pose64};
 use crate::math::{euler_near, quat_distance_fast, wrap_near, EulerOrder};
 use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
+use crate::swivel::{self, SwivelCircle};
 
 /// The world axis of a bone's rotation DOF number `k` (index into its DOF list), eq. (43)'s `uᵢ`:
 /// `Wₚ·C·R(last)…R(k+1)·e_k`. For a translation DOF, the translation axis (eq. 46).
@@ -578,6 +579,17 @@ impl Limb {
         let local_q =
             |phi: f64| c_upper.conjugate() * DQuat::from_axis_angle(dhat, phi - phi0) * base_q * c_upper;
         let local = |phi: f64| DMat3::from_quat(local_q(phi));
+        // The swivel circle in closed form: legal arcs and eq. 30's global minimum over them
+        // ([`crate::swivel`]); the sampled search below stays for what it cannot settle (no
+        // legal swivel, an arc list too long, a result the Euler extraction disagrees with).
+        if !matches!(swivel, Swivel::Fixed(_)) {
+            if let Some(phi) = self.closed_form_swivel(c_upper, base_q, dhat, phi0, swivel) {
+                let (angles, violation) = self.shoulder_angles_near(&local(phi), reference);
+                if violation <= 1e-12 {
+                    return (phi, angles, violation);
+                }
+            }
+        }
         // Legal: inside the limits up to rounding.
         let legal = |v: f64| v <= 1e-12;
         // Bisection between a legal and an illegal swivel: the legal one next to the limit.
@@ -735,6 +747,46 @@ impl Limb {
         };
         let (angles, violation) = self.shoulder_angles_near(&local(phi), reference);
         (phi, angles, violation)
+    }
+}
+
+impl Limb {
+    /// The swivel of a non-fixed `swivel` from the closed-form circle: `q(ψ) = cos(ψ/2)·P +
+    /// sin(ψ/2)·Q` with `P = Cᵀ·B·C`, `Q = Cᵀ·n̂·B·C` (`B` the base rotation, `n̂` the
+    /// shoulder–target axis as a pure quaternion, `ψ = φ − φ₀`). `None` when there is no legal
+    /// swivel or the arcs do not fit.
+    fn closed_form_swivel(
+        &self,
+        c: DQuat,
+        base: DQuat,
+        axis: DVec3,
+        phi0: f64,
+        swivel: Swivel,
+    ) -> Option<f64> {
+        let n = DQuat::from_xyzw(axis.x, axis.y, axis.z, 0.0);
+        let p = c.conjugate() * base * c;
+        let q = c.conjugate() * n * base * c;
+        let circle = SwivelCircle::new(p, q, &self.corners);
+        let legal = circle.legal_arcs(self.upper_order, &self.limits)?;
+        if legal.is_empty() {
+            return None;
+        }
+        let psi = match swivel {
+            Swivel::Fixed(p) => return Some(p),
+            Swivel::Nearest(p) => swivel::nearest(&legal, p - phi0)?,
+            Swivel::Auto { previous } => circle.minimise(&legal, previous.map(|p| p - phi0))?,
+            Swivel::Track { previous, window } => {
+                let keep = Some(previous - phi0);
+                let near = swivel::intersect(&legal, &swivel::window(previous - phi0, window))?;
+                if near.is_empty() {
+                    // Nothing legal in the window: the whole circle, as the sampled search does.
+                    circle.minimise(&legal, keep)?
+                } else {
+                    circle.minimise(&near, keep)?
+                }
+            }
+        };
+        Some(wrap_near(psi + phi0, 0.0))
     }
 }
 

@@ -15,6 +15,8 @@
 //!   weights (eq. 13), frame interpolation.
 //! * [`robot`] — a robot's own kinematic tree (bodies, hinges, masses, as its MJCF model
 //!   says), its forward kinematics and centre of mass.
+//! * [`swivel`] — the swivel circle in closed form: legal arcs from the Euler limits, eq. 30's
+//!   global minimum over them.
 //! * [`ik`] — the analytic limb solver with swivel search (help note §IV) and closed-form
 //!   pointing; [`ik_numeric`] — CCD, Jacobian transpose, pseudoinverse, DLS, conjugate gradient.
 //! * [`retarget`] — a human pose onto a robot of other proportions: arm directions, legs to
@@ -52,6 +54,8 @@ pub mod fk;
 pub mod interp;
 
 pub mod robot;
+
+pub mod swivel;
 
 pub mod ik;
 

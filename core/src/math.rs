@@ -274,6 +274,56 @@ impl EulerOrder {
     }
 }
 
+/// A signed element `sign · R[row][col]` of a rotation matrix.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Element {
+    /// Row.
+    pub row: usize,
+    /// Column.
+    pub col: usize,
+    /// ±1.
+    pub sign: f64,
+}
+
+/// How one angle of [`EulerOrder::from_mat3_f64`] comes from the matrix, outside gimbal lock.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AngleOf {
+    /// `atan2(y, x)`.
+    Atan2(Element, Element),
+    /// `asin(e)` (the middle angle of a Tait–Bryan order, in `[−π/2, π/2]`).
+    Asin(Element),
+    /// `acos(e)` (the middle angle of a proper Euler order, in `[0, π]`).
+    Acos(Element),
+}
+
+impl EulerOrder {
+    /// The matrix elements each of the three angles is read from (the formulas of
+    /// [`EulerOrder::from_mat3_f64`] outside gimbal lock). The other solution of the same
+    /// matrix is `[a + π, π − b, c + π]` (Tait–Bryan) or `[a + π, −b, c + π]` (proper).
+    #[must_use]
+    pub fn angle_forms(self) -> [AngleOf; 3] {
+        let [ai, aj, ak] = self.axes();
+        let (i, j) = (ai.index(), aj.index());
+        let s = if (j + 3 - i) % 3 == 1 { 1.0 } else { -1.0 };
+        let e = |row, col, sign| Element { row, col, sign };
+        if self.is_proper() {
+            let m = 3 - i - j;
+            [
+                AngleOf::Atan2(e(i, j, 1.0), e(i, m, s)),
+                AngleOf::Acos(e(i, i, 1.0)),
+                AngleOf::Atan2(e(j, i, 1.0), e(m, i, -s)),
+            ]
+        } else {
+            let k = ak.index();
+            [
+                AngleOf::Atan2(e(k, j, s), e(k, k, 1.0)),
+                AngleOf::Asin(e(k, i, -s)),
+                AngleOf::Atan2(e(j, i, s), e(i, i, 1.0)),
+            ]
+        }
+    }
+}
+
 /// The angle `c` of `M = R·Rj(b)ᵀ`, assumed to be a rotation about `k` (gimbal-lock case).
 fn single_axis_angle<T: Real>(
     r: &dyn Fn(usize, usize) -> T,
@@ -369,9 +419,14 @@ pub fn quat_distance(q1: Quat, q2: Quat) -> f32 {
 #[must_use]
 pub fn quat_distance_fast(q1: DQuat, q2: DQuat) -> f64 {
     let d = q1.conjugate() * q2;
-    let v = DVec3::new(d.x, d.y, d.z).length();
-    let w = libm::fabs(d.w);
-    // Abramowitz & Stegun 4.4.49 on [0, 1]; the other octant by π/2 − atan(1/x).
+    atan_ratio_fast(DVec3::new(d.x, d.y, d.z).length(), libm::fabs(d.w))
+}
+
+/// `atan2(v, w)` for `v, w ≥ 0` with a polynomial arctangent, error below 1e-7 rad
+/// (Abramowitz & Stegun 4.4.49 on `[0, 1]`; the other octant by `π/2 − atan(1/x)`).
+#[inline]
+#[must_use]
+pub fn atan_ratio_fast(v: f64, w: f64) -> f64 {
     let poly = |x: f64| {
         let z = x * x;
         x * (0.999_999_332_9
@@ -390,6 +445,15 @@ pub fn quat_distance_fast(q1: DQuat, q2: DQuat) -> f64 {
     } else {
         core::f64::consts::FRAC_PI_2 - poly(w / v)
     }
+}
+
+/// `acos(|x|)` for `|x| ≤ 1` through [`atan_ratio_fast`] (error below 1e-7 rad): eq. (27)–(28)'s
+/// distance `acos(|q₁·q₂|)` between unit quaternions from their 4-D dot product.
+#[inline]
+#[must_use]
+pub fn acos_abs_fast(x: f64) -> f64 {
+    let w = libm::fabs(x).min(1.0);
+    atan_ratio_fast(libm::sqrt(((1.0 - w) * (1.0 + w)).max(0.0)), w)
 }
 
 /// [`quat_distance`] in f64.
@@ -567,5 +631,34 @@ mod tests {
         }
         let shifted = euler_near(order, &m, [3.0 + TAU, 0.2, -3.0 - TAU]);
         assert!((shifted[0] - (3.0 + TAU)).abs() < 1e-9 && (shifted[2] + 3.0 + TAU).abs() < 1e-9);
+    }
+
+    #[test]
+    fn angle_forms_read_the_angles_from_mat3_f64_gives() {
+        let mut seed = 7u64;
+        for order in EulerOrder::ALL {
+            for _ in 0..200 {
+                let mut a = angles_f64(&mut seed);
+                if order.is_proper() {
+                    a[1] = a[1].abs() + 0.05;
+                }
+                let m = order.to_mat3_f64(a);
+                let want = order.from_mat3_f64(&m);
+                let r = |e: Element| e.sign * m.col(e.col)[e.row];
+                for (k, form) in order.angle_forms().iter().enumerate() {
+                    let got = match *form {
+                        AngleOf::Atan2(y, x) => libm::atan2(r(y), r(x)),
+                        AngleOf::Asin(e) => libm::asin(r(e)),
+                        AngleOf::Acos(e) => libm::acos(r(e)),
+                    };
+                    assert!(
+                        (got - want[k]).abs() < 1e-9,
+                        "{} angle {k}: {got} vs {}",
+                        order.name(),
+                        want[k]
+                    );
+                }
+            }
+        }
     }
 }

@@ -1,0 +1,524 @@
+//! The swivel circle in closed form (help note §IV, eq. 18–30), for a search that costs little
+//! more than one solve.
+//!
+//! For a fixed elbow angle the shoulder's local rotation along the swivel circle is
+//! `q(ψ) = cos(ψ/2)·P + sin(ψ/2)·Q` (eq. 23–26 with `R(n̂, ψ) = cos(ψ/2) + sin(ψ/2)·n̂`; `P`, `Q`
+//! orthogonal unit quaternions, `ψ = φ − φ₀`). Hence:
+//!
+//! * its rotation matrix is `M(ψ) = M₀ + M₁·cos ψ + M₂·sin ψ`, so each Euler angle's limit is a
+//!   condition `α + β·cos ψ + γ·sin ψ ≥ 0` (or a union of two) and the legal swivels are arcs
+//!   found in closed form — as Tolani, Goswami and Badler do for Euler limits — [`legal_arcs`];
+//! * eq. 30's distance to limit corner `qᵢ` is `acos|aᵢ·cos(ψ/2) + bᵢ·sin(ψ/2)|` with
+//!   `aᵢ = P·qᵢ`, `bᵢ = Q·qᵢ` (4-D dot products), all eight computed together. Each term is
+//!   convex in `ψ` between its one kink (its maximum, where the dot product is zero), so eq. 30
+//!   is convex on the pieces between kinks and arc ends: [`SwivelCircle::minimise`] takes the
+//!   global minimum over allowed arcs exactly, piece by piece (pieces whose lower bound cannot
+//!   beat the best end are skipped; inside a piece, Newton's method on the slope kept inside its
+//!   bracket).
+//!
+//! The distance uses [`crate::math::acos_abs_fast`] (error below 1e-7 rad per corner): the
+//! choice of swivel may differ from the exact optimum by that much in eq. 30's value; any swivel
+//! reaches the target exactly.
+
+use core::f64::consts::{PI, TAU};
+
+use glam::DQuat;
+
+use crate::math::{acos_abs_fast, AngleOf, Element, EulerOrder};
+
+/// Arcs of the circle, `(start, length)`: start in `[−π, π)`, length in `(0, 2π]`.
+pub type Arcs = heapless::Vec<(f64, f64), 16>;
+
+/// `a + b·cos ψ + c·sin ψ`.
+type Lin = [f64; 3];
+
+/// The whole circle.
+#[must_use]
+pub fn full() -> Arcs {
+    let mut a = Arcs::new();
+    let _ = a.push((-PI, TAU));
+    a
+}
+
+/// `x` in `[−π, π)`.
+#[must_use]
+pub fn wrap(x: f64) -> f64 {
+    let r = libm::remainder(x, TAU);
+    if r >= PI {
+        r - TAU
+    } else {
+        r
+    }
+}
+
+/// Where `l[0] + l[1]·cos ψ + l[2]·sin ψ ≥ 0`: one arc, the whole circle or nothing.
+fn arcs_where(l: Lin) -> Arcs {
+    let r = libm::hypot(l[1], l[2]);
+    let mut out = Arcs::new();
+    if r <= 1e-15 * (1.0 + l[0].abs()) {
+        if l[0] >= 0.0 {
+            return full();
+        }
+        return out;
+    }
+    let k = -l[0] / r;
+    if k <= -1.0 {
+        return full();
+    }
+    if k >= 1.0 {
+        return out;
+    }
+    let half = libm::acos(k);
+    let centre = libm::atan2(l[2], l[1]);
+    let _ = out.push((wrap(centre - half), 2.0 * half));
+    out
+}
+
+/// The intersection of two arcs (at most two arcs).
+fn meet(a: (f64, f64), b: (f64, f64), out: &mut Arcs) -> Option<()> {
+    if a.1 >= TAU {
+        return out.push(b).ok();
+    }
+    if b.1 >= TAU {
+        return out.push(a).ok();
+    }
+    // In a's frame a is [0, a.1]; b starts at d and once more at d − 2π.
+    let d = libm::fmod(b.0 - a.0 + 2.0 * TAU, TAU);
+    for start in [d, d - TAU] {
+        let lo = start.max(0.0);
+        let hi = (start + b.1).min(a.1);
+        if hi > lo {
+            out.push((wrap(a.0 + lo), hi - lo)).ok()?;
+        }
+    }
+    Some(())
+}
+
+/// `a ∩ b`; `None` when the result does not fit (the caller falls back).
+#[must_use]
+pub fn intersect(a: &Arcs, b: &Arcs) -> Option<Arcs> {
+    let mut out = Arcs::new();
+    for &x in a {
+        for &y in b {
+            meet(x, y, &mut out)?;
+        }
+    }
+    Some(out)
+}
+
+/// `a ∪ b` (arcs may overlap); `None` when it does not fit.
+fn unite(a: &Arcs, b: &Arcs) -> Option<Arcs> {
+    let mut out = a.clone();
+    for &y in b {
+        if y.1 >= TAU {
+            return Some(full());
+        }
+        out.push(y).ok()?;
+    }
+    Some(out)
+}
+
+/// Whether `psi` lies on one of the arcs.
+#[must_use]
+pub fn contains(arcs: &Arcs, psi: f64) -> bool {
+    arcs.iter()
+        .any(|&(s, l)| l >= TAU || libm::fmod(psi - s + 2.0 * TAU, TAU) <= l)
+}
+
+/// The window `[centre − half, centre + half]` as arcs.
+#[must_use]
+pub fn window(centre: f64, half: f64) -> Arcs {
+    if half >= PI {
+        return full();
+    }
+    let mut a = Arcs::new();
+    let _ = a.push((wrap(centre - half), 2.0 * half));
+    a
+}
+
+/// The point of `arcs` nearest `psi` on the circle (`psi` itself when on one).
+#[must_use]
+pub fn nearest(arcs: &Arcs, psi: f64) -> Option<f64> {
+    if contains(arcs, psi) {
+        return Some(psi);
+    }
+    let gap = |x: f64| wrap(x - psi).abs();
+    arcs.iter()
+        .flat_map(|&(s, l)| [s, s + l])
+        .min_by(|a, b| gap(*a).total_cmp(&gap(*b)))
+        .map(|x| psi + wrap(x - psi))
+}
+
+/// The homogeneous rotation matrix of a (not necessarily unit) quaternion, row-major: quadratic
+/// in its components, so `M(cP + sQ)` splits into the three matrices of [`SwivelCircle`].
+fn rotation_rows(q: DQuat) -> [[f64; 3]; 3] {
+    let (x, y, z, w) = (q.x, q.y, q.z, q.w);
+    [
+        [
+            w * w + x * x - y * y - z * z,
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            w * w - x * x + y * y - z * z,
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            w * w - x * x - y * y + z * z,
+        ],
+    ]
+}
+
+/// One limb's swivel circle for one elbow angle.
+#[derive(Clone, Debug)]
+pub struct SwivelCircle {
+    /// `(aᵢ, bᵢ)` of each limit corner.
+    ab: [(f64, f64); 8],
+    corners: usize,
+    /// `M₀`, `M₁`, `M₂`, row-major.
+    m: [[[f64; 3]; 3]; 3],
+}
+
+/// Eq. 30 (plus the continuity term) and its terms at one swivel.
+struct Value {
+    total: f64,
+    terms: [f64; 9],
+}
+
+impl SwivelCircle {
+    /// The circle `q(ψ) = cos(ψ/2)·p + sin(ψ/2)·q` against the limit `corners`.
+    #[must_use]
+    pub fn new(p: DQuat, q: DQuat, corners: &[DQuat]) -> SwivelCircle {
+        let mut ab = [(0.0, 0.0); 8];
+        for (slot, c) in ab.iter_mut().zip(corners) {
+            *slot = (p.dot(*c), q.dot(*c));
+        }
+        let (rp, rq, rs) = (rotation_rows(p), rotation_rows(q), rotation_rows(p + q));
+        let mut m = [[[0.0; 3]; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                m[0][i][j] = 0.5 * (rp[i][j] + rq[i][j]);
+                m[1][i][j] = 0.5 * (rp[i][j] - rq[i][j]);
+                m[2][i][j] = 0.5 * (rs[i][j] - rp[i][j] - rq[i][j]);
+            }
+        }
+        SwivelCircle {
+            ab,
+            corners: corners.len().min(8),
+            m,
+        }
+    }
+
+    fn element(&self, e: Element) -> Lin {
+        [0, 1, 2].map(|k| e.sign * self.m[k][e.row][e.col])
+    }
+
+    /// Eq. 30 at `psi` (the sum of the corner distances).
+    #[must_use]
+    pub fn eq30(&self, psi: f64) -> f64 {
+        self.value(psi, None).total
+    }
+
+    /// Eq. 30 at `psi`, with `0.5·(ψ − keep)²` (wrapped) when a previous swivel is kept.
+    fn value(&self, psi: f64, keep: Option<f64>) -> Value {
+        let (s, c) = (libm::sin(0.5 * psi), libm::cos(0.5 * psi));
+        let mut terms = [0.0; 9];
+        for (t, &(a, b)) in terms.iter_mut().zip(&self.ab[..self.corners]) {
+            *t = acos_abs_fast(a * c + b * s);
+        }
+        if let Some(k) = keep {
+            let d = wrap(psi - k);
+            terms[8] = 0.5 * d * d;
+        }
+        Value {
+            total: terms.iter().sum(),
+            terms,
+        }
+    }
+
+    /// The slope and curvature of [`SwivelCircle::value`] at `psi` (inside a piece).
+    fn slope(&self, psi: f64, keep: Option<f64>) -> (f64, f64) {
+        let (s, c) = (libm::sin(0.5 * psi), libm::cos(0.5 * psi));
+        let (mut g, mut h) = keep.map_or((0.0, 0.0), |k| (wrap(psi - k), 1.0));
+        for &(a, b) in &self.ab[..self.corners] {
+            let d = a * c + b * s;
+            let dd = 0.5 * (b * c - a * s);
+            let one = (1.0 - d) * (1.0 + d);
+            if one <= 1e-30 {
+                continue;
+            }
+            let root = libm::sqrt(one);
+            // d/dψ acos|d| and its second derivative |d|(1 − r²)/(4(1 − d²)^{3/2}) ≥ 0.
+            g -= libm::copysign(1.0, d) * dd / root;
+            let r2 = a * a + b * b;
+            h += d.abs() * (1.0 - r2).max(0.0) / (4.0 * one * root);
+        }
+        (g, h)
+    }
+
+    /// The legal swivels for Euler `order` and per-angle `limits` (each angle's limit taken
+    /// modulo 2π, as [`crate::ik`]'s `legal_euler` reads them): the union over the two Euler
+    /// solutions of the arcs where all three angles are inside. `None` when the arc lists do
+    /// not fit (the caller searches by sampling instead).
+    #[must_use]
+    pub fn legal_arcs(&self, order: EulerOrder, limits: &[(f64, f64); 3]) -> Option<Arcs> {
+        let forms = order.angle_forms();
+        let proper = order.is_proper();
+        let mut legal = Arcs::new();
+        for second in [false, true] {
+            let mut set = full();
+            for (k, form) in forms.iter().enumerate() {
+                let (lo, hi) = limits[k];
+                if !(hi - lo < TAU) {
+                    continue;
+                }
+                let cond = match *form {
+                    AngleOf::Atan2(y, x) => {
+                        let shift = if second { PI } else { 0.0 };
+                        sector(self.element(y), self.element(x), lo - shift, hi - shift)?
+                    }
+                    AngleOf::Asin(e) => {
+                        let (l, h) = if second { (PI - hi, PI - lo) } else { (lo, hi) };
+                        middle(self.element(e), l, h, false)?
+                    }
+                    AngleOf::Acos(e) => {
+                        let (l, h) = if second && proper { (-hi, -lo) } else { (lo, hi) };
+                        middle(self.element(e), l, h, true)?
+                    }
+                };
+                set = intersect(&set, &cond)?;
+                if set.is_empty() {
+                    break;
+                }
+            }
+            legal = unite(&legal, &set)?;
+        }
+        Some(legal)
+    }
+
+    /// The global minimum of eq. 30 (plus the continuity term towards `keep`, in `ψ`) over
+    /// `allowed`; `None` when nothing is allowed.
+    #[must_use]
+    pub fn minimise(&self, allowed: &Arcs, keep: Option<f64>) -> Option<f64> {
+        if allowed.is_empty() {
+            return None;
+        }
+        // Breakpoints: each term's kink (its maximum), the continuity term's, arc ends.
+        let mut points: heapless::Vec<f64, 48> = heapless::Vec::new();
+        let mut centres = [f64::NAN; 9];
+        let mut floors = [0.0; 9];
+        for (k, &(a, b)) in self.ab[..self.corners].iter().enumerate() {
+            let r = libm::hypot(a, b);
+            floors[k] = acos_abs_fast(r);
+            if r > 1e-12 {
+                let centre = 2.0 * libm::atan2(b, a);
+                centres[k] = wrap(centre);
+                points.push(wrap(centre + PI)).ok()?;
+            }
+        }
+        if let Some(k) = keep {
+            centres[8] = wrap(k);
+            points.push(wrap(k + PI)).ok()?;
+        }
+        for &(s, l) in allowed {
+            if l < TAU {
+                points.push(wrap(s)).ok()?;
+                points.push(wrap(s + l)).ok()?;
+            }
+        }
+        if points.is_empty() {
+            points.push(-PI).ok()?;
+        }
+        points.sort_unstable_by(f64::total_cmp);
+        let n = points.len();
+        let values: heapless::Vec<Value, 48> = points.iter().map(|&p| self.value(p, keep)).collect();
+        // Allowed pieces, each convex: (lower bound, start index).
+        let mut pieces: heapless::Vec<(f64, usize), 48> = heapless::Vec::new();
+        let mut best = (f64::INFINITY, 0.0);
+        for i in 0..n {
+            let (l, h) = (points[i], if i + 1 < n { points[i + 1] } else { points[0] + TAU });
+            if h - l < 1e-12 && n > 1 {
+                continue;
+            }
+            if !contains(allowed, 0.5 * (l + h)) {
+                continue;
+            }
+            let (vl, vh) = (&values[i], &values[(i + 1) % n]);
+            for (v, x) in [(vl.total, l), (vh.total, h)] {
+                if v < best.0 {
+                    best = (v, x);
+                }
+            }
+            // Each term is convex here: its minimum is its floor when its centre lies inside,
+            // else the lower end value.
+            let inside = |c: f64| c.is_finite() && libm::fmod(c - l + 2.0 * TAU, TAU) <= h - l;
+            let mut bound = 0.0;
+            for k in 0..9 {
+                bound += if inside(centres[k]) {
+                    floors[k]
+                } else {
+                    vl.terms[k].min(vh.terms[k])
+                };
+            }
+            pieces.push((bound, i)).ok()?;
+        }
+        if pieces.is_empty() {
+            return None;
+        }
+        pieces.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        for &(bound, i) in &pieces {
+            if bound >= best.0 - 1e-12 {
+                break;
+            }
+            let (l, h) = (points[i], if i + 1 < n { points[i + 1] } else { points[0] + TAU });
+            let eps = 1e-9f64.min(0.25 * (h - l));
+            let (gl, _) = self.slope(l + eps, keep);
+            let (gh, _) = self.slope(h - eps, keep);
+            if !(gl < 0.0 && gh > 0.0) {
+                continue;
+            }
+            // The slope rises through the piece: Newton inside the bracket, else halving.
+            let (mut a, mut b) = (l + eps, h - eps);
+            let mut x = 0.5 * (a + b);
+            for _ in 0..60 {
+                let (g, curvature) = self.slope(x, keep);
+                if g == 0.0 {
+                    break;
+                }
+                if g < 0.0 {
+                    a = x;
+                } else {
+                    b = x;
+                }
+                let next = x - g / curvature;
+                if next.is_finite() && (next - x).abs() < 1e-13 {
+                    break;
+                }
+                x = if next.is_finite() && next > a && next < b {
+                    next
+                } else {
+                    0.5 * (a + b)
+                };
+                if b - a < 1e-12 {
+                    break;
+                }
+            }
+            let v = self.value(x, keep).total;
+            if v < best.0 {
+                best = (v, x);
+            }
+        }
+        Some(wrap(best.1))
+    }
+}
+
+/// Where the angle `atan2(y, x)` lies in `[lo, hi]` modulo 2π: a sector of the direction
+/// `(x, y)`; two half-planes meet (width up to π) or join (wider).
+fn sector(y: Lin, x: Lin, lo: f64, hi: f64) -> Option<Arcs> {
+    let (sl, cl) = (libm::sin(lo), libm::cos(lo));
+    let (sh, ch) = (libm::sin(hi), libm::cos(hi));
+    // Counter-clockwise of the lower edge, clockwise of the upper.
+    let after_lo = [0, 1, 2].map(|k| cl * y[k] - sl * x[k]);
+    let before_hi = [0, 1, 2].map(|k| sh * x[k] - ch * y[k]);
+    let (a, b) = (arcs_where(after_lo), arcs_where(before_hi));
+    if hi - lo <= PI {
+        intersect(&a, &b)
+    } else {
+        unite(&a, &b)
+    }
+}
+
+/// Where the middle angle `asin(e)` (in `[−π/2, π/2]`) or `acos(e)` (in `[0, π]`) lies in
+/// `[lo, hi]` modulo 2π: each stretch of that range inside the angle's own becomes bounds on
+/// `e` (the sine rises there, the cosine falls).
+fn middle(e: Lin, lo: f64, hi: f64, cosine: bool) -> Option<Arcs> {
+    let (first, last) = if cosine { (0.0, PI) } else { (-0.5 * PI, 0.5 * PI) };
+    let mut out = Arcs::new();
+    for turn in -2..=2 {
+        let shift = f64::from(turn) * TAU;
+        let (l, h) = ((lo + shift).max(first), (hi + shift).min(last));
+        if h <= l {
+            continue;
+        }
+        let mut set = full();
+        // e ≥ f(l) and e ≤ f(h) for the sine; reversed for the cosine.
+        let bound = |angle: f64| {
+            if cosine {
+                libm::cos(angle)
+            } else {
+                libm::sin(angle)
+            }
+        };
+        if l > first {
+            let b = bound(l);
+            let c = if cosine {
+                [b - e[0], -e[1], -e[2]]
+            } else {
+                [e[0] - b, e[1], e[2]]
+            };
+            set = intersect(&set, &arcs_where(c))?;
+        }
+        if h < last {
+            let b = bound(h);
+            let c = if cosine {
+                [e[0] - b, e[1], e[2]]
+            } else {
+                [b - e[0], -e[1], -e[2]]
+            };
+            set = intersect(&set, &arcs_where(c))?;
+        }
+        out = unite(&out, &set)?;
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn arcs_meet_and_contain() {
+        let a = window(3.0, 0.5);
+        assert!(contains(&a, -3.1) && contains(&a, 2.6) && !contains(&a, 2.0));
+        let b = window(-2.9, 0.3);
+        let both = intersect(&a, &b).unwrap();
+        assert_eq!(both.len(), 1);
+        assert!(contains(&both, -3.0) && !contains(&both, 3.0));
+        assert_eq!(nearest(&b, 0.0).map(|x| (x - (-2.6)).abs() < 1e-12), Some(true));
+        let half = arcs_where([0.0, 1.0, 0.0]);
+        assert!(contains(&half, 1.5) && !contains(&half, 1.6) && contains(&half, -1.5));
+    }
+
+    #[test]
+    fn slope_matches_finite_differences() {
+        let p = DQuat::from_xyzw(0.1, 0.7, -0.3, 0.5).normalize();
+        let mut q = DQuat::from_xyzw(0.4, -0.2, 0.6, 0.1);
+        q = (q - p * p.dot(q)).normalize();
+        let corners: [DQuat; 8] = core::array::from_fn(|k| {
+            DQuat::from_xyzw(0.3 * k as f64 - 1.0, 0.5, 0.2 - 0.1 * k as f64, 0.9).normalize()
+        });
+        let circle = SwivelCircle::new(p, q, &corners);
+        for keep in [None, Some(0.3)] {
+            for k in 0..50 {
+                let x = -3.0 + 0.12 * f64::from(k);
+                let h = 1e-6;
+                let fd = (circle.value(x + h, keep).total - circle.value(x - h, keep).total) / (2.0 * h);
+                let (g, _) = circle.slope(x, keep);
+                let fd2 = (circle.slope(x + h, keep).0 - circle.slope(x - h, keep).0) / (2.0 * h);
+                let (_, c) = circle.slope(x, keep);
+                assert!(
+                    (g - fd).abs() < 1e-5 * (1.0 + g.abs()),
+                    "slope at {x}: {g} vs {fd}"
+                );
+                assert!(
+                    (c - fd2).abs() < 1e-4 * (1.0 + c.abs()),
+                    "curvature at {x}: {c} vs {fd2}"
+                );
+                assert!(c >= 0.0, "convex between kinks");
+            }
+        }
+    }
+}
