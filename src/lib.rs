@@ -27,8 +27,8 @@
 #![warn(missing_docs)]
 
 pub use marionette_core::{
-    asf, command, device, fk, ik, ik_numeric, interp, math, plan, protocol, rig, robot, schedule, servo,
-    skeleton,
+    asf, command, control_table, device, fk, ik, ik_numeric, interp, math, plan, protocol, rig, robot,
+    schedule, servo, skeleton, swivel,
 };
 
 pub mod alloc_count;

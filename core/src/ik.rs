@@ -528,7 +528,8 @@ impl Limb {
             };
         }
         self.set_elbow(skeleton, channels, theta);
-        fk64_bones(skeleton, channels, &mut pose, &self.chain);
+        // The ancestors' pose stands: only the limb's two bones moved.
+        fk64_bones(skeleton, channels, &mut pose, &[self.upper, self.lower]);
         let error = (pose.tip[self.lower] - target).length();
         LimbSolution {
             reachable: reachable && error.is_finite(),
@@ -778,12 +779,8 @@ impl Limb {
             Swivel::Track { previous, window } => {
                 let keep = Some(previous - phi0);
                 let near = swivel::intersect(&legal, &swivel::window(previous - phi0, window))?;
-                if near.is_empty() {
-                    // Nothing legal in the window: the whole circle, as the sampled search does.
-                    circle.minimise(&legal, keep)?
-                } else {
-                    circle.minimise(&near, keep)?
-                }
+                // Nothing legal in the window: the whole circle, as the sampled search does.
+                circle.minimise(if near.is_empty() { &legal } else { &near }, keep)?
             }
         };
         Some(wrap_near(psi + phi0, 0.0))

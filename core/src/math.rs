@@ -447,6 +447,27 @@ pub fn atan_ratio_fast(v: f64, w: f64) -> f64 {
     }
 }
 
+/// `atan2(y, x)` through [`atan_ratio_fast`] (error below 1e-7 rad), in `[−π, π]`.
+#[inline]
+#[must_use]
+pub fn atan2_fast(y: f64, x: f64) -> f64 {
+    let a = atan_ratio_fast(libm::fabs(y), libm::fabs(x));
+    let a = if x < 0.0 { core::f64::consts::PI - a } else { a };
+    if y < 0.0 {
+        -a
+    } else {
+        a
+    }
+}
+
+/// `acos(x)` for `|x| ≤ 1` (clamped) through [`atan_ratio_fast`] (error below 1e-7 rad).
+#[inline]
+#[must_use]
+pub fn acos_fast(x: f64) -> f64 {
+    let x = x.clamp(-1.0, 1.0);
+    atan2_fast(libm::sqrt(((1.0 - x) * (1.0 + x)).max(0.0)), x)
+}
+
 /// `acos(|x|)` for `|x| ≤ 1` through [`atan_ratio_fast`] (error below 1e-7 rad): eq. (27)–(28)'s
 /// distance `acos(|q₁·q₂|)` between unit quaternions from their 4-D dot product.
 #[inline]
@@ -660,5 +681,22 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn fast_arctangents_stay_within_their_bound() {
+        let mut worst = 0.0f64;
+        for i in 1..2001 {
+            let x = -1.0 + f64::from(i) * 1e-3;
+            worst = worst.max((acos_fast(x) - libm::acos(x)).abs());
+            worst = worst.max((acos_abs_fast(x) - libm::acos(x.abs())).abs());
+            for j in 0..64 {
+                let t = f64::from(j) * core::f64::consts::TAU / 64.0;
+                let (y, x2) = (libm::sin(t) * (1.0 + x), libm::cos(t) * (1.0 + x));
+                let d = (atan2_fast(y, x2) - libm::atan2(y, x2)).abs();
+                worst = worst.max(d.min((d - core::f64::consts::TAU).abs()));
+            }
+        }
+        assert!(worst < 1e-7, "{worst:e}");
     }
 }

@@ -101,10 +101,29 @@ pub fn dof_rotation(dofs: &[Dof], angles: impl IntoIterator<Item = f64>) -> DMat
     let mut m = DMat3::IDENTITY;
     for (d, a) in dofs.iter().zip(angles) {
         if let (true, Some(axis)) = (d.is_rotation(), d.axis()) {
-            m = axis.rotation_f64(a) * m;
+            if a == 0.0 {
+                continue;
+            }
+            // `R_axis(a)·m`: only the two rows across the axis change.
+            let (s, c) = libm::sincos(a);
+            let (i, j) = match axis {
+                crate::math::Axis::X => (1, 2),
+                crate::math::Axis::Y => (2, 0),
+                crate::math::Axis::Z => (0, 1),
+            };
+            for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
+                let (u, v) = (col[i], col[j]);
+                col[i] = c * u - s * v;
+                col[j] = s * u + c * v;
+            }
         }
     }
     m
+}
+
+/// `c` in f64, re-orthonormalised through a quaternion.
+fn orthonormal_f64(c: Mat3) -> DMat3 {
+    DMat3::from_quat(DQuat::from_mat3(&c.as_dmat3()).normalize())
 }
 
 /// The rotation DOFs as an Euler order, when there are all three.
@@ -225,6 +244,10 @@ pub struct Bone {
     axis_rotation: Mat3,
     /// The direction in the bone's local frame, eq. (5): `Cᵀ · direction`.
     local_direction: Vec3,
+    /// `C` in f64, re-orthonormalised once (FK reads it for every bone of every pose).
+    axis_rotation_f64: DMat3,
+    /// The rest direction in f64, unit length (zero for a zero direction).
+    direction_f64: DVec3,
 }
 
 impl Bone {
@@ -287,12 +310,12 @@ impl Bone {
     /// would make `Cᵀ·Q·C` no rotation, which Euler extraction amplifies near gimbal lock.
     #[must_use]
     pub fn axis_rotation_f64(&self) -> DMat3 {
-        DMat3::from_quat(DQuat::from_mat3(&self.axis_rotation.as_dmat3()).normalize())
+        self.axis_rotation_f64
     }
     /// The rest direction (global) in f64, unit length (zero for a zero direction).
     #[must_use]
     pub fn direction_f64(&self) -> DVec3 {
-        self.spec.direction.as_dvec3().normalize_or_zero()
+        self.direction_f64
     }
 }
 
@@ -482,6 +505,8 @@ impl Skeleton {
             first_channel: 0,
             axis_rotation: root_rot,
             local_direction: Vec3::ZERO,
+            axis_rotation_f64: orthonormal_f64(root_rot),
+            direction_f64: DVec3::ZERO,
         });
         for &input in &order {
             let spec = bones[input].clone();
@@ -492,12 +517,15 @@ impl Skeleton {
             let c = spec.axis_order.to_mat3(spec.axis);
             let local_direction = c.transpose() * spec.direction;
             let n = spec.dofs.len();
+            let direction_f64 = spec.direction.as_dvec3().normalize_or_zero();
             let _ = out.push(Bone {
                 spec,
                 parent: Some(parent),
                 first_channel: channel,
                 axis_rotation: c,
                 local_direction,
+                axis_rotation_f64: orthonormal_f64(c),
+                direction_f64,
             });
             channel += n;
         }

@@ -24,10 +24,13 @@ use core::f64::consts::{PI, TAU};
 
 use glam::DQuat;
 
-use crate::math::{acos_abs_fast, AngleOf, Element, EulerOrder};
+use crate::math::{acos_abs_fast, acos_fast, atan2_fast, atan_ratio_fast, AngleOf, Element, EulerOrder};
 
 /// Arcs of the circle, `(start, length)`: start in `[−π, π)`, length in `(0, 2π]`.
-pub type Arcs = heapless::Vec<(f64, f64), 16>;
+pub type Arcs = heapless::Vec<(f64, f64), 8>;
+
+/// How far inside its computed ends a legal arc is kept, radians.
+const MARGIN: f64 = 1e-6;
 
 /// `a + b·cos ψ + c·sin ψ`.
 type Lin = [f64; 3];
@@ -43,17 +46,19 @@ pub fn full() -> Arcs {
 /// `x` in `[−π, π)`.
 #[must_use]
 pub fn wrap(x: f64) -> f64 {
-    let r = libm::remainder(x, TAU);
-    if r >= PI {
-        r - TAU
-    } else {
-        r
+    if !x.is_finite() {
+        return x;
     }
+    if x.abs() > 8.0 * TAU {
+        let r = libm::remainder(x, TAU);
+        return if r >= PI { r - TAU } else { r };
+    }
+    turn(x + PI) - PI
 }
 
 /// Where `l[0] + l[1]·cos ψ + l[2]·sin ψ ≥ 0`: one arc, the whole circle or nothing.
 fn arcs_where(l: Lin) -> Arcs {
-    let r = libm::hypot(l[1], l[2]);
+    let r = libm::sqrt(l[1] * l[1] + l[2] * l[2]);
     let mut out = Arcs::new();
     if r <= 1e-15 * (1.0 + l[0].abs()) {
         if l[0] >= 0.0 {
@@ -68,8 +73,8 @@ fn arcs_where(l: Lin) -> Arcs {
     if k >= 1.0 {
         return out;
     }
-    let half = libm::acos(k);
-    let centre = libm::atan2(l[2], l[1]);
+    let half = acos_fast(k);
+    let centre = atan2_fast(l[2], l[1]);
     let _ = out.push((wrap(centre - half), 2.0 * half));
     out
 }
@@ -83,7 +88,7 @@ fn meet(a: (f64, f64), b: (f64, f64), out: &mut Arcs) -> Option<()> {
         return out.push(a).ok();
     }
     // In a's frame a is [0, a.1]; b starts at d and once more at d − 2π.
-    let d = libm::fmod(b.0 - a.0 + 2.0 * TAU, TAU);
+    let d = turn(b.0 - a.0);
     for start in [d, d - TAU] {
         let lo = start.max(0.0);
         let hi = (start + b.1).min(a.1);
@@ -121,8 +126,7 @@ fn unite(a: &Arcs, b: &Arcs) -> Option<Arcs> {
 /// Whether `psi` lies on one of the arcs.
 #[must_use]
 pub fn contains(arcs: &Arcs, psi: f64) -> bool {
-    arcs.iter()
-        .any(|&(s, l)| l >= TAU || libm::fmod(psi - s + 2.0 * TAU, TAU) <= l)
+    arcs.iter().any(|&(s, l)| l >= TAU || turn(psi - s) <= l)
 }
 
 /// The window `[centre − half, centre + half]` as arcs.
@@ -182,10 +186,14 @@ pub struct SwivelCircle {
     m: [[[f64; 3]; 3]; 3],
 }
 
-/// Eq. 30 (plus the continuity term) and its terms at one swivel.
-struct Value {
+/// Eq. 30 (plus the continuity term), its terms and its slope at one swivel.
+struct Probe {
     total: f64,
     terms: [f64; 9],
+    /// The slope; at a kink, without the kinked term.
+    slope: f64,
+    /// At a kink: the kinked term's slope is `−jump` just after it, `+jump` just before.
+    jump: f64,
 }
 
 impl SwivelCircle {
@@ -219,29 +227,56 @@ impl SwivelCircle {
     /// Eq. 30 at `psi` (the sum of the corner distances).
     #[must_use]
     pub fn eq30(&self, psi: f64) -> f64 {
-        self.value(psi, None).total
+        self.probe(psi, None).total
     }
 
-    /// Eq. 30 at `psi`, with `0.5·(ψ − keep)²` (wrapped) when a previous swivel is kept.
-    fn value(&self, psi: f64, keep: Option<f64>) -> Value {
-        let (s, c) = (libm::sin(0.5 * psi), libm::cos(0.5 * psi));
+    /// Eq. 30 at `psi`, with `0.5·(ψ − keep)²` (wrapped) when a previous swivel is kept, term
+    /// by term, and its slope, in one pass over the corners. At a kink (`kink`: the corner, or
+    /// 8 for the continuity term, whose kink lies at `psi`) the slope jumps: the slope without
+    /// that term and the size of its one-sided slope are returned apart.
+    fn probe_at(&self, psi: f64, keep: Option<f64>, kink: Option<usize>) -> Probe {
+        let (s, c) = libm::sincos(0.5 * psi);
         let mut terms = [0.0; 9];
-        for (t, &(a, b)) in terms.iter_mut().zip(&self.ab[..self.corners]) {
-            *t = acos_abs_fast(a * c + b * s);
+        let mut slope = 0.0;
+        let mut jump = 0.0;
+        for (k, (t, &(a, b))) in terms.iter_mut().zip(&self.ab[..self.corners]).enumerate() {
+            let d = a * c + b * s;
+            let w = d.abs().min(1.0);
+            let root = libm::sqrt((1.0 - w) * (1.0 + w));
+            *t = atan_ratio_fast(root, w);
+            let dd = 0.5 * (b * c - a * s);
+            if kink == Some(k) {
+                // Past its zero the dot product takes the sign of its slope.
+                jump = dd.abs() / root.max(1e-300);
+            } else if root > 1e-15 {
+                slope -= libm::copysign(1.0, d) * dd / root;
+            }
         }
         if let Some(k) = keep {
             let d = wrap(psi - k);
             terms[8] = 0.5 * d * d;
+            if kink == Some(8) {
+                jump = PI;
+            } else {
+                slope += d;
+            }
         }
-        Value {
+        Probe {
             total: terms.iter().sum(),
             terms,
+            slope,
+            jump,
         }
+    }
+
+    /// [`SwivelCircle::probe_at`] off any kink.
+    fn probe(&self, psi: f64, keep: Option<f64>) -> Probe {
+        self.probe_at(psi, keep, None)
     }
 
     /// The slope and curvature of [`SwivelCircle::value`] at `psi` (inside a piece).
     fn slope(&self, psi: f64, keep: Option<f64>) -> (f64, f64) {
-        let (s, c) = (libm::sin(0.5 * psi), libm::cos(0.5 * psi));
+        let (s, c) = libm::sincos(0.5 * psi);
         let (mut g, mut h) = keep.map_or((0.0, 0.0), |k| (wrap(psi - k), 1.0));
         for &(a, b) in &self.ab[..self.corners] {
             let d = a * c + b * s;
@@ -296,7 +331,18 @@ impl SwivelCircle {
             }
             legal = unite(&legal, &set)?;
         }
-        Some(legal)
+        // The arc ends carry the arctangents' error (1e-7 rad): kept 1e-6 inside, so a swivel
+        // on an end is legal to rounding.
+        let mut inside = Arcs::new();
+        for &(s, l) in &legal {
+            if l >= TAU {
+                return Some(full());
+            }
+            if l > 2.0 * MARGIN {
+                inside.push((wrap(s + MARGIN), l - 2.0 * MARGIN)).ok()?;
+            }
+        }
+        Some(inside)
     }
 
     /// The global minimum of eq. 30 (plus the continuity term towards `keep`, in `ψ`) over
@@ -306,83 +352,96 @@ impl SwivelCircle {
         if allowed.is_empty() {
             return None;
         }
-        // Breakpoints: each term's kink (its maximum), the continuity term's, arc ends.
-        let mut points: heapless::Vec<f64, 48> = heapless::Vec::new();
+        // Breakpoints: each term's kink (its maximum), the continuity term's, arc ends; with
+        // the term kinked there (9: none).
+        let mut points: heapless::Vec<(f64, usize), 48> = heapless::Vec::new();
         let mut centres = [f64::NAN; 9];
         let mut floors = [0.0; 9];
         for (k, &(a, b)) in self.ab[..self.corners].iter().enumerate() {
-            let r = libm::hypot(a, b);
+            let r = libm::sqrt(a * a + b * b);
             floors[k] = acos_abs_fast(r);
             if r > 1e-12 {
-                let centre = 2.0 * libm::atan2(b, a);
+                let centre = 2.0 * atan2_fast(b, a);
                 centres[k] = wrap(centre);
-                points.push(wrap(centre + PI)).ok()?;
+                points.push((wrap(centre + PI), k)).ok()?;
             }
         }
         if let Some(k) = keep {
             centres[8] = wrap(k);
-            points.push(wrap(k + PI)).ok()?;
+            points.push((wrap(k + PI), 8)).ok()?;
         }
         for &(s, l) in allowed {
             if l < TAU {
-                points.push(wrap(s)).ok()?;
-                points.push(wrap(s + l)).ok()?;
+                points.push((wrap(s), 9)).ok()?;
+                points.push((wrap(s + l), 9)).ok()?;
             }
         }
         if points.is_empty() {
-            points.push(-PI).ok()?;
+            points.push((-PI, 9)).ok()?;
         }
-        points.sort_unstable_by(f64::total_cmp);
         let n = points.len();
-        let values: heapless::Vec<Value, 48> = points.iter().map(|&p| self.value(p, keep)).collect();
-        // Allowed pieces, each convex: (lower bound, start index).
-        let mut pieces: heapless::Vec<(f64, usize), 48> = heapless::Vec::new();
+        points.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let end = |i: usize| {
+            if i + 1 < n {
+                points[i + 1].0
+            } else {
+                points[0].0 + TAU
+            }
+        };
+        // Each breakpoint probed once, when a piece next to it is allowed.
+        let mut probes: heapless::Vec<(usize, Probe), 48> = heapless::Vec::new();
+        let probe_of = |i: usize, probes: &mut heapless::Vec<(usize, Probe), 48>| -> Option<usize> {
+            if let Some(at) = probes.iter().position(|(j, _)| *j == i) {
+                return Some(at);
+            }
+            let (x, kink) = points[i];
+            probes
+                .push((i, self.probe_at(x, keep, (kink < 9).then_some(kink))))
+                .ok()?;
+            Some(probes.len() - 1)
+        };
+        // The allowed pieces, each convex, with a lower bound of eq. 30 over them.
+        let mut pieces: heapless::Vec<(f64, f64, f64, f64, f64), 24> = heapless::Vec::new();
         let mut best = (f64::INFINITY, 0.0);
         for i in 0..n {
-            let (l, h) = (points[i], if i + 1 < n { points[i + 1] } else { points[0] + TAU });
-            if h - l < 1e-12 && n > 1 {
+            let (l, h) = (points[i].0, end(i));
+            if (h - l < 1e-12 && n > 1) || !contains(allowed, 0.5 * (l + h)) {
                 continue;
             }
-            if !contains(allowed, 0.5 * (l + h)) {
-                continue;
-            }
-            let (vl, vh) = (&values[i], &values[(i + 1) % n]);
-            for (v, x) in [(vl.total, l), (vh.total, h)] {
+            let (pl, ph) = (probe_of(i, &mut probes)?, probe_of((i + 1) % n, &mut probes)?);
+            let (pa, pb) = (&probes[pl].1, &probes[ph].1);
+            for (v, x) in [(pa.total, l), (pb.total, h)] {
                 if v < best.0 {
                     best = (v, x);
                 }
             }
+            // Slopes inside the piece: just after its lower end, just before its upper.
+            let (ga, gb) = (pa.slope - pa.jump, pb.slope + pb.jump);
+            if !(ga < 0.0 && gb > 0.0) {
+                // Convex: the minimum is at an end.
+                continue;
+            }
             // Each term is convex here: its minimum is its floor when its centre lies inside,
             // else the lower end value.
-            let inside = |c: f64| c.is_finite() && libm::fmod(c - l + 2.0 * TAU, TAU) <= h - l;
             let mut bound = 0.0;
             for k in 0..9 {
-                bound += if inside(centres[k]) {
+                let c = centres[k];
+                bound += if c.is_finite() && turn(c - l) <= h - l {
                     floors[k]
                 } else {
-                    vl.terms[k].min(vh.terms[k])
+                    pa.terms[k].min(pb.terms[k])
                 };
             }
-            pieces.push((bound, i)).ok()?;
-        }
-        if pieces.is_empty() {
-            return None;
+            pieces.push((bound, l, h, ga, gb)).ok()?;
         }
         pieces.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        for &(bound, i) in &pieces {
+        for &(bound, l, h, gl, gh) in &pieces {
             if bound >= best.0 - 1e-12 {
                 break;
             }
-            let (l, h) = (points[i], if i + 1 < n { points[i + 1] } else { points[0] + TAU });
-            let eps = 1e-9f64.min(0.25 * (h - l));
-            let (gl, _) = self.slope(l + eps, keep);
-            let (gh, _) = self.slope(h - eps, keep);
-            if !(gl < 0.0 && gh > 0.0) {
-                continue;
-            }
             // The slope rises through the piece: Newton inside the bracket, else halving.
-            let (mut a, mut b) = (l + eps, h - eps);
-            let mut x = 0.5 * (a + b);
+            let (mut a, mut b) = (l, h);
+            let mut x = a - gl * (b - a) / (gh - gl);
             for _ in 0..60 {
                 let (g, curvature) = self.slope(x, keep);
                 if g == 0.0 {
@@ -394,7 +453,8 @@ impl SwivelCircle {
                     b = x;
                 }
                 let next = x - g / curvature;
-                if next.is_finite() && (next - x).abs() < 1e-13 {
+                if next.is_finite() && (next - x).abs() < 1e-10 {
+                    x = next.clamp(a, b);
                     break;
                 }
                 x = if next.is_finite() && next > a && next < b {
@@ -402,17 +462,31 @@ impl SwivelCircle {
                 } else {
                     0.5 * (a + b)
                 };
-                if b - a < 1e-12 {
+                if b - a < 1e-10 {
                     break;
                 }
             }
-            let v = self.value(x, keep).total;
+            let v = self.probe(x, keep).total;
             if v < best.0 {
                 best = (v, x);
             }
         }
+        if best.0 == f64::INFINITY {
+            return None;
+        }
         Some(wrap(best.1))
     }
+}
+
+/// `x` in `[0, 2π)` (for `x` within a few turns).
+fn turn(mut x: f64) -> f64 {
+    while x < 0.0 {
+        x += TAU;
+    }
+    while x >= TAU {
+        x -= TAU;
+    }
+    x
 }
 
 /// Where the angle `atan2(y, x)` lies in `[lo, hi]` modulo 2π: a sector of the direction
@@ -505,8 +579,9 @@ mod tests {
             for k in 0..50 {
                 let x = -3.0 + 0.12 * f64::from(k);
                 let h = 1e-6;
-                let fd = (circle.value(x + h, keep).total - circle.value(x - h, keep).total) / (2.0 * h);
+                let fd = (circle.probe(x + h, keep).total - circle.probe(x - h, keep).total) / (2.0 * h);
                 let (g, _) = circle.slope(x, keep);
+                assert!((circle.probe(x, keep).slope - g).abs() < 1e-9);
                 let fd2 = (circle.slope(x + h, keep).0 - circle.slope(x - h, keep).0) / (2.0 * h);
                 let (_, c) = circle.slope(x, keep);
                 assert!(
