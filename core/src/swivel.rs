@@ -295,7 +295,7 @@ impl SwivelCircle {
     }
 
     /// The legal swivels for Euler `order` and per-angle `limits` (each angle's limit taken
-    /// modulo 2π, as [`crate::ik`]'s `legal_euler` reads them): the union over the two Euler
+    /// modulo 2π, as the limb solver's Euler extraction reads them): the union over the two Euler
     /// solutions of the arcs where all three angles are inside. `None` when the arc lists do
     /// not fit (the caller searches by sampling instead).
     #[must_use]
