@@ -182,8 +182,15 @@ pub fn ancestors(skeleton: &Skeleton, bone: usize) -> heapless::Vec<usize, MAX_B
     v
 }
 
-/// One bone of [`fk64`], its parent already computed.
-fn fk64_bone(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, i: usize) {
+/// One bone's pose in f64 from its parent's world rotation and tip (`None` for the root):
+/// `(frame, world, start, tip)` as in [`Pose64`], eq. (1)–(5).
+#[must_use]
+pub fn fk64_step(
+    skeleton: &Skeleton,
+    channels: &[f64],
+    i: usize,
+    parent: Option<(&DMat3, DVec3)>,
+) -> (DMat3, DMat3, DVec3, DVec3) {
     let bone = &skeleton.bones()[i];
     let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
     let m = dof_rotation(bone.dofs(), bone.channels().map(value));
@@ -199,23 +206,31 @@ fn fk64_bone(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, i: usize)
         }
     }
     let c = bone.axis_rotation_f64();
-    match bone.parent() {
+    match parent {
         None => {
             let w = c * m;
             let p = skeleton.root().position.as_dvec3() + t;
-            pose.frame[i] = w;
-            pose.world[i] = w;
-            pose.start[i] = p;
-            pose.tip[i] = p;
+            (w, w, p, p)
         }
-        Some(p) => {
-            let axes = pose.world[p] * c;
+        Some((parent_world, parent_tip)) => {
+            let axes = *parent_world * c;
             let f = axes * m;
-            let start = pose.tip[p] + axes * t;
-            pose.frame[i] = f;
-            pose.world[i] = f * c.transpose();
-            pose.start[i] = start;
-            pose.tip[i] = start + pose.world[i] * (bone.direction_f64() * (f64::from(bone.length()) + l));
+            let start = parent_tip + axes * t;
+            let world = f * c.transpose();
+            let tip = start + world * (bone.direction_f64() * (f64::from(bone.length()) + l));
+            (f, world, start, tip)
         }
     }
+}
+
+/// One bone of [`fk64`], its parent already computed.
+fn fk64_bone(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, i: usize) {
+    let parent = skeleton.bones()[i]
+        .parent()
+        .map(|p| (&pose.world[p], pose.tip[p]));
+    let (frame, world, start, tip) = fk64_step(skeleton, channels, i, parent);
+    pose.frame[i] = frame;
+    pose.world[i] = world;
+    pose.start[i] = start;
+    pose.tip[i] = tip;
 }

@@ -8,10 +8,10 @@
 
 use glam::{DMat3, DQuat, DVec3};
 
-use crate::fk::{ancestors, fk64, fk64_bones, Pose64};
+use crate::fk::{ancestors, fk64, fk64_bones, fk64_step, Pose64};
 use crate::math::{euler_near, quat_distance_fast, wrap_near, EulerOrder};
 use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
-use crate::swivel::{self, SwivelCircle};
+use crate::swivel::{self, LimitForms, SwivelCircle};
 
 /// The world axis of a bone's rotation DOF number `k` (index into its DOF list), eq. (43)'s `uᵢ`:
 /// `Wₚ·C·R(last)…R(k+1)·e_k`. For a translation DOF, the translation axis (eq. 46).
@@ -147,6 +147,8 @@ pub struct Limb {
     swivel_reference: DVec3,
     /// The root…lower bones, for FK of just the limb.
     chain: heapless::Vec<usize, MAX_BONES>,
+    /// The shoulder limits as conditions on the swivel circle.
+    limit_forms: LimitForms,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -299,6 +301,7 @@ impl Limb {
                 }
             },
             chain: ancestors(skeleton, lower),
+            limit_forms: LimitForms::new(upper_order, &limits),
         })
     }
 
@@ -440,14 +443,31 @@ impl Limb {
                     .map(|p| libm::remainder(p, core::f64::consts::TAU)),
             },
         };
-        let mut pose = Pose64::default();
-        fk64_bones(skeleton, channels, &mut pose, &self.chain);
+        // FK down the limb's chain (a path from the root), keeping only the last bone's world
+        // rotation and tip: the shoulder's parent, the shoulder, the effector.
         let ub = &skeleton.bones()[self.upper];
-        let parent_world = ub.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
-        let s = pose.start[self.upper];
+        let mut last: Option<(DMat3, DVec3)> = None;
+        let mut above = (DMat3::IDENTITY, DVec3::ZERO);
+        let mut s = DVec3::ZERO;
+        for &b in &self.chain {
+            if b == self.upper {
+                above = last.unwrap_or((DMat3::IDENTITY, DVec3::ZERO));
+            }
+            let (_, world, start, tip) =
+                fk64_step(skeleton, channels, b, last.as_ref().map(|(w, t)| (w, *t)));
+            if b == self.upper {
+                s = start;
+            }
+            last = Some((world, tip));
+        }
+        let parent_world = if ub.parent().is_some() {
+            above.0
+        } else {
+            DMat3::IDENTITY
+        };
         // The limb's present direction (zero when its channels hold garbage): the fallback for
         // a target that is not finite, or one at the shoulder.
-        let mut present_dir = pose.tip[self.lower] - s;
+        let mut present_dir = last.map_or(s, |(_, tip)| tip) - s;
         if !present_dir.is_finite() {
             present_dir = DVec3::ZERO;
         }
@@ -529,8 +549,10 @@ impl Limb {
         }
         self.set_elbow(skeleton, channels, theta);
         // The ancestors' pose stands: only the limb's two bones moved.
-        fk64_bones(skeleton, channels, &mut pose, &[self.upper, self.lower]);
-        let error = (pose.tip[self.lower] - target).length();
+        let parent = ub.parent().map(|_| (&above.0, above.1));
+        let (_, upper_world, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
+        let (_, _, _, tip) = fk64_step(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
+        let error = (tip - target).length();
         LimbSolution {
             reachable: reachable && error.is_finite(),
             error: if error.is_finite() { error } else { f64::INFINITY },
@@ -768,7 +790,7 @@ impl Limb {
         let p = c.conjugate() * base * c;
         let q = c.conjugate() * n * base * c;
         let circle = SwivelCircle::new(p, q, &self.corners);
-        let legal = circle.legal_arcs(self.upper_order, &self.limits)?;
+        let legal = circle.legal_arcs(&self.limit_forms)?;
         if legal.is_empty() {
             return None;
         }

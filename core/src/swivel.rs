@@ -294,34 +294,43 @@ impl SwivelCircle {
         (g, h)
     }
 
-    /// The legal swivels for Euler `order` and per-angle `limits` (each angle's limit taken
-    /// modulo 2π, as the limb solver's Euler extraction reads them): the union over the two Euler
-    /// solutions of the arcs where all three angles are inside. `None` when the arc lists do
-    /// not fit (the caller searches by sampling instead).
+    /// The legal swivels under `limits` (a limb's Euler limits, [`LimitForms`]): the union
+    /// over the two Euler solutions of the arcs where all three angles are inside. `None` when
+    /// the arc lists do not fit (the caller searches by sampling instead).
     #[must_use]
-    pub fn legal_arcs(&self, order: EulerOrder, limits: &[(f64, f64); 3]) -> Option<Arcs> {
-        let forms = order.angle_forms();
-        let proper = order.is_proper();
+    pub fn legal_arcs(&self, limits: &LimitForms) -> Option<Arcs> {
         let mut legal = Arcs::new();
-        for second in [false, true] {
+        for solution in &limits.0 {
             let mut set = full();
-            for (k, form) in forms.iter().enumerate() {
-                let (lo, hi) = limits[k];
-                if !(hi - lo < TAU) {
-                    continue;
-                }
-                let cond = match *form {
-                    AngleOf::Atan2(y, x) => {
-                        let shift = if second { PI } else { 0.0 };
-                        sector(self.element(y), self.element(x), lo - shift, hi - shift)?
+            for angle in solution {
+                let cond = match *angle {
+                    AngleLimit::Free => continue,
+                    AngleLimit::Sector { y, x, lo, hi, narrow } => {
+                        let (y, x) = (self.element(y), self.element(x));
+                        // Counter-clockwise of the lower edge, clockwise of the upper.
+                        let after_lo = [0, 1, 2].map(|k| lo.1 * y[k] - lo.0 * x[k]);
+                        let before_hi = [0, 1, 2].map(|k| hi.0 * x[k] - hi.1 * y[k]);
+                        let (a, b) = (arcs_where(after_lo), arcs_where(before_hi));
+                        if narrow {
+                            intersect(&a, &b)?
+                        } else {
+                            unite(&a, &b)?
+                        }
                     }
-                    AngleOf::Asin(e) => {
-                        let (l, h) = if second { (PI - hi, PI - lo) } else { (lo, hi) };
-                        middle(self.element(e), l, h, false)?
-                    }
-                    AngleOf::Acos(e) => {
-                        let (l, h) = if second && proper { (-hi, -lo) } else { (lo, hi) };
-                        middle(self.element(e), l, h, true)?
+                    AngleLimit::Middle { e, stretches, count } => {
+                        let e = self.element(e);
+                        let mut out = Arcs::new();
+                        for &(lower, upper) in &stretches[..count] {
+                            let mut part = full();
+                            if lower.is_finite() {
+                                part = intersect(&part, &arcs_where([e[0] - lower, e[1], e[2]]))?;
+                            }
+                            if upper.is_finite() {
+                                part = intersect(&part, &arcs_where([upper - e[0], -e[1], -e[2]]))?;
+                            }
+                            out = unite(&out, &part)?;
+                        }
+                        out
                     }
                 };
                 set = intersect(&set, &cond)?;
@@ -453,7 +462,8 @@ impl SwivelCircle {
                     b = x;
                 }
                 let next = x - g / curvature;
-                if next.is_finite() && (next - x).abs() < 1e-10 {
+                // 1e-9 rad of swivel: eq. 30 is flat there to 1e-18.
+                if next.is_finite() && (next - x).abs() < 1e-9 {
                     x = next.clamp(a, b);
                     break;
                 }
@@ -462,7 +472,7 @@ impl SwivelCircle {
                 } else {
                     0.5 * (a + b)
                 };
-                if b - a < 1e-10 {
+                if b - a < 1e-9 {
                     break;
                 }
             }
@@ -489,64 +499,107 @@ fn turn(mut x: f64) -> f64 {
     x
 }
 
-/// Where the angle `atan2(y, x)` lies in `[lo, hi]` modulo 2π: a sector of the direction
-/// `(x, y)`; two half-planes meet (width up to π) or join (wider).
-fn sector(y: Lin, x: Lin, lo: f64, hi: f64) -> Option<Arcs> {
-    let (sl, cl) = (libm::sin(lo), libm::cos(lo));
-    let (sh, ch) = (libm::sin(hi), libm::cos(hi));
-    // Counter-clockwise of the lower edge, clockwise of the upper.
-    let after_lo = [0, 1, 2].map(|k| cl * y[k] - sl * x[k]);
-    let before_hi = [0, 1, 2].map(|k| sh * x[k] - ch * y[k]);
-    let (a, b) = (arcs_where(after_lo), arcs_where(before_hi));
-    if hi - lo <= PI {
-        intersect(&a, &b)
-    } else {
-        unite(&a, &b)
+/// One Euler angle's limit for one of the two Euler solutions, with its trigonometry done.
+#[derive(Clone, Copy, Debug)]
+enum AngleLimit {
+    /// No limit (or one 2π wide).
+    Free,
+    /// `atan2(y, x)` in `[lo, hi]` modulo 2π: the direction `(x, y)` in a sector, two
+    /// half-planes that meet (`narrow`: up to π wide) or join; `(sin, cos)` of each edge.
+    Sector {
+        y: Element,
+        x: Element,
+        lo: (f64, f64),
+        hi: (f64, f64),
+        narrow: bool,
+    },
+    /// The middle angle (`asin e` in `[−π/2, π/2]` or `acos e` in `[0, π]`) in `[lo, hi]`
+    /// modulo 2π: each stretch of the limit inside the angle's own range as bounds on `e`,
+    /// `(lower, upper)` (infinite: none).
+    Middle {
+        e: Element,
+        stretches: [(f64, f64); 2],
+        count: usize,
+    },
+}
+
+/// A limb's Euler limits as conditions on the swivel circle's matrix, per Euler solution
+/// (`[a, b, c]` and `[a + π, π − b, c + π]`, or `−b` for proper orders), computed once per limb.
+#[derive(Clone, Copy, Debug)]
+pub struct LimitForms([[AngleLimit; 3]; 2]);
+
+impl LimitForms {
+    /// The conditions of `limits` (one per angle, radians, either end infinite) in `order`.
+    #[must_use]
+    pub fn new(order: EulerOrder, limits: &[(f64, f64); 3]) -> LimitForms {
+        let forms = order.angle_forms();
+        let mut out = [[AngleLimit::Free; 3]; 2];
+        for (s, solution) in out.iter_mut().enumerate() {
+            let second = s == 1;
+            for (k, form) in forms.iter().enumerate() {
+                let (lo, hi) = limits[k];
+                if !(hi - lo < TAU) {
+                    continue;
+                }
+                solution[k] = match *form {
+                    AngleOf::Atan2(y, x) => {
+                        let shift = if second { PI } else { 0.0 };
+                        let (lo, hi) = (lo - shift, hi - shift);
+                        AngleLimit::Sector {
+                            y,
+                            x,
+                            lo: libm::sincos(lo),
+                            hi: libm::sincos(hi),
+                            narrow: hi - lo <= PI,
+                        }
+                    }
+                    AngleOf::Asin(e) => {
+                        let (l, h) = if second { (PI - hi, PI - lo) } else { (lo, hi) };
+                        middle(e, l, h, false)
+                    }
+                    AngleOf::Acos(e) => {
+                        let (l, h) = if second { (-hi, -lo) } else { (lo, hi) };
+                        middle(e, l, h, true)
+                    }
+                };
+            }
+        }
+        LimitForms(out)
     }
 }
 
-/// Where the middle angle `asin(e)` (in `[−π/2, π/2]`) or `acos(e)` (in `[0, π]`) lies in
-/// `[lo, hi]` modulo 2π: each stretch of that range inside the angle's own becomes bounds on
-/// `e` (the sine rises there, the cosine falls).
-fn middle(e: Lin, lo: f64, hi: f64, cosine: bool) -> Option<Arcs> {
+/// [`AngleLimit::Middle`] for `[lo, hi]`: the stretches inside `[−π/2, π/2]` (sine, rising)
+/// or `[0, π]` (cosine, falling) as bounds on the matrix element.
+fn middle(e: Element, lo: f64, hi: f64, cosine: bool) -> AngleLimit {
     let (first, last) = if cosine { (0.0, PI) } else { (-0.5 * PI, 0.5 * PI) };
-    let mut out = Arcs::new();
+    let mut stretches = [(f64::NEG_INFINITY, f64::INFINITY); 2];
+    let mut count = 0;
     for turn in -2..=2 {
         let shift = f64::from(turn) * TAU;
         let (l, h) = ((lo + shift).max(first), (hi + shift).min(last));
-        if h <= l {
+        if h <= l || count == stretches.len() {
             continue;
         }
-        let mut set = full();
-        // e ≥ f(l) and e ≤ f(h) for the sine; reversed for the cosine.
-        let bound = |angle: f64| {
-            if cosine {
-                libm::cos(angle)
-            } else {
-                libm::sin(angle)
+        let (mut lower, mut upper) = (f64::NEG_INFINITY, f64::INFINITY);
+        if cosine {
+            if h < last {
+                lower = libm::cos(h);
             }
-        };
-        if l > first {
-            let b = bound(l);
-            let c = if cosine {
-                [b - e[0], -e[1], -e[2]]
-            } else {
-                [e[0] - b, e[1], e[2]]
-            };
-            set = intersect(&set, &arcs_where(c))?;
+            if l > first {
+                upper = libm::cos(l);
+            }
+        } else {
+            if l > first {
+                lower = libm::sin(l);
+            }
+            if h < last {
+                upper = libm::sin(h);
+            }
         }
-        if h < last {
-            let b = bound(h);
-            let c = if cosine {
-                [e[0] - b, e[1], e[2]]
-            } else {
-                [b - e[0], -e[1], -e[2]]
-            };
-            set = intersect(&set, &arcs_where(c))?;
-        }
-        out = unite(&out, &set)?;
+        stretches[count] = (lower, upper);
+        count += 1;
     }
-    Some(out)
+    AngleLimit::Middle { e, stretches, count }
 }
 
 #[cfg(test)]
