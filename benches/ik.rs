@@ -1,5 +1,6 @@
 //! IK benches (issue 4): `limb_ik` — the analytic arm solver with the swivel search, with a
-//! fixed swivel, and warm-started along the bundled walk's wrist path — and `numeric_ik` — each
+//! fixed swivel, warm-started along the bundled walk's wrist path, and along it with the
+//! windowed search the loop uses (`windowed_stream`) — and `numeric_ik` — each
 //! numerical method on the same arm targets from the rest pose (100-iteration cap), plus a
 //! two-constraint (hand + foot) DLS solve. `cargo bench --bench ik`
 //!
@@ -87,6 +88,26 @@ fn bench_limb(c: &mut Criterion) {
             let s = limb.solve(&skel, &mut frame, path[f].1, Swivel::Auto { previous });
             previous = Some(s.swivel);
             black_box(frame)
+        })
+    });
+    // The loop's stream: the swivel searched within 40° of the previous one (Swivel::Track).
+    let mut previous: Option<f64> = None;
+    let mut f = 0;
+    let mut frame = path[0].0.clone();
+    group.bench_function("windowed_stream", |b| {
+        b.iter(|| {
+            f = (f + 1) % path.len();
+            frame.copy_from_slice(&path[f].0);
+            let swivel = match previous {
+                Some(p) => Swivel::Track {
+                    previous: p,
+                    window: 40f64.to_radians(),
+                },
+                None => Swivel::Auto { previous: None },
+            };
+            let s = limb.solve(&skel, &mut frame, path[f].1, swivel);
+            previous = Some(s.swivel);
+            black_box(s)
         })
     });
     group.finish();

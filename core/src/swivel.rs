@@ -7,7 +7,7 @@
 //!
 //! * its rotation matrix is `M(ψ) = M₀ + M₁·cos ψ + M₂·sin ψ`, so each Euler angle's limit is a
 //!   condition `α + β·cos ψ + γ·sin ψ ≥ 0` (or a union of two) and the legal swivels are arcs
-//!   found in closed form — as Tolani, Goswami and Badler do for Euler limits — [`legal_arcs`];
+//!   found in closed form — as Tolani, Goswami and Badler do for Euler limits — [`SwivelCircle::legal_arcs`];
 //! * eq. 30's distance to limit corner `qᵢ` is `acos|aᵢ·cos(ψ/2) + bᵢ·sin(ψ/2)|` with
 //!   `aᵢ = P·qᵢ`, `bᵢ = Q·qᵢ` (4-D dot products), all eight computed together. Each term is
 //!   convex in `ψ` between its one kink (its maximum, where the dot product is zero), so eq. 30
@@ -538,7 +538,8 @@ impl LimitForms {
             let second = s == 1;
             for (k, form) in forms.iter().enumerate() {
                 let (lo, hi) = limits[k];
-                if !(hi - lo < TAU) {
+                // No limit, or one a turn wide (NaN-safe: infinite ends give NaN widths too).
+                if (hi - lo).partial_cmp(&TAU) != Some(core::cmp::Ordering::Less) {
                     continue;
                 }
                 solution[k] = match *form {
