@@ -214,13 +214,46 @@ pub fn fk64_step(
         }
         Some((parent_world, parent_tip)) => {
             let axes = *parent_world * c;
-            let f = axes * m;
             let start = parent_tip + axes * t;
-            let world = f * c.transpose();
+            // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
+            let (f, world) = if m == DMat3::IDENTITY {
+                (axes, *parent_world)
+            } else {
+                let f = axes * m;
+                (f, f * c.transpose())
+            };
             let tip = start + world * (bone.direction_f64() * (f64::from(bone.length()) + l));
             (f, world, start, tip)
         }
     }
+}
+
+/// [`fk64_step`] without the local frame: `(world, start, tip)`. A bone that does not rotate
+/// (no rotation DOFs, or all at zero) and does not translate costs a vector product.
+#[must_use]
+pub fn fk64_world_step(
+    skeleton: &Skeleton,
+    channels: &[f64],
+    i: usize,
+    parent: Option<(&DMat3, DVec3)>,
+) -> (DMat3, DVec3, DVec3) {
+    let bone = &skeleton.bones()[i];
+    let Some((parent_world, parent_tip)) = parent else {
+        let (_, world, start, tip) = fk64_step(skeleton, channels, i, None);
+        return (world, start, tip);
+    };
+    let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
+    let still = bone
+        .dofs()
+        .iter()
+        .zip(bone.channels())
+        .all(|(_, c)| value(c) == 0.0);
+    if still {
+        let tip = parent_tip + *parent_world * (bone.direction_f64() * f64::from(bone.length()));
+        return (*parent_world, parent_tip, tip);
+    }
+    let (_, world, start, tip) = fk64_step(skeleton, channels, i, Some((parent_world, parent_tip)));
+    (world, start, tip)
 }
 
 /// One bone of [`fk64`], its parent already computed.

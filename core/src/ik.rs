@@ -8,7 +8,7 @@
 
 use glam::{DMat3, DQuat, DVec3};
 
-use crate::fk::{ancestors, fk64, fk64_bones, fk64_step, Pose64};
+use crate::fk::{ancestors, fk64, fk64_bones, fk64_step, fk64_world_step, Pose64};
 use crate::math::{euler_near, quat_distance_fast, wrap_near, EulerOrder};
 use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
 use crate::swivel::{self, LimitForms, SwivelCircle};
@@ -453,8 +453,8 @@ impl Limb {
             if b == self.upper {
                 above = last.unwrap_or((DMat3::IDENTITY, DVec3::ZERO));
             }
-            let (_, world, start, tip) =
-                fk64_step(skeleton, channels, b, last.as_ref().map(|(w, t)| (w, *t)));
+            let (world, start, tip) =
+                fk64_world_step(skeleton, channels, b, last.as_ref().map(|(w, t)| (w, *t)));
             if b == self.upper {
                 s = start;
             }
@@ -790,6 +790,24 @@ impl Limb {
         let p = c.conjugate() * base * c;
         let q = c.conjugate() * n * base * c;
         let circle = SwivelCircle::new(p, q, &self.corners);
+        // Legal as the Euler extraction reads it (exact).
+        let legal_at = |psi: f64| {
+            let (s, c) = libm::sincos(0.5 * psi);
+            self.shoulder_angles(&DMat3::from_quat(p * c + q * s)).1 <= 1e-12
+        };
+        match swivel {
+            // A stream: the optimum within the window, when legal, is the optimum over the
+            // legal swivels there — no arcs needed.
+            Swivel::Track { previous, window } => {
+                let keep = Some(previous - phi0);
+                let free = circle.minimise(&swivel::window(previous - phi0, window), keep)?;
+                if legal_at(free) {
+                    return Some(wrap_near(free + phi0, 0.0));
+                }
+            }
+            Swivel::Nearest(p) if legal_at(p - phi0) => return Some(p),
+            _ => {}
+        }
         let legal = circle.legal_arcs(&self.limit_forms)?;
         if legal.is_empty() {
             return None;
