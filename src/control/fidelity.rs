@@ -23,6 +23,16 @@ const LAGS: usize = 2 * MAX_LAG_TICKS + 1;
 /// Most effectors compared.
 pub const MAX_EFFECTORS: usize = 4;
 
+/// Adds `(a − b)²` to `sse` and one to `count`, servo by servo, where the difference is finite.
+fn accumulate(a: &[f64], b: &[f64], sse: &mut [f64; MAX_SERVOS], count: &mut [f64; MAX_SERVOS]) {
+    for (((a, b), s), c) in a.iter().zip(b).zip(sse.iter_mut()).zip(count.iter_mut()) {
+        let e = a - b;
+        let ok = e.is_finite();
+        *s += if ok { e * e } else { 0.0 };
+        *c += if ok { 1.0 } else { 0.0 };
+    }
+}
+
 /// The accumulator.
 #[derive(Clone, Debug)]
 pub struct Fidelity {
@@ -33,10 +43,10 @@ pub struct Fidelity {
     present_ring: Box<[[f64; MAX_SERVOS]; MAX_LAG_TICKS + 1]>,
     head: usize,
     filled: usize,
-    /// Per servo and lag (index `MAX_LAG_TICKS + lag`): sum of squared differences and their
-    /// count.
-    sse: Box<[[f64; LAGS]; MAX_SERVOS]>,
-    count: Box<[[u64; LAGS]; MAX_SERVOS]>,
+    /// Per lag (index `MAX_LAG_TICKS + lag`) and servo: sum of squared differences and their
+    /// count (lag-major: a tick's update runs along contiguous servo rows, without branches).
+    sse: Box<[[f64; MAX_SERVOS]; LAGS]>,
+    count: Box<[[f64; MAX_SERVOS]; LAGS]>,
     max_abs: [f64; MAX_SERVOS],
     effector_sse: f64,
     effector_count: u64,
@@ -92,8 +102,8 @@ impl Fidelity {
             present_ring: Box::new([[f64::NAN; MAX_SERVOS]; MAX_LAG_TICKS + 1]),
             head: 0,
             filled: 0,
-            sse: Box::new([[0.0; LAGS]; MAX_SERVOS]),
-            count: Box::new([[0; LAGS]; MAX_SERVOS]),
+            sse: Box::new([[0.0; MAX_SERVOS]; LAGS]),
+            count: Box::new([[0.0; MAX_SERVOS]; LAGS]),
             max_abs: [0.0; MAX_SERVOS],
             effector_sse: 0.0,
             effector_count: 0,
@@ -110,22 +120,28 @@ impl Fidelity {
         self.present_ring[self.head][..n].copy_from_slice(&present[..n]);
         self.filled = (self.filled + 1).min(MAX_LAG_TICKS + 1);
         for k in 0..n {
-            for back in 0..self.filled {
-                let at = (self.head + MAX_LAG_TICKS + 1 - back) % (MAX_LAG_TICKS + 1);
-                // Behind: this present against the source `back` ticks ago; ahead: the
-                // present `back` ticks ago against this source.
-                let behind = present[k] - self.ring[at][k];
-                let ahead = self.present_ring[at][k] - source[k];
-                let both = [(MAX_LAG_TICKS + back, behind), (MAX_LAG_TICKS - back, ahead)];
-                for &(d, e) in &both[..if back == 0 { 1 } else { 2 }] {
-                    if e.is_finite() {
-                        self.sse[k][d] += e * e;
-                        self.count[k][d] += 1;
-                        if back == 0 {
-                            self.max_abs[k] = self.max_abs[k].max(e.abs());
-                        }
-                    }
-                }
+            let e = present[k] - source[k];
+            if e.is_finite() {
+                self.max_abs[k] = self.max_abs[k].max(e.abs());
+            }
+        }
+        for back in 0..self.filled {
+            let at = (self.head + MAX_LAG_TICKS + 1 - back) % (MAX_LAG_TICKS + 1);
+            // Behind: this present against the source `back` ticks ago; ahead: the present
+            // `back` ticks ago against this source.
+            accumulate(
+                &present[..n],
+                &self.ring[at][..n],
+                &mut self.sse[MAX_LAG_TICKS + back],
+                &mut self.count[MAX_LAG_TICKS + back],
+            );
+            if back > 0 {
+                accumulate(
+                    &self.present_ring[at][..n],
+                    &source[..n],
+                    &mut self.sse[MAX_LAG_TICKS - back],
+                    &mut self.count[MAX_LAG_TICKS - back],
+                );
             }
         }
     }
@@ -162,22 +178,24 @@ impl Fidelity {
         let zero = MAX_LAG_TICKS;
         for k in 0..self.servos {
             let best = (0..LAGS)
-                .filter(|&d| self.count[k][d] > 0)
+                .filter(|&d| (self.count[d][k] as u64) > 0)
                 .min_by(|&a, &b| {
-                    (self.sse[k][a] / self.count[k][a] as f64)
-                        .total_cmp(&(self.sse[k][b] / self.count[k][b] as f64))
+                    (self.sse[a][k] / (self.count[a][k] as u64) as f64)
+                        .total_cmp(&(self.sse[b][k] / (self.count[b][k] as u64) as f64))
                 })
                 .unwrap_or(zero);
             servos.push(ServoFidelity {
                 name: names.get(k).cloned().unwrap_or_default(),
-                rms_deg: rms(self.sse[k][zero], self.count[k][zero]),
+                rms_deg: rms(self.sse[zero][k], (self.count[zero][k] as u64)),
                 max_deg: self.max_abs[k].to_degrees(),
                 lag_ms: lag_ms(best),
-                rms_after_lag_deg: rms(self.sse[k][best], self.count[k][best]),
+                rms_after_lag_deg: rms(self.sse[best][k], (self.count[best][k] as u64)),
             });
         }
         let total = |d: usize| -> (f64, u64) {
-            (0..self.servos).fold((0.0, 0), |(s, c), k| (s + self.sse[k][d], c + self.count[k][d]))
+            (0..self.servos).fold((0.0, 0), |(s, c), k| {
+                (s + self.sse[d][k], c + self.count[d][k] as u64)
+            })
         };
         let best = (0..LAGS)
             .filter(|&d| total(d).1 > 0)
@@ -192,9 +210,9 @@ impl Fidelity {
         let effector =
             (self.effector_count > 0).then(|| (self.effector_sse / self.effector_count as f64).sqrt() * 1e3);
         FidelityReport {
-            samples: self.count[..self.servos]
+            samples: self.count[zero][..self.servos]
                 .iter()
-                .map(|c| c[zero])
+                .map(|&c| c as u64)
                 .max()
                 .unwrap_or(0),
             joint_rms_deg: rms(s0, c0),
