@@ -178,18 +178,17 @@ impl Fidelity {
         let zero = MAX_LAG_TICKS;
         for k in 0..self.servos {
             let best = (0..LAGS)
-                .filter(|&d| (self.count[d][k] as u64) > 0)
+                .filter(|&d| self.count[d][k] > 0.0)
                 .min_by(|&a, &b| {
-                    (self.sse[a][k] / (self.count[a][k] as u64) as f64)
-                        .total_cmp(&(self.sse[b][k] / (self.count[b][k] as u64) as f64))
+                    (self.sse[a][k] / self.count[a][k]).total_cmp(&(self.sse[b][k] / self.count[b][k]))
                 })
                 .unwrap_or(zero);
             servos.push(ServoFidelity {
                 name: names.get(k).cloned().unwrap_or_default(),
-                rms_deg: rms(self.sse[zero][k], (self.count[zero][k] as u64)),
+                rms_deg: rms(self.sse[zero][k], self.count[zero][k] as u64),
                 max_deg: self.max_abs[k].to_degrees(),
                 lag_ms: lag_ms(best),
-                rms_after_lag_deg: rms(self.sse[best][k], (self.count[best][k] as u64)),
+                rms_after_lag_deg: rms(self.sse[best][k], self.count[best][k] as u64),
             });
         }
         let total = |d: usize| -> (f64, u64) {
