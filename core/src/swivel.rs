@@ -365,10 +365,11 @@ impl SwivelCircle {
         // the term kinked there (9: none).
         let mut points: heapless::Vec<(f64, usize), 48> = heapless::Vec::new();
         let mut centres = [f64::NAN; 9];
-        let mut floors = [0.0; 9];
+        // Each term's radius; its floor acos(r) is taken only where a bound needs it.
+        let mut radii = [1.0; 9];
         for (k, &(a, b)) in self.ab[..self.corners].iter().enumerate() {
             let r = libm::sqrt(a * a + b * b);
-            floors[k] = acos_abs_fast(r);
+            radii[k] = r;
             if r > 1e-12 {
                 let centre = 2.0 * atan2_fast(b, a);
                 centres[k] = wrap(centre);
@@ -436,7 +437,11 @@ impl SwivelCircle {
             for k in 0..9 {
                 let c = centres[k];
                 bound += if c.is_finite() && turn(c - l) <= h - l {
-                    floors[k]
+                    if k == 8 {
+                        0.0
+                    } else {
+                        acos_abs_fast(radii[k])
+                    }
                 } else {
                     pa.terms[k].min(pb.terms[k])
                 };
@@ -462,8 +467,8 @@ impl SwivelCircle {
                     b = x;
                 }
                 let next = x - g / curvature;
-                // 1e-9 rad of swivel: eq. 30 is flat there to 1e-18.
-                if next.is_finite() && (next - x).abs() < 1e-9 {
+                // 1e-8 rad of swivel: eq. 30 is flat there to ~1e-16.
+                if next.is_finite() && (next - x).abs() < 1e-8 {
                     x = next.clamp(a, b);
                     break;
                 }
@@ -472,7 +477,7 @@ impl SwivelCircle {
                 } else {
                     0.5 * (a + b)
                 };
-                if b - a < 1e-9 {
+                if b - a < 1e-8 {
                     break;
                 }
             }
