@@ -136,6 +136,14 @@ pub fn indirect_blocks(model: &ServoModel) -> &'static [IndirectBlock] {
     }
 }
 
+/// The block whose Indirect Data holds byte `address`, if any.
+#[must_use]
+pub fn indirect_data_block(model: &ServoModel, address: usize) -> Option<&'static IndirectBlock> {
+    indirect_blocks(model)
+        .iter()
+        .find(|b| (usize::from(b.data)..usize::from(b.data + b.count)).contains(&address))
+}
+
 /// One past the model's last control-table byte.
 #[must_use]
 pub fn table_end(model: &ServoModel) -> u16 {

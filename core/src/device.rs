@@ -348,18 +348,11 @@ impl VirtualServo {
     /// Where the Indirect Data byte at `data` points (its Indirect Address), when that is
     /// inside the table and not itself indirect data; `None` for any other address.
     fn indirect_target(&self, data: usize) -> Option<usize> {
-        let blocks = indirect_blocks(self.model);
-        let is_data = |a: usize| {
-            blocks
-                .iter()
-                .any(|b| (usize::from(b.data)..usize::from(b.data + b.count)).contains(&a))
-        };
-        let b = blocks
-            .iter()
-            .find(|b| (usize::from(b.data)..usize::from(b.data + b.count)).contains(&data))?;
+        let b = control_table::indirect_data_block(self.model, data)?;
         let k = data - usize::from(b.data);
         let a = self.get(b.address + 2 * k as u16, 2) as usize;
-        (a < usize::from(control_table::table_end(self.model)) && !is_data(a)).then_some(a)
+        let inside = a < usize::from(control_table::table_end(self.model));
+        (inside && control_table::indirect_data_block(self.model, a).is_none()).then_some(a)
     }
 
     /// Present Current (or Load) and PWM from a DC motor model at the rated voltage: the
@@ -605,11 +598,7 @@ impl VirtualServo {
         }
         if indirect {
             // Each run of Indirect Data bytes forwarded on its own.
-            let is_data = |d: usize| {
-                indirect_blocks(self.model)
-                    .iter()
-                    .any(|b| (usize::from(b.data)..usize::from(b.data + b.count)).contains(&d))
-            };
+            let is_data = |d: usize| control_table::indirect_data_block(self.model, d).is_some();
             let mut d = start;
             while d < end {
                 let n = (d..end).take_while(|&x| is_data(x)).count();

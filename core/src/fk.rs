@@ -243,11 +243,7 @@ pub fn fk64_world_step(
         return (world, start, tip);
     };
     let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
-    let still = bone
-        .dofs()
-        .iter()
-        .zip(bone.channels())
-        .all(|(_, c)| value(c) == 0.0);
+    let still = bone.channels().all(|c| value(c) == 0.0);
     if still {
         let tip = parent_tip + *parent_world * (bone.direction_f64() * f64::from(bone.length()));
         return (*parent_world, parent_tip, tip);

@@ -224,12 +224,6 @@ impl SwivelCircle {
         [0, 1, 2].map(|k| e.sign * self.m[k][e.row][e.col])
     }
 
-    /// Eq. 30 at `psi` (the sum of the corner distances).
-    #[must_use]
-    pub fn eq30(&self, psi: f64) -> f64 {
-        self.probe(psi, None).total
-    }
-
     /// Eq. 30 at `psi`, with `0.5·(ψ − keep)²` (wrapped) when a previous swivel is kept, term
     /// by term, and its slope, in one pass over the corners. At a kink (`kink`: the corner, or
     /// 8 for the continuity term, whose kink lies at `psi`) the slope jumps: the slope without
