@@ -105,8 +105,10 @@ fn bench(c: &mut Criterion) {
         } else {
             Solve::Frames
         };
+        // As a real-time run: the fidelity accumulated on a thread of its own.
         let config = LoopConfig {
             rate_hz: 500.0,
+            fidelity_worker: true,
             ..LoopConfig::default()
         };
         let mut ctl = Controller::new(

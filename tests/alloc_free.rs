@@ -234,6 +234,9 @@ fn control_loop_ticks_allocate_nothing() {
             rate_hz: 240.0,
             stop: StopMode::Hold { hold_s: 0.0 },
             allocations: Some(allocations),
+            // The real-time runs' worker (a record handed over each tick) and the lockstep
+            // runs' accumulation in the tick.
+            fidelity_worker: follow,
             ..LoopConfig::default()
         };
         let mut c = Controller::new(
@@ -324,5 +327,12 @@ fn control_loop_ticks_allocate_nothing() {
         if follow {
             assert_eq!(st.unreachable, 0);
         }
+        let fidelity = c.fidelity_report();
+        assert!(
+            fidelity.samples + fidelity.records_dropped > ticks / 2,
+            "{} ticks compared, {} dropped",
+            fidelity.samples,
+            fidelity.records_dropped
+        );
     }
 }

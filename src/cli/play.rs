@@ -559,6 +559,7 @@ fn loop_config(args: &LoopArgs, allocations: Option<fn() -> u64>) -> LoopConfig 
         ease_in_s: args.ease_in,
         effector_metres_per_unit: 0.0,
         pipelined: false,
+        fidelity_worker: false,
         allocations,
     }
 }
@@ -640,6 +641,8 @@ pub(super) fn run_loop(
     // Dynamixel2 (Bulk Read) cannot split a read: its request does nothing, its collect reads.
     config.pipelined = profile.bus.pipeline;
     config.effector_metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
+    // Real time: the fidelity's lag search on a thread of its own, off the tick.
+    config.fidelity_worker = true;
     let planner = lookahead(args, profile, &rig);
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
     controller.set_servo_names(profile.servos.iter().map(|s| s.name.clone()).collect());
@@ -714,13 +717,13 @@ fn status_line<T>(
     let (mut ticks, mut misses) = (0u64, 0u64);
     let mut printed = false;
     while !handle.is_finished() {
-        while let Ok(t) = rx.recv_timeout(Duration::from_millis(50)) {
+        // Polled, never waited on: a receiver blocked in the channel would have every tick's
+        // send wake it (a futex call in the loop thread, and a wake-up competing for a core).
+        std::thread::sleep(Duration::from_millis(20));
+        while let Ok(t) = rx.try_recv() {
             ticks += 1;
             misses += u64::from(t.missed);
             window.push(t);
-            if last.elapsed() >= every {
-                break;
-            }
         }
         if last.elapsed() < every || window.is_empty() {
             continue;

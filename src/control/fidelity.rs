@@ -7,8 +7,12 @@
 //!
 //! Everything is accumulated in place: the last [`MAX_LAG_TICKS`] source and present angles in
 //! rings, and per servo and candidate lag a sum of squares, so a tick allocates nothing and a run of any
-//! length costs the same memory.
+//! length costs the same memory. A real-time loop hands its records to a [`FidelityWorker`]
+//! (the lag search is ~28 × 129 sums a tick: measurement, not control, so it stays off the tick).
 
+use std::thread::JoinHandle;
+
+use crossbeam_channel::{Sender, TryRecvError, TrySendError};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -43,6 +47,8 @@ pub struct Fidelity {
     present_ring: Box<[[f64; MAX_SERVOS]; MAX_LAG_TICKS + 1]>,
     head: usize,
     filled: usize,
+    /// The tick of the newest ring row (gaps are filled with rows that compare nothing).
+    last_tick: Option<u64>,
     /// Per lag (index `MAX_LAG_TICKS + lag`) and servo: sum of squared differences and their
     /// count (lag-major: a tick's update runs along contiguous servo rows, without branches).
     sse: Box<[[f64; MAX_SERVOS]; LAGS]>,
@@ -89,6 +95,8 @@ pub struct FidelityReport {
     pub effector_max_mm: Option<f64>,
     /// Per servo.
     pub servos: Vec<ServoFidelity>,
+    /// Ticks left out because the fidelity worker's queue was full.
+    pub records_dropped: u64,
 }
 
 impl Fidelity {
@@ -102,6 +110,7 @@ impl Fidelity {
             present_ring: Box::new([[f64::NAN; MAX_SERVOS]; MAX_LAG_TICKS + 1]),
             head: 0,
             filled: 0,
+            last_tick: None,
             sse: Box::new([[0.0; MAX_SERVOS]; LAGS]),
             count: Box::new([[0.0; MAX_SERVOS]; LAGS]),
             max_abs: [0.0; MAX_SERVOS],
@@ -114,7 +123,28 @@ impl Fidelity {
     /// One tick: this tick's source angles and the present angles read back (radians, rig
     /// order). Non-finite values are skipped.
     pub fn record(&mut self, source: &[f64], present: &[f64]) {
+        let next = self.last_tick.map_or(0, |t| t + 1);
+        self.record_tick(next, source, present);
+    }
+
+    /// [`Fidelity::record`] for tick `tick`: ticks skipped since the last record (a failed
+    /// read, a hold) keep their place in the rings, so lags stay counted in ticks.
+    pub fn record_tick(&mut self, tick: u64, source: &[f64], present: &[f64]) {
         let n = self.servos.min(source.len()).min(present.len());
+        match self.last_tick {
+            Some(last) if tick > last + 1 && tick - last - 1 <= MAX_LAG_TICKS as u64 => {
+                for _ in last + 1..tick {
+                    self.head = (self.head + 1) % (MAX_LAG_TICKS + 1);
+                    self.ring[self.head] = [f64::NAN; MAX_SERVOS];
+                    self.present_ring[self.head] = [f64::NAN; MAX_SERVOS];
+                    self.filled = (self.filled + 1).min(MAX_LAG_TICKS + 1);
+                }
+            }
+            // Too long ago to pair with (or not after the last: a new run of ticks).
+            Some(last) if tick != last + 1 => self.filled = 0,
+            _ => {}
+        }
+        self.last_tick = Some(tick);
         self.head = (self.head + 1) % (MAX_LAG_TICKS + 1);
         self.ring[self.head][..n].copy_from_slice(&source[..n]);
         self.present_ring[self.head][..n].copy_from_slice(&present[..n]);
@@ -149,18 +179,24 @@ impl Fidelity {
     /// Effector distances of one tick (metres).
     pub fn record_effectors(&mut self, source: &[DVec3], present: &[DVec3]) {
         for (s, p) in source.iter().zip(present).take(MAX_EFFECTORS) {
-            let d = (*s - *p).length();
-            if d.is_finite() {
-                self.effector_sse += d * d;
-                self.effector_count += 1;
-                self.effector_max = self.effector_max.max(d);
-            }
+            self.record_effector(*s, *p);
+        }
+    }
+
+    /// One effector's distance (skipped when not finite).
+    fn record_effector(&mut self, source: DVec3, present: DVec3) {
+        let d = (source - present).length();
+        if d.is_finite() {
+            self.effector_sse += d * d;
+            self.effector_count += 1;
+            self.effector_max = self.effector_max.max(d);
         }
     }
 
     /// Forgets the ring (a seek or a loop: the next source does not follow the last).
     pub fn restart(&mut self) {
         self.filled = 0;
+        self.last_tick = None;
     }
 
     /// The figures, servos named by `names` (rig order).
@@ -224,7 +260,112 @@ impl Fidelity {
             effector_rms_mm: effector,
             effector_max_mm: effector.map(|_| self.effector_max * 1e3),
             servos,
+            records_dropped: 0,
         }
+    }
+}
+
+/// One tick's figures for a [`FidelityWorker`].
+#[derive(Clone, Copy, Debug)]
+pub struct FidelityRecord {
+    /// The tick's index.
+    pub tick: u64,
+    /// Servos in `source` and `present`.
+    pub servos: usize,
+    /// Source angles, radians (rig order).
+    pub source: [f64; MAX_SERVOS],
+    /// Present angles read back, radians.
+    pub present: [f64; MAX_SERVOS],
+    /// Effector positions at the source and at the present angles, metres (NaN: none).
+    pub effectors: [(DVec3, DVec3); MAX_EFFECTORS],
+}
+
+impl FidelityRecord {
+    /// A record of `servos` servos with nothing in it yet.
+    #[must_use]
+    pub fn new(tick: u64, servos: usize) -> FidelityRecord {
+        FidelityRecord {
+            tick,
+            servos: servos.min(MAX_SERVOS),
+            source: [f64::NAN; MAX_SERVOS],
+            present: [f64::NAN; MAX_SERVOS],
+            effectors: [(DVec3::NAN, DVec3::NAN); MAX_EFFECTORS],
+        }
+    }
+}
+
+impl Fidelity {
+    /// Takes one record (joints and effectors).
+    pub fn take(&mut self, r: &FidelityRecord) {
+        self.record_tick(r.tick, &r.source[..r.servos], &r.present[..r.servos]);
+        for (s, p) in &r.effectors {
+            self.record_effector(*s, *p);
+        }
+    }
+}
+
+/// A thread that accumulates [`FidelityRecord`]s sent to it through a bounded channel: the
+/// tick only copies one record in (no allocation, never waits; a record that finds the
+/// channel full is counted and dropped, its tick left as a gap).
+#[derive(Debug)]
+pub struct FidelityWorker {
+    tx: Option<Sender<FidelityRecord>>,
+    handle: Option<JoinHandle<Fidelity>>,
+    /// Records dropped because the channel was full.
+    pub dropped: u64,
+}
+
+/// Records the channel holds: a quarter second at 1 kHz (the worker takes one in a few µs).
+const WORKER_QUEUE: usize = 256;
+
+/// How long the worker sleeps when it has taken every record.
+const WORKER_POLL: std::time::Duration = std::time::Duration::from_millis(4);
+
+impl FidelityWorker {
+    /// Starts the worker with `fidelity` as its accumulator.
+    ///
+    /// # Errors
+    /// When the thread cannot be started.
+    pub fn spawn(mut fidelity: Fidelity) -> std::io::Result<FidelityWorker> {
+        let (tx, rx) = crossbeam_channel::bounded::<FidelityRecord>(WORKER_QUEUE);
+        let handle = std::thread::Builder::new()
+            .name("fidelity".into())
+            .spawn(move || loop {
+                // Polled, never waited on: a receiver blocked in the channel would have each
+                // tick's send wake it (a futex call, ~2 µs of the tick).
+                match rx.try_recv() {
+                    Ok(r) => fidelity.take(&r),
+                    Err(TryRecvError::Empty) => std::thread::sleep(WORKER_POLL),
+                    Err(TryRecvError::Disconnected) => break fidelity,
+                }
+            })?;
+        Ok(FidelityWorker {
+            tx: Some(tx),
+            handle: Some(handle),
+            dropped: 0,
+        })
+    }
+
+    /// Hands one record over without waiting.
+    pub fn send(&mut self, record: FidelityRecord) {
+        if let Some(tx) = &self.tx {
+            if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) = tx.try_send(record) {
+                self.dropped += 1;
+            }
+        }
+    }
+
+    /// Records sent and not yet taken.
+    #[must_use]
+    pub fn queued(&self) -> usize {
+        self.tx.as_ref().map_or(0, Sender::len)
+    }
+
+    /// Closes the channel and returns the accumulator once every record sent is taken (`None`
+    /// when the worker died).
+    pub fn finish(&mut self) -> Option<Fidelity> {
+        self.tx = None;
+        self.handle.take().and_then(|h| h.join().ok())
     }
 }
 
@@ -255,6 +396,40 @@ mod tests {
         f.record_effectors(&[DVec3::ZERO], &[DVec3::new(0.003, 0.004, 0.0)]);
         let r = f.report(&[]);
         assert!((r.effector_rms_mm.unwrap() - 5.0).abs() < 1e-9);
+    }
+
+    /// Ticks without a record (failed reads, holds) keep their place: the lag is still found
+    /// exactly, and the worker gives what the tick would have.
+    #[test]
+    fn gaps_keep_the_lag_and_the_worker_agrees() {
+        let src = |t: f64| (t * 3.0).sin();
+        let mut inline = Fidelity::new(1, 0.01);
+        let mut worker = FidelityWorker::spawn(Fidelity::new(1, 0.01)).unwrap();
+        let mut sent = 0;
+        for i in 0..600u64 {
+            // Every seventh tick and a run of ten are missing; a run of 80 starts the ring over.
+            if i % 7 == 3 || (200..210).contains(&i) || (400..480).contains(&i) {
+                continue;
+            }
+            let t = i as f64 * 0.01;
+            let mut r = FidelityRecord::new(i, 1);
+            r.source[0] = src(t);
+            r.present[0] = src(t - 0.04);
+            inline.take(&r);
+            // (The test does not depend on how soon the worker's thread runs.)
+            while worker.queued() > WORKER_QUEUE / 2 {
+                std::thread::yield_now();
+            }
+            worker.send(r);
+            sent += 1;
+        }
+        let a = inline.report(&["a".into()]);
+        assert!((a.lag_ms - 40.0).abs() < 1e-9, "{a:?}");
+        assert!(a.rms_after_lag_deg < 1e-9, "{a:?}");
+        assert_eq!(a.samples, sent);
+        let b = worker.finish().unwrap().report(&["a".into()]);
+        assert_eq!(worker.dropped, 0);
+        assert_eq!(a, b);
     }
 
     /// A present that runs two ticks ahead of the source: a negative lag.

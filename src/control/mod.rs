@@ -100,6 +100,9 @@ pub struct LoopConfig {
     /// takes the replies at the start of the next tick, so the servos answer while the loop
     /// sleeps ([`ServoBus::request_positions`]).
     pub pipelined: bool,
+    /// Accumulate the fidelity on a thread of its own ([`fidelity::FidelityWorker`]; real-time
+    /// runs), not in the tick (lockstep runs, whose results must not depend on timing).
+    pub fidelity_worker: bool,
 }
 
 impl Default for LoopConfig {
@@ -114,6 +117,7 @@ impl Default for LoopConfig {
             ease_in_s: 0.0,
             effector_metres_per_unit: 0.0,
             pipelined: false,
+            fidelity_worker: false,
         }
     }
 }
@@ -513,6 +517,8 @@ struct ReadContext {
     /// Whether the read counts for fidelity (input flowing, not held, eased in, past the
     /// pre-roll).
     record: bool,
+    /// The tick's index.
+    tick: u64,
 }
 
 /// What a read gave.
@@ -560,8 +566,10 @@ pub struct Controller {
     ease_from: Vec<f64>,
     ease_ticks: u64,
     eased: u64,
-    /// Source against present, end to end.
+    /// Source against present, end to end: accumulated here, or by the worker when there is
+    /// one.
     fidelity: Box<fidelity::Fidelity>,
+    fidelity_worker: Option<fidelity::FidelityWorker>,
     /// This tick's source angles (the input mapped through the rig) and the present angles.
     source_angles: Vec<f64>,
     present_angles: Vec<f64>,
@@ -645,6 +653,13 @@ impl Controller {
             ease_ticks,
             eased: 0,
             fidelity: Box::new(fidelity::Fidelity::new(n, period_ns as f64 * 1e-9)),
+            // Without a thread (none could be started) the tick accumulates it.
+            fidelity_worker: config
+                .fidelity_worker
+                .then(|| {
+                    fidelity::FidelityWorker::spawn(fidelity::Fidelity::new(n, period_ns as f64 * 1e-9)).ok()
+                })
+                .flatten(),
             source_angles: vec![f64::NAN; n],
             present_angles: vec![f64::NAN; n],
             present_channels: Box::new([0.0; MAX_CHANNELS]),
@@ -718,7 +733,7 @@ impl Controller {
                     found.tracking = (sq / len.max(1) as f64).sqrt();
                 }
                 if context.record {
-                    self.record_fidelity(&context.sample);
+                    self.record_fidelity(context.tick, &context.sample);
                 }
                 (found, None)
             }
@@ -736,7 +751,7 @@ impl Controller {
         }
     }
 
-    fn record_fidelity(&mut self, sample: &SourceSample) {
+    fn record_fidelity(&mut self, tick: u64, sample: &SourceSample) {
         let source_tips = &sample.tips;
         for ((p, s), t) in self
             .present_angles
@@ -747,10 +762,14 @@ impl Controller {
             *p = s.ticks_to_angle(f64::from(*t));
         }
         let n = self.present_angles.len();
-        self.fidelity.record(&sample.angles[..n], &self.present_angles);
+        let mut record = fidelity::FidelityRecord::new(tick, n);
+        record.source[..n].copy_from_slice(&sample.angles[..n]);
+        record.present[..n].copy_from_slice(&self.present_angles);
         if let Some(r) = &mut self.retarget {
             let present = r.present_effectors(&self.rig, &self.present_angles, sample.base);
-            self.fidelity.record_effectors(&sample.effectors, &present);
+            for ((e, s), p) in record.effectors.iter_mut().zip(sample.effectors).zip(present) {
+                *e = (s, p);
+            }
         } else if self.config.effector_metres_per_unit > 0.0 {
             let n = self.skeleton.channel_count();
             self.rig.channels_from_angles(
@@ -765,16 +784,31 @@ impl Controller {
                 &mut self.present_pose,
             );
             let scale = self.config.effector_metres_per_unit;
-            let mut source = [DVec3::NAN; 4];
-            let mut present = [DVec3::NAN; 4];
-            for (k, w) in self.watch.iter().enumerate() {
+            for ((e, w), s) in record.effectors.iter_mut().zip(self.watch).zip(source_tips) {
                 if let Some(b) = w {
-                    source[k] = source_tips[k] * scale;
-                    present[k] = self.present_pose.tip[*b] * scale;
+                    *e = (*s * scale, self.present_pose.tip[b] * scale);
                 }
             }
-            self.fidelity.record_effectors(&source, &present);
         }
+        match &mut self.fidelity_worker {
+            Some(w) => w.send(record),
+            None => self.fidelity.take(&record),
+        }
+    }
+
+    /// The fidelity so far (a worker's once it has taken every record: it is stopped, and
+    /// the tick accumulates from here on). [`Controller::run`] puts it in the statistics.
+    pub fn fidelity_report(&mut self) -> fidelity::FidelityReport {
+        let mut dropped = 0;
+        if let Some(mut w) = self.fidelity_worker.take() {
+            if let Some(f) = w.finish() {
+                *self.fidelity = f;
+            }
+            dropped = w.dropped;
+        }
+        let mut report = self.fidelity.report(&self.servo_names);
+        report.records_dropped = dropped;
+        report
     }
 
     /// Keeps the source angles of up to `ticks` ticks (reserved now; the tick stops logging
@@ -1106,6 +1140,7 @@ impl Controller {
             goals,
             tracked: None,
             record: self.have_input && !holding && self.eased >= self.ease_ticks && !pre_roll,
+            tick: tick.index,
         };
         if self.have_previous {
             let mut g = [0i32; MAX_SERVOS];
@@ -1242,7 +1277,7 @@ impl Controller {
         if let Some(r) = &self.retarget {
             self.stats.retarget = Some(r.report());
         }
-        self.stats.fidelity = Some(self.fidelity.report(&self.servo_names));
+        self.stats.fidelity = Some(self.fidelity_report());
         if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
             return why;
         }
