@@ -302,6 +302,18 @@ impl ServoPlan {
         }
     }
 
+    /// The goal `dt` seconds after `x` (moving at `v`) at the last plan's first acceleration:
+    /// what the plan commands over its first knot, when the loop ticks faster than the knots.
+    #[must_use]
+    pub fn go_on(&self, x: f64, v: f64, dt: f64) -> f64 {
+        let (goal, _) = advance(x, v, self.accelerations[0], dt, &self.limits);
+        if goal.is_finite() {
+            goal
+        } else {
+            x
+        }
+    }
+
     /// Plans over `window` from the last goal `x0` moving at `v0` (units/s) towards
     /// `reference` (the window's knots: the reference at `x0`'s time + (j+1)·h); returns the
     /// goal `dt` seconds after `x0`. References that are not finite are treated as the last

@@ -10,13 +10,17 @@
 //! length costs the same memory. A real-time loop hands its records to a [`FidelityWorker`]
 //! (the lag search is ~28 × 129 sums a tick: measurement, not control, so it stays off the tick).
 
+use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crossbeam_channel::{Sender, TryRecvError, TrySendError};
 use glam::DVec3;
 use serde::Serialize;
 
+use crate::fk::{fk64, Pose64};
+use crate::rig::Rig;
 use crate::servo::MAX_SERVOS;
+use crate::skeleton::{Skeleton, MAX_CHANNELS};
 
 /// Longest lag looked for either way, ticks (at 120 Hz: 0.53 s; at 500 Hz: 128 ms).
 pub const MAX_LAG_TICKS: usize = 64;
@@ -278,6 +282,14 @@ pub struct FidelityRecord {
     pub present: [f64; MAX_SERVOS],
     /// Effector positions at the source and at the present angles, metres (NaN: none).
     pub effectors: [(DVec3, DVec3); MAX_EFFECTORS],
+    /// Whether the effectors are still to be found from the skeleton's pose: the source's
+    /// channels and tips are below, the present pose is the channels with the present angles
+    /// put back ([`EffectorPose`]).
+    pub from_pose: bool,
+    /// The source's channels (the skeleton's first ones).
+    pub channels: [f64; MAX_CHANNELS],
+    /// The source's watched tips, file units.
+    pub tips: [DVec3; MAX_EFFECTORS],
 }
 
 impl FidelityRecord {
@@ -290,7 +302,67 @@ impl FidelityRecord {
             source: [f64::NAN; MAX_SERVOS],
             present: [f64::NAN; MAX_SERVOS],
             effectors: [(DVec3::NAN, DVec3::NAN); MAX_EFFECTORS],
+            from_pose: false,
+            channels: [0.0; MAX_CHANNELS],
+            tips: [DVec3::NAN; MAX_EFFECTORS],
         }
+    }
+}
+
+/// Effector positions at the present angles by forward kinematics of the skeleton: what the
+/// servos do put back into the source's pose (the joints no servo drives as the source had
+/// them), the watched bones' tips at the rig's scale.
+#[derive(Clone, Debug)]
+pub struct EffectorPose {
+    skeleton: Arc<Skeleton>,
+    rig: Rig,
+    watch: [Option<usize>; MAX_EFFECTORS],
+    metres_per_unit: f64,
+    channels: Box<[f64; MAX_CHANNELS]>,
+    pose: Box<Pose64>,
+}
+
+impl EffectorPose {
+    /// For the `watch`ed bones of `skeleton` driven through `rig`, `metres_per_unit` metres per
+    /// file unit.
+    #[must_use]
+    pub fn new(
+        skeleton: Arc<Skeleton>,
+        rig: Rig,
+        watch: [Option<usize>; MAX_EFFECTORS],
+        metres_per_unit: f64,
+    ) -> Self {
+        EffectorPose {
+            skeleton,
+            rig,
+            watch,
+            metres_per_unit,
+            channels: Box::new([0.0; MAX_CHANNELS]),
+            pose: Box::default(),
+        }
+    }
+
+    /// Fills a record's effectors (source and present, metres) when they are to come from the
+    /// pose. Allocates nothing.
+    pub fn fill(&mut self, r: &mut FidelityRecord) {
+        if !r.from_pose {
+            return;
+        }
+        let n = self.skeleton.channel_count();
+        self.rig.channels_from_angles(
+            &self.skeleton,
+            &r.present[..r.servos],
+            &r.channels[..n],
+            &mut self.channels[..n],
+        );
+        fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
+        let scale = self.metres_per_unit;
+        for ((e, w), s) in r.effectors.iter_mut().zip(self.watch).zip(r.tips) {
+            if let Some(b) = w {
+                *e = (s * scale, self.pose.tip[b] * scale);
+            }
+        }
+        r.from_pose = false;
     }
 }
 
@@ -315,18 +387,20 @@ pub struct FidelityWorker {
     pub dropped: u64,
 }
 
-/// Records the channel holds: a quarter second at 1 kHz (the worker takes one in a few µs).
+/// Records the channel holds (4.5 KB each): a quarter second at 1 kHz (the worker takes one in
+/// a few µs).
 const WORKER_QUEUE: usize = 256;
 
 /// How long the worker sleeps when it has taken every record.
 const WORKER_POLL: std::time::Duration = std::time::Duration::from_millis(4);
 
 impl FidelityWorker {
-    /// Starts the worker with `fidelity` as its accumulator.
+    /// Starts the worker with `fidelity` as its accumulator (and `pose` for records whose
+    /// effectors come from the skeleton's pose).
     ///
     /// # Errors
     /// When the thread cannot be started.
-    pub fn spawn(mut fidelity: Fidelity) -> std::io::Result<FidelityWorker> {
+    pub fn spawn(mut fidelity: Fidelity, mut pose: Option<EffectorPose>) -> std::io::Result<FidelityWorker> {
         let (tx, rx) = crossbeam_channel::bounded::<FidelityRecord>(WORKER_QUEUE);
         let handle = std::thread::Builder::new()
             .name("fidelity".into())
@@ -334,7 +408,12 @@ impl FidelityWorker {
                 // Polled, never waited on: a receiver blocked in the channel would have each
                 // tick's send wake it (a futex call, ~2 µs of the tick).
                 match rx.try_recv() {
-                    Ok(r) => fidelity.take(&r),
+                    Ok(mut r) => {
+                        if let Some(p) = &mut pose {
+                            p.fill(&mut r);
+                        }
+                        fidelity.take(&r);
+                    }
                     Err(TryRecvError::Empty) => std::thread::sleep(WORKER_POLL),
                     Err(TryRecvError::Disconnected) => break fidelity,
                 }
@@ -404,7 +483,7 @@ mod tests {
     fn gaps_keep_the_lag_and_the_worker_agrees() {
         let src = |t: f64| (t * 3.0).sin();
         let mut inline = Fidelity::new(1, 0.01);
-        let mut worker = FidelityWorker::spawn(Fidelity::new(1, 0.01)).unwrap();
+        let mut worker = FidelityWorker::spawn(Fidelity::new(1, 0.01), None).unwrap();
         let mut sent = 0;
         for i in 0..600u64 {
             // Every seventh tick and a run of ten are missing; a run of 80 starts the ring over.

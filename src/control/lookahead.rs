@@ -231,9 +231,20 @@ impl Default for LookaheadSettings {
 }
 
 /// The planner of a rig's servos.
+///
+/// Each servo's plan holds its first acceleration for one knot spacing (`ticks_per_knot`
+/// ticks): a loop faster than the knots replans each servo once a knot, the servos in turn (a
+/// share of them each tick), and between its replans a servo goes on at its plan's
+/// acceleration — what the plan itself would command over the first knot.
 #[derive(Debug)]
 pub struct Lookahead {
     window: Window,
+    ticks_per_knot: u64,
+    /// Ticks planned so far (the servos' turns), and the time of the last.
+    tick: u64,
+    last_now_ns: Option<u64>,
+    /// Whether servo `k` has a plan to go on with.
+    planned: Vec<bool>,
     plans: Vec<ServoPlan>,
     leads_ns: Vec<u64>,
     targets: Vec<f64>,
@@ -277,6 +288,10 @@ impl Lookahead {
         let n = rig.len();
         Lookahead {
             window,
+            ticks_per_knot: ticks_per_knot as u64,
+            tick: 0,
+            last_now_ns: None,
+            planned: vec![false; n],
             plans: rig
                 .servos
                 .iter()
@@ -338,8 +353,21 @@ impl Lookahead {
         // The previous goal's time: knots lie at t0 + (j+1)·h.
         let t0 = now_ns.saturating_sub(dt_ns);
         let knots = self.window.knots();
+        // Ticks in step (not after a skip or a restart): servos go on between their turns.
+        let in_step = self.last_now_ns.is_some_and(|t| now_ns == t + dt_ns);
+        if !in_step {
+            self.planned.fill(false);
+        }
+        self.last_now_ns = Some(now_ns);
+        self.tick = self.tick.wrapping_add(1);
         let mut placed: Option<u64> = None;
         for (k, servo) in rig.servos.iter().enumerate() {
+            let state = stage.state(k);
+            let turn = (self.tick + k as u64) % self.ticks_per_knot == 0;
+            if let (false, true, Some((x, v))) = (turn, self.planned[k], state) {
+                self.targets[k] = self.plans[k].go_on(x, v, dt);
+                continue;
+            }
             let lead = self.leads_ns[k];
             let tpr = servo.ticks_per_radian().abs().max(1e-12);
             let max_rate = if servo.max_velocity > 0.0 {
@@ -365,8 +393,9 @@ impl Lookahead {
                 }
                 self.reference[j] = servo.angle_to_ticks_exact(a);
             }
-            let (x0, v0) = stage.state(k).unwrap_or((self.reference[0], 0.0));
+            let (x0, v0) = state.unwrap_or((self.reference[0], 0.0));
             self.targets[k] = self.plans[k].plan(&self.window, x0, v0, &self.reference[..knots], dt);
+            self.planned[k] = state.is_some();
         }
         &self.targets
     }

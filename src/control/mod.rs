@@ -573,9 +573,8 @@ pub struct Controller {
     /// This tick's source angles (the input mapped through the rig) and the present angles.
     source_angles: Vec<f64>,
     present_angles: Vec<f64>,
-    /// The frame the present angles stand for, and its pose (effectors).
-    present_channels: Box<[f64; MAX_CHANNELS]>,
-    present_pose: Box<Pose64>,
+    /// Effectors at the present angles (skeleton rigs with a scale, without a worker).
+    effector_pose: Option<fidelity::EffectorPose>,
     servo_names: Vec<String>,
     /// Each tick's source angles with its deadline (ns), up to the capacity reserved by
     /// [`Controller::log_source`]; never grown in a tick.
@@ -638,6 +637,14 @@ impl Controller {
             .map(|(s, p)| s.ticks_to_angle(f64::from(*p)))
             .collect();
         let ease_ticks = (config.ease_in_s * config.rate_hz).round().max(0.0) as u64;
+        let effector_pose = (config.effector_metres_per_unit > 0.0).then(|| {
+            fidelity::EffectorPose::new(
+                Arc::clone(&skeleton),
+                rig.clone(),
+                watch,
+                config.effector_metres_per_unit,
+            )
+        });
         let mut stats = LoopStats::new(config.rate_hz);
         stats.allocations_in_tick = config.allocations.map(|_| 0);
         Controller {
@@ -657,13 +664,13 @@ impl Controller {
             fidelity_worker: config
                 .fidelity_worker
                 .then(|| {
-                    fidelity::FidelityWorker::spawn(fidelity::Fidelity::new(n, period_ns as f64 * 1e-9)).ok()
+                    let f = fidelity::Fidelity::new(n, period_ns as f64 * 1e-9);
+                    fidelity::FidelityWorker::spawn(f, effector_pose.clone()).ok()
                 })
                 .flatten(),
+            effector_pose,
             source_angles: vec![f64::NAN; n],
             present_angles: vec![f64::NAN; n],
-            present_channels: Box::new([0.0; MAX_CHANNELS]),
-            present_pose: Box::default(),
             servo_names: Vec::new(),
             source_log: Vec::new(),
             preview: Preview::new(8),
@@ -752,7 +759,6 @@ impl Controller {
     }
 
     fn record_fidelity(&mut self, tick: u64, sample: &SourceSample) {
-        let source_tips = &sample.tips;
         for ((p, s), t) in self
             .present_angles
             .iter_mut()
@@ -770,29 +776,21 @@ impl Controller {
             for ((e, s), p) in record.effectors.iter_mut().zip(sample.effectors).zip(present) {
                 *e = (s, p);
             }
-        } else if self.config.effector_metres_per_unit > 0.0 {
+        } else if self.effector_pose.is_some() {
+            // The forward kinematics of the present pose: by the worker when there is one.
             let n = self.skeleton.channel_count();
-            self.rig.channels_from_angles(
-                &self.skeleton,
-                &self.present_angles,
-                &sample.channels[..n],
-                &mut self.present_channels[..n],
-            );
-            fk64(
-                &self.skeleton,
-                &self.present_channels[..n],
-                &mut self.present_pose,
-            );
-            let scale = self.config.effector_metres_per_unit;
-            for ((e, w), s) in record.effectors.iter_mut().zip(self.watch).zip(source_tips) {
-                if let Some(b) = w {
-                    *e = (*s * scale, self.present_pose.tip[b] * scale);
-                }
-            }
+            record.channels[..n].copy_from_slice(&sample.channels[..n]);
+            record.tips = sample.tips;
+            record.from_pose = true;
         }
-        match &mut self.fidelity_worker {
-            Some(w) => w.send(record),
-            None => self.fidelity.take(&record),
+        match (&mut self.fidelity_worker, &mut self.effector_pose) {
+            (Some(w), _) => w.send(record),
+            (None, pose) => {
+                if let Some(p) = pose {
+                    p.fill(&mut record);
+                }
+                self.fidelity.take(&record);
+            }
         }
     }
 
