@@ -356,10 +356,24 @@ impl Follower {
         self.effectors.iter().map(|e| e.name.as_str())
     }
 
-    /// Solves every effector that has a target, in place on `channels`; returns the summed
-    /// residual count (unreachable effectors) and records residuals in `stats`.
-    fn solve(&mut self, skeleton: &Skeleton, channels: &mut [f64], pose: &mut Pose64, stats: &mut LoopStats) {
-        for (k, e) in self.effectors.iter_mut().enumerate() {
+    /// Solves the effectors in `which` that have a target, in place on `channels`, counting
+    /// unreachable ones and residuals in `stats`. An input's effectors may be solved a few at
+    /// a time, in order, on the same channels: the result is the same.
+    fn solve_some(
+        &mut self,
+        skeleton: &Skeleton,
+        channels: &mut [f64],
+        pose: &mut Pose64,
+        stats: &mut LoopStats,
+        which: std::ops::Range<usize>,
+    ) {
+        for (k, e) in self
+            .effectors
+            .iter_mut()
+            .enumerate()
+            .take(which.end)
+            .skip(which.start)
+        {
             let Some(t) = self.targets[k] else { continue };
             let residual = match &mut e.solver {
                 EffectorSolver::Limb(limb) => {
@@ -521,6 +535,27 @@ struct ReadContext {
     tick: u64,
 }
 
+/// An input taken and being solved (over one tick or several).
+#[derive(Clone, Copy, Debug)]
+struct Solving {
+    /// When its sample is due, ns.
+    due: u64,
+    clip_time: f64,
+    made_ns: u64,
+    /// The first effector not yet solved.
+    next_effector: usize,
+}
+
+/// What [`Controller::take_input`] found.
+enum Taken {
+    /// An input to solve.
+    Input(Solving),
+    /// One passed over (superseded or refused).
+    PassedOver,
+    /// None due.
+    Nothing,
+}
+
 /// What a read gave.
 struct Absorbed {
     ok: bool,
@@ -588,6 +623,8 @@ pub struct Controller {
     last_due: Option<u64>,
     /// When the ease-in began (the first tick with a source), ns.
     ease_start_ns: Option<u64>,
+    /// The input being solved, when its solve is spread over ticks.
+    solving: Option<Solving>,
 }
 
 impl std::fmt::Debug for Controller {
@@ -678,6 +715,7 @@ impl Controller {
             lookahead: None,
             last_due: None,
             ease_start_ns: None,
+            solving: None,
             angles,
             present: present.to_vec(),
             read_buf: vec![0; n],
@@ -896,15 +934,62 @@ impl Controller {
     /// the solve, forward kinematics, retargeting and the rig's angles — what a perfect rig
     /// would do at its time. An input already due by `due_now` with a newer one also due is
     /// passed over (only the newest counts). Ages are measured at `now`. Allocates nothing.
+    ///
+    /// Targets taken ahead of their time with no other input waiting are solved one effector a
+    /// tick (the same solves in the same order, so the same sample, a few ticks later but still
+    /// before it is due): a fast loop's ticks share the work of a slower input's solve. Live
+    /// inputs and inputs due within that time are solved whole.
     fn ingest(&mut self, due_now: u64, horizon: u64, now: u64, tick_dt: f64) {
         let n = self.skeleton.channel_count();
         for _ in 0..MAX_INGEST {
+            let mut p = match self.solving.take() {
+                Some(p) => p,
+                None => match self.take_input(due_now, horizon, now) {
+                    Taken::Input(p) => p,
+                    Taken::PassedOver => continue,
+                    Taken::Nothing => break,
+                },
+            };
+            if let Solve::Follow(f) = &mut self.solve {
+                // Steps: each effector, then the sample.
+                let count = f.effectors.len();
+                let left = (count + 1).saturating_sub(p.next_effector) as u64;
+                let spread =
+                    p.due > due_now + (left + 1) * self.period_ns && !self.input.next_is_due(horizon);
+                if p.next_effector < count {
+                    let end = if spread { p.next_effector + 1 } else { count };
+                    f.solve_some(
+                        &self.skeleton,
+                        &mut self.channels[..n],
+                        &mut self.pose,
+                        &mut self.stats,
+                        p.next_effector..end,
+                    );
+                    if spread && p.next_effector == 0 {
+                        self.stats.inputs_spread += 1;
+                    }
+                    p.next_effector = end;
+                    if spread {
+                        self.solving = Some(p);
+                        break;
+                    }
+                }
+            }
+            self.add_sample(p, tick_dt);
+        }
+    }
+
+    /// The next input due by `horizon`, checked and put in place (a frame's channels, the
+    /// follower's targets).
+    fn take_input(&mut self, due_now: u64, horizon: u64, now: u64) -> Taken {
+        let n = self.skeleton.channel_count();
+        {
             let Some(msg) = self.input.next_due(horizon) else {
-                break;
+                return Taken::Nothing;
             };
             if msg.due_ns <= due_now && self.input.next_is_due(due_now) {
                 self.input.superseded += 1;
-                continue;
+                return Taken::PassedOver;
             }
             let mut clip_time = f64::NAN;
             let ok = match (&msg.payload, &mut self.solve) {
@@ -935,7 +1020,7 @@ impl Controller {
             };
             if !ok {
                 self.stats.inputs_rejected += 1;
-                continue;
+                return Taken::PassedOver;
             }
             self.stats.inputs_used += 1;
             self.stats
@@ -947,19 +1032,31 @@ impl Controller {
             } else {
                 msg.due_ns
             };
-            if let Solve::Follow(f) = &mut self.solve {
-                f.solve(
-                    &self.skeleton,
-                    &mut self.channels[..n],
-                    &mut self.pose,
-                    &mut self.stats,
-                );
-            }
+            Taken::Input(Solving {
+                due,
+                clip_time,
+                made_ns: msg.made_ns,
+                next_effector: 0,
+            })
+        }
+    }
+
+    /// The solved (or played) pose of the input `p` as a source sample in the preview: its
+    /// forward kinematics, retargeting and the rig's angles.
+    fn add_sample(&mut self, p: Solving, tick_dt: f64) {
+        let n = self.skeleton.channel_count();
+        let Solving {
+            due,
+            clip_time,
+            made_ns,
+            ..
+        } = p;
+        {
             fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
             let mut sample = SourceSample {
                 due_ns: due,
                 clip_time,
-                made_ns: msg.made_ns,
+                made_ns,
                 ..SourceSample::default()
             };
             sample.channels[..n].copy_from_slice(&self.channels[..n]);
@@ -987,7 +1084,7 @@ impl Controller {
             if self.angles.iter().any(|a| !a.is_finite()) {
                 // Refused as a whole: the servos go on with the samples they have.
                 self.stats.commands_refused += 1;
-                continue;
+                return;
             }
             let len = self.angles.len();
             sample.angles[..len].copy_from_slice(&self.angles);

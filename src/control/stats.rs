@@ -232,6 +232,8 @@ pub struct LoopStats {
     pub reads_ok: u64,
     /// Inputs taken (distinct messages used).
     pub inputs_used: u64,
+    /// Inputs taken ahead whose solve was spread over several ticks.
+    pub inputs_spread: u64,
     /// Ticks without a new input (the last one used again).
     pub inputs_stale: u64,
     /// Inputs refused (non-finite values, wrong size, unsolvable).
@@ -362,6 +364,7 @@ impl LoopStats {
             commands_sent: self.commands_sent,
             reads_ok: self.reads_ok,
             inputs_used: self.inputs_used,
+            inputs_spread: self.inputs_spread,
             inputs_stale: self.inputs_stale,
             inputs_rejected: self.inputs_rejected,
             commands_refused: self.commands_refused,
@@ -426,6 +429,8 @@ pub struct Report {
     pub reads_ok: u64,
     /// Inputs used.
     pub inputs_used: u64,
+    /// Inputs whose solve was spread over several ticks.
+    pub inputs_spread: u64,
     /// Ticks without a new input.
     pub inputs_stale: u64,
     /// Inputs refused.
@@ -547,8 +552,8 @@ impl fmt::Display for LoopStats {
         )?;
         writeln!(
             f,
-            "inputs used     {}  stale ticks {}  rejected {}",
-            self.inputs_used, self.inputs_stale, self.inputs_rejected
+            "inputs used     {}  stale ticks {}  rejected {}  solved over several ticks {}",
+            self.inputs_used, self.inputs_stale, self.inputs_rejected, self.inputs_spread
         )?;
         if self.ik_error_n > 0 {
             writeln!(
