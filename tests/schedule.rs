@@ -17,7 +17,10 @@ impl Clock for FakeClock {
         self.now
     }
     fn wait_until(&mut self, deadline_ns: u64) {
-        self.now = self.now.max(deadline_ns) + self.rng.below(self.max_late_ns + 1);
+        // Late by up to `max_late_ns` after a wait (none when the deadline has passed).
+        if deadline_ns > self.now {
+            self.now = deadline_ns + self.rng.below(self.max_late_ns + 1);
+        }
     }
 }
 

@@ -6,7 +6,9 @@
 pub trait Clock {
     /// Now.
     fn now_ns(&mut self) -> u64;
-    /// Blocks until `deadline` or later (a fake clock jumps there).
+    /// Blocks until `deadline` or later (a fake clock jumps there); returns at once when it
+    /// has passed. [`Schedule::wait`] calls it for every tick, a late one too, so a clock that
+    /// does work at each deadline (feeding inputs in lockstep) sees every tick.
     fn wait_until(&mut self, deadline_ns: u64);
 }
 
@@ -76,9 +78,7 @@ impl Schedule {
             skipped = behind;
         }
         let deadline = self.deadline(k);
-        if now < deadline {
-            clock.wait_until(deadline);
-        }
+        clock.wait_until(deadline);
         let woke = clock.now_ns();
         self.next = k + 1;
         Tick {
