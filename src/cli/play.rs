@@ -438,6 +438,8 @@ fn run_sim(
         bus.with(|t| format!("time step {} ms", t.plant().world().timestep() * 1e3)),
         present.len()
     )?;
+    // The simulated bus keeps line time: a rate it cannot carry runs late (in simulated time).
+    warn_if_over_budget(args, &profile.bus, present.len(), out)?;
     bus.with(|t| t.plant_mut().record(true));
     // In lockstep the physics (and its recorder) runs inside the bus calls of each tick, so a
     // count would be the simulator's; the loop's own ticks are counted on the other buses.
