@@ -114,6 +114,16 @@ impl Preview {
         self.current.and_then(|c| self.samples.get(c))
     }
 
+    /// The sample due at `due_ns`, searched from the oldest kept (the current one is at most
+    /// two from the front).
+    #[must_use]
+    pub fn find(&self, due_ns: u64) -> Option<&SourceSample> {
+        self.samples
+            .iter()
+            .take_while(|s| s.due_ns <= due_ns)
+            .find(|s| s.due_ns == due_ns)
+    }
+
     /// Whether samples after the current one wait.
     #[must_use]
     pub fn has_future(&self) -> bool {

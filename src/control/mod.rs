@@ -520,8 +520,8 @@ impl RetargetStage {
 /// replies are taken).
 #[derive(Clone, Copy)]
 struct ReadContext {
-    /// The tick's source sample (the fidelity's reference).
-    sample: SourceSample,
+    /// Due time of the tick's source sample (the fidelity's reference, in the preview).
+    sample_due: u64,
     /// Whether the tick held its last command.
     holding: bool,
     /// The goals it wrote.
@@ -778,7 +778,7 @@ impl Controller {
                     found.tracking = (sq / len.max(1) as f64).sqrt();
                 }
                 if context.record {
-                    self.record_fidelity(context.tick, &context.sample);
+                    self.record_fidelity(context.tick, context.sample_due);
                 }
                 (found, None)
             }
@@ -796,7 +796,7 @@ impl Controller {
         }
     }
 
-    fn record_fidelity(&mut self, tick: u64, sample: &SourceSample) {
+    fn record_fidelity(&mut self, tick: u64, sample_due: u64) {
         for ((p, s), t) in self
             .present_angles
             .iter_mut()
@@ -805,6 +805,11 @@ impl Controller {
         {
             *p = s.ticks_to_angle(f64::from(*t));
         }
+        // The tick's sample is still in the preview (current, or just behind it); not after a
+        // restart, which nothing is compared across.
+        let Some(sample) = self.preview.find(sample_due) else {
+            return;
+        };
         let n = self.present_angles.len();
         let mut record = fidelity::FidelityRecord::new(tick, n);
         record.source[..n].copy_from_slice(&sample.angles[..n]);
@@ -1147,12 +1152,17 @@ impl Controller {
         } else if self.have_input {
             self.stats.inputs_stale += 1;
         }
-        let current = self.preview.current().copied().unwrap_or_default();
+        // This tick's sample stays in the preview: only what the tick reads is copied.
+        let (current_due, current_made, tips, clip_time) = self
+            .preview
+            .current()
+            .map_or((0, 0, [DVec3::NAN; 4], f64::NAN), |c| {
+                (c.due_ns, c.made_ns, c.tips, c.clip_time)
+            });
         if let (true, Some(r)) = (fresh, &mut self.retarget) {
-            r.report_until(current.due_ns);
+            r.report_until(current_due);
         }
-        let tips = current.tips;
-        self.clip_time = current.clip_time;
+        self.clip_time = clip_time;
         let t_encode = clock.now_ns();
         self.stats.stage_mut(Stage::Solve).record(t_encode - t_solve);
 
@@ -1165,7 +1175,10 @@ impl Controller {
             goals[..len].copy_from_slice(self.stage.last());
         } else if self.have_input {
             // What a perfect rig would do this tick: the fidelity's reference.
-            self.source_angles.copy_from_slice(&current.angles[..len]);
+            match self.preview.current() {
+                Some(c) => self.source_angles.copy_from_slice(&c.angles[..len]),
+                None => self.source_angles.fill(f64::NAN),
+            }
             if self.source_log.len() < self.source_log.capacity() {
                 let mut a = [f64::NAN; MAX_SERVOS];
                 a[..len].copy_from_slice(&self.source_angles[..len]);
@@ -1185,7 +1198,7 @@ impl Controller {
                 let targets = la.targets(&self.rig, &self.stage, &self.preview, tick.deadline_ns, dt, ease);
                 self.stage.command_planned(&self.rig, targets, dt)
             } else {
-                self.angles.copy_from_slice(&current.angles[..len]);
+                self.angles.copy_from_slice(&self.source_angles);
                 if self.eased <= self.ease_ticks && self.ease_ticks > 0 {
                     // Ease in: blend from where the servos stood (smoothstep weight).
                     let t = self.eased as f64 / self.ease_ticks as f64;
@@ -1228,9 +1241,9 @@ impl Controller {
         // Bus read: used only when every reply passed every check. Pipelined, the request
         // goes out now and the replies are taken at the start of the next tick.
         // Not in a pre-roll (negative clip times; targets have none).
-        let pre_roll = current.clip_time < 0.0;
+        let pre_roll = clip_time < 0.0;
         let mut context = ReadContext {
-            sample: current,
+            sample_due: current_due,
             holding,
             goals,
             tracked: None,
@@ -1313,7 +1326,7 @@ impl Controller {
                 view.present_rad[k] = s.ticks_to_angle(f64::from(*p));
             }
             if written.is_ok() && self.have_input && !holding {
-                view.record_carried(current.made_ns, t_write);
+                view.record_carried(current_made, t_write);
             }
         }
         if let Some(tx) = &self.telemetry {
