@@ -1056,4 +1056,6 @@ fn targets_taken_ahead_are_solved_over_ticks_with_the_same_result() {
         "{compared} of {} ticks compared",
         at_once.len()
     );
+    // Both end on the same last sample, at the same tick.
+    assert_eq!(sliced.last().map(|(d, _)| *d), at_once.last().map(|(d, _)| *d));
 }

@@ -1350,7 +1350,12 @@ impl Controller {
         if let (Some(f), Some(before)) = (self.config.allocations, allocs) {
             *self.stats.allocations_in_tick.get_or_insert(0) += f().saturating_sub(before);
         }
-        if end.is_none() && self.input.finished() && !fresh && !self.preview.has_future() {
+        if end.is_none()
+            && self.input.finished()
+            && !fresh
+            && !self.preview.has_future()
+            && self.solving.is_none()
+        {
             end = Some(RunEnd::InputEnded);
         }
         end
