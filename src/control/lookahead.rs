@@ -58,10 +58,6 @@ impl Default for SourceSample {
 #[derive(Debug)]
 pub struct Preview {
     samples: VecDeque<SourceSample>,
-    /// The samples' due times and angles again, densely: the planner reads them for every
-    /// knot of every servo it plans (a sample is 4.3 KB; these are 8 and 512 bytes).
-    dues: VecDeque<u64>,
-    angles: VecDeque<[f64; MAX_SERVOS]>,
     capacity: usize,
     /// Index of the current sample, when there is one.
     current: Option<usize>,
@@ -80,8 +76,6 @@ impl Preview {
         let capacity = capacity.max(HISTORY + 2);
         Preview {
             samples: VecDeque::with_capacity(capacity),
-            dues: VecDeque::with_capacity(capacity),
-            angles: VecDeque::with_capacity(capacity),
             capacity,
             current: None,
             live: true,
@@ -96,25 +90,19 @@ impl Preview {
         }
         if self.samples.len() == self.capacity {
             self.samples.pop_front();
-            self.dues.pop_front();
-            self.angles.pop_front();
             self.current = self.current.and_then(|c| c.checked_sub(1));
         }
-        self.dues.push_back(sample.due_ns);
-        self.angles.push_back(sample.angles);
         self.samples.push_back(sample);
     }
 
     /// Makes the newest sample due by `due_by` current; returns whether it is a new one.
     /// Samples older than the history are let go.
     pub fn advance(&mut self, due_by: u64) -> bool {
-        let newest_due = self.dues.iter().rposition(|&d| d <= due_by);
+        let newest_due = self.samples.iter().rposition(|s| s.due_ns <= due_by);
         let fresh = newest_due.is_some() && newest_due != self.current;
         if let Some(c) = newest_due {
             let drop = c.saturating_sub(HISTORY);
             self.samples.drain(..drop);
-            self.dues.drain(..drop);
-            self.angles.drain(..drop);
             self.current = Some(c - drop);
         }
         fresh
@@ -130,12 +118,10 @@ impl Preview {
     /// two from the front).
     #[must_use]
     pub fn find(&self, due_ns: u64) -> Option<&SourceSample> {
-        let i = self
-            .dues
+        self.samples
             .iter()
-            .take_while(|&&d| d <= due_ns)
-            .position(|&d| d == due_ns)?;
-        self.samples.get(i)
+            .take_while(|s| s.due_ns <= due_ns)
+            .find(|s| s.due_ns == due_ns)
     }
 
     /// Whether samples after the current one wait.
@@ -147,8 +133,6 @@ impl Preview {
     /// Forgets everything (a restart).
     pub fn clear(&mut self) {
         self.samples.clear();
-        self.dues.clear();
-        self.angles.clear();
         self.current = None;
     }
 
@@ -170,52 +154,57 @@ impl Preview {
     /// Where `t_ns` falls, searching forward from sample `cursor` (updated) — for times in
     /// increasing order.
     fn locate(&self, t_ns: u64, cursor: &mut usize) -> Place {
-        let n = self.dues.len();
-        let Some(&last) = self.dues.back() else {
+        let n = self.samples.len();
+        let Some(last) = self.samples.back() else {
             return Place::Empty;
         };
-        if t_ns >= last {
-            return Place::Past(t_ns - last);
+        if t_ns >= last.due_ns {
+            return Place::Past(t_ns - last.due_ns);
         }
         // The first sample at or after t.
         let mut i = (*cursor).min(n - 1);
-        if i > 0 && self.dues[i - 1] >= t_ns {
-            i = self.dues.partition_point(|&d| d < t_ns);
+        if i > 0 && self.samples[i - 1].due_ns >= t_ns {
+            i = self.samples.partition_point(|s| s.due_ns < t_ns);
         }
-        while self.dues[i] < t_ns {
+        while self.samples[i].due_ns < t_ns {
             i += 1;
         }
         *cursor = i;
         if i == 0 {
             return Place::Between(0, 0.0);
         }
-        let (a, b) = (self.dues[i - 1], self.dues[i]);
-        Place::Between(i - 1, (t_ns - a) as f64 / (b - a).max(1) as f64)
+        let (a, b) = (&self.samples[i - 1], &self.samples[i]);
+        Place::Between(
+            i - 1,
+            (t_ns - a.due_ns) as f64 / (b.due_ns - a.due_ns).max(1) as f64,
+        )
     }
 
     /// Servo `k`'s angle at `place` ([`Preview::angle_at`]).
     fn angle(&self, k: usize, place: Place, extrapolate_ns: u64, max_rate: f64) -> f64 {
-        let n = self.dues.len();
+        let n = self.samples.len();
         match place {
             Place::Empty => f64::NAN,
             Place::Between(i, f) => {
-                let a = self.angles[i][k];
+                let a = self.samples[i].angles[k];
                 if f == 0.0 {
                     a
                 } else {
-                    a + f * (self.angles[i + 1][k] - a)
+                    a + f * (self.samples[i + 1].angles[k] - a)
                 }
             }
             Place::Past(beyond) => {
-                let a = self.angles[n - 1][k];
+                let last = &self.samples[n - 1];
+                let a = last.angles[k];
                 if extrapolate_ns == 0 || n < 2 {
                     return a;
                 }
-                let span = self.dues[n - 1].saturating_sub(self.dues[n - 2]);
+                let before = &self.samples[n - 2];
+                let span = last.due_ns.saturating_sub(before.due_ns);
                 if span == 0 {
                     return a;
                 }
-                let rate = ((a - self.angles[n - 2][k]) / (span as f64 * 1e-9)).clamp(-max_rate, max_rate);
+                let rate = ((a - before.angles[k]) / (span as f64 * 1e-9)).clamp(-max_rate, max_rate);
                 a + rate * beyond.min(extrapolate_ns) as f64 * 1e-9
             }
         }
