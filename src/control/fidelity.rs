@@ -282,10 +282,18 @@ pub struct FidelityRecord {
     pub present: [f64; MAX_SERVOS],
     /// Effector positions at the source and at the present angles, metres (NaN: none).
     pub effectors: [(DVec3, DVec3); MAX_EFFECTORS],
-    /// Whether the effectors are still to be found from the skeleton's pose: the source's
-    /// channels and tips are below, the present pose is the channels with the present angles
-    /// put back ([`EffectorPose`]).
-    pub from_pose: bool,
+    /// The number of the source pose whose effectors are still to be found
+    /// ([`EffectorPose::fill`]): the worker has had the pose itself as a [`SourcePose`].
+    pub pose: Option<u64>,
+}
+
+/// A source sample's pose for the effectors at the present angles: sent to a
+/// [`FidelityWorker`] once per sample (4.3 KB), not with every tick's record.
+#[derive(Clone, Copy, Debug)]
+pub struct SourcePose {
+    /// Its number: poses are numbered in the order they are sent, and records refer to them
+    /// by it.
+    pub seq: u64,
     /// The source's channels (the skeleton's first ones).
     pub channels: [f64; MAX_CHANNELS],
     /// The source's watched tips, file units.
@@ -302,9 +310,7 @@ impl FidelityRecord {
             source: [f64::NAN; MAX_SERVOS],
             present: [f64::NAN; MAX_SERVOS],
             effectors: [(DVec3::NAN, DVec3::NAN); MAX_EFFECTORS],
-            from_pose: false,
-            channels: [0.0; MAX_CHANNELS],
-            tips: [DVec3::NAN; MAX_EFFECTORS],
+            pose: None,
         }
     }
 }
@@ -342,27 +348,26 @@ impl EffectorPose {
         }
     }
 
-    /// Fills a record's effectors (source and present, metres) when they are to come from the
-    /// pose. Allocates nothing.
-    pub fn fill(&mut self, r: &mut FidelityRecord) {
-        if !r.from_pose {
+    /// Fills a record's effectors (source and present, metres) from `source`, the pose it
+    /// refers to (left NaN when it refers to another). Allocates nothing.
+    pub fn fill(&mut self, r: &mut FidelityRecord, source: &SourcePose) {
+        if r.pose.take() != Some(source.seq) {
             return;
         }
         let n = self.skeleton.channel_count();
         self.rig.channels_from_angles(
             &self.skeleton,
             &r.present[..r.servos],
-            &r.channels[..n],
+            &source.channels[..n],
             &mut self.channels[..n],
         );
         fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
         let scale = self.metres_per_unit;
-        for ((e, w), s) in r.effectors.iter_mut().zip(self.watch).zip(r.tips) {
+        for ((e, w), s) in r.effectors.iter_mut().zip(self.watch).zip(source.tips) {
             if let Some(b) = w {
                 *e = (s * scale, self.pose.tip[b] * scale);
             }
         }
-        r.from_pose = false;
     }
 }
 
@@ -382,14 +387,18 @@ impl Fidelity {
 #[derive(Debug)]
 pub struct FidelityWorker {
     tx: Option<Sender<FidelityRecord>>,
+    poses: Option<Sender<SourcePose>>,
     handle: Option<JoinHandle<Fidelity>>,
     /// Records dropped because the channel was full.
     pub dropped: u64,
 }
 
-/// Records the channel holds (4.5 KB each): a quarter second at 1 kHz (the worker takes one in
+/// Records the channel holds (1.3 KB each): a quarter second at 1 kHz (the worker takes one in
 /// a few µs).
 const WORKER_QUEUE: usize = 256;
+
+/// Source poses the channel holds (4.3 KB each; one a sample).
+const POSE_QUEUE: usize = 64;
 
 /// How long the worker sleeps when it has taken every record.
 const WORKER_POLL: std::time::Duration = std::time::Duration::from_millis(4);
@@ -402,27 +411,47 @@ impl FidelityWorker {
     /// When the thread cannot be started.
     pub fn spawn(mut fidelity: Fidelity, mut pose: Option<EffectorPose>) -> std::io::Result<FidelityWorker> {
         let (tx, rx) = crossbeam_channel::bounded::<FidelityRecord>(WORKER_QUEUE);
+        let (pose_tx, pose_rx) = crossbeam_channel::bounded::<SourcePose>(POSE_QUEUE);
         let handle = std::thread::Builder::new()
             .name("fidelity".into())
-            .spawn(move || loop {
-                // Polled, never waited on: a receiver blocked in the channel would have each
-                // tick's send wake it (a futex call, ~2 µs of the tick).
-                match rx.try_recv() {
-                    Ok(mut r) => {
-                        if let Some(p) = &mut pose {
-                            p.fill(&mut r);
+            .spawn(move || {
+                let mut source: Option<Box<SourcePose>> = None;
+                loop {
+                    // Polled, never waited on: a receiver blocked in the channel would have each
+                    // tick's send wake it (a futex call, ~2 µs of the tick).
+                    match rx.try_recv() {
+                        Ok(mut r) => {
+                            if let (Some(p), Some(seq)) = (&mut pose, r.pose) {
+                                // A record's pose was sent before it, the poses in order.
+                                while source.as_ref().is_none_or(|s| s.seq < seq) {
+                                    match pose_rx.try_recv() {
+                                        Ok(s) => **source.get_or_insert_with(|| Box::new(s)) = s,
+                                        Err(_) => break,
+                                    }
+                                }
+                                if let Some(s) = &source {
+                                    p.fill(&mut r, s);
+                                }
+                            }
+                            fidelity.take(&r);
                         }
-                        fidelity.take(&r);
+                        Err(TryRecvError::Empty) => std::thread::sleep(WORKER_POLL),
+                        Err(TryRecvError::Disconnected) => break fidelity,
                     }
-                    Err(TryRecvError::Empty) => std::thread::sleep(WORKER_POLL),
-                    Err(TryRecvError::Disconnected) => break fidelity,
                 }
             })?;
         Ok(FidelityWorker {
             tx: Some(tx),
+            poses: Some(pose_tx),
             handle: Some(handle),
             dropped: 0,
         })
+    }
+
+    /// Hands a source pose over without waiting (false when the channel is full: records
+    /// must not refer to it).
+    pub fn send_pose(&mut self, pose: &SourcePose) -> bool {
+        self.poses.as_ref().is_some_and(|tx| tx.try_send(*pose).is_ok())
     }
 
     /// Hands one record over without waiting.
@@ -444,6 +473,7 @@ impl FidelityWorker {
     /// when the worker died).
     pub fn finish(&mut self) -> Option<Fidelity> {
         self.tx = None;
+        self.poses = None;
         self.handle.take().and_then(|h| h.join().ok())
     }
 }
@@ -509,6 +539,73 @@ mod tests {
         let b = worker.finish().unwrap().report(&["a".into()]);
         assert_eq!(worker.dropped, 0);
         assert_eq!(a, b);
+    }
+
+    /// The effectors at the present angles: the worker, given each pose once, finds what the
+    /// tick finds with the pose at hand; a record whose pose never came has no effectors.
+    #[test]
+    fn the_worker_finds_the_effectors_from_poses_sent_once() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let skel = Arc::new(
+            crate::formats::asf::load(&root.join("data/cmu/16.asf"))
+                .unwrap()
+                .skeleton,
+        );
+        let profile = crate::profile::Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
+        let rig = profile.rig(Some(&skel)).unwrap();
+        let watch = ["lradius", "rradius", "ltibia", "rtibia"].map(|n| skel.find(n));
+        let n = rig.len();
+        let pose = EffectorPose::new(Arc::clone(&skel), rig.clone(), watch, 0.0254);
+        let mut inline_pose = pose.clone();
+        let mut inline = Fidelity::new(n, 0.001);
+        let mut worker = FidelityWorker::spawn(Fidelity::new(n, 0.001), Some(pose)).unwrap();
+        let mut fk = Pose64::default();
+        let mut source = SourcePose {
+            seq: 0,
+            channels: [0.0; MAX_CHANNELS],
+            tips: [DVec3::NAN; MAX_EFFECTORS],
+        };
+        let mut angles = vec![0.0; n];
+        for tick in 0..400u64 {
+            // A new sample every eight ticks; the present lags the source by a little.
+            let sample = tick / 8;
+            let c = skel.channel_count();
+            for (i, ch) in source.channels[..c].iter_mut().enumerate() {
+                *ch = 0.3 * ((sample as f64) * 0.05 + i as f64).sin();
+            }
+            source.seq = sample;
+            fk64(&skel, &source.channels[..c], &mut fk);
+            for (t, w) in source.tips.iter_mut().zip(watch) {
+                *t = fk.tip[w.unwrap()];
+            }
+            rig.joint_angles(&skel, &source.channels[..c], &[], &mut angles);
+            let mut r = FidelityRecord::new(tick, n);
+            r.source[..n].copy_from_slice(&angles);
+            for (p, a) in r.present[..n].iter_mut().zip(&angles) {
+                *p = a - 0.01;
+            }
+            // Sample 20's pose could not be sent: its records have no effectors.
+            if sample != 20 {
+                r.pose = Some(source.seq);
+            }
+            if tick % 8 == 0 && sample != 20 {
+                while worker.queued() > WORKER_QUEUE / 2 {
+                    std::thread::yield_now();
+                }
+                assert!(worker.send_pose(&source));
+            }
+            let mut mine = r;
+            inline_pose.fill(&mut mine, &source);
+            inline.take(&mine);
+            worker.send(r);
+        }
+        let a = inline.report(&[]);
+        let b = worker.finish().unwrap().report(&[]);
+        assert_eq!(worker.dropped, 0);
+        assert_eq!(a, b);
+        assert!(a.effector_rms_mm.unwrap() > 0.1, "{a:?}");
+        // Eight records without effectors, four effectors each.
+        assert_eq!(inline.effector_count, (400 - 8) * 4);
     }
 
     /// A present that runs two ticks ahead of the source: a negative lag.

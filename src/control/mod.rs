@@ -36,7 +36,7 @@ use glam::DVec3;
 
 use crate::bus::{BusError, ServoBus};
 use crate::command::CommandStage;
-use crate::fk::{fk64, Pose64};
+use crate::fk::{ancestors, fk64, fk64_bones, Pose64};
 use crate::ik::{point_bone, Limb, Swivel};
 use crate::ik_numeric::{Constraint, Settings, Solver};
 use crate::retarget::{Floor, Options, ReportBuilder, RetargetFrame, RetargetReport, Retargeter, Setup};
@@ -582,6 +582,9 @@ pub struct Controller {
     have_previous: bool,
     pose: Box<Pose64>,
     watch: [Option<usize>; 4],
+    /// The watched bones and their ancestors, parents first: the bones a sample's forward
+    /// kinematics needs when nothing else reads the pose.
+    watched_chains: heapless::Vec<usize, MAX_BONES>,
     input: InputPort,
     solve: Solve,
     telemetry: Option<Sender<Telemetry>>,
@@ -610,6 +613,8 @@ pub struct Controller {
     present_angles: Vec<f64>,
     /// Effectors at the present angles (skeleton rigs with a scale, without a worker).
     effector_pose: Option<fidelity::EffectorPose>,
+    /// The due time and number of the last source pose the worker was given.
+    pose_sent: (Option<u64>, u64),
     servo_names: Vec<String>,
     /// Each tick's source angles with its deadline (ns), up to the capacity reserved by
     /// [`Controller::log_source`]; never grown in a tick.
@@ -664,6 +669,14 @@ impl Controller {
         for (w, n) in watch.iter_mut().zip(names) {
             *w = skeleton.find(n);
         }
+        let mut on_chain = [false; MAX_BONES];
+        for b in watch.iter().flatten() {
+            for a in ancestors(&skeleton, *b) {
+                on_chain[a] = true;
+            }
+        }
+        // Bones are stored parents first, so ascending indices are a valid FK order.
+        let watched_chains = (0..skeleton.bones().len()).filter(|&b| on_chain[b]).collect();
         let n = rig.len();
         let period_ns = (1e9 / config.rate_hz).round().max(1.0) as u64;
         // The joint angles of the present positions: the reference for Euler re-decomposition.
@@ -706,6 +719,7 @@ impl Controller {
                 })
                 .flatten(),
             effector_pose,
+            pose_sent: (None, 0),
             source_angles: vec![f64::NAN; n],
             present_angles: vec![f64::NAN; n],
             servo_names: Vec::new(),
@@ -724,6 +738,7 @@ impl Controller {
             have_previous: false,
             pose: Box::default(),
             watch,
+            watched_chains,
             input,
             solve,
             telemetry: None,
@@ -819,21 +834,39 @@ impl Controller {
             for ((e, s), p) in record.effectors.iter_mut().zip(sample.effectors).zip(present) {
                 *e = (s, p);
             }
-        } else if self.effector_pose.is_some() {
-            // The forward kinematics of the present pose: by the worker when there is one.
-            let n = self.skeleton.channel_count();
-            record.channels[..n].copy_from_slice(&sample.channels[..n]);
-            record.tips = sample.tips;
-            record.from_pose = true;
-        }
-        match (&mut self.fidelity_worker, &mut self.effector_pose) {
-            (Some(w), _) => w.send(record),
-            (None, pose) => {
-                if let Some(p) = pose {
-                    p.fill(&mut record);
+        } else if let Some(pose) = &mut self.effector_pose {
+            // The forward kinematics of the present pose: by the worker when there is one,
+            // which is given each sample's pose once.
+            let (sent_due, seq) = self.pose_sent;
+            let source = |seq| {
+                let mut s = fidelity::SourcePose {
+                    seq,
+                    channels: [0.0; MAX_CHANNELS],
+                    tips: sample.tips,
+                };
+                let c = self.skeleton.channel_count();
+                s.channels[..c].copy_from_slice(&sample.channels[..c]);
+                s
+            };
+            match &mut self.fidelity_worker {
+                Some(w) => {
+                    if sent_due != Some(sample.due_ns) && w.send_pose(&source(seq + 1)) {
+                        self.pose_sent = (Some(sample.due_ns), seq + 1);
+                    }
+                    // (Not sent: no effectors this tick.)
+                    if self.pose_sent.0 == Some(sample.due_ns) {
+                        record.pose = Some(self.pose_sent.1);
+                    }
                 }
-                self.fidelity.take(&record);
+                None => {
+                    record.pose = Some(0);
+                    pose.fill(&mut record, &source(0));
+                }
             }
+        }
+        match &mut self.fidelity_worker {
+            Some(w) => w.send(record),
+            None => self.fidelity.take(&record),
         }
     }
 
@@ -1057,7 +1090,17 @@ impl Controller {
             ..
         } = p;
         {
-            fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
+            // The retargeting reads the whole pose; otherwise only the watched tips are used.
+            if self.retarget.is_some() {
+                fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
+            } else {
+                fk64_bones(
+                    &self.skeleton,
+                    &self.channels[..n],
+                    &mut self.pose,
+                    &self.watched_chains,
+                );
+            }
             let mut sample = SourceSample {
                 due_ns: due,
                 clip_time,
