@@ -1,0 +1,241 @@
+//! The firmware image (`firmware-profile/image`, thumbv7em-none-eabihf) in QEMU's MPS2 AN386
+//! (a Cortex-M4): the bundled walk as clip frames and as four-limb targets, every goal it
+//! writes compared with this (host) build of the same core functions on the same input.
+//!
+//! Input file (`firmware-in.bin`, little-endian): `MRNT`, rate (f64), ticks (u32), mode (u8:
+//! 0 frames, 1 targets), 3 bytes of padding; then per tick the frame's channels (f64 each,
+//! radians and file units) or four targets (x, y, z f64 each, root frame, effectors
+//! lradius, rradius, ltibia, rtibia). Output (`firmware-out.bin`) per tick: SysTick counts of
+//! the tick (u32; 40 instructions a count under `-icount shift=0`), the worst limb residual
+//! (f64, file units), the Sync Write's length (u32) and bytes.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use glam::DVec3;
+use marionette::command::CommandStage;
+use marionette::fk::{fk64, Pose64};
+use marionette::formats::{amc, asf};
+use marionette::ik::{Limb, Swivel};
+use marionette::profile::Profile;
+use marionette::protocol::{decode, instruction};
+use marionette::rig::ServoMap;
+
+const EFFECTORS: [&str; 4] = ["lradius", "rradius", "ltibia", "rtibia"];
+const SWIVEL_WINDOW: f64 = 40.0 * std::f64::consts::PI / 180.0;
+const RATE_HZ: f64 = 120.0;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Builds the image (cargo, for the Cortex-M target) and returns its path.
+fn image() -> PathBuf {
+    let target_dir = root().join("target/firmware-image");
+    // From its directory, so that its `.cargo/config.toml` (target, linker script) applies.
+    let status = Command::new(env!("CARGO"))
+        .args(["build", "--release", "--target-dir"])
+        .arg(&target_dir)
+        .current_dir(root().join("firmware-profile/image"))
+        .status()
+        .expect("cargo runs");
+    assert!(status.success(), "the firmware image builds");
+    target_dir.join("thumbv7em-none-eabihf/release/marionette-firmware-image")
+}
+
+/// What one run of the image wrote: per tick the SysTick counts, the residual and the goals.
+struct Run {
+    counts: Vec<u32>,
+    residuals: Vec<f64>,
+    goals: Vec<Vec<(u8, i32)>>,
+}
+
+fn run_in_qemu(image: &Path, input: &[u8], name: &str) -> Run {
+    let dir = root().join("target/firmware-image/runs").join(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("firmware-in.bin"), input).unwrap();
+    let _ = std::fs::remove_file(dir.join("firmware-out.bin"));
+    let out = Command::new("qemu-system-arm")
+        .args([
+            "-M",
+            "mps2-an386",
+            "-nographic",
+            "-monitor",
+            "none",
+            "-serial",
+            "none",
+        ])
+        .args([
+            "-semihosting-config",
+            "enable=on,target=native",
+            "-icount",
+            "shift=0",
+        ])
+        .arg("-kernel")
+        .arg(image)
+        .current_dir(&dir)
+        .output()
+        .expect("qemu-system-arm runs (Debian: apt-get install qemu-system-arm; .ci/run installs it)");
+    assert!(
+        out.status.success(),
+        "the image exits with success: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bytes = std::fs::read(dir.join("firmware-out.bin")).unwrap();
+    let mut run = Run {
+        counts: Vec::new(),
+        residuals: Vec::new(),
+        goals: Vec::new(),
+    };
+    let mut at = 0;
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    while at < bytes.len() {
+        run.counts.push(u32_at(at));
+        run.residuals
+            .push(f64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()));
+        let len = u32_at(at + 12) as usize;
+        let packet = &bytes[at + 16..at + 16 + len];
+        let mut params = [0u8; 1024];
+        let (p, used) = decode(packet, &mut params).unwrap();
+        assert_eq!((used, p.instruction), (len, instruction::SYNC_WRITE));
+        assert_eq!(&p.params[..4], &[116, 0, 4, 0], "Goal Position, 4 bytes");
+        run.goals.push(
+            p.params[4..]
+                .chunks(5)
+                .map(|c| (c[0], i32::from_le_bytes(c[1..5].try_into().unwrap())))
+                .collect(),
+        );
+        at += 16 + len;
+    }
+    run
+}
+
+fn header(ticks: usize, targets: bool) -> Vec<u8> {
+    let mut h = b"MRNT".to_vec();
+    h.extend_from_slice(&RATE_HZ.to_le_bytes());
+    h.extend_from_slice(&(ticks as u32).to_le_bytes());
+    h.extend_from_slice(&[u8::from(targets), 0, 0, 0]);
+    h
+}
+
+#[test]
+fn the_image_in_qemu_writes_the_host_builds_goals() {
+    let skel = asf::load(&root().join("data/cmu/16.asf")).unwrap().skeleton;
+    let motion = amc::load(&skel, &root().join("data/cmu/16_15.amc")).unwrap();
+    let profile = Profile::load(&root().join("firmware-profile/cmu-puppet.toml")).unwrap();
+    let rig = profile.rig(Some(&skel)).unwrap();
+    let ids = profile.ids();
+    let n = skel.channel_count();
+    let frames: Vec<Vec<f64>> = (0..motion.len())
+        .map(|f| marionette::motion::frame_to_radians(&skel, motion.frame(f)))
+        .collect();
+    let image = image();
+    let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
+    let dt = 1.0 / RATE_HZ;
+
+    // Clip frames: mapping and command stage.
+    let mut input = header(frames.len(), false);
+    for f in &frames {
+        for c in &f[..n] {
+            input.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    let run = run_in_qemu(&image, &input, "frames");
+    assert_eq!(run.goals.len(), frames.len());
+    let mut stage = CommandStage::new(rig.len());
+    stage.start_from(&rig, &rest);
+    let mut angles = vec![0.0; rig.len()];
+    for (f, got) in frames.iter().zip(&run.goals) {
+        rig.joint_angles(&skel, &f[..n], &[], &mut angles);
+        let _ = stage.command(&rig, &angles, dt);
+        let want: Vec<(u8, i32)> = ids.iter().copied().zip(stage.last().iter().copied()).collect();
+        assert_eq!(got, &want);
+    }
+    let frame_counts = run.counts.clone();
+
+    // Four-limb targets: the walk's wrists and ankles in the root's frame.
+    let limbs: Vec<usize> = EFFECTORS.iter().map(|e| skel.find(e).unwrap()).collect();
+    let mut pose = Pose64::default();
+    let targets: Vec<[DVec3; 4]> = frames
+        .iter()
+        .map(|f| {
+            let mut c = f.clone();
+            c[..skel.root().order.len()].fill(0.0);
+            fk64(&skel, &c, &mut pose);
+            [0, 1, 2, 3].map(|k| pose.tip[limbs[k]])
+        })
+        .collect();
+    let mut input = header(targets.len(), true);
+    for t in &targets {
+        for v in t {
+            for x in [v.x, v.y, v.z] {
+                input.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+    }
+    let run = run_in_qemu(&image, &input, "targets");
+    assert_eq!(run.goals.len(), targets.len());
+    let mut solvers: Vec<(Limb, Option<f64>)> = limbs
+        .iter()
+        .map(|&l| {
+            (
+                Limb::new(&skel, skel.bones()[l].parent().unwrap(), l, None).unwrap(),
+                None,
+            )
+        })
+        .collect();
+    let mut channels = vec![0.0; n];
+    let mut stage = CommandStage::new(rig.len());
+    stage.start_from(&rig, &rest);
+    let mut worst_gap: f64 = 0.0;
+    let mut residuals = Vec::new();
+    for (k, (t, got)) in targets.iter().zip(&run.goals).enumerate() {
+        for ((limb, swivel), target) in solvers.iter_mut().zip(t) {
+            let search = match *swivel {
+                Some(previous) => Swivel::Track {
+                    previous,
+                    window: SWIVEL_WINDOW,
+                },
+                None => Swivel::Auto { previous: None },
+            };
+            *swivel = Some(limb.solve(&skel, &mut channels, *target, search).swivel);
+        }
+        rig.joint_angles(&skel, &channels, &[], &mut angles);
+        let _ = stage.command(&rig, &angles, dt);
+        let want: Vec<(u8, i32)> = ids.iter().copied().zip(stage.last().iter().copied()).collect();
+        assert_eq!(got, &want, "tick {k}");
+        // The board's residual (forward kinematics down each limb) against the host's.
+        fk64(&skel, &channels, &mut pose);
+        let host = limbs
+            .iter()
+            .zip(t)
+            .map(|(&l, target)| (pose.tip[l] - *target).length())
+            .fold(0.0f64, f64::max);
+        worst_gap = worst_gap.max((host - run.residuals[k]).abs());
+        residuals.push(run.residuals[k]);
+    }
+    assert!(
+        worst_gap < 1e-9,
+        "the board's residuals are the host's: {worst_gap}"
+    );
+    // (Not zero: some of the capture's wrist and ankle positions lie outside what the ASF's
+    // joint limits let a limb reach — the same on the host.)
+    residuals.sort_by(f64::total_cmp);
+
+    let summary = |c: &[u32]| {
+        let mut v: Vec<u64> = c.iter().map(|&x| u64::from(x) * 40).collect();
+        v.sort_unstable();
+        (v[v.len() / 2], v[v.len() * 99 / 100], v[v.len() - 1])
+    };
+    let (f50, f99, fmax) = summary(&frame_counts);
+    let (t50, t99, tmax) = summary(&run.counts);
+    println!(
+        "limb residual (file units): p50 {:.1e}, max {:.3}",
+        residuals[residuals.len() / 2],
+        residuals[residuals.len() - 1]
+    );
+    println!(
+        "instructions per tick (QEMU -icount): frames p50 {f50} p99 {f99} max {fmax}; \
+         four-limb targets p50 {t50} p99 {t99} max {tmax}"
+    );
+}
