@@ -43,6 +43,46 @@ fn image() -> PathBuf {
     target_dir.join("thumbv7em-none-eabihf/release/marionette-firmware-image")
 }
 
+/// The image's footprint from its ELF section headers: (flash, static RAM, per section).
+fn footprint(elf: &[u8]) -> (u64, u64, Vec<(String, u64)>) {
+    let u16_at = |at: usize| u64::from(u16::from_le_bytes([elf[at], elf[at + 1]]));
+    let u32_at = |at: usize| u64::from(u32::from_le_bytes(elf[at..at + 4].try_into().unwrap()));
+    assert_eq!(&elf[..5], b"\x7fELF\x01", "a 32-bit ELF");
+    let (shoff, shentsize, shnum, shstrndx) = (
+        u32_at(0x20) as usize,
+        u16_at(0x2e) as usize,
+        u16_at(0x30),
+        u16_at(0x32),
+    );
+    let header = |i: u64| shoff + i as usize * shentsize;
+    let strtab = u32_at(header(shstrndx) + 0x10) as usize;
+    let (mut flash, mut ram, mut sections) = (0, 0, Vec::new());
+    for i in 0..shnum {
+        let h = header(i);
+        let (name_at, kind, flags, size) =
+            (u32_at(h) as usize, u32_at(h + 4), u32_at(h + 8), u32_at(h + 0x14));
+        let name: String = elf[strtab + name_at..]
+            .iter()
+            .take_while(|&&b| b != 0)
+            .map(|&b| b as char)
+            .collect();
+        // Allocated sections only: flash holds what has contents (code, read-only data and the
+        // initial values of .data), RAM what is writable (.data and .bss).
+        if flags & 2 == 0 || size == 0 {
+            continue;
+        }
+        let (write, nobits) = (flags & 1 != 0, kind == 8);
+        if !nobits {
+            flash += size;
+        }
+        if write {
+            ram += size;
+        }
+        sections.push((name, size));
+    }
+    (flash, ram, sections)
+}
+
 /// What one run of the image wrote: per tick the SysTick counts, the residual and the goals.
 struct Run {
     counts: Vec<u32>,
@@ -130,6 +170,8 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
         .map(|f| marionette::motion::frame_to_radians(&skel, motion.frame(f)))
         .collect();
     let image = image();
+    let (flash, ram, sections) = footprint(&std::fs::read(&image).unwrap());
+    println!("image: flash {flash} bytes, static RAM {ram} bytes; sections {sections:?}");
     let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     let dt = 1.0 / RATE_HZ;
 
