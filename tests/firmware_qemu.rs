@@ -6,8 +6,9 @@
 //! 0 frames, 1 targets), 3 bytes of padding; then per tick the frame's channels (f64 each,
 //! radians and file units) or four targets (x, y, z f64 each, root frame, effectors
 //! lradius, rradius, ltibia, rtibia). Output (`firmware-out.bin`) per tick: SysTick counts of
-//! the tick (u32; 40 instructions a count under `-icount shift=0`), the worst limb residual
-//! (f64, file units), the Sync Write's length (u32) and bytes.
+//! the solve, the mapping, the command stage and the encoding (u32 each; 40 instructions a
+//! count under `-icount shift=0`), the worst limb residual (f64, file units), the Sync Write's
+//! length (u32) and bytes; at the end `u32::MAX` and the stack's deepest use (u32, bytes).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -83,28 +84,22 @@ fn footprint(elf: &[u8]) -> (u64, u64, Vec<(String, u64)>) {
     (flash, ram, sections)
 }
 
-/// What one run of the image wrote: per tick the SysTick counts, the residual and the goals.
+/// What one run of the image wrote: per tick the SysTick counts of its stages (solve, mapping,
+/// command stage, encoding), the worst limb residual and the goals; the stack's deepest use.
 struct Run {
-    counts: Vec<u32>,
+    counts: Vec<[u32; 4]>,
     residuals: Vec<f64>,
     goals: Vec<Vec<(u8, i32)>>,
+    stack_bytes: u32,
 }
 
-fn run_in_qemu(image: &Path, input: &[u8], name: &str) -> Run {
+fn run_in_qemu(image: &Path, machine: &str, input: &[u8], name: &str) -> Run {
     let dir = root().join("target/firmware-image/runs").join(name);
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("firmware-in.bin"), input).unwrap();
     let _ = std::fs::remove_file(dir.join("firmware-out.bin"));
     let out = Command::new("qemu-system-arm")
-        .args([
-            "-M",
-            "mps2-an386",
-            "-nographic",
-            "-monitor",
-            "none",
-            "-serial",
-            "none",
-        ])
+        .args(["-M", machine, "-nographic", "-monitor", "none", "-serial", "none"])
         .args([
             "-semihosting-config",
             "enable=on,target=native",
@@ -126,15 +121,21 @@ fn run_in_qemu(image: &Path, input: &[u8], name: &str) -> Run {
         counts: Vec::new(),
         residuals: Vec::new(),
         goals: Vec::new(),
+        stack_bytes: 0,
     };
     let mut at = 0;
     let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
-    while at < bytes.len() {
-        run.counts.push(u32_at(at));
+    loop {
+        if u32_at(at) == u32::MAX {
+            run.stack_bytes = u32_at(at + 4);
+            assert_eq!(at + 8, bytes.len(), "the end marker ends the output");
+            break;
+        }
+        run.counts.push([0, 1, 2, 3].map(|k| u32_at(at + 4 * k)));
         run.residuals
-            .push(f64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()));
-        let len = u32_at(at + 12) as usize;
-        let packet = &bytes[at + 16..at + 16 + len];
+            .push(f64::from_le_bytes(bytes[at + 16..at + 24].try_into().unwrap()));
+        let len = u32_at(at + 24) as usize;
+        let packet = &bytes[at + 28..at + 28 + len];
         let mut params = [0u8; 1024];
         let (p, used) = decode(packet, &mut params).unwrap();
         assert_eq!((used, p.instruction), (len, instruction::SYNC_WRITE));
@@ -145,9 +146,35 @@ fn run_in_qemu(image: &Path, input: &[u8], name: &str) -> Run {
                 .map(|c| (c[0], i32::from_le_bytes(c[1..5].try_into().unwrap())))
                 .collect(),
         );
-        at += 16 + len;
+        at += 28 + len;
     }
     run
+}
+
+/// Instructions (40 a SysTick count) per tick: p50, p99 and max of the whole tick, and the
+/// p50 of each stage.
+fn instructions(run: &Run) -> String {
+    let pct = |mut v: Vec<u64>, q: usize| {
+        v.sort_unstable();
+        v[(v.len() * q / 100).min(v.len() - 1)]
+    };
+    let total: Vec<u64> = run
+        .counts
+        .iter()
+        .map(|c| c.iter().map(|&x| u64::from(x) * 40).sum())
+        .collect();
+    let stage = |k: usize| pct(run.counts.iter().map(|c| u64::from(c[k]) * 40).collect(), 50);
+    format!(
+        "p50 {} p99 {} max {} (p50 of solve {}, mapping {}, command {}, Sync Write {}); stack {} bytes",
+        pct(total.clone(), 50),
+        pct(total.clone(), 99),
+        pct(total, 100),
+        stage(0),
+        stage(1),
+        stage(2),
+        stage(3),
+        run.stack_bytes
+    )
 }
 
 fn header(ticks: usize, targets: bool) -> Vec<u8> {
@@ -182,7 +209,7 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
             input.extend_from_slice(&c.to_le_bytes());
         }
     }
-    let run = run_in_qemu(&image, &input, "frames");
+    let run = run_in_qemu(&image, "mps2-an386", &input, "frames");
     assert_eq!(run.goals.len(), frames.len());
     let mut stage = CommandStage::new(rig.len());
     stage.start_from(&rig, &rest);
@@ -193,7 +220,7 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
         let want: Vec<(u8, i32)> = ids.iter().copied().zip(stage.last().iter().copied()).collect();
         assert_eq!(got, &want);
     }
-    let frame_counts = run.counts.clone();
+    let frames_run = instructions(&run);
 
     // Four-limb targets: the walk's wrists and ankles in the root's frame.
     let limbs: Vec<usize> = EFFECTORS.iter().map(|e| skel.find(e).unwrap()).collect();
@@ -215,7 +242,7 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
             }
         }
     }
-    let run = run_in_qemu(&image, &input, "targets");
+    let run = run_in_qemu(&image, "mps2-an386", &input, "targets");
     assert_eq!(run.goals.len(), targets.len());
     let mut solvers: Vec<(Limb, Option<f64>)> = limbs
         .iter()
@@ -263,21 +290,14 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
     // (Not zero: some of the capture's wrist and ankle positions lie outside what the ASF's
     // joint limits let a limb reach — the same on the host.)
     residuals.sort_by(f64::total_cmp);
-
-    let summary = |c: &[u32]| {
-        let mut v: Vec<u64> = c.iter().map(|&x| u64::from(x) * 40).collect();
-        v.sort_unstable();
-        (v[v.len() / 2], v[v.len() * 99 / 100], v[v.len() - 1])
-    };
-    let (f50, f99, fmax) = summary(&frame_counts);
-    let (t50, t99, tmax) = summary(&run.counts);
     println!(
         "limb residual (file units): p50 {:.1e}, max {:.3}",
         residuals[residuals.len() / 2],
         residuals[residuals.len() - 1]
     );
+    println!("instructions per tick (QEMU -icount), frames: {frames_run}");
     println!(
-        "instructions per tick (QEMU -icount): frames p50 {f50} p99 {f99} max {fmax}; \
-         four-limb targets p50 {t50} p99 {t99} max {tmax}"
+        "instructions per tick (QEMU -icount), four-limb targets: {}",
+        instructions(&run)
     );
 }

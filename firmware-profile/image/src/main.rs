@@ -11,6 +11,7 @@
 //! servo's torque off, then stops.
 #![no_std]
 #![no_main]
+#![deny(unsafe_code)]
 
 use core::panic::PanicInfo;
 
@@ -26,6 +27,7 @@ use marionette_core::servo::addr;
 use marionette_core::skeleton::MAX_CHANNELS;
 
 mod host;
+mod stack;
 
 #[allow(clippy::all, missing_docs)]
 mod data {
@@ -56,6 +58,9 @@ const SWIVEL_WINDOW: f64 = 40.0 * core::f64::consts::PI / 180.0;
 /// doubled for byte stuffing.
 const MAX_PACKET: usize = 2 * (14 + 5 * MAX_SERVOS);
 
+/// Written before the torque-off packet when the image panics.
+const PANICKED: u32 = 0xFFFF_FFFE;
+
 /// The input's header: what follows and at what rate.
 struct Header {
     targets: bool,
@@ -75,6 +80,7 @@ fn main() -> ! {
 }
 
 fn run() -> Result<(), ()> {
+    let stack = stack::paint();
     let skeleton = &data::SKELETON;
     let rig = &data::RIG;
     let n = skeleton.channel_count();
@@ -95,80 +101,95 @@ fn run() -> Result<(), ()> {
     core.SYST.clear_current();
     core.SYST.enable_counter();
 
-    let mut limbs: heapless::Vec<(Limb, Option<f64>), 4> = heapless::Vec::new();
+    // The tick's state in statics (counted in .bss), dimensioned for MAX_SERVOS servos and
+    // MAX_CHANNELS channels (64 bones).
+    let state = cortex_m::singleton!(: State = State {
+        limbs: heapless::Vec::new(),
+        stage: CommandStage::new(0),
+        channels: [0.0; MAX_CHANNELS],
+        angles: [0.0; MAX_SERVOS],
+        packet: [0; MAX_PACKET],
+    })
+    .ok_or(())?;
     if header.targets {
         for e in EFFECTORS {
             let lower = skeleton.find(e).ok_or(())?;
             let upper = skeleton.bones()[lower].parent().ok_or(())?;
             let limb = Limb::new(skeleton, upper, lower, None).map_err(|_| ())?;
-            limbs.push((limb, None)).map_err(|_| ())?;
+            state.limbs.push((limb, None)).map_err(|_| ())?;
         }
     }
     // The servos stand at their rest ticks (a board would read them first).
-    let mut stage = CommandStage::new(servos);
+    state.stage = CommandStage::new(servos);
     let mut rest = [0i32; MAX_SERVOS];
     for (r, s) in rest.iter_mut().zip(&rig.servos) {
         *r = s.rest_tick();
     }
-    stage.start_from(rig, &rest[..servos]);
-    let mut channels = [0.0f64; MAX_CHANNELS];
-    let mut angles = [0.0f64; MAX_SERVOS];
-    let mut record = [0u8; 8 * MAX_CHANNELS];
-    let mut packet = [0u8; MAX_PACKET];
+    state.stage.start_from(rig, &rest[..servos]);
     for _ in 0..header.ticks {
         // One tick's input: the frame's channels, or the limbs' targets (root frame).
-        let want = if header.targets {
-            8 * 3 * limbs.len()
-        } else {
-            8 * n
-        };
-        input.read_exact(&mut record[..want])?;
-        let start = SYST::get_current();
         let mut targets = [DVec3::ZERO; 4];
         if header.targets {
-            for (k, t) in targets.iter_mut().enumerate().take(limbs.len()) {
-                let v = |i: usize| f64_at(&record, 24 * k + 8 * i);
-                *t = DVec3::new(v(0), v(1), v(2));
+            for t in targets.iter_mut().take(state.limbs.len()) {
+                let mut v = [0.0; 3];
+                read_f64s(&mut input, &mut v)?;
+                *t = DVec3::from_array(v);
             }
         } else {
-            for (i, c) in channels[..n].iter_mut().enumerate() {
-                *c = f64_at(&record, 8 * i);
-            }
+            read_f64s(&mut input, &mut state.channels[..n])?;
         }
-        let goals = tick(
-            &mut limbs,
-            &targets,
-            &mut channels[..n],
-            &mut angles[..servos],
-            &mut stage,
-            dt,
-        );
-        let len = sync_write_goals(goals, &mut packet);
-        let end = SYST::get_current();
-        // SysTick counts down.
-        let counts = start.wrapping_sub(end) & 0x00FF_FFFF;
-        // Per tick: the counts, the residual of the worst limb (µ file units), the packet.
-        let residual = worst_residual(&limbs, &targets, &channels[..n]);
-        output.write_all(&counts.to_le_bytes())?;
+        let mut stamps = [0u32; 5];
+        stamps[0] = SYST::get_current();
+        solve(&mut state.limbs, &targets, &mut state.channels[..n]);
+        stamps[1] = SYST::get_current();
+        rig.joint_angles(skeleton, &state.channels[..n], &[], &mut state.angles[..servos]);
+        stamps[2] = SYST::get_current();
+        // Refused (an angle not finite): the last command stands.
+        let _ = state.stage.command(rig, &state.angles[..servos], dt);
+        stamps[3] = SYST::get_current();
+        let len = sync_write_goals(state.stage.last(), &mut state.packet);
+        stamps[4] = SYST::get_current();
+        // Per tick: SysTick counts of the solve, the mapping, the command stage and the
+        // encoding (it counts down), the worst limb's residual, the packet.
+        for w in stamps.windows(2) {
+            output.write_all(&(w[0].wrapping_sub(w[1]) & 0x00FF_FFFF).to_le_bytes())?;
+        }
+        let residual = worst_residual(&state.limbs, &targets, &state.channels[..n]);
         output.write_all(&residual.to_le_bytes())?;
         output.write_all(&(len as u32).to_le_bytes())?;
-        output.write_all(&packet[..len])?;
+        output.write_all(&state.packet[..len])?;
+    }
+    // The end: the stack's deepest use, bytes (after a zero-length marker).
+    output.write_all(&u32::MAX.to_le_bytes())?;
+    output.write_all(&(stack::used(stack) as u32).to_le_bytes())?;
+    Ok(())
+}
+
+/// What the tick keeps between ticks.
+struct State {
+    limbs: heapless::Vec<(Limb, Option<f64>), 4>,
+    stage: CommandStage,
+    channels: [f64; MAX_CHANNELS],
+    angles: [f64; MAX_SERVOS],
+    packet: [u8; MAX_PACKET],
+}
+
+/// Reads little-endian f64s into `out`, a few at a time.
+fn read_f64s(input: &mut host::File, out: &mut [f64]) -> Result<(), ()> {
+    let mut buf = [0u8; 64];
+    for chunk in out.chunks_mut(8) {
+        let bytes = &mut buf[..8 * chunk.len()];
+        input.read_exact(bytes)?;
+        for (v, b) in chunk.iter_mut().zip(bytes.chunks_exact(8)) {
+            *v = f64_at(b, 0);
+        }
     }
     Ok(())
 }
 
-/// One tick: the limbs' IK (when there are targets; each swivel searched around the last),
-/// the rig's joint angles, the command stage. Returns the goals (ticks, rig order).
-fn tick<'a>(
-    limbs: &mut [(Limb, Option<f64>)],
-    targets: &[DVec3; 4],
-    channels: &mut [f64],
-    angles: &mut [f64],
-    stage: &'a mut CommandStage,
-    dt: f64,
-) -> &'a [i32] {
+/// The limbs' IK, each swivel searched around the last (the host loop's `Swivel::Track`).
+fn solve(limbs: &mut [(Limb, Option<f64>)], targets: &[DVec3; 4], channels: &mut [f64]) {
     let skeleton = &data::SKELETON;
-    let rig = &data::RIG;
     for ((limb, swivel), target) in limbs.iter_mut().zip(targets) {
         let search = match *swivel {
             Some(previous) => Swivel::Track {
@@ -180,10 +201,6 @@ fn tick<'a>(
         let s = limb.solve(skeleton, channels, *target, search);
         *swivel = Some(s.swivel);
     }
-    rig.joint_angles(skeleton, channels, &[], angles);
-    // Refused (an angle not finite): the last command stands.
-    let _ = stage.command(rig, angles, dt);
-    stage.last()
 }
 
 /// The largest distance of a limb's tip from its target after the solve (forward kinematics
@@ -276,7 +293,7 @@ fn panic(_: &PanicInfo) -> ! {
     let mut packet = [0u8; 2 * (14 + 2 * MAX_SERVOS)];
     let len = torque_off(&mut packet);
     if let Ok(mut out) = host::File::open("firmware-out.bin\0", host::APPEND) {
-        let _ = out.write_all(&u32::MAX.to_le_bytes());
+        let _ = out.write_all(&PANICKED.to_le_bytes());
         let _ = out.write_all(&(len as u32).to_le_bytes());
         let _ = out.write_all(&packet[..len]);
     }
