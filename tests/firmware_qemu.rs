@@ -13,7 +13,6 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use glam::DVec3;
 use marionette::command::CommandStage;
 use marionette::fk::{fk64, Pose64};
 use marionette::formats::{amc, asf};
@@ -30,17 +29,31 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// Builds the image (cargo, for the Cortex-M target) and returns its path.
-fn image() -> PathBuf {
-    let target_dir = root().join("target/firmware-image");
+/// Builds the image (cargo, for the Cortex-M target) and returns its path: for the Cortex-M4
+/// (single-precision FPU: the core's f64 maths in software), or with `cpu` for another core
+/// (`cortex-m7`: a double-precision FPU, as on STM32F76x/H7 or i.MX RT).
+fn image(cpu: Option<&str>) -> PathBuf {
+    let target_dir = root().join(match cpu {
+        None => "target/firmware-image".to_string(),
+        Some(c) => format!("target/firmware-image-{c}"),
+    });
     // From its directory, so that its `.cargo/config.toml` (target, linker script) applies.
-    let status = Command::new(env!("CARGO"))
+    let mut cargo = Command::new(env!("CARGO"));
+    cargo
         .args(["build", "--release", "--target-dir"])
         .arg(&target_dir)
-        .current_dir(root().join("firmware-profile/image"))
-        .status()
-        .expect("cargo runs");
-    assert!(status.success(), "the firmware image builds");
+        .current_dir(root().join("firmware-profile/image"));
+    if let Some(c) = cpu {
+        cargo.env(
+            // (Added to the config's flags.)
+            "CARGO_TARGET_THUMBV7EM_NONE_EABIHF_RUSTFLAGS",
+            format!("-C target-cpu={c}"),
+        );
+    }
+    assert!(
+        cargo.status().expect("cargo runs").success(),
+        "the firmware image builds"
+    );
     target_dir.join("thumbv7em-none-eabihf/release/marionette-firmware-image")
 }
 
@@ -185,8 +198,17 @@ fn header(ticks: usize, targets: bool) -> Vec<u8> {
     h
 }
 
-#[test]
-fn the_image_in_qemu_writes_the_host_builds_goals() {
+/// The host build's goals for the walk, as frames and as four-limb targets, and the inputs.
+struct Reference {
+    frames_input: Vec<u8>,
+    frames_goals: Vec<Vec<(u8, i32)>>,
+    targets_input: Vec<u8>,
+    targets_goals: Vec<Vec<(u8, i32)>>,
+    /// The worst limb residual of each targets tick (forward kinematics of the whole pose).
+    residuals: Vec<f64>,
+}
+
+fn reference() -> Reference {
     let skel = asf::load(&root().join("data/cmu/16.asf")).unwrap().skeleton;
     let motion = amc::load(&skel, &root().join("data/cmu/16_15.amc")).unwrap();
     let profile = Profile::load(&root().join("firmware-profile/cmu-puppet.toml")).unwrap();
@@ -196,54 +218,29 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
     let frames: Vec<Vec<f64>> = (0..motion.len())
         .map(|f| marionette::motion::frame_to_radians(&skel, motion.frame(f)))
         .collect();
-    let image = image();
-    let (flash, ram, sections) = footprint(&std::fs::read(&image).unwrap());
-    println!("image: flash {flash} bytes, static RAM {ram} bytes; sections {sections:?}");
     let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     let dt = 1.0 / RATE_HZ;
+    let named =
+        |goals: &[i32]| -> Vec<(u8, i32)> { ids.iter().copied().zip(goals.iter().copied()).collect() };
 
     // Clip frames: mapping and command stage.
-    let mut input = header(frames.len(), false);
-    for f in &frames {
-        for c in &f[..n] {
-            input.extend_from_slice(&c.to_le_bytes());
-        }
-    }
-    let run = run_in_qemu(&image, "mps2-an386", &input, "frames");
-    assert_eq!(run.goals.len(), frames.len());
+    let mut frames_input = header(frames.len(), false);
+    let mut frames_goals = Vec::new();
     let mut stage = CommandStage::new(rig.len());
     stage.start_from(&rig, &rest);
     let mut angles = vec![0.0; rig.len()];
-    for (f, got) in frames.iter().zip(&run.goals) {
+    for f in &frames {
+        for c in &f[..n] {
+            frames_input.extend_from_slice(&c.to_le_bytes());
+        }
         rig.joint_angles(&skel, &f[..n], &[], &mut angles);
         let _ = stage.command(&rig, &angles, dt);
-        let want: Vec<(u8, i32)> = ids.iter().copied().zip(stage.last().iter().copied()).collect();
-        assert_eq!(got, &want);
+        frames_goals.push(named(stage.last()));
     }
-    let frames_run = instructions(&run);
 
-    // Four-limb targets: the walk's wrists and ankles in the root's frame.
+    // Four-limb targets: the walk's wrists and ankles in the root's frame, solved as the
+    // host loop solves them (each swivel searched around the last).
     let limbs: Vec<usize> = EFFECTORS.iter().map(|e| skel.find(e).unwrap()).collect();
-    let mut pose = Pose64::default();
-    let targets: Vec<[DVec3; 4]> = frames
-        .iter()
-        .map(|f| {
-            let mut c = f.clone();
-            c[..skel.root().order.len()].fill(0.0);
-            fk64(&skel, &c, &mut pose);
-            [0, 1, 2, 3].map(|k| pose.tip[limbs[k]])
-        })
-        .collect();
-    let mut input = header(targets.len(), true);
-    for t in &targets {
-        for v in t {
-            for x in [v.x, v.y, v.z] {
-                input.extend_from_slice(&x.to_le_bytes());
-            }
-        }
-    }
-    let run = run_in_qemu(&image, "mps2-an386", &input, "targets");
-    assert_eq!(run.goals.len(), targets.len());
     let mut solvers: Vec<(Limb, Option<f64>)> = limbs
         .iter()
         .map(|&l| {
@@ -253,13 +250,23 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
             )
         })
         .collect();
+    let mut pose = Pose64::default();
     let mut channels = vec![0.0; n];
     let mut stage = CommandStage::new(rig.len());
     stage.start_from(&rig, &rest);
-    let mut worst_gap: f64 = 0.0;
-    let mut residuals = Vec::new();
-    for (k, (t, got)) in targets.iter().zip(&run.goals).enumerate() {
-        for ((limb, swivel), target) in solvers.iter_mut().zip(t) {
+    let mut targets_input = header(frames.len(), true);
+    let (mut targets_goals, mut residuals) = (Vec::new(), Vec::new());
+    for f in &frames {
+        let mut c = f.clone();
+        c[..skel.root().order.len()].fill(0.0);
+        fk64(&skel, &c, &mut pose);
+        let targets = [0, 1, 2, 3].map(|k| pose.tip[limbs[k]]);
+        for v in &targets {
+            for x in [v.x, v.y, v.z] {
+                targets_input.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        for ((limb, swivel), target) in solvers.iter_mut().zip(&targets) {
             let search = match *swivel {
                 Some(previous) => Swivel::Track {
                     previous,
@@ -271,33 +278,75 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
         }
         rig.joint_angles(&skel, &channels, &[], &mut angles);
         let _ = stage.command(&rig, &angles, dt);
-        let want: Vec<(u8, i32)> = ids.iter().copied().zip(stage.last().iter().copied()).collect();
-        assert_eq!(got, &want, "tick {k}");
-        // The board's residual (forward kinematics down each limb) against the host's.
+        targets_goals.push(named(stage.last()));
         fk64(&skel, &channels, &mut pose);
-        let host = limbs
-            .iter()
-            .zip(t)
-            .map(|(&l, target)| (pose.tip[l] - *target).length())
-            .fold(0.0f64, f64::max);
-        worst_gap = worst_gap.max((host - run.residuals[k]).abs());
-        residuals.push(run.residuals[k]);
+        residuals.push(
+            limbs
+                .iter()
+                .zip(&targets)
+                .map(|(&l, target)| (pose.tip[l] - *target).length())
+                .fold(0.0f64, f64::max),
+        );
     }
-    assert!(
-        worst_gap < 1e-9,
-        "the board's residuals are the host's: {worst_gap}"
-    );
-    // (Not zero: some of the capture's wrist and ankle positions lie outside what the ASF's
-    // joint limits let a limb reach — the same on the host.)
-    residuals.sort_by(f64::total_cmp);
+    Reference {
+        frames_input,
+        frames_goals,
+        targets_input,
+        targets_goals,
+        residuals,
+    }
+}
+
+/// Runs an image on both inputs and checks every goal and residual against the host's.
+fn check(image: &Path, machine: &str, r: &Reference) {
+    let (flash, ram, sections) = footprint(&std::fs::read(image).unwrap());
+    println!("{machine}: flash {flash} bytes, static RAM {ram} bytes; sections {sections:?}");
+    let run = run_in_qemu(image, machine, &r.frames_input, &format!("{machine}-frames"));
+    assert_eq!(run.goals.len(), r.frames_goals.len());
+    for (k, (got, want)) in run.goals.iter().zip(&r.frames_goals).enumerate() {
+        assert_eq!(got, want, "{machine}, frame {k}");
+    }
     println!(
-        "limb residual (file units): p50 {:.1e}, max {:.3}",
-        residuals[residuals.len() / 2],
-        residuals[residuals.len() - 1]
-    );
-    println!("instructions per tick (QEMU -icount), frames: {frames_run}");
-    println!(
-        "instructions per tick (QEMU -icount), four-limb targets: {}",
+        "{machine}: instructions per tick (QEMU -icount), frames: {}",
         instructions(&run)
     );
+
+    let run = run_in_qemu(image, machine, &r.targets_input, &format!("{machine}-targets"));
+    assert_eq!(run.goals.len(), r.targets_goals.len());
+    for (k, (got, want)) in run.goals.iter().zip(&r.targets_goals).enumerate() {
+        assert_eq!(got, want, "{machine}, targets tick {k}");
+    }
+    // The board's residuals (forward kinematics down each limb) are the host's. (Not zero:
+    // some of the capture's wrist and ankle positions lie outside what the ASF's joint limits
+    // let a limb reach.)
+    let gap = run
+        .residuals
+        .iter()
+        .zip(&r.residuals)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f64, f64::max);
+    assert!(
+        gap < 1e-9,
+        "{machine}: the board's residuals are the host's: {gap}"
+    );
+    let mut sorted = run.residuals.clone();
+    sorted.sort_by(f64::total_cmp);
+    println!(
+        "{machine}: limb residual (file units) p50 {:.1e}, max {:.3}",
+        sorted[sorted.len() / 2],
+        sorted[sorted.len() - 1]
+    );
+    println!(
+        "{machine}: instructions per tick (QEMU -icount), four-limb targets: {}",
+        instructions(&run)
+    );
+}
+
+#[test]
+fn the_image_in_qemu_writes_the_host_builds_goals() {
+    let r = reference();
+    // The Cortex-M4 (MPS2 AN386): f64 in software.
+    check(&image(None), "mps2-an386", &r);
+    // A Cortex-M7 with a double-precision FPU (MPS2 AN500).
+    check(&image(Some("cortex-m7")), "mps2-an500", &r);
 }
