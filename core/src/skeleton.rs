@@ -17,8 +17,92 @@ pub const MAX_CHANNELS: usize = MAX_BONES * MAX_BONE_DOFS;
 /// Longest bone name, in bytes.
 pub const MAX_NAME_LEN: usize = 48;
 
-/// A bone name.
-pub type BoneName = heapless::String<MAX_NAME_LEN>;
+/// A bone name: up to [`MAX_NAME_LEN`] bytes of UTF-8, in place (no heap), and buildable in a
+/// `const` (a skeleton compiled into a firmware image).
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+pub struct BoneName {
+    bytes: [u8; MAX_NAME_LEN],
+    len: u8,
+}
+
+impl BoneName {
+    /// The name `name`, `None` when it is longer than [`MAX_NAME_LEN`] bytes.
+    #[must_use]
+    pub const fn new(name: &str) -> Option<BoneName> {
+        let b = name.as_bytes();
+        if b.len() > MAX_NAME_LEN {
+            return None;
+        }
+        let mut bytes = [0u8; MAX_NAME_LEN];
+        let mut i = 0;
+        while i < b.len() {
+            bytes[i] = b[i];
+            i += 1;
+        }
+        Some(BoneName {
+            bytes,
+            len: b.len() as u8,
+        })
+    }
+
+    /// The name as text.
+    #[must_use]
+    pub fn as_str(&self) -> &str {
+        // Always whole UTF-8: only `new` fills the bytes, from a `str`, within the length.
+        core::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or("")
+    }
+}
+
+impl Default for BoneName {
+    fn default() -> Self {
+        BoneName {
+            bytes: [0; MAX_NAME_LEN],
+            len: 0,
+        }
+    }
+}
+
+impl TryFrom<&str> for BoneName {
+    type Error = NameTooLong;
+    fn try_from(name: &str) -> Result<Self, Self::Error> {
+        BoneName::new(name).ok_or(NameTooLong)
+    }
+}
+
+/// A bone name longer than [`MAX_NAME_LEN`] bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NameTooLong;
+
+impl core::ops::Deref for BoneName {
+    type Target = str;
+    fn deref(&self) -> &str {
+        self.as_str()
+    }
+}
+
+impl core::fmt::Debug for BoneName {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        core::fmt::Debug::fmt(self.as_str(), f)
+    }
+}
+
+impl core::fmt::Display for BoneName {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl PartialEq<str> for BoneName {
+    fn eq(&self, other: &str) -> bool {
+        self.as_str() == other
+    }
+}
+
+impl PartialEq<&str> for BoneName {
+    fn eq(&self, other: &&str) -> bool {
+        self.as_str() == *other
+    }
+}
 
 /// One degree of freedom (channel) of a bone.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -251,6 +335,31 @@ pub struct Bone {
 }
 
 impl Bone {
+    /// A bone from the parts a skeleton made by [`Skeleton::new`] holds (its accessors give
+    /// them): for a build step that writes a validated skeleton out as `const` data, such as
+    /// the firmware image's. Nothing is checked here.
+    #[must_use]
+    #[allow(clippy::too_many_arguments)]
+    pub const fn from_parts(
+        spec: BoneSpec,
+        parent: Option<usize>,
+        first_channel: usize,
+        axis_rotation: Mat3,
+        local_direction: Vec3,
+        axis_rotation_f64: DMat3,
+        direction_f64: DVec3,
+    ) -> Bone {
+        Bone {
+            spec,
+            parent,
+            first_channel,
+            axis_rotation,
+            local_direction,
+            axis_rotation_f64,
+            direction_f64,
+        }
+    }
+
     /// The bone's name.
     #[must_use]
     pub fn name(&self) -> &str {
@@ -535,6 +644,24 @@ impl Skeleton {
             units,
             channel_count: channel,
         })
+    }
+
+    /// A skeleton from the parts one made by [`Skeleton::new`] holds ([`Skeleton::bones`],
+    /// [`Skeleton::root`], [`Skeleton::units`], [`Skeleton::channel_count`]): for a build
+    /// step that writes a validated skeleton out as `const` data. Nothing is checked here.
+    #[must_use]
+    pub const fn from_parts(
+        bones: heapless::Vec<Bone, MAX_BONES>,
+        root: RootSpec,
+        units: Units,
+        channel_count: usize,
+    ) -> Skeleton {
+        Skeleton {
+            bones,
+            root,
+            units,
+            channel_count,
+        }
     }
 
     /// All bones, root first, parents before children.
