@@ -3,12 +3,13 @@
 //! writes compared with this (host) build of the same core functions on the same input.
 //!
 //! Input file (`firmware-in.bin`, little-endian): `MRNT`, rate (f64), ticks (u32), mode (u8:
-//! 0 frames, 1 targets), 3 bytes of padding; then per tick the frame's channels (f64 each,
+//! 0 frames, 1 targets, 2 frames and a panic after the first tick), 3 bytes of padding; then per tick the frame's channels (f64 each,
 //! radians and file units) or four targets (x, y, z f64 each, root frame, effectors
 //! lradius, rradius, ltibia, rtibia). Output (`firmware-out.bin`) per tick: SysTick counts of
 //! the solve, the mapping, the command stage and the encoding (u32 each; 40 instructions a
 //! count under `-icount shift=0`), the worst limb residual (f64, file units), the Sync Write's
-//! length (u32) and bytes; at the end `u32::MAX` and the stack's deepest use (u32, bytes).
+//! length (u32) and bytes; at the end `u32::MAX` and the stack's deepest use (u32, bytes) —
+//! or, after a panic, `0xFFFF_FFFE`, the length and bytes of a torque-off Sync Write.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -106,7 +107,8 @@ struct Run {
     stack_bytes: u32,
 }
 
-fn run_in_qemu(image: &Path, machine: &str, input: &[u8], name: &str) -> Run {
+/// Runs an image on `input`: whether it exited with success, and what it wrote.
+fn qemu(image: &Path, machine: &str, input: &[u8], name: &str) -> (bool, Vec<u8>) {
     let dir = root().join("target/firmware-image/runs").join(name);
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("firmware-in.bin"), input).unwrap();
@@ -124,12 +126,15 @@ fn run_in_qemu(image: &Path, machine: &str, input: &[u8], name: &str) -> Run {
         .current_dir(&dir)
         .output()
         .expect("qemu-system-arm runs (Debian: apt-get install qemu-system-arm; .ci/run installs it)");
-    assert!(
+    (
         out.status.success(),
-        "the image exits with success: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let bytes = std::fs::read(dir.join("firmware-out.bin")).unwrap();
+        std::fs::read(dir.join("firmware-out.bin")).unwrap_or_default(),
+    )
+}
+
+fn run_in_qemu(image: &Path, machine: &str, input: &[u8], name: &str) -> Run {
+    let (ok, bytes) = qemu(image, machine, input, name);
+    assert!(ok, "the image exits with success");
     let mut run = Run {
         counts: Vec::new(),
         residuals: Vec::new(),
@@ -344,9 +349,52 @@ fn check(image: &Path, machine: &str, r: &Reference) {
 
 #[test]
 fn the_image_in_qemu_writes_the_host_builds_goals() {
+    // A profile the std loader refuses stops the image's build with the same message.
+    let dir = root().join("target/firmware-image/runs");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad-profile.toml");
+    let good = std::fs::read_to_string(root().join("firmware-profile/cmu-puppet.toml")).unwrap();
+    std::fs::write(&bad, good.replacen("baud = 4_000_000", "baud = \"fast\"", 1)).unwrap();
+    let out = Command::new(env!("CARGO"))
+        .args(["build", "--release", "--target-dir"])
+        .arg(root().join("target/firmware-image"))
+        .env("MARIONETTE_PROFILE", &bad)
+        .current_dir(root().join("firmware-profile/image"))
+        .output()
+        .expect("cargo runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let want = Profile::load(&bad).unwrap_err().to_string();
+    assert!(
+        !out.status.success() && stderr.contains(&want),
+        "{want}\n{stderr}"
+    );
+    assert!(want.contains("bad-profile.toml:28:"), "file:line:column: {want}");
+
     let r = reference();
     // The Cortex-M4 (MPS2 AN386): f64 in software.
     check(&image(None), "mps2-an386", &r);
     // A Cortex-M7 with a double-precision FPU (MPS2 AN500).
     check(&image(Some("cortex-m7")), "mps2-an500", &r);
+
+    // A panic stops the servos' stream: after the first tick's goals, one Sync Write of
+    // Torque Enable 0 to every servo, and the image exits with failure.
+    let mut input = r.frames_input.clone();
+    input[16] = 2;
+    let (ok, bytes) = qemu(&image(None), "mps2-an386", &input, "panic");
+    assert!(!ok, "a panic ends the run with failure");
+    let first = 28 + u32::from_le_bytes(bytes[24..28].try_into().unwrap()) as usize;
+    assert_eq!(
+        &bytes[first..first + 4],
+        &0xFFFF_FFFEu32.to_le_bytes(),
+        "the panic's marker"
+    );
+    let len = u32::from_le_bytes(bytes[first + 4..first + 8].try_into().unwrap()) as usize;
+    assert_eq!(bytes.len(), first + 8 + len);
+    let mut params = [0u8; 256];
+    let (p, _) = decode(&bytes[first + 8..], &mut params).unwrap();
+    assert_eq!(p.instruction, instruction::SYNC_WRITE);
+    assert_eq!(&p.params[..4], &[64, 0, 1, 0], "Torque Enable, 1 byte");
+    let profile = Profile::load(&root().join("firmware-profile/cmu-puppet.toml")).unwrap();
+    let off: Vec<u8> = profile.ids().iter().flat_map(|&id| [id, 0]).collect();
+    assert_eq!(&p.params[4..], &off[..], "every servo's torque off");
 }

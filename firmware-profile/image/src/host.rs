@@ -49,6 +49,20 @@ impl File {
         Ok(())
     }
 
+    /// Moves to the end of the file (QEMU opens "append" files at their start).
+    pub fn seek_end(&mut self) -> Result<(), ()> {
+        // SAFETY: SYS_FLEN and SYS_SEEK take the handle SYS_OPEN gave and a position.
+        let len = unsafe { cortex_m_semihosting::syscall!(FLEN, self.handle) };
+        if len == usize::MAX {
+            return Err(());
+        }
+        // SAFETY: as above.
+        match unsafe { cortex_m_semihosting::syscall!(SEEK, self.handle, len) } {
+            0 => Ok(()),
+            _ => Err(()),
+        }
+    }
+
     /// Writes all of `bytes`.
     pub fn write_all(&mut self, bytes: &[u8]) -> Result<(), ()> {
         // SAFETY: SYS_WRITE reads `bytes.len()` bytes from the pointer, a live slice; it

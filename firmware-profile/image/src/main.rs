@@ -64,6 +64,8 @@ const PANICKED: u32 = 0xFFFF_FFFE;
 /// The input's header: what follows and at what rate.
 struct Header {
     targets: bool,
+    /// A test of the stop path: panic after the first tick.
+    panic_after_one: bool,
     rate_hz: f64,
     ticks: u32,
 }
@@ -158,6 +160,10 @@ fn run() -> Result<(), ()> {
         output.write_all(&residual.to_le_bytes())?;
         output.write_all(&(len as u32).to_le_bytes())?;
         output.write_all(&state.packet[..len])?;
+        if header.panic_after_one {
+            drop(output);
+            panic!("the stop path's test");
+        }
     }
     // The end: the stack's deepest use, bytes (after a zero-length marker).
     output.write_all(&u32::MAX.to_le_bytes())?;
@@ -266,9 +272,10 @@ fn read_header(input: &mut host::File) -> Result<Header, ()> {
     }
     let rate_hz = f64_at(&h, 4);
     let ticks = u32::from_le_bytes([h[12], h[13], h[14], h[15]]);
-    let targets = match h[16] {
-        0 => false,
-        1 => true,
+    let (targets, panic_after_one) = match h[16] {
+        0 => (false, false),
+        1 => (true, false),
+        2 => (false, true),
         _ => return Err(()),
     };
     if !(rate_hz.is_finite() && rate_hz > 0.0) {
@@ -276,6 +283,7 @@ fn read_header(input: &mut host::File) -> Result<Header, ()> {
     }
     Ok(Header {
         targets,
+        panic_after_one,
         rate_hz,
         ticks,
     })
@@ -293,6 +301,7 @@ fn panic(_: &PanicInfo) -> ! {
     let mut packet = [0u8; 2 * (14 + 2 * MAX_SERVOS)];
     let len = torque_off(&mut packet);
     if let Ok(mut out) = host::File::open("firmware-out.bin\0", host::APPEND) {
+        let _ = out.seek_end();
         let _ = out.write_all(&PANICKED.to_le_bytes());
         let _ = out.write_all(&(len as u32).to_le_bytes());
         let _ = out.write_all(&packet[..len]);
