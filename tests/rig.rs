@@ -523,16 +523,25 @@ fn budget_matches_hand_computation() {
 /// judged: the machine is shared.)
 #[test]
 fn budget_measures_cycles_on_the_line_timed_chain_and_serve_serves_it() {
-    let out = common::bin()
-        .args([
-            "budget",
-            profile_path("robotis-op3.toml").to_str().unwrap(),
-            "--measure",
-            "50",
-            "--json",
-        ])
-        .output()
-        .unwrap();
+    let measure = || {
+        common::bin()
+            .args([
+                "budget",
+                profile_path("robotis-op3.toml").to_str().unwrap(),
+                "--measure",
+                "50",
+                "--json",
+            ])
+            .output()
+            .unwrap()
+    };
+    // The start-up's pings go through a pty served by a thread: on a loaded machine (tests run
+    // in parallel on two cores) a reply can miss its margin once (seen in CI). Asked again
+    // then; a second miss fails.
+    let mut out = measure();
+    if !out.status.success() && String::from_utf8_lossy(&out.stderr).contains("no reply in time") {
+        out = measure();
+    }
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     println!("{v}");
