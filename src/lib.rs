@@ -26,6 +26,12 @@
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
 
+// The std edge works in f64; the core's `f32` feature is for firmware images built on their own.
+const _: () = assert!(
+    !marionette_core::math::SINGLE_PRECISION,
+    "marionette needs marionette-core in f64: its `f32` feature is for firmware images"
+);
+
 pub use marionette_core::{
     asf, command, control_table, device, fk, ik, ik_numeric, interp, math, plan, protocol, rig, robot,
     schedule, servo, skeleton, swivel,

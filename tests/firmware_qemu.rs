@@ -1,6 +1,11 @@
 //! The firmware image (`firmware-profile/image`, thumbv7em-none-eabihf) in QEMU's MPS2 AN386
-//! (a Cortex-M4): the bundled walk as clip frames and as four-limb targets, every goal it
-//! writes compared with this (host) build of the same core functions on the same input.
+//! (a Cortex-M4): the bundled walk as clip frames and as four-limb targets.
+//!
+//! The image's core runs in f32 (the M4's FPU is single precision): every goal it writes is
+//! compared bit for bit with the same image code built for the host (x86-64, also f32), and
+//! with this crate's f64 host path within a stated number of ticks. The f64 image, on a
+//! Cortex-M7 with a double-precision FPU (MPS2 AN500), writes the f64 host path's goals bit
+//! for bit.
 //!
 //! Input file (`firmware-in.bin`, little-endian): `MRNT`, rate (f64), ticks (u32), mode (u8:
 //! 0 frames, 1 targets, 2 frames and a panic after the first tick), 3 bytes of padding; then per tick the frame's channels (f64 each,
@@ -30,20 +35,37 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The core's precision in an image.
+#[derive(Clone, Copy, PartialEq, Debug)]
+enum Precision {
+    /// f32 (the image's default feature `single-precision`).
+    Single,
+    /// f64 (`--no-default-features`).
+    Double,
+}
+
 /// Builds the image (cargo, for the Cortex-M target) and returns its path: for the Cortex-M4
-/// (single-precision FPU: the core's f64 maths in software), or with `cpu` for another core
-/// (`cortex-m7`: a double-precision FPU, as on STM32F76x/H7 or i.MX RT).
-fn image(cpu: Option<&str>) -> PathBuf {
-    let target_dir = root().join(match cpu {
-        None => "target/firmware-image".to_string(),
-        Some(c) => format!("target/firmware-image-{c}"),
-    });
+/// (single-precision FPU), or with `cpu` for another core (`cortex-m7`: a double-precision
+/// FPU, as on STM32F76x/H7 or i.MX RT).
+fn image(cpu: Option<&str>, precision: Precision) -> PathBuf {
+    let target_dir = root().join(format!(
+        "target/firmware-image{}{}",
+        cpu.map_or(String::new(), |c| format!("-{c}")),
+        if precision == Precision::Double {
+            "-f64"
+        } else {
+            ""
+        }
+    ));
     // From its directory, so that its `.cargo/config.toml` (target, linker script) applies.
     let mut cargo = Command::new(env!("CARGO"));
     cargo
         .args(["build", "--release", "--target-dir"])
         .arg(&target_dir)
         .current_dir(root().join("firmware-profile/image"));
+    if precision == Precision::Double {
+        cargo.arg("--no-default-features");
+    }
     if let Some(c) = cpu {
         cargo.env(
             // (Added to the config's flags.)
@@ -56,6 +78,24 @@ fn image(cpu: Option<&str>) -> PathBuf {
         "the firmware image builds"
     );
     target_dir.join("thumbv7em-none-eabihf/release/marionette-firmware-image")
+}
+
+/// The same image code built for the host (f32): the bit-for-bit reference of the f32 image.
+fn host_image() -> PathBuf {
+    let rustc = Command::new("rustc").arg("-vV").output().expect("rustc runs");
+    let host = String::from_utf8_lossy(&rustc.stdout)
+        .lines()
+        .find_map(|l| l.strip_prefix("host: ").map(str::to_string))
+        .expect("rustc -vV names the host");
+    let target_dir = root().join("target/firmware-image-host");
+    let status = Command::new(env!("CARGO"))
+        .args(["build", "--release", "--target", &host, "--target-dir"])
+        .arg(&target_dir)
+        .current_dir(root().join("firmware-profile/image"))
+        .status()
+        .expect("cargo runs");
+    assert!(status.success(), "the image builds for the host");
+    target_dir.join(&host).join("release/marionette-firmware-image")
 }
 
 /// The image's footprint from its ELF section headers: (flash, static RAM, per section).
@@ -107,32 +147,39 @@ struct Run {
     stack_bytes: u32,
 }
 
-/// Runs an image on `input`: whether it exited with success, and what it wrote.
-fn qemu(image: &Path, machine: &str, input: &[u8], name: &str) -> (bool, Vec<u8>) {
+/// Runs an image on `input` in QEMU's `machine` (or, for `None`, a host build of the image
+/// directly): whether it exited with success, and what it wrote.
+fn qemu(image: &Path, machine: Option<&str>, input: &[u8], name: &str) -> (bool, Vec<u8>) {
     let dir = root().join("target/firmware-image/runs").join(name);
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("firmware-in.bin"), input).unwrap();
     let _ = std::fs::remove_file(dir.join("firmware-out.bin"));
-    let out = Command::new("qemu-system-arm")
-        .args(["-M", machine, "-nographic", "-monitor", "none", "-serial", "none"])
-        .args([
-            "-semihosting-config",
-            "enable=on,target=native",
-            "-icount",
-            "shift=0",
-        ])
-        .arg("-kernel")
-        .arg(image)
-        .current_dir(&dir)
-        .output()
-        .expect("qemu-system-arm runs (Debian: apt-get install qemu-system-arm; .ci/run installs it)");
+    let out = match machine {
+        Some(machine) => Command::new("qemu-system-arm")
+            .args(["-M", machine, "-nographic", "-monitor", "none", "-serial", "none"])
+            .args([
+                "-semihosting-config",
+                "enable=on,target=native",
+                "-icount",
+                "shift=0",
+            ])
+            .arg("-kernel")
+            .arg(image)
+            .current_dir(&dir)
+            .output()
+            .expect("qemu-system-arm runs (Debian: apt-get install qemu-system-arm; .ci/run installs it)"),
+        None => Command::new(image)
+            .current_dir(&dir)
+            .output()
+            .expect("the host image runs"),
+    };
     (
         out.status.success(),
         std::fs::read(dir.join("firmware-out.bin")).unwrap_or_default(),
     )
 }
 
-fn run_in_qemu(image: &Path, machine: &str, input: &[u8], name: &str) -> Run {
+fn run_in_qemu(image: &Path, machine: Option<&str>, input: &[u8], name: &str) -> Run {
     let (ok, bytes) = qemu(image, machine, input, name);
     assert!(ok, "the image exits with success");
     let mut run = Run {
@@ -302,49 +349,79 @@ fn reference() -> Reference {
     }
 }
 
-/// Runs an image on both inputs and checks every goal and residual against the host's.
-fn check(image: &Path, machine: &str, r: &Reference) {
-    let (flash, ram, sections) = footprint(&std::fs::read(image).unwrap());
-    println!("{machine}: flash {flash} bytes, static RAM {ram} bytes; sections {sections:?}");
-    let run = run_in_qemu(image, machine, &r.frames_input, &format!("{machine}-frames"));
-    assert_eq!(run.goals.len(), r.frames_goals.len());
-    for (k, (got, want)) in run.goals.iter().zip(&r.frames_goals).enumerate() {
-        assert_eq!(got, want, "{machine}, frame {k}");
-    }
-    println!(
-        "{machine}: instructions per tick (QEMU -icount), frames: {}",
-        instructions(&run)
-    );
+/// What an image wrote on both inputs.
+struct Runs {
+    frames: Run,
+    targets: Run,
+}
 
-    let run = run_in_qemu(image, machine, &r.targets_input, &format!("{machine}-targets"));
-    assert_eq!(run.goals.len(), r.targets_goals.len());
-    for (k, (got, want)) in run.goals.iter().zip(&r.targets_goals).enumerate() {
-        assert_eq!(got, want, "{machine}, targets tick {k}");
+/// Runs an image (in QEMU's `machine`, or on the host for `None`) on both inputs; prints its
+/// footprint and instruction counts.
+fn run_both(image: &Path, machine: Option<&str>, label: &str, r: &Reference) -> Runs {
+    if machine.is_some() {
+        let (flash, ram, sections) = footprint(&std::fs::read(image).unwrap());
+        println!("{label}: flash {flash} bytes, static RAM {ram} bytes; sections {sections:?}");
     }
-    // The board's residuals (forward kinematics down each limb) are the host's. (Not zero:
-    // some of the capture's wrist and ankle positions lie outside what the ASF's joint limits
-    // let a limb reach.)
-    let gap = run
-        .residuals
-        .iter()
-        .zip(&r.residuals)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f64, f64::max);
-    assert!(
-        gap < 1e-9,
-        "{machine}: the board's residuals are the host's: {gap}"
-    );
-    let mut sorted = run.residuals.clone();
+    let frames = run_in_qemu(image, machine, &r.frames_input, &format!("{label}-frames"));
+    let targets = run_in_qemu(image, machine, &r.targets_input, &format!("{label}-targets"));
+    assert_eq!(frames.goals.len(), r.frames_goals.len(), "{label}");
+    assert_eq!(targets.goals.len(), r.targets_goals.len(), "{label}");
+    if machine.is_some() {
+        println!(
+            "{label}: instructions per tick (QEMU -icount), frames: {}",
+            instructions(&frames)
+        );
+        println!(
+            "{label}: instructions per tick (QEMU -icount), four-limb targets: {}",
+            instructions(&targets)
+        );
+    }
+    let mut sorted = targets.residuals.clone();
     sorted.sort_by(f64::total_cmp);
     println!(
-        "{machine}: limb residual (file units) p50 {:.1e}, max {:.3}",
+        "{label}: limb residual (file units) p50 {:.1e}, max {:.3}",
         sorted[sorted.len() / 2],
         sorted[sorted.len() - 1]
     );
-    println!(
-        "{machine}: instructions per tick (QEMU -icount), four-limb targets: {}",
-        instructions(&run)
-    );
+    Runs { frames, targets }
+}
+
+/// Every goal of `got` equals `want`'s, and every residual within `residual_tolerance` (0:
+/// the same bits).
+fn assert_equal(label: &str, got: &Runs, want: &Runs, residual_tolerance: f64) {
+    for (k, (g, w)) in got.frames.goals.iter().zip(&want.frames.goals).enumerate() {
+        assert_eq!(g, w, "{label}, frame {k}");
+    }
+    for (k, (g, w)) in got.targets.goals.iter().zip(&want.targets.goals).enumerate() {
+        assert_eq!(g, w, "{label}, targets tick {k}");
+    }
+    for (k, (g, w)) in got
+        .targets
+        .residuals
+        .iter()
+        .zip(&want.targets.residuals)
+        .enumerate()
+    {
+        assert!(
+            (g - w).abs() <= residual_tolerance,
+            "{label}, residual of targets tick {k}: {g} {w}"
+        );
+    }
+}
+
+/// The largest difference, in ticks, between two runs' goals, and how many goals differ.
+fn tick_gap(got: &[Vec<(u8, i32)>], want: &[Vec<(u8, i32)>]) -> (i32, usize, usize) {
+    let (mut worst, mut differ, mut all) = (0, 0, 0);
+    for (g, w) in got.iter().zip(want) {
+        assert_eq!(g.len(), w.len());
+        for ((gi, gv), (wi, wv)) in g.iter().zip(w) {
+            assert_eq!(gi, wi, "the same servo ids in the same order");
+            worst = worst.max((gv - wv).abs());
+            differ += usize::from(gv != wv);
+            all += 1;
+        }
+    }
+    (worst, differ, all)
 }
 
 #[test]
@@ -371,16 +448,90 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
     assert!(want.contains("bad-profile.toml:28:"), "file:line:column: {want}");
 
     let r = reference();
-    // The Cortex-M4 (MPS2 AN386): f64 in software.
-    check(&image(None), "mps2-an386", &r);
-    // A Cortex-M7 with a double-precision FPU (MPS2 AN500).
-    check(&image(Some("cortex-m7")), "mps2-an500", &r);
+    let host_f64 = Runs {
+        frames: Run {
+            counts: Vec::new(),
+            residuals: Vec::new(),
+            goals: r.frames_goals.clone(),
+            stack_bytes: 0,
+        },
+        targets: Run {
+            counts: Vec::new(),
+            residuals: r.residuals.clone(),
+            goals: r.targets_goals.clone(),
+            stack_bytes: 0,
+        },
+    };
+
+    // The Cortex-M4 (MPS2 AN386), f32: bit for bit the same image code on the host.
+    let m4 = run_both(
+        &image(None, Precision::Single),
+        Some("mps2-an386"),
+        "cortex-m4 f32",
+        &r,
+    );
+    let host_f32 = run_both(&host_image(), None, "host f32", &r);
+    assert_equal("cortex-m4 f32 against the host's f32 build", &m4, &host_f32, 0.0);
+    // Against the f64 host path: clip frames go through the mapping and the command stage
+    // only (one rounding of each angle to f32), four-limb targets through the f32 limb solver.
+    let (frames_gap, frames_differ, frames_all) = tick_gap(&m4.frames.goals, &host_f64.frames.goals);
+    let (targets_gap, targets_differ, targets_all) = tick_gap(&m4.targets.goals, &host_f64.targets.goals);
+    // Residuals: where the f64 host reaches the target, the f32 limb reaches it too (to f32's
+    // resolution); where it cannot (a captured wrist or ankle outside what the joint limits
+    // allow), both stop at nearly the same closest point.
+    let (mut reached_worst, mut reached, mut apart_worst) = ((0.0f64, 0), 0, 0.0f64);
+    for (k, (f32_residual, f64_residual)) in m4.targets.residuals.iter().zip(&r.residuals).enumerate() {
+        if *f64_residual < 1e-6 {
+            if *f32_residual > reached_worst.0 {
+                reached_worst = (*f32_residual, k);
+            }
+            reached += 1;
+        } else {
+            apart_worst = apart_worst.max((f32_residual - f64_residual).abs());
+        }
+    }
+    println!(
+        "cortex-m4 f32 against the f64 host: frames {frames_differ} of {frames_all} goals differ, \
+         by at most {frames_gap} tick; targets {targets_differ} of {targets_all}, by at most \
+         {targets_gap}; residual at most {:.1e} file units (tick {}) where the host reaches \
+         the target ({reached} ticks), within {apart_worst:.1e} of the host's elsewhere",
+        reached_worst.0, reached_worst.1
+    );
+    assert!(
+        frames_gap <= 1,
+        "clip frames: within one tick of the f64 host ({frames_gap})"
+    );
+    assert!(
+        targets_gap <= 1,
+        "four-limb targets: within one tick of the f64 host ({targets_gap})"
+    );
+    assert!(
+        reached > 0 && reached_worst.0 < 1e-2,
+        "reached targets: {reached_worst:?}"
+    );
+    assert!(apart_worst < 1e-2, "unreachable targets: {apart_worst}");
+
+    // A Cortex-M7 with a double-precision FPU (MPS2 AN500), f64: bit for bit the host's f64.
+    let m7 = run_both(
+        &image(Some("cortex-m7"), Precision::Double),
+        Some("mps2-an500"),
+        "cortex-m7 f64",
+        &r,
+    );
+    // (The residuals within 1e-9: the image finds each tip down its limb, the host from the
+    // whole pose.)
+    assert_equal("cortex-m7 f64 against the f64 host", &m7, &host_f64, 1e-9);
 
     // A panic stops the servos' stream: after the first tick's goals, one Sync Write of
     // Torque Enable 0 to every servo, and the image exits with failure.
     let mut input = r.frames_input.clone();
     input[16] = 2;
-    let (ok, bytes) = qemu(&image(None), "mps2-an386", &input, "panic");
+    let (ok, bytes) = qemu(
+        &image(None, Precision::Single),
+        Some("mps2-an386"),
+        &input,
+        "panic",
+    );
     assert!(!ok, "a panic ends the run with failure");
     let first = 28 + u32::from_le_bytes(bytes[24..28].try_into().unwrap()) as usize;
     assert_eq!(

@@ -5,6 +5,7 @@
 //! acceleration per servo (braking early enough to stop at the target), and remembers what it
 //! sent. Positions are kept in fractional ticks so slow motions are not lost to rounding.
 
+use crate::math::{real, Real};
 use crate::rig::Rig;
 use crate::servo::{step_along, step_towards, MotionLimits, MAX_SERVOS};
 
@@ -52,8 +53,8 @@ pub struct Limited {
 /// The command stage of one rig.
 #[derive(Clone, Debug)]
 pub struct CommandStage {
-    position: [f64; MAX_SERVOS],
-    velocity: [f64; MAX_SERVOS],
+    position: [Real; MAX_SERVOS],
+    velocity: [Real; MAX_SERVOS],
     ticks: [i32; MAX_SERVOS],
     len: usize,
     started: bool,
@@ -81,7 +82,7 @@ impl CommandStage {
                 .copied()
                 .unwrap_or(servo.min_tick)
                 .clamp(servo.min_tick, servo.max_tick);
-            self.position[k] = f64::from(p);
+            self.position[k] = p as Real;
             self.velocity[k] = 0.0;
             self.ticks[k] = p;
         }
@@ -101,7 +102,7 @@ impl CommandStage {
     /// Where servo `k`'s command stands: position (fractional ticks) and velocity (ticks/s);
     /// `None` before the first command or past the rig.
     #[must_use]
-    pub fn state(&self, k: usize) -> Option<(f64, f64)> {
+    pub fn state(&self, k: usize) -> Option<(Real, Real)> {
         (self.started && k < self.len).then(|| (self.position[k], self.velocity[k]))
     }
 
@@ -116,8 +117,8 @@ impl CommandStage {
     pub fn command_planned(
         &mut self,
         rig: &Rig,
-        targets: &[f64],
-        dt: f64,
+        targets: &[Real],
+        dt: Real,
     ) -> Result<(&[i32], Limited), CommandError> {
         if targets.len() != rig.len() || rig.len() != self.len {
             return Err(CommandError::WrongLength {
@@ -133,7 +134,7 @@ impl CommandStage {
         }
         let mut limited = Limited::default();
         for (k, (servo, &wanted)) in rig.servos.iter().zip(targets).enumerate() {
-            let (lo, hi) = (f64::from(servo.min_tick), f64::from(servo.max_tick));
+            let (lo, hi) = ((servo.min_tick as Real), (servo.max_tick as Real));
             let target = wanted.clamp(lo, hi);
             if target != wanted {
                 limited.clamped += 1;
@@ -158,7 +159,7 @@ impl CommandStage {
         }
         self.started = true;
         for k in 0..self.len {
-            self.ticks[k] = libm::round(self.position[k]) as i32;
+            self.ticks[k] = real::round(self.position[k]) as i32;
         }
         Ok((&self.ticks[..self.len], limited))
     }
@@ -168,7 +169,12 @@ impl CommandStage {
     ///
     /// # Errors
     /// [`CommandError`]: the command is refused as a whole and the last one stands.
-    pub fn command(&mut self, rig: &Rig, angles: &[f64], dt: f64) -> Result<(&[i32], Limited), CommandError> {
+    pub fn command(
+        &mut self,
+        rig: &Rig,
+        angles: &[Real],
+        dt: Real,
+    ) -> Result<(&[i32], Limited), CommandError> {
         if angles.len() != rig.len() || rig.len() != self.len {
             return Err(CommandError::WrongLength {
                 got: angles.len(),
@@ -183,7 +189,7 @@ impl CommandStage {
         }
         let mut limited = Limited::default();
         for (k, (servo, &angle)) in rig.servos.iter().zip(angles).enumerate() {
-            let (lo, hi) = (f64::from(servo.min_tick), f64::from(servo.max_tick));
+            let (lo, hi) = ((servo.min_tick as Real), (servo.max_tick as Real));
             let wanted = servo.angle_to_ticks_exact(angle);
             let target = wanted.clamp(lo, hi);
             if target != wanted {
@@ -210,7 +216,7 @@ impl CommandStage {
         }
         self.started = true;
         for k in 0..self.len {
-            self.ticks[k] = libm::round(self.position[k]) as i32;
+            self.ticks[k] = real::round(self.position[k]) as i32;
         }
         Ok((&self.ticks[..self.len], limited))
     }

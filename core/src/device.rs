@@ -8,6 +8,7 @@
 //! the chain also runs in the embedded build.
 
 use crate::control_table::{self, indirect_blocks, Access, Item};
+use crate::math::{real, Real};
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
 use crate::servo::{addr, status_error, step_towards, ServoModel, MAX_SERVOS, RPM2_PER_ACCELERATION_UNIT};
 use crate::servo::{RPM_PER_VELOCITY_UNIT, TICKS_PER_TURN};
@@ -19,39 +20,39 @@ pub const MAX_PACKET: usize = 1024;
 pub use crate::control_table::FIRMWARE_VERSION;
 
 /// Ticks/s per unit of Profile Velocity.
-const TICKS_PER_S_PER_VELOCITY_UNIT: f64 = RPM_PER_VELOCITY_UNIT / 60.0 * TICKS_PER_TURN as f64;
+const TICKS_PER_S_PER_VELOCITY_UNIT: Real = RPM_PER_VELOCITY_UNIT / 60.0 * TICKS_PER_TURN as Real;
 /// Ticks/s² per unit of Profile Acceleration.
-const TICKS_PER_S2_PER_ACCELERATION_UNIT: f64 = RPM2_PER_ACCELERATION_UNIT / 3600.0 * TICKS_PER_TURN as f64;
+const TICKS_PER_S2_PER_ACCELERATION_UNIT: Real = RPM2_PER_ACCELERATION_UNIT / 3600.0 * TICKS_PER_TURN as Real;
 /// Acceleration when Profile Acceleration is 0 ("unlimited"): the motor's own, ~0.05 s to full speed.
-const DEFAULT_RAMP_S: f64 = 0.05;
+const DEFAULT_RAMP_S: Real = 0.05;
 
 /// One virtual servo.
 #[derive(Clone, Debug)]
 pub struct VirtualServo {
     table: [u8; TABLE_LEN],
     model: &'static ServoModel,
-    position: f64,
-    velocity: f64,
-    since_packet: f64,
+    position: Real,
+    velocity: Real,
+    since_packet: Real,
     watchdog_expired: bool,
     torque_jumps: u32,
     write_count: u32,
     velocity_report: Option<i32>,
     reported_position: Option<i32>,
     /// Milliseconds since power-on (Realtime Tick).
-    clock_ms: f64,
+    clock_ms: Real,
     /// A write held by Reg Write until Action: address and data.
     registered: Option<(u16, heapless::Vec<u8, 128>)>,
     /// Torque at the horn, N·m, as the plant last measured it (0 without a load model).
-    load_nm: f64,
+    load_nm: Real,
     /// Where the firmware's motion profile stands (ticks, ticks/s) while one is under way.
-    profile: Option<(f64, f64)>,
+    profile: Option<(Real, Real)>,
     /// An Indirect Address was written since power-on: Indirect Data must follow writes.
     indirect_in_use: bool,
 }
 
 /// PWM Limit's factory value and full scale (0.113 % units).
-const PWM_FULL: f64 = 885.0;
+const PWM_FULL: Real = 885.0;
 
 /// Baud Rate register codes (e-manual): 9,600 … 4.5 Mbps.
 const BAUD_CODES: [u32; 8] = [
@@ -78,7 +79,7 @@ impl VirtualServo {
         let mut s = VirtualServo {
             table: [0; TABLE_LEN],
             model,
-            position: f64::from(position),
+            position: (position as Real),
             velocity: 0.0,
             since_packet: 0.0,
             watchdog_expired: false,
@@ -216,14 +217,14 @@ impl VirtualServo {
 
     /// Position in ticks (unrounded).
     #[must_use]
-    pub fn position(&self) -> f64 {
+    pub fn position(&self) -> Real {
         self.position
     }
 
     /// Present Position as the servo reports it.
     #[must_use]
     pub fn present_tick(&self) -> i32 {
-        libm::round(self.position) as i32
+        real::round(self.position) as i32
     }
 
     /// Where the horn is sent (ticks): the Goal Position register less the Homing Offset.
@@ -289,7 +290,7 @@ impl VirtualServo {
     }
 
     /// Sets the position directly (a hand moving the horn with torque off).
-    pub fn set_position(&mut self, ticks: f64) {
+    pub fn set_position(&mut self, ticks: Real) {
         self.position = ticks;
         self.refresh_present();
     }
@@ -316,7 +317,7 @@ impl VirtualServo {
         self.put(addr::PRESENT_POSITION, 4, p.wrapping_add(offset) as u32);
         let v = self
             .velocity_report
-            .unwrap_or(libm::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32);
+            .unwrap_or(real::round(self.velocity / TICKS_PER_S_PER_VELOCITY_UNIT) as i32);
         self.put(addr::PRESENT_VELOCITY, 4, v as u32);
         // Moving above the Moving Threshold (e-manual); Moving Status: in position within
         // it as well, a profile under way.
@@ -328,14 +329,14 @@ impl VirtualServo {
         let (current, pwm) = self.motor_readings();
         self.put(addr::PRESENT_CURRENT, 2, u32::from(current as u16));
         self.put(addr::PRESENT_PWM, 2, u32::from(pwm as u16));
-        let supply = libm::round(self.model.rated_v * 10.0) as u32;
+        let supply = real::round(self.model.rated_v * 10.0) as u32;
         self.put(addr::PRESENT_INPUT_VOLTAGE, 2, supply);
         self.put(addr::PRESENT_TEMPERATURE, 1, 35);
         // The profile's set point while one runs; otherwise the goal (torque on) or where it is.
         let (tp, tv) = match (self.profile, self.torque_on()) {
             (Some((tp, tv)), _) => (
-                libm::round(tp) as i32,
-                libm::round(tv / TICKS_PER_S_PER_VELOCITY_UNIT) as i32,
+                real::round(tp) as i32,
+                real::round(tv / TICKS_PER_S_PER_VELOCITY_UNIT) as i32,
             ),
             (None, true) => (self.goal_tick(), 0),
             (None, false) => (p, 0),
@@ -364,7 +365,7 @@ impl VirtualServo {
             return (0, 0);
         }
         let torque = self.load_nm / self.model.stall_torque_nm;
-        let no_load = self.model.no_load_rpm / 60.0 * f64::from(TICKS_PER_TURN);
+        let no_load = self.model.no_load_rpm / 60.0 * (TICKS_PER_TURN as Real);
         let duty = (self.velocity / no_load + torque).clamp(-1.0, 1.0);
         let current = if self.model.current_unit_ma > 0.0 {
             torque * self.model.stall_current_a * 1e3 / self.model.current_unit_ma
@@ -372,16 +373,16 @@ impl VirtualServo {
             // Present Load: 0.1 % of the maximum torque.
             torque * 1000.0
         };
-        let limit = f64::from(i16::MAX);
+        let limit = Real::from(i16::MAX);
         (
-            libm::round(current.clamp(-limit, limit)) as i16,
-            libm::round(duty * PWM_FULL) as i16,
+            real::round(current.clamp(-limit, limit)) as i16,
+            real::round(duty * PWM_FULL) as i16,
         )
     }
 
     /// Sets the torque at the horn, N·m (the plant's measurement; signed as positions grow),
     /// for Present Current, Load and PWM.
-    pub fn set_load(&mut self, torque_nm: f64) {
+    pub fn set_load(&mut self, torque_nm: Real) {
         self.load_nm = if torque_nm.is_finite() { torque_nm } else { 0.0 };
     }
 
@@ -389,8 +390,8 @@ impl VirtualServo {
     /// for a plant that moves the horn itself: with Profile Velocity 0 the goal at once,
     /// otherwise the profile towards the goal at Profile Velocity and Acceleration (0:
     /// unlimited), started from where the horn stands. `None` while limp.
-    pub fn profile_target(&mut self, dt: f64) -> Option<f64> {
-        let Some(goal) = self.drive_goal().map(f64::from) else {
+    pub fn profile_target(&mut self, dt: Real) -> Option<Real> {
+        let Some(goal) = self.drive_goal().map(|g| g as Real) else {
             self.profile = None;
             return None;
         };
@@ -399,12 +400,12 @@ impl VirtualServo {
             self.profile = None;
             return Some(goal);
         }
-        let v = f64::from(pv) * TICKS_PER_S_PER_VELOCITY_UNIT;
+        let v = (pv as Real) * TICKS_PER_S_PER_VELOCITY_UNIT;
         let pa = self.get(addr::PROFILE_ACCELERATION, 4);
         let a = if pa == 0 {
-            f64::INFINITY
+            Real::INFINITY
         } else {
-            f64::from(pa) * TICKS_PER_S2_PER_ACCELERATION_UNIT
+            (pa as Real) * TICKS_PER_S2_PER_ACCELERATION_UNIT
         };
         let (p, vel) = self.profile.unwrap_or((self.position, 0.0));
         let (p, vel) = step_towards(p, vel, goal, v, a, dt);
@@ -446,22 +447,22 @@ impl VirtualServo {
     }
 
     /// Advances the servo `dt` seconds: watchdog, then motion towards the goal.
-    pub fn step(&mut self, dt: f64) {
+    pub fn step(&mut self, dt: Real) {
         self.run_watchdog(dt);
         if self.torque_on() && !self.watchdog_expired {
-            let goal = f64::from(self.goal_tick());
-            let max_v = self.model.no_load_rpm / 60.0 * f64::from(TICKS_PER_TURN);
+            let goal = self.goal_tick() as Real;
+            let max_v = self.model.no_load_rpm / 60.0 * (TICKS_PER_TURN as Real);
             let pv = self.get(addr::PROFILE_VELOCITY, 4);
             let v = if pv == 0 {
                 max_v
             } else {
-                (f64::from(pv) * TICKS_PER_S_PER_VELOCITY_UNIT).min(max_v)
+                ((pv as Real) * TICKS_PER_S_PER_VELOCITY_UNIT).min(max_v)
             };
             let pa = self.get(addr::PROFILE_ACCELERATION, 4);
             let a = if pa == 0 {
                 max_v / DEFAULT_RAMP_S
             } else {
-                f64::from(pa) * TICKS_PER_S2_PER_ACCELERATION_UNIT
+                (pa as Real) * TICKS_PER_S2_PER_ACCELERATION_UNIT
             };
             let (p, vel) = step_towards(self.position, self.velocity, goal, v, a, dt);
             self.position = p;
@@ -475,7 +476,7 @@ impl VirtualServo {
     /// Advances the servo `dt` seconds with its horn moved by something else (a simulated
     /// motor and load): the watchdog runs; position (ticks) and velocity (ticks/s) are what
     /// that model measured.
-    pub fn step_driven(&mut self, dt: f64, position: f64, velocity: f64) {
+    pub fn step_driven(&mut self, dt: Real, position: Real, velocity: Real) {
         self.run_watchdog(dt);
         self.position = position;
         self.velocity = velocity;
@@ -495,15 +496,15 @@ impl VirtualServo {
         self.torque_on().then(|| self.goal_tick())
     }
 
-    fn run_watchdog(&mut self, dt: f64) {
-        self.clock_ms = libm::fmod(self.clock_ms + dt * 1e3, 32_768.0);
+    fn run_watchdog(&mut self, dt: Real) {
+        self.clock_ms = real::fmod(self.clock_ms + dt * 1e3, 32_768.0);
         self.put(REALTIME_TICK, 2, self.clock_ms as u32);
         let wd = self.table[usize::from(addr::BUS_WATCHDOG)];
         self.since_packet += dt;
         if self.torque_on()
             && !self.watchdog_expired
             && (1..=127).contains(&wd)
-            && self.since_packet > f64::from(wd) * 0.020
+            && self.since_packet > (wd as Real) * 0.020
         {
             // Expiry: stop where it is; the register reads −1 and goal writes fail.
             self.watchdog_expired = true;
@@ -722,7 +723,7 @@ impl Chain {
     }
 
     /// Advances every servo `dt` seconds.
-    pub fn step(&mut self, dt: f64) {
+    pub fn step(&mut self, dt: Real) {
         for s in &mut self.servos {
             s.step(dt);
         }

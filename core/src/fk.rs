@@ -14,8 +14,9 @@
 //! [`forward_kinematics`] works in f32 on file frames (the display and the f32 pose);
 //! [`fk64`] in f64 on channel vectors in radians (what IK and the control loop use).
 
+use crate::math::{Real, RealMat3, RealVec3, ToReal};
 use crate::skeleton::{dof_rotation, Bone, Dof, Skeleton, MAX_BONES};
-use glam::{DMat3, DVec3, Mat3, Vec3};
+use glam::{Mat3, Vec3};
 
 /// Global state of every bone for one frame.
 #[derive(Clone, Debug)]
@@ -134,28 +135,28 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
 #[derive(Clone, Debug)]
 pub struct Pose64 {
     /// Joint (start) positions.
-    pub start: [DVec3; MAX_BONES],
+    pub start: [RealVec3; MAX_BONES],
     /// Tip positions.
-    pub tip: [DVec3; MAX_BONES],
+    pub tip: [RealVec3; MAX_BONES],
     /// Local frames in world coordinates, `Fᵢ = Wₚ·C·M`.
-    pub frame: [DMat3; MAX_BONES],
+    pub frame: [RealMat3; MAX_BONES],
     /// World rotations of rest vectors, `Wᵢ = Fᵢ·Cᵀ`.
-    pub world: [DMat3; MAX_BONES],
+    pub world: [RealMat3; MAX_BONES],
 }
 
 impl Default for Pose64 {
     fn default() -> Self {
         Pose64 {
-            start: [DVec3::ZERO; MAX_BONES],
-            tip: [DVec3::ZERO; MAX_BONES],
-            frame: [DMat3::IDENTITY; MAX_BONES],
-            world: [DMat3::IDENTITY; MAX_BONES],
+            start: [RealVec3::ZERO; MAX_BONES],
+            tip: [RealVec3::ZERO; MAX_BONES],
+            frame: [RealMat3::IDENTITY; MAX_BONES],
+            world: [RealMat3::IDENTITY; MAX_BONES],
         }
     }
 }
 
 /// Forward kinematics in f64, eq. (1)–(5). Missing channels count as 0.
-pub fn fk64(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64) {
+pub fn fk64(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64) {
     for i in 0..skeleton.bones().len() {
         fk64_bone(skeleton, channels, pose, i);
     }
@@ -163,7 +164,7 @@ pub fn fk64(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64) {
 
 /// [`fk64`] for the listed bones only (ascending, each after its parent — e.g. from
 /// [`ancestors`]); the other entries of `pose` are left as they were.
-pub fn fk64_bones(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, bones: &[usize]) {
+pub fn fk64_bones(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64, bones: &[usize]) {
     for &i in bones {
         fk64_bone(skeleton, channels, pose, i);
     }
@@ -187,14 +188,14 @@ pub fn ancestors(skeleton: &Skeleton, bone: usize) -> heapless::Vec<usize, MAX_B
 #[must_use]
 pub fn fk64_step(
     skeleton: &Skeleton,
-    channels: &[f64],
+    channels: &[Real],
     i: usize,
-    parent: Option<(&DMat3, DVec3)>,
-) -> (DMat3, DMat3, DVec3, DVec3) {
+    parent: Option<(&RealMat3, RealVec3)>,
+) -> (RealMat3, RealMat3, RealVec3, RealVec3) {
     let bone = &skeleton.bones()[i];
     let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
     let m = dof_rotation(bone.dofs(), bone.channels().map(value));
-    let mut t = DVec3::ZERO;
+    let mut t = RealVec3::ZERO;
     let mut l = 0.0;
     for (d, c) in bone.dofs().iter().zip(bone.channels()) {
         match d {
@@ -209,20 +210,20 @@ pub fn fk64_step(
     match parent {
         None => {
             let w = c * m;
-            let p = skeleton.root().position.as_dvec3() + t;
+            let p = skeleton.root().position.to_real() + t;
             (w, w, p, p)
         }
         Some((parent_world, parent_tip)) => {
             let axes = *parent_world * c;
             let start = parent_tip + axes * t;
             // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
-            let (f, world) = if m == DMat3::IDENTITY {
+            let (f, world) = if m == RealMat3::IDENTITY {
                 (axes, *parent_world)
             } else {
                 let f = axes * m;
                 (f, f * c.transpose())
             };
-            let tip = start + world * (bone.direction_f64() * (f64::from(bone.length()) + l));
+            let tip = start + world * (bone.direction_f64() * ((bone.length() as Real) + l));
             (f, world, start, tip)
         }
     }
@@ -233,10 +234,10 @@ pub fn fk64_step(
 #[must_use]
 pub fn fk64_world_step(
     skeleton: &Skeleton,
-    channels: &[f64],
+    channels: &[Real],
     i: usize,
-    parent: Option<(&DMat3, DVec3)>,
-) -> (DMat3, DVec3, DVec3) {
+    parent: Option<(&RealMat3, RealVec3)>,
+) -> (RealMat3, RealVec3, RealVec3) {
     let bone = &skeleton.bones()[i];
     let Some((parent_world, parent_tip)) = parent else {
         let (_, world, start, tip) = fk64_step(skeleton, channels, i, None);
@@ -245,7 +246,7 @@ pub fn fk64_world_step(
     let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
     let still = bone.channels().all(|c| value(c) == 0.0);
     if still {
-        let tip = parent_tip + *parent_world * (bone.direction_f64() * f64::from(bone.length()));
+        let tip = parent_tip + *parent_world * (bone.direction_f64() * (bone.length() as Real));
         return (*parent_world, parent_tip, tip);
     }
     let (_, world, start, tip) = fk64_step(skeleton, channels, i, Some((parent_world, parent_tip)));
@@ -253,7 +254,7 @@ pub fn fk64_world_step(
 }
 
 /// One bone of [`fk64`], its parent already computed.
-fn fk64_bone(skeleton: &Skeleton, channels: &[f64], pose: &mut Pose64, i: usize) {
+fn fk64_bone(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64, i: usize) {
     let parent = skeleton.bones()[i]
         .parent()
         .map(|p| (&pose.world[p], pose.tip[p]));

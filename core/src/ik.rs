@@ -6,55 +6,63 @@
 //! `Wᵢ = Wₚ·Qᵢ` with `Qᵢ = C·M·Cᵀ`; channel vectors hold radians for rotations and file units for
 //! translations.
 
-use glam::{DMat3, DQuat, DVec3};
+use crate::math::{precision, real, Real, RealMat3, RealQuat, RealVec3, ToReal};
 
 use crate::fk::{ancestors, fk64, fk64_bones, fk64_step, fk64_world_step, Pose64};
-use crate::math::{euler_near, quat_distance_fast, wrap_near, EulerOrder};
+use crate::math::{euler_near, quat_distance_fast, sort_by_real, wrap_near, EulerOrder};
 use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
 use crate::swivel::{self, LimitForms, SwivelCircle};
+
+/// How far rounding may leave a value past a bound it meets exactly (an angle on its limit, a
+/// cosine at ±1): 1e-12 in f64; in f32, whose step at π is 2.4e-7 rad, 1e-6.
+const ROUNDING: Real = precision(1e-12, 1e-6);
+/// A quantity treated as zero, or two solutions treated as one.
+const NEAR_ZERO: Real = precision(1e-9, 1e-5);
+/// The bracket at which a golden-section search of the swivel stops, radians.
+const SWIVEL_TOLERANCE: Real = precision(1e-10, 1e-6);
 
 /// The world axis of a bone's rotation DOF number `k` (index into its DOF list), eq. (43)'s `uᵢ`:
 /// `Wₚ·C·R(last)…R(k+1)·e_k`. For a translation DOF, the translation axis (eq. 46).
 #[must_use]
-pub fn dof_axis(skeleton: &Skeleton, pose: &Pose64, bone: usize, k: usize, channels: &[f64]) -> DVec3 {
+pub fn dof_axis(skeleton: &Skeleton, pose: &Pose64, bone: usize, k: usize, channels: &[Real]) -> RealVec3 {
     let b = &skeleton.bones()[bone];
-    let parent_world = b.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
+    let parent_world = b.parent().map_or(RealMat3::IDENTITY, |p| pose.world[p]);
     let c = b.axis_rotation_f64();
     let dofs = b.dofs();
     let first = b.first_channel();
     if !dofs[k].is_rotation() {
-        let e = dofs[k].axis().map_or(DVec3::ZERO, |a| a.unit().as_dvec3());
+        let e = dofs[k].axis().map_or(RealVec3::ZERO, |a| a.unit().to_real());
         return if b.parent().is_none() {
             e
         } else {
             parent_world * c * e
         };
     }
-    let mut after = DMat3::IDENTITY;
+    let mut after = RealMat3::IDENTITY;
     for j in (k + 1..dofs.len()).rev() {
         if let (true, Some(a)) = (dofs[j].is_rotation(), dofs[j].axis()) {
             after *= a.rotation_f64(channels.get(first + j).copied().unwrap_or(0.0));
         }
     }
-    let e = dofs[k].axis().map_or(DVec3::ZERO, |a| a.unit().as_dvec3());
+    let e = dofs[k].axis().map_or(RealVec3::ZERO, |a| a.unit().to_real());
     parent_world * c * after * e
 }
 
 /// Rotation taking unit vector `a` to unit vector `b` by the shortest arc. Past 90° it is
 /// composed of two arcs through the perpendicular in the a–b plane: a single arc loses
 /// precision as the vectors become opposite.
-fn rotation_between(a: DVec3, b: DVec3) -> DQuat {
+fn rotation_between(a: RealVec3, b: RealVec3) -> RealQuat {
     let a = a.normalize_or_zero();
     let b = b.normalize_or_zero();
     if a.dot(b) >= 0.0 {
-        return DQuat::from_rotation_arc(a, b);
+        return RealQuat::from_rotation_arc(a, b);
     }
     let mut m = b - a * a.dot(b);
     if m.length_squared() < 1e-24 {
         m = a.any_orthonormal_vector();
     }
     let m = m.normalize();
-    DQuat::from_rotation_arc(m, b) * DQuat::from_rotation_arc(a, m)
+    RealQuat::from_rotation_arc(m, b) * RealQuat::from_rotation_arc(a, m)
 }
 
 /// Why a limb cannot be set up.
@@ -95,23 +103,23 @@ pub enum Swivel {
     /// Searched inside the joint limits (eq. 27–30), optionally kept near a previous value.
     Auto {
         /// The previous solution's swivel angle, for streams.
-        previous: Option<f64>,
+        previous: Option<Real>,
     },
     /// Given (radians, help note eq. 18–22 convention).
-    Fixed(f64),
+    Fixed(Real),
     /// The legal swivel nearest the given one (the given one when legal): keeps a captured
     /// elbow or knee direction where the limits allow, and moves it continuously to the
     /// nearest legal one where they do not.
-    Nearest(f64),
+    Nearest(Real),
     /// For streams: eq. 30 searched only within `window` radians of the previous swivel (9
     /// samples and golden section instead of the whole circle), so the elbow cannot flip
     /// between frames; the whole circle ([`Swivel::Auto`]) when that window holds no legal
     /// swivel.
     Track {
         /// The previous frame's swivel.
-        previous: f64,
+        previous: Real,
         /// Half-width of the searched window, radians.
-        window: f64,
+        window: Real,
     },
 }
 
@@ -129,22 +137,22 @@ pub struct Limb {
     upper_rot_dofs: [usize; 3],
     /// Elbow axis in the upper bone's rest (world-at-rest) coordinates, and how the elbow angle
     /// maps to the lower bone's channels.
-    elbow_axis: DVec3,
+    elbow_axis: RealVec3,
     elbow: Elbow,
-    d1: DVec3,
-    d2: DVec3,
-    l1: f64,
-    l2: f64,
-    corners: heapless::Vec<DQuat, 8>,
-    center: [f64; 3],
-    limits: [(f64, f64); 3],
-    elbow_limit: (f64, f64),
+    d1: RealVec3,
+    d2: RealVec3,
+    l1: Real,
+    l2: Real,
+    corners: heapless::Vec<RealQuat, 8>,
+    center: [Real; 3],
+    limits: [(Real, Real); 3],
+    elbow_limit: (Real, Real),
     /// `C` of the upper bone as a quaternion.
-    c_upper: DQuat,
+    c_upper: RealQuat,
     /// The swivel's zero direction `â` in the parent's rest frame: of −y (the help note's
     /// default) and −z, the one more perpendicular to the limb at rest, so that a leg hanging
     /// along −y does not make the swivel ill-defined.
-    swivel_reference: DVec3,
+    swivel_reference: RealVec3,
     /// The root…lower bones, for FK of just the limb.
     chain: heapless::Vec<usize, MAX_BONES>,
     /// The shoulder limits as conditions on the swivel circle.
@@ -165,16 +173,16 @@ pub struct LimbSolution {
     /// Whether the target is within reach (else the limb is stretched or folded towards it).
     pub reachable: bool,
     /// Distance from the effector to the target after the solve, file units.
-    pub error: f64,
+    pub error: Real,
     /// The swivel angle used (radians, eq. 18–22: the elbow axis's angle about the shoulder–
     /// effector line from û).
-    pub swivel: f64,
+    pub swivel: Real,
     /// Whether the shoulder angles are within the ASF limits.
     pub upper_within_limits: bool,
     /// Whether the elbow angle is within its limit.
     pub elbow_within_limits: bool,
     /// Sum of limit violations, radians (0 when within).
-    pub violation: f64,
+    pub violation: Real,
 }
 
 fn rot_dofs(dofs: &[Dof]) -> heapless::Vec<usize, 3> {
@@ -198,7 +206,7 @@ impl Limb {
         skeleton: &Skeleton,
         upper: usize,
         lower: usize,
-        frame: Option<&[f64]>,
+        frame: Option<&[Real]>,
     ) -> Result<Limb, LimbError> {
         let bones = skeleton.bones();
         let (u, lo) = (
@@ -211,7 +219,7 @@ impl Limb {
         let upper_order = dof_order(u.dofs()).ok_or(LimbError::UpperNeeds3Dofs)?;
         let ur = rot_dofs(u.dofs());
         let upper_rot_dofs = [ur[0], ur[1], ur[2]];
-        let (l1, l2) = (f64::from(u.length()), f64::from(lo.length()));
+        let (l1, l2) = ((u.length() as Real), (lo.length() as Real));
         if l1 <= 1e-9 || l2 <= 1e-9 {
             return Err(LimbError::ZeroLength);
         }
@@ -221,7 +229,9 @@ impl Limb {
         let c_lower = lo.axis_rotation_f64();
         let (elbow_axis, elbow) = match lr.len() {
             1 => {
-                let axis = lo.dofs()[lr[0]].axis().map_or(DVec3::X, |a| a.unit().as_dvec3());
+                let axis = lo.dofs()[lr[0]]
+                    .axis()
+                    .map_or(RealVec3::X, |a| a.unit().to_real());
                 (c_lower * axis, Elbow::One(lr[0]))
             }
             3 => {
@@ -244,25 +254,27 @@ impl Limb {
             _ => return Err(LimbError::LowerDofs),
         };
         let lim = |b: &crate::skeleton::Bone, k: usize| {
-            b.limits().get(k).map_or((f64::NEG_INFINITY, f64::INFINITY), |l| {
-                (f64::from(l.min), f64::from(l.max))
-            })
+            b.limits()
+                .get(k)
+                .map_or((Real::NEG_INFINITY, Real::INFINITY), |l| {
+                    ((l.min as Real), (l.max as Real))
+                })
         };
         let limits = [lim(u, ur[0]), lim(u, ur[1]), lim(u, ur[2])];
         // The 8 corners of the limit box as quaternions (fewer when a DOF is unlimited).
         let mut corners = heapless::Vec::new();
-        let finite = |x: f64, fallback: f64| if x.is_finite() { x } else { fallback };
+        let finite = |x: Real, fallback: Real| if x.is_finite() { x } else { fallback };
         for mask in 0..8u8 {
             let pick = |k: usize| {
                 let (a, b) = limits[k];
                 if mask & (1 << k) == 0 {
-                    finite(a, -core::f64::consts::PI)
+                    finite(a, -crate::math::consts::PI)
                 } else {
-                    finite(b, core::f64::consts::PI)
+                    finite(b, crate::math::consts::PI)
                 }
             };
             let angles = [pick(0), pick(1), pick(2)];
-            let _ = corners.push(DQuat::from_mat3(&upper_order.to_mat3_f64(angles)));
+            let _ = corners.push(RealQuat::from_mat3(&upper_order.to_mat3_f64(angles)));
         }
         let center = [0, 1, 2].map(|k| {
             let (a, b) = limits[k];
@@ -274,7 +286,7 @@ impl Limb {
         });
         let elbow_limit = match elbow {
             Elbow::One(k) => lim(lo, k),
-            Elbow::Three(..) => (f64::NEG_INFINITY, f64::INFINITY),
+            Elbow::Three(..) => (Real::NEG_INFINITY, Real::INFINITY),
         };
         Ok(Limb {
             upper,
@@ -291,13 +303,13 @@ impl Limb {
             center,
             limits,
             elbow_limit,
-            c_upper: DQuat::from_mat3(&u.axis_rotation_f64()).normalize(),
+            c_upper: RealQuat::from_mat3(&u.axis_rotation_f64()).normalize(),
             swivel_reference: {
                 let rest = (d1 * l1 + d2 * l2).normalize_or_zero();
-                if rest.dot(DVec3::Y).abs() <= rest.dot(DVec3::Z).abs() {
-                    DVec3::NEG_Y
+                if rest.dot(RealVec3::Y).abs() <= rest.dot(RealVec3::Z).abs() {
+                    RealVec3::NEG_Y
                 } else {
-                    DVec3::NEG_Z
+                    RealVec3::NEG_Z
                 }
             },
             chain: ancestors(skeleton, lower),
@@ -311,32 +323,32 @@ impl Limb {
     /// the present effector position with `Swivel::Fixed` of this angle gives the same pose
     /// back, which is how an edit keeps a capture's knee or elbow direction.
     #[must_use]
-    pub fn swivel_of(&self, skeleton: &Skeleton, channels: &[f64]) -> f64 {
+    pub fn swivel_of(&self, skeleton: &Skeleton, channels: &[Real]) -> Real {
         let mut pose = Pose64::default();
         fk64_bones(skeleton, channels, &mut pose, &self.chain);
         let s = pose.start[self.upper];
         let n = (pose.tip[self.lower] - s).normalize_or_zero();
-        if n == DVec3::ZERO {
+        if n == RealVec3::ZERO {
             return 0.0;
         }
         let parent_world = skeleton.bones()[self.upper]
             .parent()
-            .map_or(DMat3::IDENTITY, |p| pose.world[p]);
+            .map_or(RealMat3::IDENTITY, |p| pose.world[p]);
         let (u_hat, v_hat) = self.swivel_basis(parent_world, n);
         let k = pose.world[self.upper] * self.elbow_axis;
-        libm::atan2(v_hat.dot(k), u_hat.dot(k))
+        real::atan2(v_hat.dot(k), u_hat.dot(k))
     }
 
     /// The swivel circle's axes for the shoulder→target direction `n` (eq. 18–22): `û` is the
     /// limb's reference `â` (in the parent's frame) made perpendicular to `n`, `v̂ = n × û`.
-    fn swivel_basis(&self, parent_world: DMat3, n: DVec3) -> (DVec3, DVec3) {
+    fn swivel_basis(&self, parent_world: RealMat3, n: RealVec3) -> (RealVec3, RealVec3) {
         let mut a = parent_world * self.swivel_reference;
         if n.cross(a).length() < 1e-3 {
             // Within 0.06° of the reference: the other of −y and −z.
-            let other = if self.swivel_reference == DVec3::NEG_Y {
-                DVec3::NEG_Z
+            let other = if self.swivel_reference == RealVec3::NEG_Y {
+                RealVec3::NEG_Z
             } else {
-                DVec3::NEG_Y
+                RealVec3::NEG_Y
             };
             a = parent_world * other;
         }
@@ -346,17 +358,17 @@ impl Limb {
 
     /// Longest reach (shoulder to effector), file units.
     #[must_use]
-    pub fn reach(&self) -> (f64, f64) {
+    pub fn reach(&self) -> (Real, Real) {
         // |v1 + R(θ)v2| over θ: extremes of the closed form in `elbow_for_distance`.
         let (a, b, c) = self.coefficients();
-        let amp = libm::sqrt(b * b + c * c);
-        let lo = libm::sqrt((self.l1 * self.l1 + self.l2 * self.l2 + 2.0 * (a - amp)).max(0.0));
-        let hi = libm::sqrt(self.l1 * self.l1 + self.l2 * self.l2 + 2.0 * (a + amp));
+        let amp = real::sqrt(b * b + c * c);
+        let lo = real::sqrt((self.l1 * self.l1 + self.l2 * self.l2 + 2.0 * (a - amp)).max(0.0));
+        let hi = real::sqrt(self.l1 * self.l1 + self.l2 * self.l2 + 2.0 * (a + amp));
         (lo, hi)
     }
 
     /// `v1·R(θ)v2 = A + B cos θ + C sin θ` for the elbow rotation about its axis.
-    fn coefficients(&self) -> (f64, f64, f64) {
+    fn coefficients(&self) -> (Real, Real, Real) {
         let v1 = self.d1 * self.l1;
         let v2 = self.d2 * self.l2;
         let a = self.elbow_axis;
@@ -366,26 +378,26 @@ impl Limb {
 
     /// Elbow angles giving shoulder–effector distance `dist` (eq. 16 generalised to any rest
     /// offset and axis): both branches, clamped to the reachable range.
-    fn elbow_for_distance(&self, dist: f64) -> ([f64; 2], bool) {
+    fn elbow_for_distance(&self, dist: Real) -> ([Real; 2], bool) {
         let (a, b, c) = self.coefficients();
         let k = 0.5 * (dist * dist - self.l1 * self.l1 - self.l2 * self.l2) - a;
-        let amp = libm::sqrt(b * b + c * c);
-        let base = libm::atan2(c, b);
-        if amp < 1e-12 {
-            return ([0.0, 0.0], (k.abs() < 1e-9));
+        let amp = real::sqrt(b * b + c * c);
+        let base = real::atan2(c, b);
+        if amp < ROUNDING {
+            return ([0.0, 0.0], (k.abs() < NEAR_ZERO));
         }
         let ratio = k / amp;
-        let reachable = (-1.0 - 1e-12..=1.0 + 1e-12).contains(&ratio);
-        let delta = libm::acos(ratio.clamp(-1.0, 1.0));
+        let reachable = (-1.0 - ROUNDING..=1.0 + ROUNDING).contains(&ratio);
+        let delta = real::acos(ratio.clamp(-1.0, 1.0));
         ([base + delta, base - delta], reachable)
     }
 
-    fn elbow_rotation(&self, theta: f64) -> DMat3 {
-        DMat3::from_axis_angle(self.elbow_axis, theta)
+    fn elbow_rotation(&self, theta: Real) -> RealMat3 {
+        RealMat3::from_axis_angle(self.elbow_axis, theta)
     }
 
     /// Writes the elbow angle into the channels.
-    fn set_elbow(&self, skeleton: &Skeleton, channels: &mut [f64], theta: f64) {
+    fn set_elbow(&self, skeleton: &Skeleton, channels: &mut [Real], theta: Real) {
         let lo = &skeleton.bones()[self.lower];
         match self.elbow {
             Elbow::One(k) => channels[lo.first_channel() + k] = theta,
@@ -402,7 +414,7 @@ impl Limb {
     }
 
     /// [`Limb::shoulder_angles_near`] the limit range's centre.
-    fn shoulder_angles(&self, m: &DMat3) -> ([f64; 3], f64) {
+    fn shoulder_angles(&self, m: &RealMat3) -> ([Real; 3], Real) {
         self.shoulder_angles_near(m, &self.center)
     }
 
@@ -410,7 +422,7 @@ impl Limb {
     /// violation: of the two Euler solutions (each angle taken modulo 2π next to its limit
     /// range), the one violating the limits least, then the one nearest `reference` (the
     /// present angles, so a stream does not flip between equivalent solutions).
-    fn shoulder_angles_near(&self, m: &DMat3, reference: &[f64; 3]) -> ([f64; 3], f64) {
+    fn shoulder_angles_near(&self, m: &RealMat3, reference: &[Real; 3]) -> ([Real; 3], Real) {
         legal_euler(self.upper_order, m, &self.limits, &self.center, reference)
     }
 
@@ -419,8 +431,8 @@ impl Limb {
     pub fn solve(
         &self,
         skeleton: &Skeleton,
-        channels: &mut [f64],
-        target: DVec3,
+        channels: &mut [Real],
+        target: RealVec3,
         swivel: Swivel,
     ) -> LimbSolution {
         // A non-finite swivel means none given.
@@ -432,26 +444,26 @@ impl Limb {
                 Swivel::Auto { previous: None }
             }
             Swivel::Track { previous, window } => Swivel::Track {
-                previous: libm::remainder(previous, core::f64::consts::TAU),
-                window: window.min(core::f64::consts::PI),
+                previous: real::remainder(previous, crate::math::consts::TAU),
+                window: window.min(crate::math::consts::PI),
             },
-            Swivel::Nearest(p) => Swivel::Nearest(libm::remainder(p, core::f64::consts::TAU)),
-            Swivel::Fixed(p) => Swivel::Fixed(libm::remainder(p, core::f64::consts::TAU)),
+            Swivel::Nearest(p) => Swivel::Nearest(real::remainder(p, crate::math::consts::TAU)),
+            Swivel::Fixed(p) => Swivel::Fixed(real::remainder(p, crate::math::consts::TAU)),
             Swivel::Auto { previous } => Swivel::Auto {
                 previous: previous
                     .filter(|p| p.is_finite())
-                    .map(|p| libm::remainder(p, core::f64::consts::TAU)),
+                    .map(|p| real::remainder(p, crate::math::consts::TAU)),
             },
         };
         // FK down the limb's chain (a path from the root), keeping only the last bone's world
         // rotation and tip: the shoulder's parent, the shoulder, the effector.
         let ub = &skeleton.bones()[self.upper];
-        let mut last: Option<(DMat3, DVec3)> = None;
-        let mut above = (DMat3::IDENTITY, DVec3::ZERO);
-        let mut s = DVec3::ZERO;
+        let mut last: Option<(RealMat3, RealVec3)> = None;
+        let mut above = (RealMat3::IDENTITY, RealVec3::ZERO);
+        let mut s = RealVec3::ZERO;
         for &b in &self.chain {
             if b == self.upper {
-                above = last.unwrap_or((DMat3::IDENTITY, DVec3::ZERO));
+                above = last.unwrap_or((RealMat3::IDENTITY, RealVec3::ZERO));
             }
             let (world, start, tip) =
                 fk64_world_step(skeleton, channels, b, last.as_ref().map(|(w, t)| (w, *t)));
@@ -463,13 +475,13 @@ impl Limb {
         let parent_world = if ub.parent().is_some() {
             above.0
         } else {
-            DMat3::IDENTITY
+            RealMat3::IDENTITY
         };
         // The limb's present direction (zero when its channels hold garbage): the fallback for
         // a target that is not finite, or one at the shoulder.
         let mut present_dir = last.map_or(s, |(_, tip)| tip) - s;
         if !present_dir.is_finite() {
-            present_dir = DVec3::ZERO;
+            present_dir = RealVec3::ZERO;
         }
         let mut to_target = target - s;
         if !to_target.is_finite() {
@@ -488,12 +500,12 @@ impl Limb {
             0.0
         };
         let (cands, reachable) = self.elbow_for_distance(dist);
-        let mut best = (f64::INFINITY, 0.0, false);
-        let mut inside_angles: heapless::Vec<f64, 6> = heapless::Vec::new();
+        let mut best = (Real::INFINITY, 0.0, false);
+        let mut inside_angles: heapless::Vec<Real, 6> = heapless::Vec::new();
         for c in cands {
             for turn in [-1.0, 0.0, 1.0] {
-                let t = c + turn * core::f64::consts::TAU;
-                let inside = t >= lo - 1e-12 && t <= hi + 1e-12;
+                let t = c + turn * crate::math::consts::TAU;
+                let inside = t >= lo - ROUNDING && t <= hi + ROUNDING;
                 let clamped = t.clamp(lo, hi);
                 if inside {
                     let _ = inside_angles.push(clamped);
@@ -512,7 +524,7 @@ impl Limb {
         let other_branch = inside_angles
             .iter()
             .copied()
-            .filter(|t| (t - best.1).abs() > 1e-9)
+            .filter(|t| (t - best.1).abs() > NEAR_ZERO)
             .min_by(|a, b| (a - present).abs().total_cmp(&(b - present).abs()));
         // The present shoulder angles (the centre of the limits when they are garbage).
         let mut reference = self.center;
@@ -528,7 +540,7 @@ impl Limb {
         let (mut phi, mut angles, mut violation) =
             self.shoulder_for(theta, parent_world, to_target, present_dir, swivel, &reference);
         let (mut theta, mut elbow_ok) = (theta, elbow_ok);
-        if violation > 1e-12 {
+        if violation > ROUNDING {
             if let Some(other) = other_branch {
                 let (p2, a2, v2) =
                     self.shoulder_for(other, parent_world, to_target, present_dir, swivel, &reference);
@@ -537,7 +549,7 @@ impl Limb {
                 }
             }
         }
-        let inside = violation <= 1e-12;
+        let inside = violation <= ROUNDING;
         let first = ub.first_channel();
         for (j, k) in self.upper_rot_dofs.iter().enumerate() {
             // A legal solution is legal exactly (rounding may leave it 1e-12 outside).
@@ -555,7 +567,7 @@ impl Limb {
         let error = (tip - target).length();
         LimbSolution {
             reachable: reachable && error.is_finite(),
-            error: if error.is_finite() { error } else { f64::INFINITY },
+            error: if error.is_finite() { error } else { Real::INFINITY },
             swivel: wrap_near(phi, 0.0),
             upper_within_limits: inside,
             elbow_within_limits: elbow_ok,
@@ -566,13 +578,13 @@ impl Limb {
     /// eq. 27–30) and the shoulder's Euler angles with their limit violation.
     fn shoulder_for(
         &self,
-        theta: f64,
-        parent_world: DMat3,
-        to_target: DVec3,
-        present_dir: DVec3,
+        theta: Real,
+        parent_world: RealMat3,
+        to_target: RealVec3,
+        present_dir: RealVec3,
         swivel: Swivel,
-        reference: &[f64; 3],
-    ) -> (f64, [f64; 3], f64) {
+        reference: &[Real; 3],
+    ) -> (Real, [Real; 3], Real) {
         let w0 = self.d1 * self.l1 + self.elbow_rotation(theta) * (self.d2 * self.l2);
         // Direction to the target in the parent's rest coordinates (degenerate: keep the limb's
         // present direction).
@@ -585,38 +597,38 @@ impl Limb {
         }
         let dhat = d.normalize();
         let base_q = rotation_between(w0, dhat);
-        let base = DMat3::from_quat(base_q);
+        let base = RealMat3::from_quat(base_q);
         // Swivel convention (eq. 18–22): n̂ towards the target, û from the limb's â.
         let n_world = parent_world * dhat;
         let (u_hat, v_hat) = self.swivel_basis(parent_world, n_world);
         // The swivel is read from the elbow axis, which a straight limb defines too (the elbow
         // position does not).
-        let elbow_phi = |q: &DMat3| {
+        let elbow_phi = |q: &RealMat3| {
             let k = parent_world * (*q * self.elbow_axis);
-            libm::atan2(v_hat.dot(k), u_hat.dot(k))
+            real::atan2(v_hat.dot(k), u_hat.dot(k))
         };
         let phi0 = elbow_phi(&base);
         // The shoulder rotation in the bone's own frame, `Cᵀ·Q(φ)·C` (eq. 23–26), as a
         // quaternion.
         let c_upper = self.c_upper;
         let local_q =
-            |phi: f64| c_upper.conjugate() * DQuat::from_axis_angle(dhat, phi - phi0) * base_q * c_upper;
-        let local = |phi: f64| DMat3::from_quat(local_q(phi));
+            |phi: Real| c_upper.conjugate() * RealQuat::from_axis_angle(dhat, phi - phi0) * base_q * c_upper;
+        let local = |phi: Real| RealMat3::from_quat(local_q(phi));
         // The swivel circle in closed form: legal arcs and eq. 30's global minimum over them
         // ([`crate::swivel`]); the sampled search below stays for what it cannot settle (no
         // legal swivel, an arc list too long, a result the Euler extraction disagrees with).
         if !matches!(swivel, Swivel::Fixed(_)) {
             if let Some(phi) = self.closed_form_swivel(c_upper, base_q, dhat, phi0, swivel) {
                 let (angles, violation) = self.shoulder_angles_near(&local(phi), reference);
-                if violation <= 1e-12 {
+                if violation <= ROUNDING {
                     return (phi, angles, violation);
                 }
             }
         }
         // Legal: inside the limits up to rounding.
-        let legal = |v: f64| v <= 1e-12;
+        let legal = |v: Real| v <= ROUNDING;
         // Bisection between a legal and an illegal swivel: the legal one next to the limit.
-        let to_boundary = |mut good: f64, mut bad: f64| {
+        let to_boundary = |mut good: Real, mut bad: Real| {
             for _ in 0..30 {
                 let mid = 0.5 * (good + bad);
                 if legal(self.shoulder_angles(&local(mid)).1) {
@@ -628,11 +640,11 @@ impl Limb {
             good
         };
         // The swivel's score and the shoulder's limit violation.
-        let eval = |phi: f64, previous: Option<f64>| {
+        let eval = |phi: Real, previous: Option<Real>| {
             let quat = local_q(phi);
-            let (_, v) = self.shoulder_angles(&DMat3::from_quat(quat));
+            let (_, v) = self.shoulder_angles(&RealMat3::from_quat(quat));
             // Eq. (30): summed distance (eq. 27–28) to the corners of the limit region.
-            let spread: f64 = self.corners.iter().map(|c| quat_distance_fast(quat, *c)).sum();
+            let spread: Real = self.corners.iter().map(|c| quat_distance_fast(quat, *c)).sum();
             let keep = previous.map_or(0.0, |p| {
                 let d = wrap_near(phi, p) - p;
                 0.5 * d * d
@@ -645,19 +657,19 @@ impl Limb {
         let phi = match swivel {
             Swivel::Fixed(p) => p,
             Swivel::Nearest(p) => {
-                let violation = |p: f64| self.shoulder_angles(&local(p)).1;
+                let violation = |p: Real| self.shoulder_angles(&local(p)).1;
                 let v0 = violation(p);
                 if legal(v0) {
                     p
                 } else {
                     // Outwards in 2° steps both ways to the first legal sample, then bisection
                     // to the limit boundary; with none legal, the least violating sample.
-                    let step = core::f64::consts::PI / 90.0;
+                    let step = crate::math::consts::PI / 90.0;
                     let mut found = None;
                     let mut least = (v0, p);
                     'scan: for i in 1..=90 {
                         for sign in [1.0, -1.0] {
-                            let q = p + sign * step * f64::from(i);
+                            let q = p + sign * step * (i as Real);
                             let v = violation(q);
                             if legal(v) {
                                 found = Some((q, q - sign * step));
@@ -670,17 +682,17 @@ impl Limb {
                     }
                     match found {
                         Some((good, bad)) => to_boundary(good, bad),
-                        None => golden(violation, least.1 - step, least.1 + step, 1e-10),
+                        None => golden(violation, least.1 - step, least.1 + step, SWIVEL_TOLERANCE),
                     }
                 }
             }
             Swivel::Track { previous, window } => {
                 const M: usize = 9;
-                let step = 2.0 * window / (M - 1) as f64;
-                let mut best = (f64::INFINITY, previous);
-                let mut best_legal: Option<(f64, f64)> = None;
+                let step = 2.0 * window / (M - 1) as Real;
+                let mut best = (Real::INFINITY, previous);
+                let mut best_legal: Option<(Real, Real)> = None;
                 for i in 0..M {
-                    let p = previous - window + step * i as f64;
+                    let p = previous - window + step * i as Real;
                     let (f, v) = eval(p, Some(previous));
                     if f < best.0 {
                         best = (f, p);
@@ -717,13 +729,13 @@ impl Limb {
             Swivel::Auto { previous } => {
                 // Coarse scan of the swivel circle, then golden-section refinement (step 7).
                 const N: usize = SWIVEL_SAMPLES as usize;
-                let step = core::f64::consts::TAU / N as f64;
-                let mut best = (f64::INFINITY, 0.0);
-                let mut best_legal: Option<(f64, f64)> = None;
-                let mut sampled = [0.0f64; N];
-                let violation = |p: f64| self.shoulder_angles(&local(p)).1;
+                let step = crate::math::consts::TAU / N as Real;
+                let mut best = (Real::INFINITY, 0.0);
+                let mut best_legal: Option<(Real, Real)> = None;
+                let mut sampled = [(0.0 as Real); N];
+                let violation = |p: Real| self.shoulder_angles(&local(p)).1;
                 for (i, v_out) in sampled.iter_mut().enumerate() {
-                    let p = -core::f64::consts::PI + step * i as f64;
+                    let p = -crate::math::consts::PI + step * i as Real;
                     let (f, v) = eval(p, previous);
                     *v_out = v;
                     if f < best.0 {
@@ -744,17 +756,17 @@ impl Limb {
                     // around the lowest local minima of the samples.
                     None => {
                         let mut result = (violation(found), found);
-                        let mut minima: heapless::Vec<(f64, usize), N> = heapless::Vec::new();
+                        let mut minima: heapless::Vec<(Real, usize), N> = heapless::Vec::new();
                         for i in 0..N {
                             let (before, after) = (sampled[(i + N - 1) % N], sampled[(i + 1) % N]);
                             if sampled[i] <= before && sampled[i] <= after {
                                 let _ = minima.push((sampled[i], i));
                             }
                         }
-                        minima.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+                        sort_by_real(&mut minima, |m| m.0);
                         for &(_, i) in minima.iter().take(3) {
-                            let centre = -core::f64::consts::PI + step * i as f64;
-                            let p = golden(violation, centre - step, centre + step, 1e-10);
+                            let centre = -crate::math::consts::PI + step * i as Real;
+                            let p = golden(violation, centre - step, centre + step, SWIVEL_TOLERANCE);
                             let v = violation(p);
                             if v < result.0 {
                                 result = (v, p);
@@ -780,20 +792,20 @@ impl Limb {
     /// swivel or the arcs do not fit.
     fn closed_form_swivel(
         &self,
-        c: DQuat,
-        base: DQuat,
-        axis: DVec3,
-        phi0: f64,
+        c: RealQuat,
+        base: RealQuat,
+        axis: RealVec3,
+        phi0: Real,
         swivel: Swivel,
-    ) -> Option<f64> {
-        let n = DQuat::from_xyzw(axis.x, axis.y, axis.z, 0.0);
+    ) -> Option<Real> {
+        let n = RealQuat::from_xyzw(axis.x, axis.y, axis.z, 0.0);
         let p = c.conjugate() * base * c;
         let q = c.conjugate() * n * base * c;
         let circle = SwivelCircle::new(p, q, &self.corners);
         // Legal as the Euler extraction reads it (exact).
-        let legal_at = |psi: f64| {
-            let (s, c) = libm::sincos(0.5 * psi);
-            self.shoulder_angles(&DMat3::from_quat(p * c + q * s)).1 <= 1e-12
+        let legal_at = |psi: Real| {
+            let (s, c) = real::sincos(0.5 * psi);
+            self.shoulder_angles(&RealMat3::from_quat(p * c + q * s)).1 <= ROUNDING
         };
         match swivel {
             // A stream: the optimum within the window, when legal, is the optimum over the
@@ -832,15 +844,15 @@ impl Limb {
 /// limits least, then the one nearest `reference`.
 fn legal_euler(
     order: EulerOrder,
-    m: &DMat3,
-    limits: &[(f64, f64); 3],
-    centre: &[f64; 3],
-    reference: &[f64; 3],
-) -> ([f64; 3], f64) {
+    m: &RealMat3,
+    limits: &[(Real, Real); 3],
+    centre: &[Real; 3],
+    reference: &[Real; 3],
+) -> ([Real; 3], Real) {
     let a = order.from_mat3_f64(m);
-    let pi = core::f64::consts::PI;
+    let pi = crate::math::consts::PI;
     let b2 = if order.is_proper() { -a[1] } else { pi - a[1] };
-    let mut best = ([0.0; 3], f64::INFINITY, f64::INFINITY);
+    let mut best = ([0.0; 3], Real::INFINITY, Real::INFINITY);
     for cand in [a, [a[0] + pi, b2, a[2] + pi]] {
         let (mut w, mut v, mut off) = ([0.0; 3], 0.0, 0.0);
         for k in 0..3 {
@@ -848,7 +860,7 @@ fn legal_euler(
             v += (limits[k].0 - w[k]).max(0.0) + (w[k] - limits[k].1).max(0.0);
             off += (w[k] - reference[k]).abs();
         }
-        if v < best.1 - 1e-12 || (v <= best.1 + 1e-12 && off < best.2) {
+        if v < best.1 - ROUNDING || (v <= best.1 + ROUNDING && off < best.2) {
             best = (w, v, off);
         }
     }
@@ -859,10 +871,10 @@ fn legal_euler(
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Pointing {
     /// Angle between the bone's direction and the asked one afterwards, radians.
-    pub direction_error: f64,
+    pub direction_error: Real,
     /// Summed excess of the bone's angles over their ASF limits, radians (0: legal). The
     /// angles are written as solved, not clamped.
-    pub violation: f64,
+    pub violation: Real,
 }
 
 /// Why [`point_bone`] cannot point a bone.
@@ -901,10 +913,10 @@ impl core::error::Error for PointError {}
 /// [`PointError`].
 pub fn point_bone(
     skeleton: &Skeleton,
-    channels: &mut [f64],
+    channels: &mut [Real],
     bone: usize,
-    direction: DVec3,
-    roll: f64,
+    direction: RealVec3,
+    roll: Real,
 ) -> Result<Pointing, PointError> {
     let b = skeleton.bones().get(bone).ok_or(PointError::Needs3Dofs)?;
     let order = dof_order(b.dofs()).ok_or(PointError::Needs3Dofs)?;
@@ -913,7 +925,7 @@ pub fn point_bone(
         return Err(PointError::Needs3Dofs);
     }
     let rest = b.direction_f64();
-    if rest == DVec3::ZERO || b.length() <= 0.0 {
+    if rest == RealVec3::ZERO || b.length() <= 0.0 {
         return Err(PointError::NoDirection);
     }
     if !direction.is_finite() || direction.length() < 1e-12 || !roll.is_finite() {
@@ -921,13 +933,13 @@ pub fn point_bone(
     }
     let mut pose = Pose64::default();
     fk64_bones(skeleton, channels, &mut pose, &ancestors(skeleton, bone));
-    let parent_world = b.parent().map_or(DMat3::IDENTITY, |p| pose.world[p]);
+    let parent_world = b.parent().map_or(RealMat3::IDENTITY, |p| pose.world[p]);
     let c = b.axis_rotation_f64();
     let a = parent_world * c;
     let v_h = c.transpose() * rest;
     let wanted = (a.transpose() * direction.normalize()).normalize();
-    let delta = DMat3::from_quat(rotation_between(v_h, wanted));
-    let m = delta * DMat3::from_axis_angle(v_h, libm::remainder(roll, core::f64::consts::TAU));
+    let delta = RealMat3::from_quat(rotation_between(v_h, wanted));
+    let m = delta * RealMat3::from_axis_angle(v_h, real::remainder(roll, crate::math::consts::TAU));
     let first = b.first_channel();
     let present = [0, 1, 2].map(|j| {
         let x = channels[first + ks[j]];
@@ -940,8 +952,8 @@ pub fn point_bone(
     let limits = [0, 1, 2].map(|j| {
         b.limits()
             .get(ks[j])
-            .map_or((f64::NEG_INFINITY, f64::INFINITY), |l| {
-                (f64::from(l.min), f64::from(l.max))
+            .map_or((Real::NEG_INFINITY, Real::INFINITY), |l| {
+                ((l.min as Real), (l.max as Real))
             })
     });
     let centre = [0, 1, 2].map(|j| {
@@ -959,7 +971,7 @@ pub fn point_bone(
     fk64_bones(skeleton, channels, &mut pose, &ancestors(skeleton, bone));
     let got = (pose.tip[bone] - pose.start[bone]).normalize_or_zero();
     let want = direction.normalize();
-    let direction_error = libm::atan2(got.cross(want).length(), got.dot(want));
+    let direction_error = real::atan2(got.cross(want).length(), got.dot(want));
     Ok(Pointing {
         direction_error,
         violation,
@@ -967,8 +979,8 @@ pub fn point_bone(
 }
 
 /// Golden-section minimisation of `f` on `[a, b]`.
-pub fn golden(mut f: impl FnMut(f64) -> f64, mut a: f64, mut b: f64, tol: f64) -> f64 {
-    let r = 0.5 * (libm::sqrt(5.0) - 1.0);
+pub fn golden(mut f: impl FnMut(Real) -> Real, mut a: Real, mut b: Real, tol: Real) -> Real {
+    let r = 0.5 * (real::sqrt(5.0) - 1.0);
     let mut c = b - r * (b - a);
     let mut d = a + r * (b - a);
     let (mut fc, mut fd) = (f(c), f(d));

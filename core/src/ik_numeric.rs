@@ -3,7 +3,7 @@
 //! gradient on the objective eq. (35) with gradient eq. (42). Several constraints at once, a bone
 //! mask, root translation off by default; joint limits are enforced inside every iteration.
 
-use glam::{DMat3, DVec3};
+use crate::math::{real, Real, RealMat3, RealVec3};
 
 use crate::fk::{fk64_bones, Pose64};
 use crate::ik::dof_axis;
@@ -22,9 +22,9 @@ pub struct Constraint {
     /// The bone whose tip is the effector.
     pub bone: usize,
     /// Goal position, file units.
-    pub position: DVec3,
+    pub position: RealVec3,
     /// Goal x̂ and ŷ of the bone's local frame (world), if orientation matters.
-    pub axes: Option<(DVec3, DVec3)>,
+    pub axes: Option<(RealVec3, RealVec3)>,
 }
 
 /// The method.
@@ -71,15 +71,15 @@ pub struct Settings {
     pub jacobian: JacobianKind,
     /// Stop when every position error is below this (file units) and orientation errors below
     /// `tolerance / c_d`.
-    pub tolerance: f64,
+    pub tolerance: Real,
     /// Iteration cap.
     pub max_iterations: usize,
     /// Degrees that weigh like one length unit: `c_d = 180/(π·d)` (eq. 36).
-    pub degrees_per_unit: f64,
+    pub degrees_per_unit: Real,
     /// Damping λ of DLS (file units).
-    pub damping: f64,
+    pub damping: Real,
     /// Largest joint change per iteration, radians.
-    pub max_step: f64,
+    pub max_step: Real,
     /// Whether the root may translate.
     pub move_root: bool,
     /// Restarts allowed when a solve stalls short of the tolerance (a local minimum against the
@@ -116,9 +116,9 @@ pub struct Outcome {
     /// Iterations used.
     pub iterations: usize,
     /// Largest position error left, file units.
-    pub position_error: f64,
+    pub position_error: Real,
     /// Largest orientation axis error left (|x̂g − x̂e|, |ŷg − ŷe|).
-    pub orientation_error: f64,
+    pub orientation_error: Real,
     /// Whether the tolerance was met.
     pub converged: bool,
 }
@@ -130,12 +130,12 @@ pub type BoneMask = [bool; MAX_BONES];
 #[derive(Clone, Debug)]
 pub struct Solver {
     vars: heapless::Vec<Var, MAX_VARS>,
-    jac: [[f64; MAX_VARS]; MAX_ROWS],
-    err: [f64; MAX_ROWS],
+    jac: [[Real; MAX_VARS]; MAX_ROWS],
+    err: [Real; MAX_ROWS],
     rows: usize,
     pose: Pose64,
-    lo: [f64; MAX_VARS],
-    hi: [f64; MAX_VARS],
+    lo: [Real; MAX_VARS],
+    hi: [Real; MAX_VARS],
     /// The constraint bones and their ancestors, ascending: all FK has to compute.
     needed: heapless::Vec<usize, MAX_BONES>,
 }
@@ -177,8 +177,8 @@ impl Solver {
                 let (lo, hi) = bone
                     .limits()
                     .get(k)
-                    .map_or((f64::NEG_INFINITY, f64::INFINITY), |l| {
-                        (f64::from(l.min), f64::from(l.max))
+                    .map_or((Real::NEG_INFINITY, Real::INFINITY), |l| {
+                        ((l.min as Real), (l.max as Real))
                     });
                 if s.vars
                     .push(Var {
@@ -205,7 +205,7 @@ impl Solver {
 
     /// Whether every variable is within its limits in `channels`.
     #[must_use]
-    pub fn within_limits(&self, channels: &[f64]) -> bool {
+    pub fn within_limits(&self, channels: &[Real]) -> bool {
         self.vars.iter().enumerate().all(|(i, v)| {
             channels[v.channel] >= self.lo[i] - 1e-9 && channels[v.channel] <= self.hi[i] + 1e-9
         })
@@ -217,13 +217,13 @@ impl Solver {
         &mut self,
         skeleton: &Skeleton,
         constraints: &[Constraint],
-        channels: &mut [f64],
-        degrees_per_unit: f64,
+        channels: &mut [Real],
+        degrees_per_unit: Real,
         kind: JacobianKind,
     ) -> usize {
         let constraints = &constraints[..constraints.len().min(MAX_CONSTRAINTS)];
         self.set_needed(skeleton, constraints);
-        let cd = 180.0 / (core::f64::consts::PI * degrees_per_unit.max(1e-9));
+        let cd = 180.0 / (crate::math::consts::PI * degrees_per_unit.max(1e-9));
         fk64_bones(skeleton, channels, &mut self.pose, &self.needed);
         self.errors(constraints, cd);
         self.jacobian(skeleton, constraints, channels, cd, kind);
@@ -232,18 +232,18 @@ impl Solver {
 
     /// Row `r` of the last Jacobian, one entry per variable.
     #[must_use]
-    pub fn jacobian_row(&self, r: usize) -> &[f64] {
+    pub fn jacobian_row(&self, r: usize) -> &[Real] {
         &self.jac[r.min(MAX_ROWS - 1)][..self.vars.len()]
     }
 
-    fn clamp(&self, i: usize, x: f64) -> f64 {
+    fn clamp(&self, i: usize, x: Real) -> Real {
         x.clamp(self.lo[i], self.hi[i])
     }
 
     /// Error vector `b` (eq. 41, orientation rows scaled by `c_d`) and the largest errors.
-    fn errors(&mut self, constraints: &[Constraint], cd: f64) -> (f64, f64) {
+    fn errors(&mut self, constraints: &[Constraint], cd: Real) -> (Real, Real) {
         let mut rows = 0;
-        let (mut pe, mut oe) = (0.0f64, 0.0f64);
+        let (mut pe, mut oe) = ((0.0 as Real), (0.0 as Real));
         for c in constraints {
             let d = c.position - self.pose.tip[c.bone];
             pe = pe.max(d.length());
@@ -279,8 +279,8 @@ impl Solver {
         &mut self,
         skeleton: &Skeleton,
         constraints: &[Constraint],
-        channels: &mut [f64],
-        cd: f64,
+        channels: &mut [Real],
+        cd: Real,
         kind: JacobianKind,
     ) {
         match kind {
@@ -292,7 +292,7 @@ impl Solver {
                     for c in constraints {
                         let on = Self::affects(skeleton, v.bone, c.bone);
                         let dp = if !on {
-                            DVec3::ZERO
+                            RealVec3::ZERO
                         } else if v.rotation {
                             u.cross(self.pose.tip[c.bone] - pivot)
                         } else {
@@ -307,7 +307,7 @@ impl Solver {
                             let (dx, dy) = if on && v.rotation {
                                 (u.cross(f.x_axis), u.cross(f.y_axis))
                             } else {
-                                (DVec3::ZERO, DVec3::ZERO)
+                                (RealVec3::ZERO, RealVec3::ZERO)
                             };
                             for k in 0..3 {
                                 self.jac[r + k][i] = dx[k] * cd;
@@ -357,9 +357,9 @@ impl Solver {
         &mut self,
         skeleton: &Skeleton,
         constraints: &[Constraint],
-        channels: &[f64],
-        cd: f64,
-    ) -> f64 {
+        channels: &[Real],
+        cd: Real,
+    ) -> Real {
         fk64_bones(skeleton, channels, &mut self.pose, &self.needed);
         let mut p = 0.0;
         for c in constraints {
@@ -374,13 +374,13 @@ impl Solver {
 
     /// Applies `Δθ` scaled so no joint moves more than `max_step`, projected onto the limits.
     /// Applies `Δθ`; false when nothing moved.
-    fn apply(&self, channels: &mut [f64], delta: &[f64], max_step: f64) -> bool {
+    fn apply(&self, channels: &mut [Real], delta: &[Real], max_step: Real) -> bool {
         let n = self.vars.len();
         let big = delta[..n]
             .iter()
             .enumerate()
             .filter(|(i, _)| self.vars[*i].rotation)
-            .fold(0.0f64, |m, (_, d)| m.max(d.abs()));
+            .fold(0.0 as Real, |m, (_, d)| m.max(d.abs()));
         let scale = if big > max_step { max_step / big } else { 1.0 };
         let mut moved = false;
         for (i, v) in self.vars.iter().enumerate() {
@@ -402,23 +402,23 @@ impl Solver {
         &mut self,
         skeleton: &Skeleton,
         constraints: &[Constraint],
-        channels: &mut [f64],
+        channels: &mut [Real],
         settings: &Settings,
     ) -> Outcome {
         let constraints = &constraints[..constraints.len().min(MAX_CONSTRAINTS)];
         self.set_needed(skeleton, constraints);
-        let cd = 180.0 / (core::f64::consts::PI * settings.degrees_per_unit.max(1e-9));
+        let cd = 180.0 / (crate::math::consts::PI * settings.degrees_per_unit.max(1e-9));
         let otol = settings.tolerance / cd;
         for (i, v) in self.vars.iter().enumerate() {
             channels[v.channel] = self.clamp(i, channels[v.channel]);
         }
         let n = self.vars.len();
-        let mut best = [0.0f64; MAX_VARS];
-        let mut best_score = f64::INFINITY;
+        let mut best = [(0.0 as Real); MAX_VARS];
+        let mut best_score = Real::INFINITY;
         let mut state = StepState::new(settings.damping);
         let mut restarts_left = settings.restarts;
         let mut rng = SplitMix(0x6d61_7269_6f6e_6574);
-        let (mut window, mut since) = (f64::INFINITY, 0);
+        let (mut window, mut since) = (Real::INFINITY, 0);
         let mut it = 0;
         let (mut pe, mut oe);
         loop {
@@ -459,7 +459,7 @@ impl Solver {
                         lo + (hi - lo) * rng.unit()
                     };
                 }
-                (window, since) = (f64::INFINITY, 0);
+                (window, since) = (Real::INFINITY, 0);
                 state = StepState::new(settings.damping);
             }
         }
@@ -495,7 +495,7 @@ impl Solver {
     }
 
     /// Squared norm of the error vector of the last [`Solver::errors`].
-    fn residual(&self) -> f64 {
+    fn residual(&self) -> Real {
         self.err[..self.rows].iter().map(|e| e * e).sum()
     }
 
@@ -506,13 +506,13 @@ impl Solver {
         &mut self,
         skeleton: &Skeleton,
         constraints: &[Constraint],
-        channels: &mut [f64],
-        cd: f64,
+        channels: &mut [Real],
+        cd: Real,
         settings: &Settings,
         state: &mut StepState,
     ) -> bool {
         let n = self.vars.len();
-        let mut delta = [0.0f64; MAX_VARS];
+        let mut delta = [(0.0 as Real); MAX_VARS];
         match settings.method {
             Method::Ccd => {
                 self.ccd_sweep(skeleton, constraints, channels, cd);
@@ -523,12 +523,12 @@ impl Solver {
                 for _ in 0..2 {
                     // Δθ = α Jᵀe with α = ⟨e, JJᵀe⟩ / ⟨JJᵀe, JJᵀe⟩ (Buss & Kim).
                     self.jt_e(&mut delta);
-                    let mut jjte = [0.0f64; MAX_ROWS];
+                    let mut jjte = [(0.0 as Real); MAX_ROWS];
                     for (r, out) in jjte.iter_mut().enumerate().take(self.rows) {
                         *out = (0..n).map(|i| self.jac[r][i] * delta[i]).sum();
                     }
-                    let num: f64 = (0..self.rows).map(|r| self.err[r] * jjte[r]).sum();
-                    let den: f64 = (0..self.rows).map(|r| jjte[r] * jjte[r]).sum();
+                    let num: Real = (0..self.rows).map(|r| self.err[r] * jjte[r]).sum();
+                    let den: Real = (0..self.rows).map(|r| jjte[r] * jjte[r]).sum();
                     let alpha = if den > 1e-30 { num / den } else { 0.0 };
                     for d in delta.iter_mut().take(n) {
                         *d *= alpha;
@@ -556,7 +556,7 @@ impl Solver {
                 // grows (the step undone) after one that does not.
                 self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
                 let before = self.residual();
-                let mut saved = [0.0f64; MAX_VARS];
+                let mut saved = [(0.0 as Real); MAX_VARS];
                 for (i, v) in self.vars.iter().enumerate() {
                     saved[i] = channels[v.channel];
                 }
@@ -588,7 +588,7 @@ impl Solver {
                 self.jacobian(skeleton, constraints, channels, cd, settings.jacobian);
                 // ∇P = −2Jᵀb (eq. 42), zero along limits that block descent; Polak–Ribière
                 // directions, reset every n iterations and whenever not a descent direction.
-                let mut grad = [0.0f64; MAX_VARS];
+                let mut grad = [(0.0 as Real); MAX_VARS];
                 self.jt_e(&mut grad);
                 for (i, g) in grad.iter_mut().enumerate().take(n) {
                     *g *= -2.0;
@@ -597,13 +597,13 @@ impl Solver {
                         *g = 0.0;
                     }
                 }
-                let gg_prev: f64 = state.grad_prev[..n].iter().map(|g| g * g).sum();
+                let gg_prev: Real = state.grad_prev[..n].iter().map(|g| g * g).sum();
                 let beta = if state.k % n.max(1) == 0 || gg_prev < 1e-30 {
                     0.0
                 } else {
                     ((0..n)
                         .map(|i| grad[i] * (grad[i] - state.grad_prev[i]))
-                        .sum::<f64>()
+                        .sum::<Real>()
                         / gg_prev)
                         .max(0.0)
                 };
@@ -611,7 +611,7 @@ impl Solver {
                 for i in 0..n {
                     state.dir[i] = -grad[i] + beta * state.dir[i];
                 }
-                if (0..n).map(|i| state.dir[i] * grad[i]).sum::<f64>() >= 0.0 {
+                if (0..n).map(|i| state.dir[i] * grad[i]).sum::<Real>() >= 0.0 {
                     for i in 0..n {
                         state.dir[i] = -grad[i];
                     }
@@ -645,7 +645,7 @@ impl Solver {
 
     /// Zeroes the Jacobian columns of variables resting on a limit that `delta` pushes further
     /// out; true when any was zeroed (the step must be formed again).
-    fn freeze_blocked(&mut self, channels: &[f64], delta: &[f64; MAX_VARS]) -> bool {
+    fn freeze_blocked(&mut self, channels: &[Real], delta: &[Real; MAX_VARS]) -> bool {
         let mut any = false;
         for (i, v) in self.vars.iter().enumerate() {
             let x = channels[v.channel];
@@ -660,7 +660,7 @@ impl Solver {
         any
     }
 
-    fn jt_e(&self, out: &mut [f64; MAX_VARS]) {
+    fn jt_e(&self, out: &mut [Real; MAX_VARS]) {
         for (i, o) in out.iter_mut().enumerate().take(self.vars.len()) {
             *o = (0..self.rows).map(|r| self.jac[r][i] * self.err[r]).sum();
         }
@@ -668,13 +668,13 @@ impl Solver {
 
     /// `Δθ = Jᵀ (JJᵀ + λ²I)⁻¹ e`; false when the system is singular.
     #[allow(clippy::needless_range_loop)]
-    fn least_squares_step(&self, lambda2: f64, delta: &mut [f64; MAX_VARS]) -> bool {
+    fn least_squares_step(&self, lambda2: Real, delta: &mut [Real; MAX_VARS]) -> bool {
         let (m, n) = (self.rows, self.vars.len());
-        let mut a = [[0.0f64; MAX_ROWS]; MAX_ROWS];
-        let mut y = [0.0f64; MAX_ROWS];
+        let mut a = [[(0.0 as Real); MAX_ROWS]; MAX_ROWS];
+        let mut y = [(0.0 as Real); MAX_ROWS];
         for r in 0..m {
             for c in 0..=r {
-                let v: f64 = (0..n).map(|i| self.jac[r][i] * self.jac[c][i]).sum();
+                let v: Real = (0..n).map(|i| self.jac[r][i] * self.jac[c][i]).sum();
                 a[r][c] = v;
                 a[c][r] = v;
             }
@@ -698,25 +698,25 @@ impl Solver {
         &mut self,
         skeleton: &Skeleton,
         constraints: &[Constraint],
-        channels: &mut [f64],
-        dir: &[f64; MAX_VARS],
-        slope: f64,
-        cd: f64,
-        max_step: f64,
+        channels: &mut [Real],
+        dir: &[Real; MAX_VARS],
+        slope: Real,
+        cd: Real,
+        max_step: Real,
     ) -> bool {
         let n = self.vars.len();
         let f0 = self.objective(skeleton, constraints, channels, cd);
-        let big = dir[..n].iter().fold(0.0f64, |m, d| m.max(d.abs()));
+        let big = dir[..n].iter().fold(0.0 as Real, |m, d| m.max(d.abs()));
         if big < 1e-300 {
             return false;
         }
         let t_max = max_step / big;
         let mut t = t_max;
-        let mut saved = [0.0f64; MAX_VARS];
+        let mut saved = [(0.0 as Real); MAX_VARS];
         for (i, v) in self.vars.iter().enumerate() {
             saved[i] = channels[v.channel];
         }
-        let set = |s: &Self, channels: &mut [f64], t: f64| {
+        let set = |s: &Self, channels: &mut [Real], t: Real| {
             for (i, v) in s.vars.iter().enumerate() {
                 channels[v.channel] = s.clamp(i, saved[i] + t * dir[i]);
             }
@@ -747,7 +747,13 @@ impl Solver {
 
     /// One CCD sweep from the effector end: each DOF turned to best align the effectors with
     /// their goals about its own axis, clamped to its limits.
-    fn ccd_sweep(&mut self, skeleton: &Skeleton, constraints: &[Constraint], channels: &mut [f64], cd: f64) {
+    fn ccd_sweep(
+        &mut self,
+        skeleton: &Skeleton,
+        constraints: &[Constraint],
+        channels: &mut [Real],
+        cd: Real,
+    ) {
         for i in (0..self.vars.len()).rev() {
             let v = self.vars[i];
             fk64_bones(skeleton, channels, &mut self.pose, &self.needed);
@@ -759,7 +765,7 @@ impl Solver {
                     .iter()
                     .filter(|c| Self::affects(skeleton, v.bone, c.bone))
                 {
-                    let mut acc = |a: DVec3, b: DVec3, w: f64| {
+                    let mut acc = |a: RealVec3, b: RealVec3, w: Real| {
                         let a = a - u * u.dot(a);
                         let b = b - u * u.dot(b);
                         num += w * u.dot(a.cross(b));
@@ -767,13 +773,13 @@ impl Solver {
                     };
                     acc(self.pose.tip[c.bone] - pivot, c.position - pivot, 1.0);
                     if let Some((xg, yg)) = c.axes {
-                        let f: DMat3 = self.pose.frame[c.bone];
+                        let f: RealMat3 = self.pose.frame[c.bone];
                         acc(f.x_axis, xg, cd * cd);
                         acc(f.y_axis, yg, cd * cd);
                     }
                 }
                 if num != 0.0 || den != 0.0 {
-                    let delta = libm::atan2(num, den);
+                    let delta = real::atan2(num, den);
                     channels[v.channel] = self.clamp(i, channels[v.channel] + delta);
                 }
             } else {
@@ -798,15 +804,15 @@ impl Solver {
 #[derive(Clone, Copy)]
 struct StepState {
     /// DLS damping λ now.
-    lambda: f64,
+    lambda: Real,
     /// CG: the previous gradient and direction, and iterations since the last reset.
-    grad_prev: [f64; MAX_VARS],
-    dir: [f64; MAX_VARS],
+    grad_prev: [Real; MAX_VARS],
+    dir: [Real; MAX_VARS],
     k: usize,
 }
 
 impl StepState {
-    fn new(lambda: f64) -> StepState {
+    fn new(lambda: Real) -> StepState {
         StepState {
             lambda: lambda.max(1e-6),
             grad_prev: [0.0; MAX_VARS],
@@ -820,19 +826,19 @@ impl StepState {
 struct SplitMix(u64);
 
 impl SplitMix {
-    fn unit(&mut self) -> f64 {
+    fn unit(&mut self) -> Real {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        ((z ^ (z >> 31)) >> 11) as Real / (1u64 << 53) as Real
     }
 }
 
 #[allow(clippy::needless_range_loop)]
 /// Solves `A·x = y` in place (Gaussian elimination, partial pivoting) for the leading `m`×`m`
 /// block; `y` becomes `x`. False when singular.
-fn solve_linear(a: &mut [[f64; MAX_ROWS]; MAX_ROWS], y: &mut [f64; MAX_ROWS], m: usize) -> bool {
+fn solve_linear(a: &mut [[Real; MAX_ROWS]; MAX_ROWS], y: &mut [Real; MAX_ROWS], m: usize) -> bool {
     for col in 0..m {
         let piv = (col..m)
             .max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))
@@ -853,7 +859,7 @@ fn solve_linear(a: &mut [[f64; MAX_ROWS]; MAX_ROWS], y: &mut [f64; MAX_ROWS], m:
         }
     }
     for col in (0..m).rev() {
-        let s: f64 = (col + 1..m).map(|c| a[col][c] * y[c]).sum();
+        let s: Real = (col + 1..m).map(|c| a[col][c] * y[c]).sum();
         y[col] = (y[col] - s) / a[col][col];
     }
     true

@@ -7,29 +7,29 @@
 //! interpolation; Euler angles written back are chosen continuous with a reference so that
 //! edited channels never jump by 360°.
 
+use crate::math::consts::{FRAC_PI_2, PI};
 use crate::math::{euler_near, wrap_near, Axis, EulerOrder};
+use crate::math::{real, Real, RealMat3, RealQuat, RealVec3, ToReal};
 use crate::skeleton::{dof_rotation, Bone, Dof, Skeleton};
-use core::f64::consts::{FRAC_PI_2, PI};
-use glam::{DMat3, DQuat, DVec3};
 
 /// The rotation of a bone's rotation channels, `M` (radians from file degrees).
 #[must_use]
-pub fn channel_rotation(bone: &Bone, frame: &[f64]) -> DMat3 {
+pub fn channel_rotation(bone: &Bone, frame: &[Real]) -> RealMat3 {
     dof_rotation(bone.dofs(), frame[bone.channels()].iter().map(|v| v.to_radians()))
 }
 
 /// The root's global rotation `W₀ = O·M₀`.
 #[must_use]
-pub fn root_rotation(skeleton: &Skeleton, frame: &[f64]) -> DMat3 {
+pub fn root_rotation(skeleton: &Skeleton, frame: &[Real]) -> RealMat3 {
     let root = skeleton.root();
-    root.axis_order.to_mat3_f64(root.orientation.map(f64::from))
+    root.axis_order.to_mat3_f64(root.orientation.map(Real::from))
         * channel_rotation(&skeleton.bones()[0], frame)
 }
 
 /// The root's global position: `:root position` + translation channels.
 #[must_use]
-pub fn root_position(skeleton: &Skeleton, frame: &[f64]) -> DVec3 {
-    let mut p = skeleton.root().position.as_dvec3();
+pub fn root_position(skeleton: &Skeleton, frame: &[Real]) -> RealVec3 {
+    let mut p = skeleton.root().position.to_real();
     let bone = &skeleton.bones()[0];
     for (d, c) in bone.dofs().iter().zip(bone.channels()) {
         match d {
@@ -45,21 +45,21 @@ pub fn root_position(skeleton: &Skeleton, frame: &[f64]) -> DVec3 {
 /// Facing angle of a root rotation, eq. (7): the local z axis projected on the x–z plane,
 /// measured from global z towards x: `atan2(R₀₂, R₂₂)`.
 #[must_use]
-pub fn facing_angle(root: &DMat3) -> f64 {
+pub fn facing_angle(root: &RealMat3) -> Real {
     let z = root.col(2);
-    libm::atan2(z.x, z.z)
+    real::atan2(z.x, z.z)
 }
 
 /// Writes the root's channels so that its global rotation is `rotation` and its position
 /// `position`. Rotation angles are chosen near the frame's current ones. Channels the root
 /// lacks are left out (a root without TY keeps its height).
-pub fn set_root(skeleton: &Skeleton, frame: &mut [f64], rotation: &DMat3, position: DVec3) {
+pub fn set_root(skeleton: &Skeleton, frame: &mut [Real], rotation: &RealMat3, position: RealVec3) {
     let root = skeleton.root();
-    let o = root.axis_order.to_mat3_f64(root.orientation.map(f64::from));
+    let o = root.axis_order.to_mat3_f64(root.orientation.map(Real::from));
     let m = o.transpose() * *rotation;
     let bone = &skeleton.bones()[0];
     set_channel_rotation(bone, frame, &m);
-    let offset = root.position.as_dvec3();
+    let offset = root.position.to_real();
     for (d, c) in bone.dofs().iter().zip(bone.channels()) {
         match d {
             Dof::Tx => frame[c] = position.x - offset.x,
@@ -73,7 +73,7 @@ pub fn set_root(skeleton: &Skeleton, frame: &mut [f64], rotation: &DMat3, positi
 /// Writes a bone's rotation channels for the rotation `m`, angles near the current values.
 /// Exact for three rotation channels; with fewer, the closest rotation about those axes in the
 /// sense of the Euler decomposition (exact when `m` is reachable with them).
-pub fn set_channel_rotation(bone: &Bone, frame: &mut [f64], m: &DMat3) {
+pub fn set_channel_rotation(bone: &Bone, frame: &mut [Real], m: &RealMat3) {
     let mut axes = [Axis::X; 3];
     let mut slots = [0usize; 3];
     let mut n = 0;
@@ -87,9 +87,9 @@ pub fn set_channel_rotation(bone: &Bone, frame: &mut [f64], m: &DMat3) {
     match n {
         0 => {}
         1 => {
-            let q = DQuat::from_mat3(m);
-            let axis = axes[0].unit().as_dvec3();
-            let angle = 2.0 * libm::atan2(q.xyz().dot(axis), q.w);
+            let q = RealQuat::from_mat3(m);
+            let axis = axes[0].unit().to_real();
+            let angle = 2.0 * real::atan2(q.xyz().dot(axis), q.w);
             frame[slots[0]] = wrap_near(angle, frame[slots[0]].to_radians()).to_degrees();
         }
         2 => {
@@ -119,7 +119,7 @@ pub fn set_channel_rotation(bone: &Bone, frame: &mut [f64], m: &DMat3) {
 /// Spherical linear interpolation on the shorter arc, eq. (12): `q₂` is negated when
 /// `q₁·q₂ < 0`. Falls back to normalised linear interpolation when the arc is tiny.
 #[must_use]
-pub fn slerp(q1: DQuat, q2: DQuat, u: f64) -> DQuat {
+pub fn slerp(q1: RealQuat, q2: RealQuat, u: Real) -> RealQuat {
     let mut q2 = q2;
     let mut cos = q1.dot(q2);
     if cos < 0.0 {
@@ -129,19 +129,19 @@ pub fn slerp(q1: DQuat, q2: DQuat, u: f64) -> DQuat {
     if cos > 1.0 - 1e-12 {
         return (q1 * (1.0 - u) + q2 * u).normalize();
     }
-    let theta = libm::acos(cos.min(1.0));
-    let s = libm::sin(theta);
-    (q1 * (libm::sin((1.0 - u) * theta) / s) + q2 * (libm::sin(u * theta) / s)).normalize()
+    let theta = real::acos(cos.min(1.0));
+    let s = real::sin(theta);
+    (q1 * (real::sin((1.0 - u) * theta) / s) + q2 * (real::sin(u * theta) / s)).normalize()
 }
 
 /// Ease-in/ease-out weight of frame `f` of an `n`-frame window, eq. (13), from 0 to 1:
 /// `½·sin(f/(n−1)·π − π/2) + ½`.
 #[must_use]
-pub fn ease_weight(f: usize, n: usize) -> f64 {
+pub fn ease_weight(f: usize, n: usize) -> Real {
     if n <= 1 {
         return 1.0;
     }
-    0.5 * libm::sin(f as f64 / (n - 1) as f64 * PI - FRAC_PI_2) + 0.5
+    0.5 * real::sin(f as Real / (n - 1) as Real * PI - FRAC_PI_2) + 0.5
 }
 
 /// Interpolates two file frames at `u ∈ [0, 1]` into `out`: root position and translation
@@ -151,7 +151,7 @@ pub fn ease_weight(f: usize, n: usize) -> f64 {
 ///
 /// # Panics
 /// When a slice is shorter than the skeleton's channel count.
-pub fn interpolate_frames(skeleton: &Skeleton, a: &[f64], b: &[f64], u: f64, out: &mut [f64]) {
+pub fn interpolate_frames(skeleton: &Skeleton, a: &[Real], b: &[Real], u: Real, out: &mut [Real]) {
     let n = skeleton.channel_count();
     for c in 0..n {
         out[c] = a[c] + (b[c] - a[c]) * u;
@@ -159,11 +159,11 @@ pub fn interpolate_frames(skeleton: &Skeleton, a: &[f64], b: &[f64], u: f64, out
     for bone in skeleton.bones() {
         let rot: usize = bone.dofs().iter().filter(|d| d.is_rotation()).count();
         if rot == 3 {
-            let qa = DQuat::from_mat3(&channel_rotation(bone, a));
-            let qb = DQuat::from_mat3(&channel_rotation(bone, b));
+            let qa = RealQuat::from_mat3(&channel_rotation(bone, a));
+            let qb = RealQuat::from_mat3(&channel_rotation(bone, b));
             let q = slerp(qa, qb, u);
             // `out` holds the linear interpolation of the angles: the reference for continuity.
-            set_channel_rotation(bone, out, &DMat3::from_quat(q));
+            set_channel_rotation(bone, out, &RealMat3::from_quat(q));
             if a[bone.channels()] == b[bone.channels()] {
                 out[bone.channels()].copy_from_slice(&a[bone.channels()]);
             }
@@ -180,14 +180,14 @@ pub fn interpolate_frames(skeleton: &Skeleton, a: &[f64], b: &[f64], u: f64, out
 
 /// The geodesic angle (radians) between two rotations: `2·‖log(q₁⁻¹q₂)‖` (eq. 27–28).
 #[must_use]
-pub fn rotation_angle(a: &DMat3, b: &DMat3) -> f64 {
-    2.0 * crate::math::quat_distance_f64(DQuat::from_mat3(a), DQuat::from_mat3(b))
+pub fn rotation_angle(a: &RealMat3, b: &RealMat3) -> Real {
+    2.0 * crate::math::quat_distance_f64(RealQuat::from_mat3(a), RealQuat::from_mat3(b))
 }
 
 /// The largest geodesic rotation change between two frames over all joints: the root's
 /// global rotation and every bone's channel rotation (radians).
 #[must_use]
-pub fn largest_joint_change(skeleton: &Skeleton, a: &[f64], b: &[f64]) -> f64 {
+pub fn largest_joint_change(skeleton: &Skeleton, a: &[Real], b: &[Real]) -> Real {
     let mut worst = rotation_angle(&root_rotation(skeleton, a), &root_rotation(skeleton, b));
     for bone in &skeleton.bones()[1..] {
         worst = worst.max(rotation_angle(
@@ -204,10 +204,10 @@ mod tests {
 
     #[test]
     fn slerp_takes_the_short_arc() {
-        let a = DQuat::from_rotation_y(0.1);
-        let b = -DQuat::from_rotation_y(0.5); // same rotation as +, far in 4-D
+        let a = RealQuat::from_rotation_y(0.1);
+        let b = -RealQuat::from_rotation_y(0.5); // same rotation as +, far in 4-D
         let mid = slerp(a, b, 0.5);
-        let angle = 2.0 * crate::math::quat_distance_f64(mid, DQuat::from_rotation_y(0.3));
+        let angle = 2.0 * crate::math::quat_distance_f64(mid, RealQuat::from_rotation_y(0.3));
         assert!(angle < 1e-12, "{angle}");
         assert_eq!(slerp(a, a, 0.37), a);
     }

@@ -5,8 +5,137 @@
 //! (first = innermost). `EulerOrder::XYZ` with angles `[a, b, c]` is `Rz(c)·Ry(b)·Rx(a)`, the
 //! ASF `axis … XYZ` convention (help note eq. 3). Angles are radians.
 
-use core::f64::consts::{PI, TAU};
-use glam::{DMat3, DQuat, DVec3, Mat3, Quat, Vec3};
+use consts::{PI, TAU};
+use glam::{Mat3, Quat, Vec3};
+
+/// The core's floating-point type: `f64`, or `f32` with the `f32` feature (a firmware image
+/// for a chip whose FPU is single precision, such as the STM32F7 of ROBOTIS's OpenCR). The std
+/// crate needs `f64`; the feature is for images built on their own.
+#[cfg(not(feature = "f32"))]
+pub type Real = f64;
+/// The core's floating-point type: `f32` (the `f32` feature).
+#[cfg(feature = "f32")]
+pub type Real = f32;
+/// True when [`Real`] is `f32`.
+pub const SINGLE_PRECISION: bool = cfg!(feature = "f32");
+
+#[cfg(not(feature = "f32"))]
+pub use glam::{DMat3 as RealMat3, DQuat as RealQuat, DVec2 as RealVec2, DVec3 as RealVec3};
+#[cfg(feature = "f32")]
+pub use glam::{Mat3 as RealMat3, Quat as RealQuat, Vec2 as RealVec2, Vec3 as RealVec3};
+
+/// The constants of [`Real`] (π, τ, π/2, …).
+pub mod consts {
+    #[cfg(feature = "f32")]
+    pub use core::f32::consts::*;
+    #[cfg(not(feature = "f32"))]
+    pub use core::f64::consts::*;
+}
+
+/// `double` in an f64 build, `single` in an f32 build: a tolerance stated for each precision.
+#[must_use]
+pub const fn precision(double: f64, single: f32) -> Real {
+    #[cfg(not(feature = "f32"))]
+    {
+        let _ = single;
+        double
+    }
+    #[cfg(feature = "f32")]
+    {
+        let _ = double;
+        single
+    }
+}
+
+/// libm's functions in [`Real`]'s precision.
+pub mod real {
+    use super::Real;
+
+    macro_rules! real_fns {
+        ($($name:ident / $f32:ident ($($arg:ident),*) -> $ret:ty;)*) => {$(
+            #[doc = concat!("libm's `", stringify!($name), "` in [`Real`].")]
+            #[inline]
+            #[must_use]
+            pub fn $name($($arg: Real),*) -> $ret {
+                #[cfg(not(feature = "f32"))]
+                {
+                    libm::$name($($arg),*)
+                }
+                #[cfg(feature = "f32")]
+                {
+                    libm::$f32($($arg),*)
+                }
+            }
+        )*};
+    }
+    real_fns! {
+        acos / acosf (x) -> Real;
+        asin / asinf (x) -> Real;
+        atan / atanf (x) -> Real;
+        atan2 / atan2f (y, x) -> Real;
+        cos / cosf (x) -> Real;
+        sin / sinf (x) -> Real;
+        sincos / sincosf (x) -> (Real, Real);
+        sqrt / sqrtf (x) -> Real;
+        fabs / fabsf (x) -> Real;
+        copysign / copysignf (x, y) -> Real;
+        fmod / fmodf (x, y) -> Real;
+        hypot / hypotf (x, y) -> Real;
+        remainder / remainderf (x, y) -> Real;
+        round / roundf (x) -> Real;
+    }
+}
+
+/// Sorts a short slice by a [`Real`] key, ascending in `total_cmp` order (stable insertion
+/// sort: the solver's lists hold a few dozen entries, and core's general sort costs 7 KB of
+/// a firmware image's flash).
+pub fn sort_by_real<T>(v: &mut [T], key: impl Fn(&T) -> Real) {
+    for i in 1..v.len() {
+        let mut j = i;
+        while j > 0 && key(&v[j - 1]).total_cmp(&key(&v[j])).is_gt() {
+            v.swap(j - 1, j);
+            j -= 1;
+        }
+    }
+}
+
+/// glam's f32 types in [`Real`]'s precision (`as_dvec3` and the like, or nothing).
+pub trait ToReal {
+    /// The value in [`Real`]'s precision.
+    type Real;
+    /// The value in [`Real`]'s precision.
+    fn to_real(self) -> Self::Real;
+}
+
+impl ToReal for Vec3 {
+    type Real = RealVec3;
+    #[inline]
+    fn to_real(self) -> RealVec3 {
+        #[cfg(not(feature = "f32"))]
+        {
+            self.as_dvec3()
+        }
+        #[cfg(feature = "f32")]
+        {
+            self
+        }
+    }
+}
+
+impl ToReal for Mat3 {
+    type Real = RealMat3;
+    #[inline]
+    fn to_real(self) -> RealMat3 {
+        #[cfg(not(feature = "f32"))]
+        {
+            self.as_dmat3()
+        }
+        #[cfg(feature = "f32")]
+        {
+            self
+        }
+    }
+}
 
 /// A principal axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -56,11 +185,11 @@ impl Axis {
     /// The rotation by `angle` radians about this axis, in f64.
     #[inline]
     #[must_use]
-    pub fn rotation_f64(self, angle: f64) -> DMat3 {
+    pub fn rotation_f64(self, angle: Real) -> RealMat3 {
         match self {
-            Axis::X => DMat3::from_rotation_x(angle),
-            Axis::Y => DMat3::from_rotation_y(angle),
-            Axis::Z => DMat3::from_rotation_z(angle),
+            Axis::X => RealMat3::from_rotation_x(angle),
+            Axis::Y => RealMat3::from_rotation_y(angle),
+            Axis::Z => RealMat3::from_rotation_z(angle),
         }
     }
 }
@@ -190,7 +319,7 @@ impl EulerOrder {
 
     /// The rotation `R3(c)·R2(b)·R1(a)` in f64.
     #[must_use]
-    pub fn to_mat3_f64(self, angles: [f64; 3]) -> DMat3 {
+    pub fn to_mat3_f64(self, angles: [Real; 3]) -> RealMat3 {
         let [i, j, k] = self.axes();
         k.rotation_f64(angles[2]) * j.rotation_f64(angles[1]) * i.rotation_f64(angles[0])
     }
@@ -214,15 +343,21 @@ impl EulerOrder {
 
     /// Angles `[a, b, c]` (radians) with `self.to_mat3_f64(angles) == m`, in f64.
     #[must_use]
-    pub fn from_mat3_f64(self, m: &DMat3) -> [f64; 3] {
+    pub fn from_mat3_f64(self, m: &RealMat3) -> [Real; 3] {
         let r = |i: usize, j: usize| m.col(j)[i];
-        self.extract(&r, 1.0e-12f64, libm::atan2, libm::asin, libm::acos)
+        self.extract(
+            &r,
+            precision(1.0e-12, 1.0e-6),
+            real::atan2,
+            real::asin,
+            real::acos,
+        )
     }
 
     /// Angles of an f64 quaternion.
     #[must_use]
-    pub fn from_quat_f64(self, q: DQuat) -> [f64; 3] {
-        self.from_mat3_f64(&DMat3::from_quat(q.normalize()))
+    pub fn from_quat_f64(self, q: RealQuat) -> [Real; 3] {
+        self.from_mat3_f64(&RealMat3::from_quat(q.normalize()))
     }
 
     /// The extraction shared by f32 and f64. `r(i, j)` is the element in row i, column j.
@@ -231,7 +366,7 @@ impl EulerOrder {
     /// `R[k][i] = −s·sin b`, `a = atan2(s·R[k][j], R[k][k])`, `c = atan2(s·R[j][i], R[i][i])`.
     /// Proper `Ri(c)Rj(b)Ri(a)` with third axis m and parity s of (i, j, m):
     /// `R[i][i] = cos b`, `a = atan2(R[i][j], s·R[i][m])`, `c = atan2(R[j][i], −s·R[m][i])`.
-    fn extract<T: Real>(
+    fn extract<T: Float>(
         self,
         r: &dyn Fn(usize, usize) -> T,
         eps: T,
@@ -282,7 +417,7 @@ pub struct Element {
     /// Column.
     pub col: usize,
     /// ±1.
-    pub sign: f64,
+    pub sign: Real,
 }
 
 /// How one angle of [`EulerOrder::from_mat3_f64`] comes from the matrix, outside gimbal lock.
@@ -325,7 +460,7 @@ impl EulerOrder {
 }
 
 /// The angle `c` of `M = R·Rj(b)ᵀ`, assumed to be a rotation about `k` (gimbal-lock case).
-fn single_axis_angle<T: Real>(
+fn single_axis_angle<T: Float>(
     r: &dyn Fn(usize, usize) -> T,
     j: Axis,
     b: T,
@@ -347,7 +482,7 @@ fn single_axis_angle<T: Real>(
 }
 
 /// The few scalar operations the Euler extraction needs, for f32 and f64.
-trait Real:
+trait Float:
     Copy
     + PartialOrd
     + core::ops::Add<Output = Self>
@@ -365,7 +500,7 @@ trait Real:
 
 macro_rules! impl_real {
     ($t:ty, $sin:path, $cos:path) => {
-        impl Real for $t {
+        impl Float for $t {
             const ONE: Self = 1.0;
             const ZERO: Self = 0.0;
             fn abs_r(self) -> Self {
@@ -417,17 +552,17 @@ pub fn quat_distance(q1: Quat, q2: Quat) -> f32 {
 /// the cost.
 #[inline]
 #[must_use]
-pub fn quat_distance_fast(q1: DQuat, q2: DQuat) -> f64 {
+pub fn quat_distance_fast(q1: RealQuat, q2: RealQuat) -> Real {
     let d = q1.conjugate() * q2;
-    atan_ratio_fast(DVec3::new(d.x, d.y, d.z).length(), libm::fabs(d.w))
+    atan_ratio_fast(RealVec3::new(d.x, d.y, d.z).length(), real::fabs(d.w))
 }
 
 /// `atan2(v, w)` for `v, w ≥ 0` with a polynomial arctangent, error below 1e-7 rad
 /// (Abramowitz & Stegun 4.4.49 on `[0, 1]`; the other octant by `π/2 − atan(1/x)`).
 #[inline]
 #[must_use]
-pub fn atan_ratio_fast(v: f64, w: f64) -> f64 {
-    let poly = |x: f64| {
+pub fn atan_ratio_fast(v: Real, w: Real) -> Real {
+    let poly = |x: Real| {
         let z = x * x;
         x * (0.999_999_332_9
             + z * (-0.333_298_560_5
@@ -443,16 +578,16 @@ pub fn atan_ratio_fast(v: f64, w: f64) -> f64 {
             poly(v / w)
         }
     } else {
-        core::f64::consts::FRAC_PI_2 - poly(w / v)
+        consts::FRAC_PI_2 - poly(w / v)
     }
 }
 
 /// `atan2(y, x)` through [`atan_ratio_fast`] (error below 1e-7 rad), in `[−π, π]`.
 #[inline]
 #[must_use]
-pub fn atan2_fast(y: f64, x: f64) -> f64 {
-    let a = atan_ratio_fast(libm::fabs(y), libm::fabs(x));
-    let a = if x < 0.0 { core::f64::consts::PI - a } else { a };
+pub fn atan2_fast(y: Real, x: Real) -> Real {
+    let a = atan_ratio_fast(real::fabs(y), real::fabs(x));
+    let a = if x < 0.0 { consts::PI - a } else { a };
     if y < 0.0 {
         -a
     } else {
@@ -463,27 +598,27 @@ pub fn atan2_fast(y: f64, x: f64) -> f64 {
 /// `acos(x)` for `|x| ≤ 1` (clamped) through [`atan_ratio_fast`] (error below 1e-7 rad).
 #[inline]
 #[must_use]
-pub fn acos_fast(x: f64) -> f64 {
+pub fn acos_fast(x: Real) -> Real {
     let x = x.clamp(-1.0, 1.0);
-    atan2_fast(libm::sqrt(((1.0 - x) * (1.0 + x)).max(0.0)), x)
+    atan2_fast(real::sqrt(((1.0 - x) * (1.0 + x)).max(0.0)), x)
 }
 
 /// `acos(|x|)` for `|x| ≤ 1` through [`atan_ratio_fast`] (error below 1e-7 rad): eq. (27)–(28)'s
 /// distance `acos(|q₁·q₂|)` between unit quaternions from their 4-D dot product.
 #[inline]
 #[must_use]
-pub fn acos_abs_fast(x: f64) -> f64 {
-    let w = libm::fabs(x).min(1.0);
-    atan_ratio_fast(libm::sqrt(((1.0 - w) * (1.0 + w)).max(0.0)), w)
+pub fn acos_abs_fast(x: Real) -> Real {
+    let w = real::fabs(x).min(1.0);
+    atan_ratio_fast(real::sqrt(((1.0 - w) * (1.0 + w)).max(0.0)), w)
 }
 
 /// [`quat_distance`] in f64.
 #[inline]
 #[must_use]
-pub fn quat_distance_f64(q1: DQuat, q2: DQuat) -> f64 {
+pub fn quat_distance_f64(q1: RealQuat, q2: RealQuat) -> Real {
     let d = q1.conjugate() * q2;
-    let v = DVec3::new(d.x, d.y, d.z).length();
-    libm::atan2(v, libm::fabs(d.w))
+    let v = RealVec3::new(d.x, d.y, d.z).length();
+    real::atan2(v, real::fabs(d.w))
 }
 
 /// Degrees to radians.
@@ -502,7 +637,7 @@ pub fn rad_to_deg(r: f32) -> f32 {
 
 /// `angle + 2πk` closest to `reference`.
 #[must_use]
-pub fn wrap_near(angle: f64, reference: f64) -> f64 {
+pub fn wrap_near(angle: Real, reference: Real) -> Real {
     let d = reference - angle;
     // The common case (within a turn or two) without libm's software `round`.
     if d.abs() <= 2.5 * TAU {
@@ -515,22 +650,22 @@ pub fn wrap_near(angle: f64, reference: f64) -> f64 {
         }
         return a;
     }
-    angle + TAU * libm::round(d / TAU)
+    angle + TAU * real::round(d / TAU)
 }
 
 /// Euler angles of `m` in `order`, of the two equivalent solutions and all 2π shifts the
 /// one closest to `reference` (radians).
 #[must_use]
-pub fn euler_near(order: EulerOrder, m: &DMat3, reference: [f64; 3]) -> [f64; 3] {
+pub fn euler_near(order: EulerOrder, m: &RealMat3, reference: [Real; 3]) -> [Real; 3] {
     let a = order.from_mat3_f64(m);
     // The other solution: (a + π, π − b, c + π) for Tait–Bryan, (a + π, −b, c + π) proper.
     let b2 = if order.is_proper() { -a[1] } else { PI - a[1] };
     let candidates = [a, [a[0] + PI, b2, a[2] + PI]];
     let mut best = a;
-    let mut best_cost = f64::INFINITY;
+    let mut best_cost = Real::INFINITY;
     for cand in candidates {
         let w = [0, 1, 2].map(|k| wrap_near(cand[k], reference[k]));
-        let cost: f64 = (0..3).map(|k| libm::fabs(w[k] - reference[k])).sum();
+        let cost: Real = (0..3).map(|k| real::fabs(w[k] - reference[k])).sum();
         if cost < best_cost {
             best_cost = cost;
             best = w;
@@ -543,18 +678,14 @@ pub fn euler_near(order: EulerOrder, m: &DMat3, reference: [f64; 3]) -> [f64; 3]
 mod tests {
     use super::*;
 
-    fn angles_f64(seed: &mut u64) -> [f64; 3] {
+    fn angles_f64(seed: &mut u64) -> [Real; 3] {
         let mut next = || {
             *seed = seed
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
-            ((*seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+            ((*seed >> 11) as Real / (1u64 << 53) as Real) * 2.0 - 1.0
         };
-        [
-            next() * core::f64::consts::PI,
-            next() * 1.5,
-            next() * core::f64::consts::PI,
-        ]
+        [next() * consts::PI, next() * 1.5, next() * consts::PI]
     }
 
     #[test]
@@ -570,7 +701,8 @@ mod tests {
     #[test]
     fn xyz_is_rz_ry_rx() {
         let m = EulerOrder::XYZ.to_mat3_f64([0.3, -0.2, 1.1]);
-        let want = DMat3::from_rotation_z(1.1) * DMat3::from_rotation_y(-0.2) * DMat3::from_rotation_x(0.3);
+        let want =
+            RealMat3::from_rotation_z(1.1) * RealMat3::from_rotation_y(-0.2) * RealMat3::from_rotation_x(0.3);
         assert!(m.abs_diff_eq(want, 1e-15));
     }
 
@@ -597,10 +729,10 @@ mod tests {
     #[test]
     fn euler_gimbal_lock_all_orders() {
         for o in EulerOrder::ALL {
-            let mids: &[f64] = if o.is_proper() {
-                &[0.0, core::f64::consts::PI]
+            let mids: &[Real] = if o.is_proper() {
+                &[0.0, consts::PI]
             } else {
-                &[core::f64::consts::FRAC_PI_2, -core::f64::consts::FRAC_PI_2]
+                &[consts::FRAC_PI_2, -consts::FRAC_PI_2]
             };
             for &b in mids {
                 let m = o.to_mat3_f64([0.4, b, -0.7]);
@@ -668,9 +800,9 @@ mod tests {
                 let r = |e: Element| e.sign * m.col(e.col)[e.row];
                 for (k, form) in order.angle_forms().iter().enumerate() {
                     let got = match *form {
-                        AngleOf::Atan2(y, x) => libm::atan2(r(y), r(x)),
-                        AngleOf::Asin(e) => libm::asin(r(e)),
-                        AngleOf::Acos(e) => libm::acos(r(e)),
+                        AngleOf::Atan2(y, x) => real::atan2(r(y), r(x)),
+                        AngleOf::Asin(e) => real::asin(r(e)),
+                        AngleOf::Acos(e) => real::acos(r(e)),
                     };
                     assert!(
                         (got - want[k]).abs() < 1e-9,
@@ -687,14 +819,14 @@ mod tests {
     fn fast_arctangents_stay_within_their_bound() {
         let mut worst = 0.0f64;
         for i in 1..2001 {
-            let x = -1.0 + f64::from(i) * 1e-3;
-            worst = worst.max((acos_fast(x) - libm::acos(x)).abs());
-            worst = worst.max((acos_abs_fast(x) - libm::acos(x.abs())).abs());
+            let x = -1.0 + (i as Real) * 1e-3;
+            worst = worst.max((acos_fast(x) - real::acos(x)).abs());
+            worst = worst.max((acos_abs_fast(x) - real::acos(x.abs())).abs());
             for j in 0..64 {
-                let t = f64::from(j) * core::f64::consts::TAU / 64.0;
-                let (y, x2) = (libm::sin(t) * (1.0 + x), libm::cos(t) * (1.0 + x));
-                let d = (atan2_fast(y, x2) - libm::atan2(y, x2)).abs();
-                worst = worst.max(d.min((d - core::f64::consts::TAU).abs()));
+                let t = (j as Real) * consts::TAU / 64.0;
+                let (y, x2) = (real::sin(t) * (1.0 + x), real::cos(t) * (1.0 + x));
+                let d = (atan2_fast(y, x2) - real::atan2(y, x2)).abs();
+                worst = worst.max(d.min((d - consts::TAU).abs()));
             }
         }
         assert!(worst < 1e-7, "{worst:e}");

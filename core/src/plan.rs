@@ -19,6 +19,7 @@
 //! window). The path is then run forward through the velocity and position limits, so the
 //! first step is feasible by construction; the command stage still enforces every limit.
 
+use crate::math::Real;
 use crate::servo::{brake_and_move, MotionLimits};
 
 /// Most knots in a preview window.
@@ -31,22 +32,22 @@ pub const MAX_SEGMENTS: usize = 8;
 #[derive(Clone, Debug, PartialEq)]
 pub struct Window {
     knots: usize,
-    spacing_s: f64,
+    spacing_s: Real,
     segments: usize,
     /// Segment `k` drives knots `start[k] .. start[k + 1]`.
     start: [usize; MAX_SEGMENTS + 1],
     /// `B[j][k]`: position of knot `j` per unit acceleration over segment `k`.
-    response: [[f64; MAX_SEGMENTS]; MAX_KNOTS],
+    response: [[Real; MAX_SEGMENTS]; MAX_KNOTS],
     /// `BᵀB`, with a little ridge for conditioning.
-    gram: [[f64; MAX_SEGMENTS]; MAX_SEGMENTS],
+    gram: [[Real; MAX_SEGMENTS]; MAX_SEGMENTS],
     /// Its inverse: the unconstrained plan is `(BᵀB)⁻¹·c`, which most ticks keep.
-    gram_inverse: [[f64; MAX_SEGMENTS]; MAX_SEGMENTS],
+    gram_inverse: [[Real; MAX_SEGMENTS]; MAX_SEGMENTS],
 }
 
 impl Window {
     /// A window of `knots` knots (clamped to 2 … [`MAX_KNOTS`]) `spacing_s` seconds apart.
     #[must_use]
-    pub fn new(knots: usize, spacing_s: f64) -> Window {
+    pub fn new(knots: usize, spacing_s: Real) -> Window {
         let n = knots.clamp(2, MAX_KNOTS);
         let h = if spacing_s.is_finite() && spacing_s > 0.0 {
             spacing_s
@@ -84,7 +85,7 @@ impl Window {
                 // Σ over the segment's knots m ≤ j of (j − m + 1)·h².
                 let hi = start[k + 1].min(j + 1);
                 for m in start[k]..hi {
-                    *b += (j - m + 1) as f64 * h * h;
+                    *b += (j - m + 1) as Real * h * h;
                 }
             }
         }
@@ -96,7 +97,7 @@ impl Window {
                 }
             }
         }
-        let ridge = 1e-9 * (0..segments).map(|k| gram[k][k]).sum::<f64>() / segments as f64;
+        let ridge = 1e-9 * (0..segments).map(|k| gram[k][k]).sum::<Real>() / segments as Real;
         for (k, row) in gram.iter_mut().enumerate().take(segments) {
             row[k] += ridge;
         }
@@ -129,7 +130,7 @@ impl Window {
 
     /// Seconds between knots.
     #[must_use]
-    pub fn spacing_s(&self) -> f64 {
+    pub fn spacing_s(&self) -> Real {
         self.spacing_s
     }
 
@@ -149,7 +150,7 @@ impl Window {
 /// One step of the double integrator within the limits: the velocity after accelerating at
 /// `a` for `dt` (bounded by the velocity limit and by the speed that can still stop at the
 /// position limits), and the position it reaches.
-fn advance(x: f64, v: f64, a: f64, dt: f64, limits: &MotionLimits) -> (f64, f64) {
+fn advance(x: Real, v: Real, a: Real, dt: Real, limits: &MotionLimits) -> (Real, Real) {
     let (vmax, amax, lo, hi) = limits.sane();
     brake_and_move(x, (v + a * dt).clamp(-vmax, vmax), dt, amax, lo, hi)
 }
@@ -159,12 +160,12 @@ fn advance(x: f64, v: f64, a: f64, dt: f64, limits: &MotionLimits) -> (f64, f64)
 /// clamped into the box with the clamped variables held at their bounds (the unconstrained
 /// optimum clamped: usually one or two steps from the answer).
 fn box_least_squares(
-    g: &[[f64; MAX_SEGMENTS]; MAX_SEGMENTS],
-    c: &[f64; MAX_SEGMENTS],
+    g: &[[Real; MAX_SEGMENTS]; MAX_SEGMENTS],
+    c: &[Real; MAX_SEGMENTS],
     k: usize,
-    bound: f64,
-    start: &[f64; MAX_SEGMENTS],
-) -> [f64; MAX_SEGMENTS] {
+    bound: Real,
+    start: &[Real; MAX_SEGMENTS],
+) -> [Real; MAX_SEGMENTS] {
     let mut p = [0.0; MAX_SEGMENTS];
     let mut fixed = [false; MAX_SEGMENTS];
     for i in 0..k {
@@ -184,14 +185,14 @@ fn box_least_squares(
             m += 1;
         }
         for (r, &i) in free[..m].iter().enumerate() {
-            rhs[r] = c[i] - (0..k).filter(|&j| fixed[j]).map(|j| g[i][j] * p[j]).sum::<f64>();
+            rhs[r] = c[i] - (0..k).filter(|&j| fixed[j]).map(|j| g[i][j] * p[j]).sum::<Real>();
             for (s, &j) in free[..m].iter().enumerate() {
                 a[r][s] = g[i][j];
             }
         }
         let q = solve_dense(&mut a, &mut rhs, m);
         // Step towards it as far as the box allows.
-        let mut alpha = 1.0f64;
+        let mut alpha: Real = 1.0;
         let mut blocking = None;
         for (r, &i) in free[..m].iter().enumerate() {
             let d = q[r] - p[i];
@@ -216,7 +217,7 @@ fn box_least_squares(
         let mut release = None;
         let mut worst = 0.0;
         for i in (0..k).filter(|&i| fixed[i]) {
-            let grad = (0..k).map(|j| g[i][j] * p[j]).sum::<f64>() - c[i];
+            let grad = (0..k).map(|j| g[i][j] * p[j]).sum::<Real>() - c[i];
             // At the upper bound the cost must not fall going down (grad ≤ 0), and the
             // other way round at the lower.
             let wrong = if p[i] > 0.0 { grad } else { -grad };
@@ -236,10 +237,10 @@ fn box_least_squares(
 /// Solves the `m`×`m` system `a·x = b` by Gaussian elimination with partial pivoting (a
 /// singular pivot gives 0 for that unknown).
 fn solve_dense(
-    a: &mut [[f64; MAX_SEGMENTS]; MAX_SEGMENTS],
-    b: &mut [f64; MAX_SEGMENTS],
+    a: &mut [[Real; MAX_SEGMENTS]; MAX_SEGMENTS],
+    b: &mut [Real; MAX_SEGMENTS],
     m: usize,
-) -> [f64; MAX_SEGMENTS] {
+) -> [Real; MAX_SEGMENTS] {
     for col in 0..m {
         let pivot = (col..m)
             .max_by(|&x, &y| a[x][col].abs().total_cmp(&a[y][col].abs()))
@@ -261,7 +262,7 @@ fn solve_dense(
     }
     let mut x = [0.0; MAX_SEGMENTS];
     for row in (0..m).rev() {
-        let s = b[row] - (row + 1..m).map(|k| a[row][k] * x[k]).sum::<f64>();
+        let s = b[row] - (row + 1..m).map(|k| a[row][k] * x[k]).sum::<Real>();
         x[row] = if a[row][row].abs() < 1e-300 {
             0.0
         } else {
@@ -276,8 +277,8 @@ fn solve_dense(
 pub struct ServoPlan {
     limits: MotionLimits,
     /// The last plan: its start and segment accelerations.
-    start: (f64, f64),
-    accelerations: [f64; MAX_SEGMENTS],
+    start: (Real, Real),
+    accelerations: [Real; MAX_SEGMENTS],
 }
 
 impl ServoPlan {
@@ -293,7 +294,7 @@ impl ServoPlan {
 
     /// The knots of the last [`ServoPlan::plan`] over `window`, run through the limits, into
     /// `out` (as many as both hold).
-    pub fn knots(&self, window: &Window, out: &mut [f64]) {
+    pub fn knots(&self, window: &Window, out: &mut [Real]) {
         let (mut x, mut v) = self.start;
         for (j, o) in out.iter_mut().enumerate().take(window.knots) {
             let a = self.accelerations[window.segment_of(j)];
@@ -305,7 +306,7 @@ impl ServoPlan {
     /// The goal `dt` seconds after `x` (moving at `v`) at the last plan's first acceleration:
     /// what the plan commands over its first knot, when the loop ticks faster than the knots.
     #[must_use]
-    pub fn go_on(&self, x: f64, v: f64, dt: f64) -> f64 {
+    pub fn go_on(&self, x: Real, v: Real, dt: Real) -> Real {
         let (goal, _) = advance(x, v, self.accelerations[0], dt, &self.limits);
         if goal.is_finite() {
             goal
@@ -318,7 +319,7 @@ impl ServoPlan {
     /// `reference` (the window's knots: the reference at `x0`'s time + (j+1)·h); returns the
     /// goal `dt` seconds after `x0`. References that are not finite are treated as the last
     /// finite one (or `x0`); all are clamped to the position limits.
-    pub fn plan(&mut self, window: &Window, x0: f64, v0: f64, reference: &[f64], dt: f64) -> f64 {
+    pub fn plan(&mut self, window: &Window, x0: Real, v0: Real, reference: &[Real], dt: Real) -> Real {
         let n = window.knots;
         let h = window.spacing_s;
         let k = window.segments;
@@ -341,12 +342,16 @@ impl ServoPlan {
             if r.is_finite() {
                 last = r.clamp(lo, hi);
             }
-            let e = last - (x0 + (j + 1) as f64 * h * v0);
+            let e = last - (x0 + (j + 1) as Real * h * v0);
             for (ck, b) in c.iter_mut().zip(&window.response[j]).take(k) {
                 *ck += b * e;
             }
         }
-        let bound = if amax.is_finite() { amax } else { 1e300 };
+        let bound = if amax.is_finite() {
+            amax
+        } else {
+            crate::math::precision(1e300, 1e30)
+        };
         // The unconstrained optimum when it keeps the box (most ticks), else the active set.
         let mut p = [0.0; MAX_SEGMENTS];
         for (pi, row) in p.iter_mut().zip(&window.gram_inverse).take(k) {
@@ -411,10 +416,10 @@ mod tests {
             rng = rng
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
-            (rng >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+            (rng >> 11) as Real / (1u64 << 53) as Real * 2.0 - 1.0
         };
         for _ in 0..200 {
-            let c: [f64; MAX_SEGMENTS] = core::array::from_fn(|i| if i < k { next() * 1e-3 } else { 0.0 });
+            let c: [Real; MAX_SEGMENTS] = core::array::from_fn(|i| if i < k { next() * 1e-3 } else { 0.0 });
             let bound = 0.5 + next().abs() * 3.0;
             let p = box_least_squares(&w.gram, &c, k, bound, &[0.0; MAX_SEGMENTS]);
             // From the unconstrained optimum clamped: the same answer.
@@ -424,7 +429,7 @@ mod tests {
             }
             let q = box_least_squares(&w.gram, &c, k, bound, &free);
             // From any active set (a servo's last plan's): the same answer.
-            let guess: [f64; MAX_SEGMENTS] = core::array::from_fn(|_| match next() {
+            let guess: [Real; MAX_SEGMENTS] = core::array::from_fn(|_| match next() {
                 x if x > 0.3 => bound,
                 x if x < -0.3 => -bound,
                 _ => 0.0,
@@ -434,7 +439,7 @@ mod tests {
                 assert!((p[i] - q[i]).abs() <= 1e-9 * bound, "{p:?} {q:?}");
                 assert!((p[i] - r[i]).abs() <= 1e-9 * bound, "{p:?} {r:?} from {guess:?}");
             }
-            let cost = |p: &[f64; MAX_SEGMENTS]| {
+            let cost = |p: &[Real; MAX_SEGMENTS]| {
                 let mut s = 0.0;
                 for i in 0..k {
                     for j in 0..k {
@@ -462,16 +467,16 @@ mod tests {
         let w = Window::new(16, 0.01);
         let mut p = ServoPlan::new(limits());
         // A ramp at 50/s from 0 moving at 50/s: coasting is the plan.
-        let r: [f64; 16] = core::array::from_fn(|j| 0.5 * (j + 1) as f64);
+        let r: [Real; 16] = core::array::from_fn(|j| 0.5 * (j + 1) as Real);
         let next = p.plan(&w, 0.0, 50.0, &r, 0.01);
         assert!((next - 0.5).abs() < 1e-9, "{next}");
         // A sine within the limits, tick after tick: the goal is the reference.
-        let src = |t: f64| 20.0 * libm::sin(3.0 * t);
+        let src = |t: Real| 20.0 * crate::math::real::sin(3.0 * t);
         let (mut x, mut v) = (0.0, 60.0);
         let mut worst = 0.0f64;
         for i in 0..300 {
-            let t0 = i as f64 * 0.01;
-            let r: [f64; 16] = core::array::from_fn(|j| src(t0 + (j + 1) as f64 * 0.01));
+            let t0 = i as Real * 0.01;
+            let r: [Real; 16] = core::array::from_fn(|j| src(t0 + (j + 1) as Real * 0.01));
             let g = p.plan(&w, x, v, &r, 0.01);
             v = (g - x) / 0.01;
             x = g;
@@ -490,7 +495,7 @@ mod tests {
         let (mut x, mut v) = (0.0, 0.0);
         let mut path = [0.0; 30];
         for (i, slot) in path.iter_mut().enumerate() {
-            let r: [f64; 24] = core::array::from_fn(|j| if i + j + 1 >= 10 { 5.0 } else { 0.0 });
+            let r: [Real; 24] = core::array::from_fn(|j| if i + j + 1 >= 10 { 5.0 } else { 0.0 });
             let g = p.plan(&w, x, v, &r, 0.01);
             let nv = (g - x) / 0.01;
             assert!(nv.abs() <= l.velocity + 1e-9 && (nv - v).abs() <= l.acceleration * 0.01 + 1e-9);
@@ -507,7 +512,7 @@ mod tests {
     fn bad_references_give_finite_goals_inside_the_limits() {
         let w = Window::new(8, 0.01);
         let mut p = ServoPlan::new(limits());
-        for r in [[f64::NAN; 8], [f64::INFINITY; 8], [-1e300; 8], [1e12; 8]] {
+        for r in [[Real::NAN; 8], [Real::INFINITY; 8], [-1e300; 8], [1e12; 8]] {
             let g = p.plan(&w, 0.0, 0.0, &r, 0.01);
             assert!(g.is_finite() && g.abs() <= 1000.0, "{g}");
             assert!((g / 0.01).abs() <= 1000.0 * 0.01 / 0.01 + 1e-9);

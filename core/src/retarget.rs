@@ -32,7 +32,7 @@
 //! smaller error), so a clip gives the same joints wherever it starts, apart from where planted
 //! feet were locked and the arms' branch memory, which both end with the next step.
 
-use glam::{DMat3, DQuat, DVec2, DVec3};
+use crate::math::{real, Real, RealMat3, RealQuat, RealVec2, RealVec3};
 
 use crate::fk::{fk64, Pose64};
 use crate::robot::{Robot, RobotPose, MAX_ROBOT_JOINTS};
@@ -43,10 +43,10 @@ pub const SIDES: [&str; 2] = ["left", "right"];
 
 /// Extra error (radians of direction error) the other shoulder branch must save before the
 /// arm switches to it.
-pub const BRANCH_HYSTERESIS: f64 = 0.35;
+pub const BRANCH_HYSTERESIS: Real = 0.35;
 
 /// The share of a leg's full length (hip to ankle, straight) a foot target may be away.
-pub const REACH_SHARE: f64 = 0.995;
+pub const REACH_SHARE: Real = 0.995;
 
 /// Most fixed-point corrections of a leg's closed form (each shrinks the ankle's miss about
 /// a hundredfold on the OP3).
@@ -56,25 +56,25 @@ pub const LEG_CORRECTIONS: usize = 4;
 pub const NUMERIC_LEG_ITERATIONS: usize = 40;
 
 /// Damping of those iterations (metres).
-pub const NUMERIC_LEG_DAMPING: f64 = 1e-3;
+pub const NUMERIC_LEG_DAMPING: Real = 1e-3;
 
 /// Seconds over which a released foot's locked offset fades out.
-pub const RELEASE_S: f64 = 0.25;
+pub const RELEASE_S: Real = 0.25;
 
 /// A foot is planted when lower than this (metres above its floor height, human scale)…
-pub const PLANT_HEIGHT_M: f64 = 0.03;
+pub const PLANT_HEIGHT_M: Real = 0.03;
 /// …and slower than this (m/s, human scale, horizontal).
-pub const PLANT_SPEED_M_S: f64 = 0.3;
+pub const PLANT_SPEED_M_S: Real = 0.3;
 /// A planted foot is released when higher than this…
-pub const RELEASE_HEIGHT_M: f64 = 0.05;
+pub const RELEASE_HEIGHT_M: Real = 0.05;
 /// …or faster than this.
-pub const RELEASE_SPEED_M_S: f64 = 0.6;
+pub const RELEASE_SPEED_M_S: Real = 0.6;
 
 /// The centre of mass is kept this far inside the support polygon (metres, robot scale).
-pub const BALANCE_MARGIN_M: f64 = 0.01;
+pub const BALANCE_MARGIN_M: Real = 0.01;
 
 /// Fastest the balance shift of the pelvis may change, m/s (robot scale).
-pub const BALANCE_SPEED_M_S: f64 = 0.25;
+pub const BALANCE_SPEED_M_S: Real = 0.25;
 
 /// Limbs in reports: left arm, right arm, left leg, right leg, head.
 pub const LIMBS: [&str; 5] = ["left_arm", "right_arm", "left_leg", "right_leg", "head"];
@@ -98,7 +98,7 @@ pub struct ArmChain {
     /// Shoulder, shoulder, elbow.
     pub joints: [usize; 3],
     /// The hand point, in the body the elbow turns (metres).
-    pub tip: DVec3,
+    pub tip: RealVec3,
 }
 
 /// A robot leg: hip (three joints), knee, ankle (two joints).
@@ -107,9 +107,9 @@ pub struct LegChain {
     /// Hip ×3 (from the pelvis), knee, ankle ×2.
     pub joints: [usize; 6],
     /// Centre of the sole's bottom face, in the body of the last ankle joint (metres).
-    pub sole_centre: DVec3,
+    pub sole_centre: RealVec3,
     /// Half length and half width of the sole (along that body's x and y, metres).
-    pub sole_half: [f64; 2],
+    pub sole_half: [Real; 2],
 }
 
 /// A pan/tilt head.
@@ -133,9 +133,9 @@ pub struct RetargetMap {
     /// The head.
     pub head: Option<HeadChain>,
     /// Leg scale override (robot leg length / human leg length).
-    pub leg_scale: Option<f64>,
+    pub leg_scale: Option<Real>,
     /// Arm scale overrides.
-    pub arm_scale: [Option<f64>; 2],
+    pub arm_scale: [Option<Real>; 2],
 }
 
 /// Where the human's floor is: heights (along the human's up, file units) of the ankle and of
@@ -143,13 +143,13 @@ pub struct RetargetMap {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Floor {
     /// Ankle height with the foot down (left, right).
-    pub ankle: [f64; 2],
+    pub ankle: [Real; 2],
     /// Toe height with the foot down (left, right).
-    pub toe: [f64; 2],
+    pub toe: [Real; 2],
     /// Elevation of the ankle-to-toe line (radians, negative: the toe lower) with the foot flat
     /// on the floor (left, right): the human foot's arch, which the robot's flat sole does
     /// not have.
-    pub foot_pitch: [f64; 2],
+    pub foot_pitch: [Real; 2],
 }
 
 /// Options of a run.
@@ -201,112 +201,112 @@ impl core::error::Error for RetargetError {}
 #[derive(Clone, Debug)]
 pub struct RetargetFrame {
     /// Joint angles, radians, in the robot's joint order.
-    pub q: [f64; MAX_ROBOT_JOINTS],
+    pub q: [Real; MAX_ROBOT_JOINTS],
     /// The base's position in the robot's world (metres, floor at z = 0).
-    pub base_pos: DVec3,
+    pub base_pos: RealVec3,
     /// The base's orientation in the robot's world.
-    pub base_rot: DQuat,
+    pub base_rot: RealQuat,
     /// Per limb ([`LIMBS`]): the largest angle (degrees) between a human segment and the robot
     /// segment it drives, in the pelvis frame, and the sum of squares over its segments with
     /// their count (for RMS). NaN / 0 when the limb is not mapped.
-    pub limb_error_deg: [f64; 5],
+    pub limb_error_deg: [Real; 5],
     /// Per limb: sum of squared segment errors (degrees²) and the number of segments.
-    pub limb_error_sq: [(f64, u32); 5],
+    pub limb_error_sq: [(Real, u32); 5],
     /// Whether each foot is planted.
     pub planted: [bool; 2],
     /// Each sole's centre in the robot's world (metres).
-    pub sole: [DVec3; 2],
+    pub sole: [RealVec3; 2],
     /// The robot's centre of mass in its world.
-    pub com: DVec3,
+    pub com: RealVec3,
     /// Signed distance of the centre of mass (on the floor) inside the support polygon of the
     /// planted feet, metres (negative: outside); NaN when no foot is planted.
-    pub com_margin: f64,
+    pub com_margin: Real,
     /// Joint values held at a limit in this frame.
     pub clamps: u32,
     /// Feet whose target was out of reach (the pelvis was lowered or the leg stretched).
     pub out_of_reach: u32,
     /// The lowest sole corner's height above the floor, metres.
-    pub lowest_sole: f64,
+    pub lowest_sole: Real,
     /// The effectors at the retargeted pose: left hand, right hand, left sole, right sole
     /// (NaN for an unmapped arm), metres, the robot's world.
-    pub effectors: [DVec3; 4],
+    pub effectors: [RealVec3; 4],
 }
 
 impl Default for RetargetFrame {
     fn default() -> Self {
         RetargetFrame {
             q: [0.0; MAX_ROBOT_JOINTS],
-            base_pos: DVec3::ZERO,
-            base_rot: DQuat::IDENTITY,
-            limb_error_deg: [f64::NAN; 5],
+            base_pos: RealVec3::ZERO,
+            base_rot: RealQuat::IDENTITY,
+            limb_error_deg: [Real::NAN; 5],
             limb_error_sq: [(0.0, 0); 5],
             planted: [false; 2],
-            sole: [DVec3::ZERO; 2],
-            com: DVec3::ZERO,
-            com_margin: f64::NAN,
+            sole: [RealVec3::ZERO; 2],
+            com: RealVec3::ZERO,
+            com_margin: Real::NAN,
             clamps: 0,
             out_of_reach: 0,
             lowest_sole: 0.0,
-            effectors: [DVec3::NAN; 4],
+            effectors: [RealVec3::NAN; 4],
         }
     }
 }
 
 /// Angle about unit axis `a` that turns `v` nearest to `t` (Paden–Kahan subproblem 1).
 #[must_use]
-pub fn angle_about(a: DVec3, v: DVec3, t: DVec3) -> f64 {
+pub fn angle_about(a: RealVec3, v: RealVec3, t: RealVec3) -> Real {
     let vp = v - a * a.dot(v);
     let tp = t - a * a.dot(t);
-    libm::atan2(a.dot(vp.cross(tp)), vp.dot(tp))
+    real::atan2(a.dot(vp.cross(tp)), vp.dot(tp))
 }
 
 /// Angles `(q1, q2)` with `rot(a1, q1)·rot(a2, q2)·v` pointing along `t` (Paden–Kahan
 /// subproblem 2, axes through one point, `a2` as it lies at `q1 = 0`): the two solutions, or
 /// twice the nearest direction when `t` cannot be reached.
 #[must_use]
-pub fn angles_about_two(a1: DVec3, a2: DVec3, v: DVec3, t: DVec3) -> [(f64, f64); 2] {
+pub fn angles_about_two(a1: RealVec3, a2: RealVec3, v: RealVec3, t: RealVec3) -> [(Real, Real); 2] {
     let t = t.normalize_or_zero() * v.length();
     let along = a2 * a2.dot(v);
     let perp = v - along;
     let side = a2.cross(perp);
     let (c0, cc, cs) = (a1.dot(along), a1.dot(perp), a1.dot(side));
-    let r = libm::hypot(cc, cs);
-    let phi = libm::atan2(cs, cc);
+    let r = real::hypot(cc, cs);
+    let phi = real::atan2(cs, cc);
     let k = a1.dot(t) - c0;
     let delta = if r > 1e-12 {
-        libm::acos((k / r).clamp(-1.0, 1.0))
+        real::acos((k / r).clamp(-1.0, 1.0))
     } else {
         0.0
     };
     let mut out = [(0.0, 0.0); 2];
     for (o, q2) in out.iter_mut().zip([phi + delta, phi - delta]) {
         let q2 = wrap(q2);
-        let v2 = DQuat::from_axis_angle(a2, q2) * v;
+        let v2 = RealQuat::from_axis_angle(a2, q2) * v;
         *o = (angle_about(a1, v2, t), q2);
     }
     out
 }
 
 /// An angle in (−π, π].
-fn wrap(a: f64) -> f64 {
+fn wrap(a: Real) -> Real {
     crate::math::wrap_near(a, 0.0)
 }
 
 /// The angle between two vectors, radians (0 when either is zero).
-fn angle_between(a: DVec3, b: DVec3) -> f64 {
+fn angle_between(a: RealVec3, b: RealVec3) -> Real {
     let d = a.length() * b.length();
     if d <= 0.0 {
         return 0.0;
     }
-    libm::atan2(a.cross(b).length(), a.dot(b))
+    real::atan2(a.cross(b).length(), a.dot(b))
 }
 
 /// The point nearest (least squares) to lines through `points` along unit `axes`.
-fn nearest_point(points: &[DVec3], axes: &[DVec3]) -> Option<DVec3> {
-    let mut m = DMat3::ZERO;
-    let mut b = DVec3::ZERO;
+fn nearest_point(points: &[RealVec3], axes: &[RealVec3]) -> Option<RealVec3> {
+    let mut m = RealMat3::ZERO;
+    let mut b = RealVec3::ZERO;
     for (p, a) in points.iter().zip(axes) {
-        let proj = DMat3::IDENTITY - outer(*a, *a);
+        let proj = RealMat3::IDENTITY - outer(*a, *a);
         m += proj;
         b += proj * *p;
     }
@@ -314,11 +314,11 @@ fn nearest_point(points: &[DVec3], axes: &[DVec3]) -> Option<DVec3> {
     (det.abs() > 1e-9).then(|| m.inverse() * b)
 }
 
-fn outer(a: DVec3, b: DVec3) -> DMat3 {
-    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+fn outer(a: RealVec3, b: RealVec3) -> RealMat3 {
+    RealMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-fn dist_to_line(p: DVec3, point: DVec3, axis: DVec3) -> f64 {
+fn dist_to_line(p: RealVec3, point: RealVec3, axis: RealVec3) -> Real {
     let d = p - point;
     (d - axis * axis.dot(d)).length()
 }
@@ -326,30 +326,30 @@ fn dist_to_line(p: DVec3, point: DVec3, axis: DVec3) -> f64 {
 /// A joint's axis and a point on it, in the base's frame at the zero pose.
 #[derive(Clone, Copy, Debug, Default)]
 struct Screw {
-    axis: DVec3,
-    point: DVec3,
-    range: Option<(f64, f64)>,
+    axis: RealVec3,
+    point: RealVec3,
+    range: Option<(Real, Real)>,
     index: usize,
 }
 
 impl Screw {
-    fn rot(&self, q: f64) -> DQuat {
-        DQuat::from_axis_angle(self.axis, q)
+    fn rot(&self, q: Real) -> RealQuat {
+        RealQuat::from_axis_angle(self.axis, q)
     }
 
     /// Moves a point by this joint turned by `q`.
-    fn apply(&self, q: f64, p: DVec3) -> DVec3 {
+    fn apply(&self, q: Real, p: RealVec3) -> RealVec3 {
         self.point + self.rot(q) * (p - self.point)
     }
 
     /// `q` at its limits, and whether it was clamped. An angle outside the range is first
     /// tried a turn away.
-    fn limit(&self, q: f64, reference: f64) -> (f64, bool) {
+    fn limit(&self, q: Real, reference: Real) -> (Real, bool) {
         let q = crate::math::wrap_near(q, reference);
         match self.range {
             None => (q, false),
             Some((lo, hi)) => {
-                for k in [0.0, -core::f64::consts::TAU, core::f64::consts::TAU] {
+                for k in [0.0, -crate::math::consts::TAU, crate::math::consts::TAU] {
                     if (lo..=hi).contains(&(q + k)) {
                         return (q + k, false);
                     }
@@ -365,27 +365,27 @@ impl Screw {
 #[derive(Clone, Copy, Debug, Default)]
 struct ArmGeometry {
     joints: [Screw; 3],
-    upper: DVec3,
-    fore: DVec3,
-    length: f64,
+    upper: RealVec3,
+    fore: RealVec3,
+    length: Real,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
 struct LegGeometry {
     joints: [Screw; 6],
-    hip: DVec3,
-    knee: DVec3,
-    ankle: DVec3,
+    hip: RealVec3,
+    knee: RealVec3,
+    ankle: RealVec3,
     /// The foot body's zero-pose orientation and the sole's corners relative to the ankle
     /// centre, in that body's frame.
-    foot_rot: DQuat,
-    corners: [DVec3; 4],
-    sole_from_ankle: DVec3,
+    foot_rot: RealQuat,
+    corners: [RealVec3; 4],
+    sole_from_ankle: RealVec3,
     /// Sign of knee angles that bend the knee the human way (the shin backwards).
-    knee_sign: f64,
-    reach: f64,
-    thigh_len: f64,
-    shin_len: f64,
+    knee_sign: Real,
+    reach: Real,
+    thigh_len: Real,
+    shin_len: Real,
     /// Whether the hip axes meet in a point and the ankle axes in another (the closed form);
     /// otherwise the leg is solved by damped least squares from its previous angles.
     closed_form: bool,
@@ -394,17 +394,17 @@ struct LegGeometry {
 #[derive(Clone, Copy, Debug, Default)]
 struct HeadGeometry {
     joints: [Screw; 2],
-    forward: DVec3,
+    forward: RealVec3,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
 struct FootState {
     planted: bool,
     /// Where the foot was locked: ankle position and heading (world).
-    lock: Option<(DVec3, f64)>,
+    lock: Option<(RealVec3, Real)>,
     /// After release: the locked offset and the time since release.
-    release: Option<(DVec3, f64, f64)>,
-    previous: Option<DVec3>,
+    release: Option<(RealVec3, Real, Real)>,
+    previous: Option<RealVec3>,
 }
 
 /// The retargeter: constants derived from the map, the robot and the skeleton once, and the
@@ -413,31 +413,31 @@ struct FootState {
 pub struct Retargeter {
     map: RetargetMap,
     /// Human world → robot world, rotation.
-    world: DMat3,
+    world: RealMat3,
     /// The human pelvis frame at rest (columns forward, left, up) in human world coordinates.
-    human_frame: DMat3,
+    human_frame: RealMat3,
     /// The robot pelvis frame (columns forward, left, up) in base coordinates.
-    robot_frame: DMat3,
+    robot_frame: RealMat3,
     /// The base's orientation at the zero pose (model frame).
-    base_rest: DQuat,
-    base_rest_pos: DVec3,
-    human_rest_world: [DMat3; 5],
-    units: f64,
-    leg_scale: f64,
-    arm_scale: [f64; 2],
+    base_rest: RealQuat,
+    base_rest_pos: RealVec3,
+    human_rest_world: [RealMat3; 5],
+    units: Real,
+    leg_scale: Real,
+    arm_scale: [Real; 2],
     arms: [Option<ArmGeometry>; 2],
     legs: [LegGeometry; 2],
     head: Option<HeadGeometry>,
     floor: Floor,
-    hip_mid: DVec3,
-    stance: [f64; MAX_ROBOT_JOINTS],
-    stance_base: DVec3,
+    hip_mid: RealVec3,
+    stance: [Real; MAX_ROBOT_JOINTS],
+    stance_base: RealVec3,
     options: Options,
     feet: [FootState; 2],
-    arm_prev: [Option<[f64; 3]>; 2],
+    arm_prev: [Option<[Real; 3]>; 2],
     /// The legs' last angles: where a leg without the closed form starts its iterations.
-    leg_prev: [[f64; 6]; 2],
-    shift: DVec2,
+    leg_prev: [[Real; 6]; 2],
+    shift: RealVec2,
     pose: RobotPose,
     /// Every body at the zero pose (model frame).
     rest: RobotPose,
@@ -480,7 +480,7 @@ impl Retargeter {
         // Human rest pose.
         let mut rest = Pose64::default();
         fk64(skeleton, &[], &mut rest);
-        let units = f64::from(skeleton.units().meters_per_unit());
+        let units = Real::from(skeleton.units().meters_per_unit());
         let hips = [rest.start[h.legs[0][0]], rest.start[h.legs[1][0]]];
         let hip_mid_h = 0.5 * (hips[0] + hips[1]);
         let top = match (h.head, h.arms[0], h.arms[1]) {
@@ -498,10 +498,10 @@ impl Retargeter {
 
         // Robot zero pose, in the model frame; then in the base's frame.
         let mut pose = RobotPose::default();
-        robot.forward(DVec3::ZERO, DQuat::IDENTITY, &[], &mut pose);
+        robot.forward(RealVec3::ZERO, RealQuat::IDENTITY, &[], &mut pose);
         let base_rest = pose.rot[map.base];
         let base_rest_pos = pose.pos[map.base];
-        let to_base = |p: DVec3| base_rest.inverse() * (p - base_rest_pos);
+        let to_base = |p: RealVec3| base_rest.inverse() * (p - base_rest_pos);
         let screw = |j: usize| -> Screw {
             let joint = &robot.joints()[j];
             let body = joint.body;
@@ -538,7 +538,7 @@ impl Retargeter {
                     .iter()
                     .all(|j| dist_to_line(ankle, j.point, j.axis) <= 2e-3);
             let knee_axis = s[3].axis;
-            let along = |p: DVec3| knee_axis.dot(p - s[3].point);
+            let along = |p: RealVec3| knee_axis.dot(p - s[3].point);
             let knee = s[3].point + knee_axis * along(hip);
             let thigh_len = dist_to_line(hip, s[3].point, knee_axis);
             let shin_len = dist_to_line(ankle, s[3].point, knee_axis);
@@ -553,7 +553,7 @@ impl Retargeter {
             let ankle_local = foot_rot.inverse() * (ankle - foot_pos);
             let [hx, hy] = leg.sole_half;
             let corners = [(1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0)]
-                .map(|(a, b)| leg.sole_centre + DVec3::new(a * hx, b * hy, 0.0) - ankle_local);
+                .map(|(a, b)| leg.sole_centre + RealVec3::new(a * hx, b * hy, 0.0) - ankle_local);
             legs[side] = LegGeometry {
                 joints: s,
                 hip,
@@ -641,9 +641,9 @@ impl Retargeter {
                 arm_scale[side] = map.arm_scale[side].unwrap_or(a.length / lh.max(1e-9));
             }
         }
-        let robot_world_frame = DMat3::from_quat(base_rest) * robot_frame;
+        let robot_world_frame = RealMat3::from_quat(base_rest) * robot_frame;
         let world = robot_world_frame * human_frame.transpose();
-        let mut human_rest_world = [DMat3::IDENTITY; 5];
+        let mut human_rest_world = [RealMat3::IDENTITY; 5];
         human_rest_world[REST_PELVIS] = rest.world[h.pelvis];
         if let Some(b) = h.head {
             human_rest_world[REST_HEAD] = rest.world[b];
@@ -666,12 +666,12 @@ impl Retargeter {
             floor,
             hip_mid,
             stance: [0.0; MAX_ROBOT_JOINTS],
-            stance_base: DVec3::ZERO,
+            stance_base: RealVec3::ZERO,
             options,
             feet: [FootState::default(); 2],
             arm_prev: [None; 2],
             leg_prev: [[0.0; 6]; 2],
-            shift: DVec2::ZERO,
+            shift: RealVec2::ZERO,
             rest: pose.clone(),
             pose,
         };
@@ -681,7 +681,7 @@ impl Retargeter {
     }
 
     /// Legs straight but for a slightly bent knee: where numerical legs start.
-    fn neutral_legs(&self) -> [[f64; 6]; 2] {
+    fn neutral_legs(&self) -> [[Real; 6]; 2] {
         let mut q = [[0.0; 6]; 2];
         for (side, g) in self.legs.iter().enumerate() {
             q[side][3] = 0.3 * g.knee_sign;
@@ -691,13 +691,13 @@ impl Retargeter {
 
     /// Leg length ratio robot / human.
     #[must_use]
-    pub fn leg_scale(&self) -> f64 {
+    pub fn leg_scale(&self) -> Real {
         self.leg_scale
     }
 
     /// Arm length ratios robot / human (left, right; 1 where unmapped).
     #[must_use]
-    pub fn arm_scale(&self) -> [f64; 2] {
+    pub fn arm_scale(&self) -> [Real; 2] {
         self.arm_scale
     }
 
@@ -711,14 +711,14 @@ impl Retargeter {
     /// orientation `rot` and its ankle centre at `ankle`, both in the base's frame: the closed
     /// form of [`Retargeter::step`], for tests and benchmarks.
     #[must_use]
-    pub fn leg_ik(&self, side: usize, rot: DQuat, ankle: DVec3) -> [f64; 6] {
+    pub fn leg_ik(&self, side: usize, rot: RealQuat, ankle: RealVec3) -> [Real; 6] {
         self.solve_leg(side & 1, rot, ankle, &mut 0)
     }
 
     /// Where the ankle centre of leg `side` sits: its foot body and the point in that body's
     /// frame (metres).
     #[must_use]
-    pub fn ankle_centre(&self, robot: &Robot, side: usize) -> (usize, DVec3) {
+    pub fn ankle_centre(&self, robot: &Robot, side: usize) -> (usize, RealVec3) {
         let body = robot.joints()[self.map.legs[side & 1].joints[5]].body;
         (body, self.body_local(body, self.legs[side & 1].ankle))
     }
@@ -726,7 +726,7 @@ impl Retargeter {
     /// The human arm's segment directions (upper arm, forearm; unit) in the robot base's frame,
     /// as [`Retargeter::step`] aims them, for a pose from [`fk64`]; `None` when unmapped.
     #[must_use]
-    pub fn human_arm(&self, pose: &Pose64, side: usize) -> Option<(DVec3, DVec3)> {
+    pub fn human_arm(&self, pose: &Pose64, side: usize) -> Option<(RealVec3, RealVec3)> {
         let bones = self.map.human.arms[side & 1]?;
         let rel = pose.world[self.map.human.pelvis] * self.human_rest_world[REST_PELVIS].transpose();
         let to_base = self.robot_frame * (rel * self.human_frame).transpose();
@@ -738,15 +738,15 @@ impl Retargeter {
     /// against unit segment directions: the RMS of the two segments' angles, degrees (NaN when
     /// the arm is unmapped).
     #[must_use]
-    pub fn arm_error_deg(&self, side: usize, q: [f64; 3], upper: DVec3, fore: DVec3) -> f64 {
+    pub fn arm_error_deg(&self, side: usize, q: [Real; 3], upper: RealVec3, fore: RealVec3) -> Real {
         let Some(g) = self.arms[side & 1] else {
-            return f64::NAN;
+            return Real::NAN;
         };
         let [s1, s2, s3] = g.joints;
         let r12 = s1.rot(q[0]) * s2.rot(q[1]);
         let u = angle_between(r12 * g.upper, upper).to_degrees();
         let f = angle_between(r12 * s3.rot(q[2]) * g.fore, fore).to_degrees();
-        libm::sqrt(0.5 * (u * u + f * f))
+        real::sqrt(0.5 * (u * u + f * f))
     }
 
     /// The arm joints of arm `side` in the robot's joint order (shoulder, shoulder, elbow).
@@ -758,8 +758,8 @@ impl Retargeter {
     /// The effectors in `pose` (the robot's forward kinematics): left hand, right hand, left
     /// sole, right sole (NaN for an unmapped arm), metres.
     #[must_use]
-    pub fn effector_points(&self, robot: &Robot, pose: &RobotPose) -> [DVec3; 4] {
-        let mut out = [DVec3::NAN; 4];
+    pub fn effector_points(&self, robot: &Robot, pose: &RobotPose) -> [RealVec3; 4] {
+        let mut out = [RealVec3::NAN; 4];
         for side in 0..2 {
             if let Some(arm) = self.map.arms[side] {
                 let b = robot.joints()[arm.joints[2]].body;
@@ -778,7 +778,7 @@ impl Retargeter {
         self.feet = [FootState::default(); 2];
         self.arm_prev = [None; 2];
         self.leg_prev = self.neutral_legs();
-        self.shift = DVec2::ZERO;
+        self.shift = RealVec2::ZERO;
     }
 
     /// The standing stance `--upper-body` keeps: knees bent so the hips sit 8 % of the leg
@@ -804,21 +804,21 @@ impl Retargeter {
                 g.corners
                     .map(|c| (self.base_rest * (g.ankle + up + g.foot_rot * c)).z)
             })
-            .fold(f64::INFINITY, f64::min);
+            .fold(Real::INFINITY, Real::min);
         self.stance = q;
-        self.stance_base = DVec3::new(0.0, 0.0, -lowest);
+        self.stance_base = RealVec3::new(0.0, 0.0, -lowest);
     }
 
     /// The model-frame placement (for [`Robot::forward`]) that puts the base at `pos`, `rot`.
     #[must_use]
-    pub fn model_placement(&self, pos: DVec3, rot: DQuat) -> (DVec3, DQuat) {
+    pub fn model_placement(&self, pos: RealVec3, rot: RealQuat) -> (RealVec3, RealQuat) {
         let model_rot = rot * self.base_rest.inverse();
         (pos - model_rot * self.base_rest_pos, model_rot)
     }
 
     /// Retargets one human pose (`pose` from [`fk64`] of the frame) taken `dt` seconds after the
     /// previous one, into `out`.
-    pub fn step(&mut self, robot: &Robot, pose: &Pose64, dt: f64, out: &mut RetargetFrame) {
+    pub fn step(&mut self, robot: &Robot, pose: &Pose64, dt: Real, out: &mut RetargetFrame) {
         let h = self.map.human;
         out.clamps = 0;
         out.out_of_reach = 0;
@@ -849,7 +849,7 @@ impl Retargeter {
             let rel_head = pose.world[b] * self.human_rest_world[REST_HEAD].transpose();
             let face = to_base * (rel_head * self.human_frame.col(0));
             let c = angles_about_two(g.joints[0].axis, g.joints[1].axis, g.forward, face);
-            let pick = |(a, b): (f64, f64)| a.abs() + b.abs();
+            let pick = |(a, b): (Real, Real)| a.abs() + b.abs();
             let (pan, tilt) = if pick(c[0]) <= pick(c[1]) { c[0] } else { c[1] };
             let (pan, c1) = g.joints[0].limit(pan, 0.0);
             let (tilt, c2) = g.joints[1].limit(tilt, 0.0);
@@ -877,16 +877,16 @@ impl Retargeter {
     /// A human point (file units, the capture's world) in the robot's world: turned, scaled by
     /// the leg ratio, the human floor onto z = 0.
     #[must_use]
-    pub fn human_point_in_world(&self, p: DVec3) -> DVec3 {
+    pub fn human_point_in_world(&self, p: RealVec3) -> RealVec3 {
         self.to_world(p)
     }
 
     /// Human world point → robot world point (metres; the human floor onto z = 0 at the ankle).
-    fn to_world(&self, p: DVec3) -> DVec3 {
+    fn to_world(&self, p: RealVec3) -> RealVec3 {
         let up_h = self.human_frame.col(2);
         let floor = 0.5 * (self.floor.ankle[0] + self.floor.ankle[1]);
         let v = (p - up_h * floor) * self.units * self.leg_scale;
-        self.world * v + DVec3::new(0.0, 0.0, self.flat_ankle_height(0))
+        self.world * v + RealVec3::new(0.0, 0.0, self.flat_ankle_height(0))
     }
 
     #[allow(clippy::too_many_lines)]
@@ -894,22 +894,22 @@ impl Retargeter {
         &mut self,
         robot: &Robot,
         pose: &Pose64,
-        pelvis: DMat3,
-        dt: f64,
-        q: &mut [f64; MAX_ROBOT_JOINTS],
+        pelvis: RealMat3,
+        dt: Real,
+        q: &mut [Real; MAX_ROBOT_JOINTS],
         out: &mut RetargetFrame,
-    ) -> (DVec3, DQuat) {
+    ) -> (RealVec3, RealQuat) {
         let h = self.map.human;
         let up_h = self.human_frame.col(2);
         // Base orientation: the human pelvis's turn, seen in the robot's world.
         let base_world = self.world * pelvis * self.robot_frame.transpose();
-        let base_rot = DQuat::from_mat3(&base_world).normalize();
+        let base_rot = RealQuat::from_mat3(&base_world).normalize();
         let hips_h = 0.5 * (pose.start[h.legs[0][0]] + pose.start[h.legs[1][0]]);
         let mut base_pos = self.to_world(hips_h) - base_rot * self.hip_mid;
 
         // Feet: targets in the world, stance, locks.
-        let mut ankle = [DVec3::ZERO; 2];
-        let mut foot_rot = [DQuat::IDENTITY; 2];
+        let mut ankle = [RealVec3::ZERO; 2];
+        let mut foot_rot = [RealQuat::IDENTITY; 2];
         for side in 0..2 {
             let [_, shin, foot] = h.legs[side];
             let a_h = pose.tip[shin];
@@ -936,14 +936,14 @@ impl Retargeter {
             // joints are, in the robot's world.
             let frame = self.world * foot_frame(pose, h.legs[side]);
             let (fwd, left) = (frame.col(0), frame.col(1));
-            let yaw_now = libm::atan2(fwd.y, fwd.x);
-            let pitch = libm::asin(fwd.z.clamp(-1.0, 1.0)) - self.floor.foot_pitch[side];
-            let roll = libm::asin(left.z.clamp(-1.0, 1.0));
+            let yaw_now = real::atan2(fwd.y, fwd.x);
+            let pitch = real::asin(fwd.z.clamp(-1.0, 1.0)) - self.floor.foot_pitch[side];
+            let roll = real::asin(left.z.clamp(-1.0, 1.0));
             let g = self.legs[side];
             let rest_foot = self.base_rest * g.foot_rot;
-            let swing_rot = DQuat::from_rotation_z(yaw_now)
-                * DQuat::from_rotation_y(-pitch)
-                * DQuat::from_rotation_x(roll)
+            let swing_rot = RealQuat::from_rotation_z(yaw_now)
+                * RealQuat::from_rotation_y(-pitch)
+                * RealQuat::from_rotation_x(roll)
                 * rest_foot;
             let mapped = self.to_world(a_h);
             let (target, rot) = if st.planted {
@@ -958,7 +958,7 @@ impl Retargeter {
                         (p, yaw)
                     }
                 };
-                (p, DQuat::from_rotation_z(yaw) * rest_foot)
+                (p, RealQuat::from_rotation_z(yaw) * rest_foot)
             } else {
                 if was {
                     if let Some((p, _)) = st.lock.take() {
@@ -981,7 +981,7 @@ impl Retargeter {
                 .corners
                 .iter()
                 .map(|c| (rot * *c).z)
-                .fold(f64::INFINITY, f64::min);
+                .fold(Real::INFINITY, Real::min);
             let mut target = target;
             if target.z + lowest < 0.0 {
                 target.z = -lowest;
@@ -997,19 +997,19 @@ impl Retargeter {
 
         // Balance: move the pelvis over the support polygon.
         let planted = [self.feet[0].planted, self.feet[1].planted];
-        let mut shift = DVec2::ZERO;
+        let mut shift = RealVec2::ZERO;
         if self.options.balance && (planted[0] || planted[1]) {
             for _ in 0..4 {
-                let p = base_pos + DVec3::new(shift.x, shift.y, 0.0);
+                let p = base_pos + RealVec3::new(shift.x, shift.y, 0.0);
                 self.solve_legs(base_rot, p, &ankle, &foot_rot, q, &mut 0);
                 let (mp, mr) = self.model_placement(p, base_rot);
                 robot.forward(mp, mr, q, &mut self.pose);
                 let com = robot.centre_of_mass(&self.pose);
-                let (margin, inside) = self.support(&ankle, &foot_rot, planted, DVec2::new(com.x, com.y));
+                let (margin, inside) = self.support(&ankle, &foot_rot, planted, RealVec2::new(com.x, com.y));
                 if margin >= BALANCE_MARGIN_M {
                     break;
                 }
-                shift += inside - DVec2::new(com.x, com.y);
+                shift += inside - RealVec2::new(com.x, com.y);
             }
         }
         // The shift changes at a bounded speed.
@@ -1021,7 +1021,7 @@ impl Retargeter {
         } else {
             self.shift + d * (step / d.length())
         };
-        base_pos += DVec3::new(self.shift.x, self.shift.y, 0.0);
+        base_pos += RealVec3::new(self.shift.x, self.shift.y, 0.0);
         // The shift may have taken a foot out of reach again.
         self.lower_to_reach(&mut base_pos, base_rot, &ankle);
         self.solve_legs(base_rot, base_pos, &ankle, &foot_rot, q, &mut out.clamps);
@@ -1030,7 +1030,7 @@ impl Retargeter {
 
     /// Lowers the pelvis until both ankle targets lie within the legs' reach (a little short
     /// of straight); returns how many were out of reach.
-    fn lower_to_reach(&self, base_pos: &mut DVec3, base_rot: DQuat, ankle: &[DVec3; 2]) -> u32 {
+    fn lower_to_reach(&self, base_pos: &mut RealVec3, base_rot: RealQuat, ankle: &[RealVec3; 2]) -> u32 {
         let mut count = 0;
         for (g, target) in self.legs.iter().zip(ankle) {
             let hip = *base_pos + base_rot * g.hip;
@@ -1038,8 +1038,8 @@ impl Retargeter {
             let max = REACH_SHARE * g.reach;
             if d.length() > max {
                 count += 1;
-                let horizontal = DVec2::new(d.x, d.y).length().min(max);
-                let dz = libm::sqrt(max * max - horizontal * horizontal);
+                let horizontal = RealVec2::new(d.x, d.y).length().min(max);
+                let dz = real::sqrt(max * max - horizontal * horizontal);
                 base_pos.z -= hip.z - (target.z + dz);
             }
         }
@@ -1047,17 +1047,23 @@ impl Retargeter {
     }
 
     /// Ankle height (world z) with the sole flat on the floor.
-    fn flat_ankle_height(&self, side: usize) -> f64 {
+    fn flat_ankle_height(&self, side: usize) -> Real {
         let g = &self.legs[side];
         -g.corners
             .iter()
             .map(|c| (self.base_rest * g.foot_rot * *c).z)
-            .fold(f64::INFINITY, f64::min)
+            .fold(Real::INFINITY, Real::min)
     }
 
     /// Signed distance of `p` inside the support polygon of the planted feet, and the point
     /// [`BALANCE_MARGIN_M`] inside the polygon nearest `p`.
-    fn support(&self, ankle: &[DVec3; 2], rot: &[DQuat; 2], planted: [bool; 2], p: DVec2) -> (f64, DVec2) {
+    fn support(
+        &self,
+        ankle: &[RealVec3; 2],
+        rot: &[RealQuat; 2],
+        planted: [bool; 2],
+        p: RealVec2,
+    ) -> (Real, RealVec2) {
         polygon_margin(&self.support_polygon(ankle, rot, planted), p, BALANCE_MARGIN_M)
     }
 
@@ -1065,15 +1071,15 @@ impl Retargeter {
     /// at `ankle` and their bodies turned by `rot`.
     fn support_polygon(
         &self,
-        ankle: &[DVec3; 2],
-        rot: &[DQuat; 2],
+        ankle: &[RealVec3; 2],
+        rot: &[RealQuat; 2],
         planted: [bool; 2],
-    ) -> heapless::Vec<DVec2, 8> {
-        let mut pts = heapless::Vec::<DVec2, 8>::new();
+    ) -> heapless::Vec<RealVec2, 8> {
+        let mut pts = heapless::Vec::<RealVec2, 8>::new();
         for side in (0..2).filter(|&s| planted[s]) {
             for c in self.legs[side].corners {
                 let w = ankle[side] + rot[side] * c;
-                let _ = pts.push(DVec2::new(w.x, w.y));
+                let _ = pts.push(RealVec2::new(w.x, w.y));
             }
         }
         convex_hull(&pts)
@@ -1081,11 +1087,11 @@ impl Retargeter {
 
     fn solve_legs(
         &self,
-        base_rot: DQuat,
-        base_pos: DVec3,
-        ankle: &[DVec3; 2],
-        foot_rot: &[DQuat; 2],
-        q: &mut [f64; MAX_ROBOT_JOINTS],
+        base_rot: RealQuat,
+        base_pos: RealVec3,
+        ankle: &[RealVec3; 2],
+        foot_rot: &[RealQuat; 2],
+        q: &mut [Real; MAX_ROBOT_JOINTS],
         clamps: &mut u32,
     ) {
         let inv = base_rot.inverse();
@@ -1103,7 +1109,7 @@ impl Retargeter {
     /// The leg for foot body orientation `rot` and ankle centre `ankle` (base frame): the
     /// closed form, then up to [`LEG_CORRECTIONS`] fixed-point corrections of the target by the ankle's miss (the
     /// hip axes of a real robot meet only nearly — the OP3's within 0.1 mm).
-    fn solve_leg(&self, side: usize, rot: DQuat, ankle: DVec3, clamps: &mut u32) -> [f64; 6] {
+    fn solve_leg(&self, side: usize, rot: RealQuat, ankle: RealVec3, clamps: &mut u32) -> [Real; 6] {
         let g = &self.legs[side];
         if !g.closed_form {
             let (q, clamped) = self.solve_leg_numeric(side, rot, ankle, self.leg_prev[side]);
@@ -1137,20 +1143,26 @@ impl Retargeter {
     /// A leg whose axes do not allow the closed form: damped least squares on the ankle's
     /// position and the foot's orientation (six equations, six joints), from `start`, each
     /// step clamped into the limits. Returns the angles and how many sit at a limit.
-    fn solve_leg_numeric(&self, side: usize, rot: DQuat, ankle: DVec3, start: [f64; 6]) -> ([f64; 6], u32) {
+    fn solve_leg_numeric(
+        &self,
+        side: usize,
+        rot: RealQuat,
+        ankle: RealVec3,
+        start: [Real; 6],
+    ) -> ([Real; 6], u32) {
         let g = &self.legs[side];
         let s = &g.joints;
-        let clamp = |k: usize, v: f64| match s[k].range {
+        let clamp = |k: usize, v: Real| match s[k].range {
             Some((lo, hi)) => v.clamp(lo, hi),
             None => v,
         };
-        let mut q: [f64; 6] = core::array::from_fn(|k| clamp(k, start[k]));
+        let mut q: [Real; 6] = core::array::from_fn(|k| clamp(k, start[k]));
         for _ in 0..NUMERIC_LEG_ITERATIONS {
             // The chain's rigid motion joint by joint (product of exponentials), the joints'
             // axes and points where they are now.
-            let (mut r, mut t) = (DQuat::IDENTITY, DVec3::ZERO);
-            let mut axes = [DVec3::ZERO; 6];
-            let mut points = [DVec3::ZERO; 6];
+            let (mut r, mut t) = (RealQuat::IDENTITY, RealVec3::ZERO);
+            let mut axes = [RealVec3::ZERO; 6];
+            let mut points = [RealVec3::ZERO; 6];
             for k in 0..6 {
                 axes[k] = r * s[k].axis;
                 points[k] = r * s[k].point + t;
@@ -1168,7 +1180,7 @@ impl Retargeter {
             let w = g.reach.max(0.05);
             let mut jtj = [[0.0; 6]; 6];
             let mut jte = [0.0; 6];
-            let cols: [[f64; 6]; 6] = core::array::from_fn(|k| {
+            let cols: [[Real; 6]; 6] = core::array::from_fn(|k| {
                 let lin = axes[k].cross(now - points[k]);
                 let ang = axes[k] * w;
                 [lin.x, lin.y, lin.z, ang.x, ang.y, ang.z]
@@ -1176,10 +1188,10 @@ impl Retargeter {
             let err = [e_pos.x, e_pos.y, e_pos.z, e_rot.x * w, e_rot.y * w, e_rot.z * w];
             for i in 0..6 {
                 for k in 0..6 {
-                    jtj[i][k] = (0..6).map(|m| cols[i][m] * cols[k][m]).sum::<f64>();
+                    jtj[i][k] = (0..6).map(|m| cols[i][m] * cols[k][m]).sum::<Real>();
                 }
                 jtj[i][i] += NUMERIC_LEG_DAMPING * NUMERIC_LEG_DAMPING;
-                jte[i] = (0..6).map(|m| cols[i][m] * err[m]).sum::<f64>();
+                jte[i] = (0..6).map(|m| cols[i][m] * err[m]).sum::<Real>();
             }
             let Some(dq) = solve6(jtj, jte) else { break };
             for k in 0..6 {
@@ -1193,7 +1205,7 @@ impl Retargeter {
     }
 
     /// The closed form (see the module's notes), unclamped.
-    fn solve_leg_closed(&self, side: usize, rot: DQuat, ankle: DVec3) -> [f64; 6] {
+    fn solve_leg_closed(&self, side: usize, rot: RealQuat, ankle: RealVec3) -> [Real; 6] {
         let g = &self.legs[side];
         let s = &g.joints;
         // g = e1·…·e6 as a rigid motion: rotation rg, and the ankle centre carried to `ankle`.
@@ -1209,7 +1221,7 @@ impl Retargeter {
             - delta * delta)
             / (2.0 * vp.length() * wp.length());
         let theta0 = angle_about(k.axis, wp, vp);
-        let bend = libm::acos(c.clamp(-1.0, 1.0));
+        let bend = real::acos(c.clamp(-1.0, 1.0));
         let cand = [wrap(bend - theta0), wrap(-bend - theta0)];
         let q4 = if cand[0] * g.knee_sign >= cand[1] * g.knee_sign {
             cand[0]
@@ -1221,7 +1233,7 @@ impl Retargeter {
         let target = k.apply(-q4, g.hip);
         let (a5, a6) = (s[4], s[5]);
         let c56 = angles_about_two(a5.axis, a6.axis, p - g.ankle, target - g.ankle);
-        let small = |(a, b): (f64, f64)| a.abs() + b.abs();
+        let small = |(a, b): (Real, Real)| a.abs() + b.abs();
         let (q5, q6) = if small(c56[0]) <= small(c56[1]) {
             c56[0]
         } else {
@@ -1233,7 +1245,7 @@ impl Retargeter {
         let (a1, a2, a3) = (s[0], s[1], s[2]);
         let c12 = angles_about_two(a1.axis, a2.axis, a3.axis, r_hip * a3.axis);
         let probe = a3.axis.any_orthonormal_vector();
-        let mut best = ([0.0; 3], f64::INFINITY);
+        let mut best = ([0.0; 3], Real::INFINITY);
         for (q1, q2) in c12 {
             let r12 = a1.rot(q1) * a2.rot(q2);
             let q3 = angle_about(a3.axis, probe, r12.inverse() * r_hip * probe);
@@ -1254,10 +1266,10 @@ impl Retargeter {
         &mut self,
         side: usize,
         g: &ArmGeometry,
-        upper: DVec3,
-        fore: DVec3,
+        upper: RealVec3,
+        fore: RealVec3,
         clamps: &mut u32,
-    ) -> [f64; 3] {
+    ) -> [Real; 3] {
         let [s1, s2, s3] = g.joints;
         let (upper, fore) = (upper.normalize_or_zero(), fore.normalize_or_zero());
         let prev = self.arm_prev[side];
@@ -1273,7 +1285,7 @@ impl Retargeter {
         }
         starts[2] = reference;
         let count = if prev.is_some() { 3 } else { 2 };
-        let mut best: Option<([f64; 3], f64)> = None;
+        let mut best: Option<([Real; 3], Real)> = None;
         let mut from_prev = None;
         for (k, start) in starts.iter().take(count).enumerate() {
             let start = [
@@ -1282,7 +1294,7 @@ impl Retargeter {
                 s3.limit(start[2], reference[2]).0,
             ];
             let (q, cost) = refine_arm(g, start, upper, fore);
-            let error = libm::sqrt(cost);
+            let error = real::sqrt(cost);
             if k == 2 {
                 from_prev = Some((q, error));
             }
@@ -1308,17 +1320,17 @@ impl Retargeter {
     }
 
     /// Direction errors per limb, the soles, the centre of mass and its margin.
-    fn measure(&mut self, robot: &Robot, pose: &Pose64, to_base: DMat3, out: &mut RetargetFrame) {
+    fn measure(&mut self, robot: &Robot, pose: &Pose64, to_base: RealMat3, out: &mut RetargetFrame) {
         let h = self.map.human;
         let (mp, mr) = self.model_placement(out.base_pos, out.base_rot);
         robot.forward(mp, mr, &out.q, &mut self.pose);
         let inv = out.base_rot.inverse();
-        let base = |p: DVec3| inv * (p - out.base_pos);
+        let base = |p: RealVec3| inv * (p - out.base_pos);
         let human = |b: usize| to_base * (pose.tip[b] - pose.start[b]);
         let mut errs = [(0.0, 0.0, 0u32); 5];
-        let mut add = |limb: usize, a: DVec3, b: DVec3| {
+        let mut add = |limb: usize, a: RealVec3, b: RealVec3| {
             let e = angle_between(a, b).to_degrees();
-            errs[limb].0 = f64::max(errs[limb].0, e);
+            errs[limb].0 = Real::max(errs[limb].0, e);
             errs[limb].1 += e * e;
             errs[limb].2 += 1;
         };
@@ -1343,7 +1355,7 @@ impl Retargeter {
             let body = |k: usize| robot.joints()[chain.joints[k]].body;
             // Hip centre (fixed in the base), knee and ankle centres through their bodies.
             // A point given where it sits at the zero pose (base coordinates), carried by body k.
-            let point = |k: usize, p_rest: DVec3| -> DVec3 {
+            let point = |k: usize, p_rest: RealVec3| -> RealVec3 {
                 let b = body(k);
                 base(self.pose.pos[b] + self.pose.rot[b] * self.body_local(b, p_rest))
             };
@@ -1366,13 +1378,13 @@ impl Retargeter {
             add(4, fwd, face);
         }
         for (k, (max, sq, n)) in errs.iter().enumerate() {
-            out.limb_error_deg[k] = if *n > 0 { *max } else { f64::NAN };
+            out.limb_error_deg[k] = if *n > 0 { *max } else { Real::NAN };
             out.limb_error_sq[k] = (*sq, *n);
         }
         out.com = robot.centre_of_mass(&self.pose);
         out.effectors = self.effector_points(robot, &self.pose);
-        let mut ankles = [DVec3::ZERO; 2];
-        let mut rots = [DQuat::IDENTITY; 2];
+        let mut ankles = [RealVec3::ZERO; 2];
+        let mut rots = [RealQuat::IDENTITY; 2];
         for side in 0..2 {
             let fb = robot.joints()[self.map.legs[side].joints[5]].body;
             let g = &self.legs[side];
@@ -1381,25 +1393,25 @@ impl Retargeter {
         }
         out.lowest_sole = (0..2)
             .flat_map(|side| self.legs[side].corners.map(|c| (ankles[side] + rots[side] * c).z))
-            .fold(f64::INFINITY, f64::min);
+            .fold(Real::INFINITY, Real::min);
         out.com_margin = if out.planted.iter().any(|p| *p) {
             // Soles where the solved pose put them.
             let polygon = self.support_polygon(&ankles, &rots, out.planted);
-            polygon_margin(&polygon, DVec2::new(out.com.x, out.com.y), 0.0).0
+            polygon_margin(&polygon, RealVec2::new(out.com.x, out.com.y), 0.0).0
         } else {
-            f64::NAN
+            Real::NAN
         };
     }
 
     /// A point given in base coordinates at the zero pose, in body `b`'s own frame.
-    fn body_local(&self, b: usize, p_base: DVec3) -> DVec3 {
+    fn body_local(&self, b: usize, p_base: RealVec3) -> RealVec3 {
         self.rest.rot[b].inverse() * (self.base_rest_pos + self.base_rest * p_base - self.rest.pos[b])
     }
 }
 
 /// Solves the 6×6 system `a·x = b` by Gaussian elimination with partial pivoting (`None` when
 /// singular).
-fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {
+fn solve6(mut a: [[Real; 6]; 6], mut b: [Real; 6]) -> Option<[Real; 6]> {
     for c in 0..6 {
         let p = (c..6).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
         if a[p][c].abs() < 1e-15 {
@@ -1418,7 +1430,7 @@ fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {
     }
     let mut x = [0.0; 6];
     for c in (0..6).rev() {
-        let sum: f64 = (c + 1..6).map(|k| a[c][k] * x[k]).sum();
+        let sum: Real = (c + 1..6).map(|k| a[c][k] * x[k]).sum();
         x[c] = (b[c] - sum) / a[c][c];
     }
     Some(x)
@@ -1427,21 +1439,21 @@ fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {
 /// A foot's frame from where its joints are (not from its bone's axes, which formats and
 /// tools set differently): forward from the ankle to the toe, left square to it and to the
 /// shin, up completing them.
-fn foot_frame(pose: &Pose64, leg: [usize; 3]) -> DMat3 {
+fn foot_frame(pose: &Pose64, leg: [usize; 3]) -> RealMat3 {
     let [_, shin, foot] = leg;
-    let forward = (pose.tip[foot] - pose.start[foot]).normalize_or(DVec3::X);
+    let forward = (pose.tip[foot] - pose.start[foot]).normalize_or(RealVec3::X);
     let down = pose.tip[shin] - pose.start[shin];
-    let left = forward.cross(down).normalize_or(DVec3::Y);
+    let left = forward.cross(down).normalize_or(RealVec3::Y);
     let up = left.cross(forward);
-    DMat3::from_cols(forward, left, up)
+    RealMat3::from_cols(forward, left, up)
 }
 
 /// Weight pulling an arm's angles towards zero where the directions leave them free (a
 /// straight arm's twist), rad⁻².
-const ARM_REGULARISATION: f64 = 1e-4;
+const ARM_REGULARISATION: Real = 1e-4;
 
 /// Squared direction error of an arm at `q` (unit targets), with the regularisation.
-fn arm_cost(g: &ArmGeometry, q: [f64; 3], upper: DVec3, fore: DVec3) -> f64 {
+fn arm_cost(g: &ArmGeometry, q: [Real; 3], upper: RealVec3, fore: RealVec3) -> Real {
     let [s1, s2, s3] = g.joints;
     let r12 = s1.rot(q[0]) * s2.rot(q[1]);
     let u = r12 * g.upper;
@@ -1453,10 +1465,10 @@ fn arm_cost(g: &ArmGeometry, q: [f64; 3], upper: DVec3, fore: DVec3) -> f64 {
 
 /// Levenberg–Marquardt on an arm's two segment directions (six residuals, three angles),
 /// each step clamped into the joint limits; returns the angles and the cost.
-fn refine_arm(g: &ArmGeometry, start: [f64; 3], upper: DVec3, fore: DVec3) -> ([f64; 3], f64) {
+fn refine_arm(g: &ArmGeometry, start: [Real; 3], upper: RealVec3, fore: RealVec3) -> ([Real; 3], Real) {
     let [s1, s2, s3] = g.joints;
-    let clamp = |q: [f64; 3]| -> [f64; 3] {
-        let c = |s: &Screw, v: f64| match s.range {
+    let clamp = |q: [Real; 3]| -> [Real; 3] {
+        let c = |s: &Screw, v: Real| match s.range {
             Some((lo, hi)) => v.clamp(lo, hi),
             None => v,
         };
@@ -1475,10 +1487,10 @@ fn refine_arm(g: &ArmGeometry, start: [f64; 3], upper: DVec3, fore: DVec3) -> ([
         let a3 = r12 * s3.axis;
         // Residuals and their derivatives (a turn about axis a moves v by a × v).
         let (ru, rf) = (u - upper, f - fore);
-        let ju = [a1.cross(u), a2.cross(u), DVec3::ZERO];
+        let ju = [a1.cross(u), a2.cross(u), RealVec3::ZERO];
         let jf = [a1.cross(f), a2.cross(f), a3.cross(f)];
-        let mut jtj = DMat3::ZERO;
-        let mut jtr = DVec3::ZERO;
+        let mut jtj = RealMat3::ZERO;
+        let mut jtr = RealVec3::ZERO;
         for i in 0..3 {
             for k in 0..3 {
                 let v = ju[i].dot(ju[k]) + jf[i].dot(jf[k]) + if i == k { ARM_REGULARISATION } else { 0.0 };
@@ -1491,8 +1503,8 @@ fn refine_arm(g: &ArmGeometry, start: [f64; 3], upper: DVec3, fore: DVec3) -> ([
         let mut improved = false;
         for _ in 0..6 {
             let damped = jtj
-                + DMat3::from_diagonal(
-                    DVec3::new(jtj.x_axis.x, jtj.y_axis.y, jtj.z_axis.z) * lambda + DVec3::splat(1e-12),
+                + RealMat3::from_diagonal(
+                    RealVec3::new(jtj.x_axis.x, jtj.y_axis.y, jtj.z_axis.z) * lambda + RealVec3::splat(1e-12),
                 );
             if damped.determinant().abs() < 1e-18 {
                 break;
@@ -1517,7 +1529,7 @@ fn refine_arm(g: &ArmGeometry, start: [f64; 3], upper: DVec3, fore: DVec3) -> ([
     (q, cost)
 }
 
-fn smoothstep(t: f64) -> f64 {
+fn smoothstep(t: Real) -> Real {
     let t = t.clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
 }
@@ -1525,22 +1537,22 @@ fn smoothstep(t: f64) -> f64 {
 /// Orthonormal (forward, left, up) from a left vector and a rough up vector. Up is snapped to
 /// the nearest coordinate axis (captures and models are made with an axis up; a rest pose that
 /// leans a little must not tilt the floor); left is made square to it.
-fn frame_from(left: DVec3, up: DVec3) -> Option<DMat3> {
+fn frame_from(left: RealVec3, up: RealVec3) -> Option<RealMat3> {
     let up = snap_axis(up.try_normalize()?);
     let left = (left - up * up.dot(left)).try_normalize()?;
     let forward = left.cross(up);
-    Some(DMat3::from_cols(forward, left, up))
+    Some(RealMat3::from_cols(forward, left, up))
 }
 
 /// The signed coordinate axis nearest a unit vector.
-fn snap_axis(v: DVec3) -> DVec3 {
+fn snap_axis(v: RealVec3) -> RealVec3 {
     let a = v.abs();
     if a.x >= a.y && a.x >= a.z {
-        DVec3::X * v.x.signum()
+        RealVec3::X * v.x.signum()
     } else if a.y >= a.z {
-        DVec3::Y * v.y.signum()
+        RealVec3::Y * v.y.signum()
     } else {
-        DVec3::Z * v.z.signum()
+        RealVec3::Z * v.z.signum()
     }
 }
 
@@ -1573,11 +1585,11 @@ fn check_chain(
 }
 
 /// Convex hull (counter-clockwise) of up to eight points.
-fn convex_hull(points: &[DVec2]) -> heapless::Vec<DVec2, 8> {
-    let mut pts: heapless::Vec<DVec2, 8> = points.iter().copied().collect();
+fn convex_hull(points: &[RealVec2]) -> heapless::Vec<RealVec2, 8> {
+    let mut pts: heapless::Vec<RealVec2, 8> = points.iter().copied().collect();
     pts.sort_unstable_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
-    let mut hull = heapless::Vec::<DVec2, 16>::new();
-    let cross = |o: DVec2, a: DVec2, b: DVec2| (a - o).perp_dot(b - o);
+    let mut hull = heapless::Vec::<RealVec2, 16>::new();
+    let cross = |o: RealVec2, a: RealVec2, b: RealVec2| (a - o).perp_dot(b - o);
     for p in pts.iter() {
         while hull.len() >= 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], *p) <= 0.0 {
             hull.pop();
@@ -1598,12 +1610,12 @@ fn convex_hull(points: &[DVec2]) -> heapless::Vec<DVec2, 8> {
 /// Signed distance of `p` inside a convex counter-clockwise polygon (negative outside), and
 /// the point nearest `p` that lies at least `margin` inside (the centroid when the polygon is
 /// thinner than that).
-fn polygon_margin(poly: &[DVec2], p: DVec2, margin: f64) -> (f64, DVec2) {
+fn polygon_margin(poly: &[RealVec2], p: RealVec2, margin: Real) -> (Real, RealVec2) {
     let n = poly.len();
     if n < 3 {
-        return (f64::NAN, p);
+        return (Real::NAN, p);
     }
-    let mut dist = f64::INFINITY;
+    let mut dist = Real::INFINITY;
     for i in 0..n {
         let (a, b) = (poly[i], poly[(i + 1) % n]);
         let e = (b - a).normalize_or_zero();
@@ -1614,10 +1626,10 @@ fn polygon_margin(poly: &[DVec2], p: DVec2, margin: f64) -> (f64, DVec2) {
         return (dist, p);
     }
     // Project onto the polygon shrunk by `margin`: clip p towards the centroid until inside.
-    let centroid = poly.iter().copied().sum::<DVec2>() / n as f64;
+    let centroid = poly.iter().copied().sum::<RealVec2>() / n as Real;
     let mut lo = 0.0;
     let mut hi = 1.0;
-    let inside = |x: DVec2| {
+    let inside = |x: RealVec2| {
         (0..n).all(|i| {
             let (a, b) = (poly[i], poly[(i + 1) % n]);
             (x - a).dot((b - a).normalize_or_zero().perp()) >= margin
@@ -1640,15 +1652,15 @@ fn polygon_margin(poly: &[DVec2], p: DVec2, margin: f64) -> (f64, DVec2) {
 /// The human's up direction: the coordinate axis nearest the rest pose's pelvis-to-head (or
 /// shoulders) direction.
 #[must_use]
-pub fn human_up(skeleton: &Skeleton, human: &HumanBones) -> DVec3 {
+pub fn human_up(skeleton: &Skeleton, human: &HumanBones) -> RealVec3 {
     let mut rest = Pose64::default();
     fk64(skeleton, &[], &mut rest);
     let hips = [rest.start[human.legs[0][0]], rest.start[human.legs[1][0]]];
     let top = match (human.head, human.arms[0]) {
         (Some(b), _) | (None, Some([b, _])) => rest.start[b],
-        _ => rest.start[human.pelvis] + DVec3::Y,
+        _ => rest.start[human.pelvis] + RealVec3::Y,
     };
-    frame_from(hips[0] - hips[1], top - 0.5 * (hips[0] + hips[1])).map_or(DVec3::Y, |f| f.col(2))
+    frame_from(hips[0] - hips[1], top - 0.5 * (hips[0] + hips[1])).map_or(RealVec3::Y, |f| f.col(2))
 }
 
 /// The human floor from the rest pose alone (for live streams): the ankle and toe heights of
@@ -1668,35 +1680,35 @@ pub fn floor_of_rest(skeleton: &Skeleton, human: &HumanBones) -> Floor {
 /// Elevation of a foot's ankle-to-toe line above the floor plane (radians), between −60° and 0°
 /// (a rest pose with the foot pointing down says nothing about the arch).
 #[must_use]
-pub fn foot_elevation(pose: &Pose64, leg: [usize; 3], up: DVec3) -> f64 {
+pub fn foot_elevation(pose: &Pose64, leg: [usize; 3], up: RealVec3) -> Real {
     let f = (pose.tip[leg[2]] - pose.start[leg[2]]).normalize_or_zero();
-    libm::asin(f.dot(up).clamp(-1.0, 1.0)).clamp(-core::f64::consts::FRAC_PI_3, 0.0)
+    real::asin(f.dot(up).clamp(-1.0, 1.0)).clamp(-crate::math::consts::FRAC_PI_3, 0.0)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn unit(x: f64, y: f64, z: f64) -> DVec3 {
-        DVec3::new(x, y, z).normalize()
+    fn unit(x: Real, y: Real, z: Real) -> RealVec3 {
+        RealVec3::new(x, y, z).normalize()
     }
 
     /// Subproblem 1 turns a vector onto the target's cone; subproblem 2 reaches any direction
     /// two perpendicular axes can reach, with both solutions.
     #[test]
     fn paden_kahan_subproblems() {
-        let a = DVec3::Z;
-        let q = angle_about(a, DVec3::X, unit(0.0, 1.0, 0.3));
-        assert!((q - core::f64::consts::FRAC_PI_2).abs() < 1e-12);
-        let (a1, a2, v) = (DVec3::Y, -DVec3::X, DVec3::Y);
+        let a = RealVec3::Z;
+        let q = angle_about(a, RealVec3::X, unit(0.0, 1.0, 0.3));
+        assert!((q - crate::math::consts::FRAC_PI_2).abs() < 1e-12);
+        let (a1, a2, v) = (RealVec3::Y, -RealVec3::X, RealVec3::Y);
         for t in [unit(0.3, -0.2, -0.9), unit(1.0, 0.5, 0.2), unit(-0.2, 0.9, 0.1)] {
             for (q1, q2) in angles_about_two(a1, a2, v, t) {
-                let got = DQuat::from_axis_angle(a1, q1) * DQuat::from_axis_angle(a2, q2) * v;
+                let got = RealQuat::from_axis_angle(a1, q1) * RealQuat::from_axis_angle(a2, q2) * v;
                 assert!((got - t).length() < 1e-12, "{got} {t}");
             }
         }
         // Unreachable: both axes along z cannot lift x; the nearest direction comes back.
-        let [(q1, q2), _] = angles_about_two(DVec3::Z, DVec3::Z, DVec3::X, DVec3::Z);
+        let [(q1, q2), _] = angles_about_two(RealVec3::Z, RealVec3::Z, RealVec3::X, RealVec3::Z);
         assert!(q1.is_finite() && q2.is_finite());
     }
 
@@ -1705,29 +1717,29 @@ mod tests {
     #[test]
     fn support_polygon_margin() {
         let pts = [
-            DVec2::new(0.0, 0.0),
-            DVec2::new(1.0, 0.0),
-            DVec2::new(1.0, 1.0),
-            DVec2::new(0.0, 1.0),
-            DVec2::new(0.5, 0.5),
+            RealVec2::new(0.0, 0.0),
+            RealVec2::new(1.0, 0.0),
+            RealVec2::new(1.0, 1.0),
+            RealVec2::new(0.0, 1.0),
+            RealVec2::new(0.5, 0.5),
         ];
         let hull = convex_hull(&pts);
         assert_eq!(hull.len(), 4);
-        let (m, p) = polygon_margin(&hull, DVec2::new(0.5, 0.2), 0.0);
-        assert!((m - 0.2).abs() < 1e-12 && p == DVec2::new(0.5, 0.2));
-        let (m, p) = polygon_margin(&hull, DVec2::new(0.5, -0.3), 0.1);
+        let (m, p) = polygon_margin(&hull, RealVec2::new(0.5, 0.2), 0.0);
+        assert!((m - 0.2).abs() < 1e-12 && p == RealVec2::new(0.5, 0.2));
+        let (m, p) = polygon_margin(&hull, RealVec2::new(0.5, -0.3), 0.1);
         assert!((m + 0.3).abs() < 1e-12);
         assert!((p.y - 0.1).abs() < 1e-6 && p.x > 0.0 && p.x < 1.0, "{p}");
-        assert!(polygon_margin(&hull[..2], DVec2::ZERO, 0.0).0.is_nan());
+        assert!(polygon_margin(&hull[..2], RealVec2::ZERO, 0.0).0.is_nan());
     }
 
     /// A rest pose that leans does not tilt the floor: up snaps to the nearest axis.
     #[test]
     fn pelvis_frame_snaps_up_to_an_axis() {
-        let f = frame_from(DVec3::new(1.0, 0.05, 0.0), DVec3::new(0.1, 1.0, -0.05)).unwrap();
-        assert_eq!(f.col(2), DVec3::Y);
-        assert!((f.col(1) - DVec3::X).length() < 1e-12);
-        assert!((f.col(0) - DVec3::Z).length() < 1e-12);
-        assert!(frame_from(DVec3::Y, DVec3::Y).is_none());
+        let f = frame_from(RealVec3::new(1.0, 0.05, 0.0), RealVec3::new(0.1, 1.0, -0.05)).unwrap();
+        assert_eq!(f.col(2), RealVec3::Y);
+        assert!((f.col(1) - RealVec3::X).length() < 1e-12);
+        assert!((f.col(0) - RealVec3::Z).length() < 1e-12);
+        assert!(frame_from(RealVec3::Y, RealVec3::Y).is_none());
     }
 }

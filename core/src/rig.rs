@@ -5,7 +5,7 @@
 //! order (help note §II, the YXZ→XYZ conversion, for any pair of the 12 orders), or a named
 //! robot joint (an index into a joint-angle vector). Angles are radians throughout.
 
-use glam::DMat3;
+use crate::math::{real, Real, RealMat3};
 
 use crate::math::{euler_near, EulerOrder};
 use crate::servo::{ServoModel, MAX_SERVOS, TICKS_PER_TURN};
@@ -39,39 +39,39 @@ pub struct ServoMap {
     /// What drives it.
     pub source: JointSource,
     /// +1 or −1: whether a positive joint angle turns the horn the positive way.
-    pub direction: f64,
+    pub direction: Real,
     /// The tick that stands for joint angle 0.
-    pub zero_tick: f64,
+    pub zero_tick: Real,
     /// Servo turns per joint turn (belts, linkages).
-    pub gear: f64,
+    pub gear: Real,
     /// Lowest allowed tick (software limit, inside the servo's range).
     pub min_tick: i32,
     /// Highest allowed tick.
     pub max_tick: i32,
     /// Most ticks per second the command may move.
-    pub max_velocity: f64,
+    pub max_velocity: Real,
     /// Most ticks per second² the command may accelerate.
-    pub max_acceleration: f64,
+    pub max_acceleration: Real,
 }
 
 impl ServoMap {
     /// Ticks per radian of joint angle, signed by the direction.
     #[must_use]
-    pub fn ticks_per_radian(&self) -> f64 {
-        self.direction * self.gear * f64::from(TICKS_PER_TURN) / core::f64::consts::TAU
+    pub fn ticks_per_radian(&self) -> Real {
+        self.direction * self.gear * (TICKS_PER_TURN as Real) / crate::math::consts::TAU
     }
 
     /// The exact (unrounded) tick for a joint angle.
     #[must_use]
-    pub fn angle_to_ticks_exact(&self, angle: f64) -> f64 {
+    pub fn angle_to_ticks_exact(&self, angle: Real) -> Real {
         self.zero_tick + angle * self.ticks_per_radian()
     }
 
     /// The nearest whole tick for a joint angle (saturating at the i32 range; NaN gives 0 —
     /// the command stage rejects non-finite angles before this is used on a bus).
     #[must_use]
-    pub fn angle_to_ticks(&self, angle: f64) -> i32 {
-        libm::round(self.angle_to_ticks_exact(angle)) as i32
+    pub fn angle_to_ticks(&self, angle: Real) -> i32 {
+        real::round(self.angle_to_ticks_exact(angle)) as i32
     }
 
     /// The rest position: the tick of joint angle 0, inside the limits (where a run eases to
@@ -83,7 +83,7 @@ impl ServoMap {
 
     /// The joint angle of a tick.
     #[must_use]
-    pub fn ticks_to_angle(&self, ticks: f64) -> f64 {
+    pub fn ticks_to_angle(&self, ticks: Real) -> Real {
         (ticks - self.zero_tick) / self.ticks_per_radian()
     }
 }
@@ -115,14 +115,14 @@ impl Rig {
     /// them (of the two Euler solutions and their 2π turns), so a stream stays continuous.
     /// Sources that index past `channels` or `joints` give NaN, which the command stage
     /// rejects.
-    pub fn joint_angles(&self, skeleton: &Skeleton, channels: &[f64], joints: &[f64], angles: &mut [f64]) {
+    pub fn joint_angles(&self, skeleton: &Skeleton, channels: &[Real], joints: &[Real], angles: &mut [Real]) {
         // Servos on the same bone and order share one decomposition, computed when the first
         // of them is met (while the others still hold their previous angles).
-        let mut solved: heapless::Vec<(usize, EulerOrder, [f64; 3]), MAX_SERVOS> = heapless::Vec::new();
+        let mut solved: heapless::Vec<(usize, EulerOrder, [Real; 3]), MAX_SERVOS> = heapless::Vec::new();
         for k in 0..self.servos.len().min(angles.len()) {
             angles[k] = match self.servos[k].source {
-                JointSource::Channel(c) => channels.get(c).copied().unwrap_or(f64::NAN),
-                JointSource::Joint(j) => joints.get(j).copied().unwrap_or(f64::NAN),
+                JointSource::Channel(c) => channels.get(c).copied().unwrap_or(Real::NAN),
+                JointSource::Joint(j) => joints.get(j).copied().unwrap_or(Real::NAN),
                 JointSource::Redecomposed { bone, order, slot } => {
                     if let Some((_, _, a)) = solved.iter().find(|(b, o, _)| *b == bone && *o == order) {
                         a[slot]
@@ -145,7 +145,7 @@ impl Rig {
                         let _ = solved.push((bone, order, a));
                         a[slot]
                     } else {
-                        f64::NAN
+                        Real::NAN
                     }
                 }
             };
@@ -160,7 +160,13 @@ impl Rig {
     /// angles (slots no servo drives kept from the source) and written back in the bone's own
     /// DOF order (bones with fewer than three rotation DOFs keep the source). The inverse of
     /// [`Rig::joint_angles`], for comparing what the servos do with what they were asked.
-    pub fn channels_from_angles(&self, skeleton: &Skeleton, angles: &[f64], source: &[f64], out: &mut [f64]) {
+    pub fn channels_from_angles(
+        &self,
+        skeleton: &Skeleton,
+        angles: &[Real],
+        source: &[Real],
+        out: &mut [Real],
+    ) {
         let n = source.len().min(out.len());
         out[..n].copy_from_slice(&source[..n]);
         let mut done: heapless::Vec<(usize, EulerOrder), MAX_SERVOS> = heapless::Vec::new();
@@ -208,7 +214,7 @@ impl Rig {
                         .filter(|(d, _)| d.is_rotation())
                         .map(|(_, c)| c)
                         .collect();
-                    let reference: [f64; 3] = core::array::from_fn(|i| {
+                    let reference: [Real; 3] = core::array::from_fn(|i| {
                         rotations
                             .get(i)
                             .and_then(|c| source.get(*c))
@@ -230,7 +236,7 @@ impl Rig {
 /// A bone's local rotation `M = R(last)·…·R(first)` from its rotation channels (radians), or
 /// `None` when the frame is too short.
 #[must_use]
-pub fn bone_rotation(skeleton: &Skeleton, bone: usize, channels: &[f64]) -> Option<DMat3> {
+pub fn bone_rotation(skeleton: &Skeleton, bone: usize, channels: &[Real]) -> Option<RealMat3> {
     let b = skeleton.bones().get(bone)?;
     Some(dof_rotation(
         b.dofs(),
@@ -241,6 +247,6 @@ pub fn bone_rotation(skeleton: &Skeleton, bone: usize, channels: &[f64]) -> Opti
 /// Re-writes angles given in `from` order as angles in `to` order (the same rotation), the
 /// solution nearest `reference`. Help note §II's YXZ→XYZ conversion, for any two orders.
 #[must_use]
-pub fn redecompose(from: EulerOrder, angles: [f64; 3], to: EulerOrder, reference: [f64; 3]) -> [f64; 3] {
+pub fn redecompose(from: EulerOrder, angles: [Real; 3], to: EulerOrder, reference: [Real; 3]) -> [Real; 3] {
     euler_near(to, &from.to_mat3_f64(angles), reference)
 }

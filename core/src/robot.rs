@@ -8,7 +8,7 @@
 //! orientation and position before the hinge, `R' = R·rot(axis, q)` and
 //! `p' = p + R·anchor − R'·anchor`.
 
-use glam::{DQuat, DVec3};
+use crate::math::{Real, RealQuat, RealVec3};
 
 /// Most bodies in a robot (the world not counted).
 pub const MAX_ROBOT_BODIES: usize = 64;
@@ -30,13 +30,13 @@ pub struct RobotBody {
     /// Its parent body (`None`: attached to the base frame).
     pub parent: Option<usize>,
     /// Offset of its frame in its parent's frame, metres.
-    pub pos: DVec3,
+    pub pos: RealVec3,
     /// Orientation of its frame in its parent's frame.
-    pub quat: DQuat,
+    pub quat: RealQuat,
     /// Mass, kg.
-    pub mass: f64,
+    pub mass: Real,
     /// Centre of mass in its own frame, metres.
-    pub com: DVec3,
+    pub com: RealVec3,
 }
 
 /// One hinge joint.
@@ -47,11 +47,11 @@ pub struct RobotJoint {
     /// The body it turns.
     pub body: usize,
     /// Unit axis in the body's frame.
-    pub axis: DVec3,
+    pub axis: RealVec3,
     /// A point on the axis in the body's frame, metres.
-    pub anchor: DVec3,
+    pub anchor: RealVec3,
     /// Limits, radians (`None`: unlimited).
-    pub range: Option<(f64, f64)>,
+    pub range: Option<(Real, Real)>,
 }
 
 /// A named point fixed in a body (an MJCF site): a hand, a sole.
@@ -62,7 +62,7 @@ pub struct RobotSite {
     /// The body it is fixed in.
     pub body: usize,
     /// Its position in that body's frame, metres.
-    pub pos: DVec3,
+    pub pos: RealVec3,
 }
 
 /// Most sites in a robot.
@@ -110,16 +110,16 @@ pub struct Robot {
 #[derive(Clone, Debug)]
 pub struct RobotPose {
     /// Body frame positions, metres.
-    pub pos: [DVec3; MAX_ROBOT_BODIES],
+    pub pos: [RealVec3; MAX_ROBOT_BODIES],
     /// Body frame orientations.
-    pub rot: [DQuat; MAX_ROBOT_BODIES],
+    pub rot: [RealQuat; MAX_ROBOT_BODIES],
 }
 
 impl Default for RobotPose {
     fn default() -> Self {
         RobotPose {
-            pos: [DVec3::ZERO; MAX_ROBOT_BODIES],
-            rot: [DQuat::IDENTITY; MAX_ROBOT_BODIES],
+            pos: [RealVec3::ZERO; MAX_ROBOT_BODIES],
+            rot: [RealQuat::IDENTITY; MAX_ROBOT_BODIES],
         }
     }
 }
@@ -143,10 +143,10 @@ impl Robot {
         &mut self,
         body_name: &str,
         parent: Option<usize>,
-        pos: DVec3,
-        quat: DQuat,
-        mass: f64,
-        com: DVec3,
+        pos: RealVec3,
+        quat: RealQuat,
+        mass: Real,
+        com: RealVec3,
     ) -> Result<usize, RobotError> {
         if parent.is_some_and(|p| p >= self.bodies.len()) {
             return Err(RobotError::BadParent);
@@ -172,9 +172,9 @@ impl Robot {
         &mut self,
         joint_name: &str,
         body: usize,
-        axis: DVec3,
-        anchor: DVec3,
-        range: Option<(f64, f64)>,
+        axis: RealVec3,
+        anchor: RealVec3,
+        range: Option<(Real, Real)>,
     ) -> Result<usize, RobotError> {
         let slot = self.joint_of_body.get_mut(body).ok_or(RobotError::BadParent)?;
         if slot.is_some() {
@@ -221,7 +221,7 @@ impl Robot {
     ///
     /// # Errors
     /// [`RobotError`]: a body that does not exist, a long name, too many sites.
-    pub fn add_site(&mut self, site_name: &str, body: usize, pos: DVec3) -> Result<usize, RobotError> {
+    pub fn add_site(&mut self, site_name: &str, body: usize, pos: RealVec3) -> Result<usize, RobotError> {
         if body >= self.bodies.len() {
             return Err(RobotError::BadParent);
         }
@@ -248,14 +248,14 @@ impl Robot {
 
     /// Where a site is in `pose` (NaN for a site that does not exist).
     #[must_use]
-    pub fn site_position(&self, pose: &RobotPose, site: usize) -> DVec3 {
+    pub fn site_position(&self, pose: &RobotPose, site: usize) -> RealVec3 {
         self.sites
             .get(site)
-            .map_or(DVec3::NAN, |s| pose.pos[s.body] + pose.rot[s.body] * s.pos)
+            .map_or(RealVec3::NAN, |s| pose.pos[s.body] + pose.rot[s.body] * s.pos)
     }
 
     /// Sets a joint's limits (radians; `None`: unlimited). Out-of-range indices are ignored.
-    pub fn set_range(&mut self, joint: usize, range: Option<(f64, f64)>) {
+    pub fn set_range(&mut self, joint: usize, range: Option<(Real, Real)>) {
         if let Some(j) = self.joints.get_mut(joint) {
             j.range = range;
         }
@@ -263,13 +263,13 @@ impl Robot {
 
     /// Total mass, kg.
     #[must_use]
-    pub fn mass(&self) -> f64 {
+    pub fn mass(&self) -> Real {
         self.bodies.iter().map(|b| b.mass).sum()
     }
 
     /// Forward kinematics: every body's frame for joint angles `q` (radians, in joint order;
     /// missing angles count as 0), the base at `base_pos` turned by `base_rot`.
-    pub fn forward(&self, base_pos: DVec3, base_rot: DQuat, q: &[f64], pose: &mut RobotPose) {
+    pub fn forward(&self, base_pos: RealVec3, base_rot: RealQuat, q: &[Real], pose: &mut RobotPose) {
         for (i, b) in self.bodies.iter().enumerate() {
             let (pp, pr) = match b.parent {
                 Some(p) => (pose.pos[p], pose.rot[p]),
@@ -281,7 +281,7 @@ impl Robot {
                 let joint = &self.joints[j];
                 let angle = q.get(j).copied().unwrap_or(0.0);
                 let anchor = pos + rot * joint.anchor;
-                rot *= DQuat::from_axis_angle(joint.axis, angle);
+                rot *= RealQuat::from_axis_angle(joint.axis, angle);
                 pos = anchor - rot * joint.anchor;
             }
             pose.pos[i] = pos;
@@ -292,8 +292,8 @@ impl Robot {
     /// The centre of mass of the whole robot in `pose` (the base frame's origin when it has no
     /// mass).
     #[must_use]
-    pub fn centre_of_mass(&self, pose: &RobotPose) -> DVec3 {
-        let mut sum = DVec3::ZERO;
+    pub fn centre_of_mass(&self, pose: &RobotPose) -> RealVec3 {
+        let mut sum = RealVec3::ZERO;
         let mut mass = 0.0;
         for (i, b) in self.bodies.iter().enumerate() {
             sum += b.mass * (pose.pos[i] + pose.rot[i] * b.com);
@@ -302,7 +302,7 @@ impl Robot {
         if mass > 0.0 {
             sum / mass
         } else {
-            DVec3::ZERO
+            RealVec3::ZERO
         }
     }
 }
@@ -319,35 +319,43 @@ mod tests {
             .add_body(
                 "upper",
                 None,
-                DVec3::ZERO,
-                DQuat::IDENTITY,
+                RealVec3::ZERO,
+                RealQuat::IDENTITY,
                 1.0,
-                DVec3::new(0.5, 0.0, 0.0),
+                RealVec3::new(0.5, 0.0, 0.0),
             )
             .unwrap();
         let b = r
             .add_body(
                 "lower",
                 Some(a),
-                DVec3::new(1.0, 0.0, 0.0),
-                DQuat::IDENTITY,
+                RealVec3::new(1.0, 0.0, 0.0),
+                RealQuat::IDENTITY,
                 2.0,
-                DVec3::new(0.5, 0.0, 0.0),
+                RealVec3::new(0.5, 0.0, 0.0),
             )
             .unwrap();
-        r.add_hinge("shoulder", a, DVec3::Z, DVec3::ZERO, None).unwrap();
-        r.add_hinge("elbow", b, DVec3::Z, DVec3::ZERO, None).unwrap();
+        r.add_hinge("shoulder", a, RealVec3::Z, RealVec3::ZERO, None)
+            .unwrap();
+        r.add_hinge("elbow", b, RealVec3::Z, RealVec3::ZERO, None)
+            .unwrap();
         let (t1, t2) = (0.3_f64, -0.7_f64);
         let mut pose = RobotPose::default();
-        r.forward(DVec3::ZERO, DQuat::IDENTITY, &[t1, t2], &mut pose);
-        let elbow = DVec3::new(libm::cos(t1), libm::sin(t1), 0.0);
+        r.forward(RealVec3::ZERO, RealQuat::IDENTITY, &[t1, t2], &mut pose);
+        let elbow = RealVec3::new(crate::math::real::cos(t1), crate::math::real::sin(t1), 0.0);
         assert!((pose.pos[b] - elbow).length() < 1e-12);
-        let mid_lower = elbow + 0.5 * DVec3::new(libm::cos(t1 + t2), libm::sin(t1 + t2), 0.0);
-        let mid_upper = 0.5 * DVec3::new(libm::cos(t1), libm::sin(t1), 0.0);
+        let mid_lower = elbow
+            + 0.5
+                * RealVec3::new(
+                    crate::math::real::cos(t1 + t2),
+                    crate::math::real::sin(t1 + t2),
+                    0.0,
+                );
+        let mid_upper = 0.5 * RealVec3::new(crate::math::real::cos(t1), crate::math::real::sin(t1), 0.0);
         let com = (mid_upper + 2.0 * mid_lower) / 3.0;
         assert!((r.centre_of_mass(&pose) - com).length() < 1e-12);
         assert_eq!(
-            r.add_hinge("again", b, DVec3::X, DVec3::ZERO, None),
+            r.add_hinge("again", b, RealVec3::X, RealVec3::ZERO, None),
             Err(RobotError::SecondJoint)
         );
     }
@@ -357,19 +365,19 @@ mod tests {
     fn a_hinge_turns_about_its_anchor() {
         let mut r = Robot::new();
         let a = r
-            .add_body("b", None, DVec3::ZERO, DQuat::IDENTITY, 1.0, DVec3::ZERO)
+            .add_body("b", None, RealVec3::ZERO, RealQuat::IDENTITY, 1.0, RealVec3::ZERO)
             .unwrap();
-        let anchor = DVec3::new(0.0, 1.0, 0.0);
-        r.add_hinge("j", a, DVec3::Z, anchor, None).unwrap();
+        let anchor = RealVec3::new(0.0, 1.0, 0.0);
+        r.add_hinge("j", a, RealVec3::Z, anchor, None).unwrap();
         let mut pose = RobotPose::default();
         r.forward(
-            DVec3::ZERO,
-            DQuat::IDENTITY,
-            &[core::f64::consts::FRAC_PI_2],
+            RealVec3::ZERO,
+            RealQuat::IDENTITY,
+            &[crate::math::consts::FRAC_PI_2],
             &mut pose,
         );
         // The origin swings about (0, 1, 0): to (1, 1, 0).
-        assert!((pose.pos[a] - DVec3::new(1.0, 1.0, 0.0)).length() < 1e-12);
+        assert!((pose.pos[a] - RealVec3::new(1.0, 1.0, 0.0)).length() < 1e-12);
         assert!((pose.pos[a] + pose.rot[a] * anchor - anchor).length() < 1e-12);
     }
 }

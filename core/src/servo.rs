@@ -3,6 +3,8 @@
 //! All four supported models share the X-series control-table layout; they differ in model
 //! number, top baud rate and speed. Positions are 4096 ticks per turn, 0…4095 in position mode.
 
+use crate::math::{real, Real};
+
 /// Control-table addresses of the X series (`EEPROM` below 64, `RAM` from 64).
 pub mod addr {
     /// Model number, 2 bytes (EEPROM, read-only).
@@ -107,9 +109,9 @@ pub const TICKS_PER_TURN: u32 = 4096;
 /// Highest position in position-control mode.
 pub const MAX_TICK: i32 = 4095;
 /// rpm per unit of velocity registers (Profile Velocity, Present Velocity, Velocity Limit).
-pub const RPM_PER_VELOCITY_UNIT: f64 = 0.229;
+pub const RPM_PER_VELOCITY_UNIT: Real = 0.229;
 /// rev/min² per unit of Profile Acceleration.
-pub const RPM2_PER_ACCELERATION_UNIT: f64 = 214.577;
+pub const RPM2_PER_ACCELERATION_UNIT: Real = 214.577;
 
 /// A supported servo model.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -121,24 +123,24 @@ pub struct ServoModel {
     /// Highest baud rate, bit/s.
     pub max_baud: u32,
     /// No-load speed at the recommended voltage, rev/min.
-    pub no_load_rpm: f64,
+    pub no_load_rpm: Real,
     /// Stall torque at the recommended voltage, N·m.
-    pub stall_torque_nm: f64,
+    pub stall_torque_nm: Real,
     /// Factory Position P Gain (control-table units).
     pub position_p_gain: u16,
     /// Gear ratio (motor turns per horn turn), e-manual.
-    pub gear_ratio: f64,
+    pub gear_ratio: Real,
     /// The voltage the no-load speed and stall torque are given at (the recommended one).
-    pub rated_v: f64,
+    pub rated_v: Real,
     /// The supply range the e-manual allows, volts.
-    pub min_v: f64,
+    pub min_v: Real,
     /// Highest supply, volts.
-    pub max_v: f64,
+    pub max_v: Real,
     /// Stall current at the rated voltage, A (e-manual).
-    pub stall_current_a: f64,
+    pub stall_current_a: Real,
     /// mA per unit of Present Current (126); 0 for models that report Present Load there
     /// (0.1 % of the maximum torque) instead.
-    pub current_unit_ma: f64,
+    pub current_unit_ma: Real,
     /// Current Limit's factory value (38), its units; 0 where the model has none.
     pub current_limit: u16,
     /// Temperature Limit's factory value (31), °C.
@@ -176,15 +178,15 @@ pub enum Family {
 impl ServoModel {
     /// No-load speed in radians per second at the rated voltage.
     #[must_use]
-    pub fn max_speed_rad_s(&self) -> f64 {
-        self.no_load_rpm * core::f64::consts::TAU / 60.0
+    pub fn max_speed_rad_s(&self) -> Real {
+        self.no_load_rpm * crate::math::consts::TAU / 60.0
     }
 
     /// How a DC motor scales with its supply: no-load speed and stall torque in proportion to
     /// the voltage (the e-manual's figures at three voltages follow it within 2 %), the slope of
     /// the torque–speed line unchanged. The factor at `volts`, clamped to the allowed range.
     #[must_use]
-    pub fn voltage_factor(&self, volts: f64) -> f64 {
+    pub fn voltage_factor(&self, volts: Real) -> Real {
         if volts.is_finite() && self.rated_v > 0.0 {
             volts.clamp(self.min_v, self.max_v) / self.rated_v
         } else {
@@ -194,13 +196,13 @@ impl ServoModel {
 
     /// Stall torque at `volts`, N·m.
     #[must_use]
-    pub fn stall_torque_at(&self, volts: f64) -> f64 {
+    pub fn stall_torque_at(&self, volts: Real) -> Real {
         self.stall_torque_nm * self.voltage_factor(volts)
     }
 
     /// No-load speed at `volts`, radians per second.
     #[must_use]
-    pub fn max_speed_rad_s_at(&self, volts: f64) -> f64 {
+    pub fn max_speed_rad_s_at(&self, volts: Real) -> Real {
         self.max_speed_rad_s() * self.voltage_factor(volts)
     }
 }
@@ -344,14 +346,21 @@ pub fn model_by_number(number: u16) -> Option<&'static ServoModel> {
 /// `target` this step, bounded by `vmax`, by the speed from which `amax` can still stop at the
 /// target (`√(2·amax·d)`), and by `amax·dt` of change from the last velocity.
 #[must_use]
-pub fn step_towards(position: f64, velocity: f64, target: f64, vmax: f64, amax: f64, dt: f64) -> (f64, f64) {
+pub fn step_towards(
+    position: Real,
+    velocity: Real,
+    target: Real,
+    vmax: Real,
+    amax: Real,
+    dt: Real,
+) -> (Real, Real) {
     let d = target - position;
     let mut v = d / dt;
-    let vmax = if vmax > 0.0 { vmax } else { f64::INFINITY };
+    let vmax = if vmax > 0.0 { vmax } else { Real::INFINITY };
     v = v.clamp(-vmax, vmax);
     if amax > 0.0 && amax.is_finite() {
         // Braking: from speed v we need v²/(2a) to stop; never go faster than that allows.
-        let brake = libm::sqrt(2.0 * amax * d.abs());
+        let brake = real::sqrt(2.0 * amax * d.abs());
         v = v.clamp(-brake.max(amax * dt), brake.max(amax * dt));
         let dv = amax * dt;
         v = v.clamp(velocity - dv, velocity + dv);
@@ -369,25 +378,25 @@ pub fn step_towards(position: f64, velocity: f64, target: f64, vmax: f64, amax: 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MotionLimits {
     /// Largest speed.
-    pub velocity: f64,
+    pub velocity: Real,
     /// Largest acceleration.
-    pub acceleration: f64,
+    pub acceleration: Real,
     /// Lowest position.
-    pub min: f64,
+    pub min: Real,
     /// Highest position.
-    pub max: f64,
+    pub max: Real,
 }
 
 impl MotionLimits {
     /// (velocity, acceleration, lowest, highest) with missing rates as infinity and the range
     /// in order.
     #[must_use]
-    pub fn sane(&self) -> (f64, f64, f64, f64) {
-        let rate = |v: f64| {
+    pub fn sane(&self) -> (Real, Real, Real, Real) {
+        let rate = |v: Real| {
             if v.is_finite() && v > 0.0 {
                 v
             } else {
-                f64::INFINITY
+                Real::INFINITY
             }
         };
         let (lo, hi) = if self.min <= self.max {
@@ -405,7 +414,13 @@ impl MotionLimits {
 /// [`step_towards`] it does not brake towards `next`: that is a point on a path that goes on,
 /// not a place to stop. Returns the new position (inside the limits) and velocity.
 #[must_use]
-pub fn step_along(position: f64, velocity: f64, next: f64, dt: f64, limits: &MotionLimits) -> (f64, f64) {
+pub fn step_along(
+    position: Real,
+    velocity: Real,
+    next: Real,
+    dt: Real,
+    limits: &MotionLimits,
+) -> (Real, Real) {
     let (vmax, amax, lo, hi) = limits.sane();
     let v = ((next - position) / dt).clamp(-vmax, vmax);
     let v = if amax.is_finite() {
@@ -420,11 +435,11 @@ pub fn step_along(position: f64, velocity: f64, next: f64, dt: f64, limits: &Mot
 /// Bounds `v` by the speed from which `amax` can still stop at `lo`/`hi`, then moves `dt`:
 /// the new position (inside the limits) and velocity.
 #[must_use]
-pub fn brake_and_move(position: f64, v: f64, dt: f64, amax: f64, lo: f64, hi: f64) -> (f64, f64) {
+pub fn brake_and_move(position: Real, v: Real, dt: Real, amax: Real, lo: Real, hi: Real) -> (Real, Real) {
     let mut v = v;
     if amax.is_finite() {
-        let up = libm::sqrt(2.0 * amax * (hi - position).max(0.0)).max(amax * dt);
-        let down = libm::sqrt(2.0 * amax * (position - lo).max(0.0)).max(amax * dt);
+        let up = real::sqrt(2.0 * amax * (hi - position).max(0.0)).max(amax * dt);
+        let down = real::sqrt(2.0 * amax * (position - lo).max(0.0)).max(amax * dt);
         v = v.clamp(-down, up);
     }
     ((position + v * dt).clamp(lo, hi), v)

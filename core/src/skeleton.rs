@@ -5,8 +5,9 @@
 //! every other bone follows in skeleton order with its channels in its `dof` order. Rotation
 //! channels are radians inside the library (files hold degrees), translations are file units.
 
+use crate::math::{real, Real, RealMat3, RealQuat, RealVec3, ToReal};
 use crate::math::{Axis, EulerOrder};
-use glam::{DMat3, DQuat, DVec3, Mat3, Vec3};
+use glam::{Mat3, Vec3};
 
 /// Most bones a skeleton holds, the root included.
 pub const MAX_BONES: usize = 64;
@@ -181,15 +182,15 @@ impl Dof {
 /// in f64. `angles` holds one value per DOF, radians for rotations; the values of translation
 /// and length DOFs are skipped.
 #[must_use]
-pub fn dof_rotation(dofs: &[Dof], angles: impl IntoIterator<Item = f64>) -> DMat3 {
-    let mut m = DMat3::IDENTITY;
+pub fn dof_rotation(dofs: &[Dof], angles: impl IntoIterator<Item = Real>) -> RealMat3 {
+    let mut m = RealMat3::IDENTITY;
     for (d, a) in dofs.iter().zip(angles) {
         if let (true, Some(axis)) = (d.is_rotation(), d.axis()) {
             if a == 0.0 {
                 continue;
             }
             // `R_axis(a)·m`: only the two rows across the axis change.
-            let (s, c) = libm::sincos(a);
+            let (s, c) = real::sincos(a);
             let (i, j) = match axis {
                 crate::math::Axis::X => (1, 2),
                 crate::math::Axis::Y => (2, 0),
@@ -206,8 +207,8 @@ pub fn dof_rotation(dofs: &[Dof], angles: impl IntoIterator<Item = f64>) -> DMat
 }
 
 /// `c` in f64, re-orthonormalised through a quaternion.
-fn orthonormal_f64(c: Mat3) -> DMat3 {
-    DMat3::from_quat(DQuat::from_mat3(&c.as_dmat3()).normalize())
+fn orthonormal_f64(c: Mat3) -> RealMat3 {
+    RealMat3::from_quat(RealQuat::from_mat3(&c.to_real()).normalize())
 }
 
 /// The rotation DOFs as an Euler order, when there are all three.
@@ -329,9 +330,9 @@ pub struct Bone {
     /// The direction in the bone's local frame, eq. (5): `Cᵀ · direction`.
     local_direction: Vec3,
     /// `C` in f64, re-orthonormalised once (FK reads it for every bone of every pose).
-    axis_rotation_f64: DMat3,
+    axis_rotation_f64: RealMat3,
     /// The rest direction in f64, unit length (zero for a zero direction).
-    direction_f64: DVec3,
+    direction_f64: RealVec3,
 }
 
 impl Bone {
@@ -346,8 +347,8 @@ impl Bone {
         first_channel: usize,
         axis_rotation: Mat3,
         local_direction: Vec3,
-        axis_rotation_f64: DMat3,
-        direction_f64: DVec3,
+        axis_rotation_f64: RealMat3,
+        direction_f64: RealVec3,
     ) -> Bone {
         Bone {
             spec,
@@ -418,12 +419,12 @@ impl Bone {
     /// `C` in f64, re-orthonormalised: the skeleton stores it in f32, and a slightly skewed `C`
     /// would make `Cᵀ·Q·C` no rotation, which Euler extraction amplifies near gimbal lock.
     #[must_use]
-    pub fn axis_rotation_f64(&self) -> DMat3 {
+    pub fn axis_rotation_f64(&self) -> RealMat3 {
         self.axis_rotation_f64
     }
     /// The rest direction (global) in f64, unit length (zero for a zero direction).
     #[must_use]
-    pub fn direction_f64(&self) -> DVec3 {
+    pub fn direction_f64(&self) -> RealVec3 {
         self.direction_f64
     }
 }
@@ -615,7 +616,7 @@ impl Skeleton {
             axis_rotation: root_rot,
             local_direction: Vec3::ZERO,
             axis_rotation_f64: orthonormal_f64(root_rot),
-            direction_f64: DVec3::ZERO,
+            direction_f64: RealVec3::ZERO,
         });
         for &input in &order {
             let spec = bones[input].clone();
@@ -626,7 +627,7 @@ impl Skeleton {
             let c = spec.axis_order.to_mat3(spec.axis);
             let local_direction = c.transpose() * spec.direction;
             let n = spec.dofs.len();
-            let direction_f64 = spec.direction.as_dvec3().normalize_or_zero();
+            let direction_f64 = spec.direction.to_real().normalize_or_zero();
             let _ = out.push(Bone {
                 spec,
                 parent: Some(parent),

@@ -20,20 +20,28 @@
 //! choice of swivel may differ from the exact optimum by that much in eq. 30's value; any swivel
 //! reaches the target exactly.
 
-use core::f64::consts::{PI, TAU};
+use crate::math::consts::{PI, TAU};
 
-use glam::DQuat;
+use crate::math::{precision, real, Real, RealQuat};
 
-use crate::math::{acos_abs_fast, acos_fast, atan2_fast, atan_ratio_fast, AngleOf, Element, EulerOrder};
+use crate::math::{
+    acos_abs_fast, acos_fast, atan2_fast, atan_ratio_fast, sort_by_real, AngleOf, Element, EulerOrder,
+};
 
 /// Arcs of the circle, `(start, length)`: start in `[−π, π)`, length in `(0, 2π]`.
-pub type Arcs = heapless::Vec<(f64, f64), 8>;
+pub type Arcs = heapless::Vec<(Real, Real), 8>;
 
-/// How far inside its computed ends a legal arc is kept, radians.
-const MARGIN: f64 = 1e-6;
+/// How far inside its computed ends a legal arc is kept, radians (1e-6; 4e-6 in f32).
+const MARGIN: Real = precision(1e-6, 4e-6);
+/// How far rounding may leave a value past a bound it meets exactly: 1e-12 in f64, 1e-6 in
+/// f32 (its step at 2π is 4.8e-7).
+const ROUNDING: Real = precision(1e-12, 1e-6);
+/// Newton's step on the swivel at which it stops, radians (1e-8: eq. 30 is flat there to
+/// ~1e-16; in f32, 1e-6, two steps of f32 at 2π).
+const NEWTON_STOP: Real = precision(1e-8, 1e-6);
 
 /// `a + b·cos ψ + c·sin ψ`.
-type Lin = [f64; 3];
+type Lin = [Real; 3];
 
 /// The whole circle.
 #[must_use]
@@ -45,12 +53,12 @@ pub fn full() -> Arcs {
 
 /// `x` in `[−π, π)`.
 #[must_use]
-pub fn wrap(x: f64) -> f64 {
+pub fn wrap(x: Real) -> Real {
     if !x.is_finite() {
         return x;
     }
     if x.abs() > 8.0 * TAU {
-        let r = libm::remainder(x, TAU);
+        let r = real::remainder(x, TAU);
         return if r >= PI { r - TAU } else { r };
     }
     turn(x + PI) - PI
@@ -58,7 +66,7 @@ pub fn wrap(x: f64) -> f64 {
 
 /// Where `l[0] + l[1]·cos ψ + l[2]·sin ψ ≥ 0`: one arc, the whole circle or nothing.
 fn arcs_where(l: Lin) -> Arcs {
-    let r = libm::sqrt(l[1] * l[1] + l[2] * l[2]);
+    let r = real::sqrt(l[1] * l[1] + l[2] * l[2]);
     let mut out = Arcs::new();
     if r <= 1e-15 * (1.0 + l[0].abs()) {
         if l[0] >= 0.0 {
@@ -80,7 +88,7 @@ fn arcs_where(l: Lin) -> Arcs {
 }
 
 /// The intersection of two arcs (at most two arcs).
-fn meet(a: (f64, f64), b: (f64, f64), out: &mut Arcs) -> Option<()> {
+fn meet(a: (Real, Real), b: (Real, Real), out: &mut Arcs) -> Option<()> {
     if a.1 >= TAU {
         return out.push(b).ok();
     }
@@ -125,13 +133,13 @@ fn unite(a: &Arcs, b: &Arcs) -> Option<Arcs> {
 
 /// Whether `psi` lies on one of the arcs.
 #[must_use]
-pub fn contains(arcs: &Arcs, psi: f64) -> bool {
+pub fn contains(arcs: &Arcs, psi: Real) -> bool {
     arcs.iter().any(|&(s, l)| l >= TAU || turn(psi - s) <= l)
 }
 
 /// The window `[centre − half, centre + half]` as arcs.
 #[must_use]
-pub fn window(centre: f64, half: f64) -> Arcs {
+pub fn window(centre: Real, half: Real) -> Arcs {
     if half >= PI {
         return full();
     }
@@ -142,11 +150,11 @@ pub fn window(centre: f64, half: f64) -> Arcs {
 
 /// The point of `arcs` nearest `psi` on the circle (`psi` itself when on one).
 #[must_use]
-pub fn nearest(arcs: &Arcs, psi: f64) -> Option<f64> {
+pub fn nearest(arcs: &Arcs, psi: Real) -> Option<Real> {
     if contains(arcs, psi) {
         return Some(psi);
     }
-    let gap = |x: f64| wrap(x - psi).abs();
+    let gap = |x: Real| wrap(x - psi).abs();
     arcs.iter()
         .flat_map(|&(s, l)| [s, s + l])
         .min_by(|a, b| gap(*a).total_cmp(&gap(*b)))
@@ -155,7 +163,7 @@ pub fn nearest(arcs: &Arcs, psi: f64) -> Option<f64> {
 
 /// The homogeneous rotation matrix of a (not necessarily unit) quaternion, row-major: quadratic
 /// in its components, so `M(cP + sQ)` splits into the three matrices of [`SwivelCircle`].
-fn rotation_rows(q: DQuat) -> [[f64; 3]; 3] {
+fn rotation_rows(q: RealQuat) -> [[Real; 3]; 3] {
     let (x, y, z, w) = (q.x, q.y, q.z, q.w);
     [
         [
@@ -180,26 +188,26 @@ fn rotation_rows(q: DQuat) -> [[f64; 3]; 3] {
 #[derive(Clone, Debug)]
 pub struct SwivelCircle {
     /// `(aᵢ, bᵢ)` of each limit corner.
-    ab: [(f64, f64); 8],
+    ab: [(Real, Real); 8],
     corners: usize,
     /// `M₀`, `M₁`, `M₂`, row-major.
-    m: [[[f64; 3]; 3]; 3],
+    m: [[[Real; 3]; 3]; 3],
 }
 
 /// Eq. 30 (plus the continuity term), its terms and its slope at one swivel.
 struct Probe {
-    total: f64,
-    terms: [f64; 9],
+    total: Real,
+    terms: [Real; 9],
     /// The slope; at a kink, without the kinked term.
-    slope: f64,
+    slope: Real,
     /// At a kink: the kinked term's slope is `−jump` just after it, `+jump` just before.
-    jump: f64,
+    jump: Real,
 }
 
 impl SwivelCircle {
     /// The circle `q(ψ) = cos(ψ/2)·p + sin(ψ/2)·q` against the limit `corners`.
     #[must_use]
-    pub fn new(p: DQuat, q: DQuat, corners: &[DQuat]) -> SwivelCircle {
+    pub fn new(p: RealQuat, q: RealQuat, corners: &[RealQuat]) -> SwivelCircle {
         let mut ab = [(0.0, 0.0); 8];
         for (slot, c) in ab.iter_mut().zip(corners) {
             *slot = (p.dot(*c), q.dot(*c));
@@ -228,22 +236,22 @@ impl SwivelCircle {
     /// by term, and its slope, in one pass over the corners. At a kink (`kink`: the corner, or
     /// 8 for the continuity term, whose kink lies at `psi`) the slope jumps: the slope without
     /// that term and the size of its one-sided slope are returned apart.
-    fn probe_at(&self, psi: f64, keep: Option<f64>, kink: Option<usize>) -> Probe {
-        let (s, c) = libm::sincos(0.5 * psi);
+    fn probe_at(&self, psi: Real, keep: Option<Real>, kink: Option<usize>) -> Probe {
+        let (s, c) = real::sincos(0.5 * psi);
         let mut terms = [0.0; 9];
         let mut slope = 0.0;
         let mut jump = 0.0;
         for (k, (t, &(a, b))) in terms.iter_mut().zip(&self.ab[..self.corners]).enumerate() {
             let d = a * c + b * s;
             let w = d.abs().min(1.0);
-            let root = libm::sqrt((1.0 - w) * (1.0 + w));
+            let root = real::sqrt((1.0 - w) * (1.0 + w));
             *t = atan_ratio_fast(root, w);
             let dd = 0.5 * (b * c - a * s);
             if kink == Some(k) {
                 // Past its zero the dot product takes the sign of its slope.
                 jump = dd.abs() / root.max(1e-300);
             } else if root > 1e-15 {
-                slope -= libm::copysign(1.0, d) * dd / root;
+                slope -= real::copysign(1.0, d) * dd / root;
             }
         }
         if let Some(k) = keep {
@@ -264,13 +272,13 @@ impl SwivelCircle {
     }
 
     /// [`SwivelCircle::probe_at`] off any kink.
-    fn probe(&self, psi: f64, keep: Option<f64>) -> Probe {
+    fn probe(&self, psi: Real, keep: Option<Real>) -> Probe {
         self.probe_at(psi, keep, None)
     }
 
     /// The slope and curvature of [`SwivelCircle::value`] at `psi` (inside a piece).
-    fn slope(&self, psi: f64, keep: Option<f64>) -> (f64, f64) {
-        let (s, c) = libm::sincos(0.5 * psi);
+    fn slope(&self, psi: Real, keep: Option<Real>) -> (Real, Real) {
+        let (s, c) = real::sincos(0.5 * psi);
         let (mut g, mut h) = keep.map_or((0.0, 0.0), |k| (wrap(psi - k), 1.0));
         for &(a, b) in &self.ab[..self.corners] {
             let d = a * c + b * s;
@@ -279,9 +287,9 @@ impl SwivelCircle {
             if one <= 1e-30 {
                 continue;
             }
-            let root = libm::sqrt(one);
+            let root = real::sqrt(one);
             // d/dψ acos|d| and its second derivative |d|(1 − r²)/(4(1 − d²)^{3/2}) ≥ 0.
-            g -= libm::copysign(1.0, d) * dd / root;
+            g -= real::copysign(1.0, d) * dd / root;
             let r2 = a * a + b * b;
             h += d.abs() * (1.0 - r2).max(0.0) / (4.0 * one * root);
         }
@@ -351,20 +359,20 @@ impl SwivelCircle {
     /// The global minimum of eq. 30 (plus the continuity term towards `keep`, in `ψ`) over
     /// `allowed`; `None` when nothing is allowed.
     #[must_use]
-    pub fn minimise(&self, allowed: &Arcs, keep: Option<f64>) -> Option<f64> {
+    pub fn minimise(&self, allowed: &Arcs, keep: Option<Real>) -> Option<Real> {
         if allowed.is_empty() {
             return None;
         }
         // Breakpoints: each term's kink (its maximum), the continuity term's, arc ends; with
         // the term kinked there (9: none).
-        let mut points: heapless::Vec<(f64, usize), 48> = heapless::Vec::new();
-        let mut centres = [f64::NAN; 9];
+        let mut points: heapless::Vec<(Real, usize), 48> = heapless::Vec::new();
+        let mut centres = [Real::NAN; 9];
         // Each term's radius; its floor acos(r) is taken only where a bound needs it.
         let mut radii = [1.0; 9];
         for (k, &(a, b)) in self.ab[..self.corners].iter().enumerate() {
-            let r = libm::sqrt(a * a + b * b);
+            let r = real::sqrt(a * a + b * b);
             radii[k] = r;
-            if r > 1e-12 {
+            if r > ROUNDING {
                 let centre = 2.0 * atan2_fast(b, a);
                 centres[k] = wrap(centre);
                 points.push((wrap(centre + PI), k)).ok()?;
@@ -384,7 +392,7 @@ impl SwivelCircle {
             points.push((-PI, 9)).ok()?;
         }
         let n = points.len();
-        points.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        sort_by_real(&mut points, |p| p.0);
         let end = |i: usize| {
             if i + 1 < n {
                 points[i + 1].0
@@ -405,11 +413,11 @@ impl SwivelCircle {
             Some(probes.len() - 1)
         };
         // The allowed pieces, each convex, with a lower bound of eq. 30 over them.
-        let mut pieces: heapless::Vec<(f64, f64, f64, f64, f64), 24> = heapless::Vec::new();
-        let mut best = (f64::INFINITY, 0.0);
+        let mut pieces: heapless::Vec<(Real, Real, Real, Real, Real), 24> = heapless::Vec::new();
+        let mut best = (Real::INFINITY, 0.0);
         for i in 0..n {
             let (l, h) = (points[i].0, end(i));
-            if (h - l < 1e-12 && n > 1) || !contains(allowed, 0.5 * (l + h)) {
+            if (h - l < ROUNDING && n > 1) || !contains(allowed, 0.5 * (l + h)) {
                 continue;
             }
             let (pl, ph) = (probe_of(i, &mut probes)?, probe_of((i + 1) % n, &mut probes)?);
@@ -442,9 +450,9 @@ impl SwivelCircle {
             }
             pieces.push((bound, l, h, ga, gb)).ok()?;
         }
-        pieces.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        sort_by_real(&mut pieces, |p| p.0);
         for &(bound, l, h, gl, gh) in &pieces {
-            if bound >= best.0 - 1e-12 {
+            if bound >= best.0 - ROUNDING {
                 break;
             }
             // The slope rises through the piece: Newton inside the bracket, else halving.
@@ -462,7 +470,7 @@ impl SwivelCircle {
                 }
                 let next = x - g / curvature;
                 // 1e-8 rad of swivel: eq. 30 is flat there to ~1e-16.
-                if next.is_finite() && (next - x).abs() < 1e-8 {
+                if next.is_finite() && (next - x).abs() < NEWTON_STOP {
                     x = next.clamp(a, b);
                     break;
                 }
@@ -471,7 +479,7 @@ impl SwivelCircle {
                 } else {
                     0.5 * (a + b)
                 };
-                if b - a < 1e-8 {
+                if b - a < NEWTON_STOP {
                     break;
                 }
             }
@@ -480,7 +488,7 @@ impl SwivelCircle {
                 best = (v, x);
             }
         }
-        if best.0 == f64::INFINITY {
+        if best.0 == Real::INFINITY {
             return None;
         }
         Some(wrap(best.1))
@@ -488,7 +496,7 @@ impl SwivelCircle {
 }
 
 /// `x` in `[0, 2π)` (for `x` within a few turns).
-fn turn(mut x: f64) -> f64 {
+fn turn(mut x: Real) -> Real {
     while x < 0.0 {
         x += TAU;
     }
@@ -508,8 +516,8 @@ enum AngleLimit {
     Sector {
         y: Element,
         x: Element,
-        lo: (f64, f64),
-        hi: (f64, f64),
+        lo: (Real, Real),
+        hi: (Real, Real),
         narrow: bool,
     },
     /// The middle angle (`asin e` in `[−π/2, π/2]` or `acos e` in `[0, π]`) in `[lo, hi]`
@@ -517,7 +525,7 @@ enum AngleLimit {
     /// `(lower, upper)` (infinite: none).
     Middle {
         e: Element,
-        stretches: [(f64, f64); 2],
+        stretches: [(Real, Real); 2],
         count: usize,
     },
 }
@@ -530,7 +538,7 @@ pub struct LimitForms([[AngleLimit; 3]; 2]);
 impl LimitForms {
     /// The conditions of `limits` (one per angle, radians, either end infinite) in `order`.
     #[must_use]
-    pub fn new(order: EulerOrder, limits: &[(f64, f64); 3]) -> LimitForms {
+    pub fn new(order: EulerOrder, limits: &[(Real, Real); 3]) -> LimitForms {
         let forms = order.angle_forms();
         let mut out = [[AngleLimit::Free; 3]; 2];
         for (s, solution) in out.iter_mut().enumerate() {
@@ -548,8 +556,8 @@ impl LimitForms {
                         AngleLimit::Sector {
                             y,
                             x,
-                            lo: libm::sincos(lo),
-                            hi: libm::sincos(hi),
+                            lo: real::sincos(lo),
+                            hi: real::sincos(hi),
                             narrow: hi - lo <= PI,
                         }
                     }
@@ -570,30 +578,30 @@ impl LimitForms {
 
 /// [`AngleLimit::Middle`] for `[lo, hi]`: the stretches inside `[−π/2, π/2]` (sine, rising)
 /// or `[0, π]` (cosine, falling) as bounds on the matrix element.
-fn middle(e: Element, lo: f64, hi: f64, cosine: bool) -> AngleLimit {
+fn middle(e: Element, lo: Real, hi: Real, cosine: bool) -> AngleLimit {
     let (first, last) = if cosine { (0.0, PI) } else { (-0.5 * PI, 0.5 * PI) };
-    let mut stretches = [(f64::NEG_INFINITY, f64::INFINITY); 2];
+    let mut stretches = [(Real::NEG_INFINITY, Real::INFINITY); 2];
     let mut count = 0;
     for turn in -2..=2 {
-        let shift = f64::from(turn) * TAU;
+        let shift = (turn as Real) * TAU;
         let (l, h) = ((lo + shift).max(first), (hi + shift).min(last));
         if h <= l || count == stretches.len() {
             continue;
         }
-        let (mut lower, mut upper) = (f64::NEG_INFINITY, f64::INFINITY);
+        let (mut lower, mut upper) = (Real::NEG_INFINITY, Real::INFINITY);
         if cosine {
             if h < last {
-                lower = libm::cos(h);
+                lower = real::cos(h);
             }
             if l > first {
-                upper = libm::cos(l);
+                upper = real::cos(l);
             }
         } else {
             if l > first {
-                lower = libm::sin(l);
+                lower = real::sin(l);
             }
             if h < last {
-                upper = libm::sin(h);
+                upper = real::sin(h);
             }
         }
         stretches[count] = (lower, upper);
@@ -621,16 +629,16 @@ mod tests {
 
     #[test]
     fn slope_matches_finite_differences() {
-        let p = DQuat::from_xyzw(0.1, 0.7, -0.3, 0.5).normalize();
-        let mut q = DQuat::from_xyzw(0.4, -0.2, 0.6, 0.1);
+        let p = RealQuat::from_xyzw(0.1, 0.7, -0.3, 0.5).normalize();
+        let mut q = RealQuat::from_xyzw(0.4, -0.2, 0.6, 0.1);
         q = (q - p * p.dot(q)).normalize();
-        let corners: [DQuat; 8] = core::array::from_fn(|k| {
-            DQuat::from_xyzw(0.3 * k as f64 - 1.0, 0.5, 0.2 - 0.1 * k as f64, 0.9).normalize()
+        let corners: [RealQuat; 8] = core::array::from_fn(|k| {
+            RealQuat::from_xyzw(0.3 * k as Real - 1.0, 0.5, 0.2 - 0.1 * k as Real, 0.9).normalize()
         });
         let circle = SwivelCircle::new(p, q, &corners);
         for keep in [None, Some(0.3)] {
             for k in 0..50 {
-                let x = -3.0 + 0.12 * f64::from(k);
+                let x = -3.0 + 0.12 * (k as Real);
                 let h = 1e-6;
                 let fd = (circle.probe(x + h, keep).total - circle.probe(x - h, keep).total) / (2.0 * h);
                 let (g, _) = circle.slope(x, keep);

@@ -10,9 +10,9 @@ use std::path::{Path, PathBuf};
 
 use marionette::formats::asf;
 use marionette::profile::Profile;
-use marionette_core::rig::{JointSource, Rig};
-use marionette_core::servo::MODELS;
-use marionette_core::skeleton::Skeleton;
+use marionette::rig::{JointSource, Rig};
+use marionette::servo::MODELS;
+use marionette::skeleton::Skeleton;
 
 fn main() {
     let dir = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
@@ -87,8 +87,9 @@ fn f32c(x: f32) -> String {
     format!("f32::from_bits({:#010x})", x.to_bits())
 }
 
+/// An f64 of the host's skeleton or rig, rounded to the image's `Real` (f32 or f64).
 fn f64c(x: f64) -> String {
-    format!("f64::from_bits({:#018x})", x.to_bits())
+    format!("(f64::from_bits({:#018x}) as Real)", x.to_bits())
 }
 
 fn list(items: impl IntoIterator<Item = String>) -> String {
@@ -99,14 +100,14 @@ fn skeleton_const(skel: &Skeleton) -> String {
     let bones = skel.bones().iter().map(|b| {
         let spec = b.spec();
         let v3 = |v: glam::Vec3| format!("Vec3::new({}, {}, {})", f32c(v.x), f32c(v.y), f32c(v.z));
-        let d3 = |v: glam::DVec3| format!("DVec3::new({}, {}, {})", f64c(v.x), f64c(v.y), f64c(v.z));
+        let d3 = |v: glam::DVec3| format!("RealVec3::new({}, {}, {})", f64c(v.x), f64c(v.y), f64c(v.z));
         let m = b.axis_rotation().to_cols_array();
         let md = b.axis_rotation_f64().to_cols_array();
         format!(
             "Bone::from_parts(BoneSpec {{ name: name({:?}), id: {}, direction: {}, length: {}, axis: [{}], \
              axis_order: EulerOrder::{:?}, dofs: heapless::Vec::from_array([{}]), \
              limits: heapless::Vec::from_array([{}]) }}, {:?}, {}, Mat3::from_cols_array(&[{}]), {}, \
-             DMat3::from_cols_array(&[{}]), {})",
+             RealMat3::from_cols_array(&[{}]), {})",
             spec.name.as_str(),
             spec.id,
             v3(spec.direction),

@@ -9,30 +9,47 @@
 //!
 //! A panic stops the servos' stream: the handler writes one Sync Write that turns every
 //! servo's torque off, then stops.
-#![no_std]
-#![no_main]
+//!
+//! The core runs in f32 (the `single-precision` feature, on by default: the FPU of a Cortex-M4
+//! or of the OpenCR's STM32F7 is single precision) or in f64 (`--no-default-features`: in
+//! software on such chips, in hardware on a Cortex-M7 with a double-precision FPU). Built for
+//! the host (`--target x86_64-unknown-linux-gnu`), the same tick reads and writes the same
+//! files through std: the reference the chip's goals are compared with, bit for bit.
+#![cfg_attr(target_os = "none", no_std, no_main)]
 #![deny(unsafe_code)]
 
-use core::panic::PanicInfo;
-
+#[cfg(target_os = "none")]
 use cortex_m::peripheral::{syst::SystClkSource, SYST};
-use cortex_m_rt::entry;
+#[cfg(target_os = "none")]
 use cortex_m_semihosting::debug;
-use glam::DVec3;
 use marionette_core::command::CommandStage;
 use marionette_core::fk::fk64_world_step;
 use marionette_core::ik::{Limb, Swivel};
+use marionette_core::math::{consts::PI, Real, RealMat3, RealVec3};
 use marionette_core::protocol::{encode, instruction, BROADCAST_ID};
 use marionette_core::servo::addr;
 use marionette_core::skeleton::MAX_CHANNELS;
 
+#[cfg_attr(not(target_os = "none"), path = "host_std.rs")]
 mod host;
+#[cfg(target_os = "none")]
 mod stack;
+/// No stack painting on the host.
+#[cfg(not(target_os = "none"))]
+mod stack {
+    pub struct Painted;
+    pub fn paint() -> Painted {
+        Painted
+    }
+    pub fn used(_: Painted) -> usize {
+        0
+    }
+}
 
-#[allow(clippy::all, missing_docs)]
+#[allow(clippy::all, missing_docs, unused_parens)]
 mod data {
-    use glam::{DMat3, DVec3, Mat3, Vec3};
-    use marionette_core::math::EulerOrder;
+    use glam::{Mat3, Vec3};
+    use marionette_core::math::{EulerOrder, Real, RealMat3, RealVec3};
     use marionette_core::rig::{JointSource, Rig, ServoMap};
     use marionette_core::servo::MODELS;
     use marionette_core::skeleton::{Bone, BoneName, BoneSpec, Dof, Limit, RootSpec, Skeleton, Units};
@@ -53,12 +70,13 @@ const MAX_SERVOS: usize = 32;
 const EFFECTORS: [&str; 4] = ["lradius", "rradius", "ltibia", "rtibia"];
 /// How far the swivel search looks around the previous swivel in a stream (the host's
 /// `SWIVEL_WINDOW`), radians.
-const SWIVEL_WINDOW: f64 = 40.0 * core::f64::consts::PI / 180.0;
+const SWIVEL_WINDOW: Real = 40.0 * PI / 180.0;
 /// Longest Sync Write of goals: header, instruction, address, length, 5 bytes a servo, CRC —
 /// doubled for byte stuffing.
 const MAX_PACKET: usize = 2 * (14 + 5 * MAX_SERVOS);
 
 /// Written before the torque-off packet when the image panics.
+#[cfg(target_os = "none")]
 const PANICKED: u32 = 0xFFFF_FFFE;
 
 /// The input's header: what follows and at what rate.
@@ -70,7 +88,8 @@ struct Header {
     ticks: u32,
 }
 
-#[entry]
+#[cfg(target_os = "none")]
+#[cortex_m_rt::entry]
 fn main() -> ! {
     let code = match run() {
         Ok(()) => debug::EXIT_SUCCESS,
@@ -79,6 +98,54 @@ fn main() -> ! {
     debug::exit(code);
     #[allow(clippy::empty_loop)]
     loop {}
+}
+
+/// The host build: the same tick on the same files (no instruction counts).
+#[cfg(not(target_os = "none"))]
+fn main() {
+    std::process::exit(i32::from(run().is_err()));
+}
+
+/// SysTick's current value (it counts down); 0 on the host.
+fn now() -> u32 {
+    #[cfg(target_os = "none")]
+    {
+        SYST::get_current()
+    }
+    #[cfg(not(target_os = "none"))]
+    {
+        0
+    }
+}
+
+/// Starts SysTick on the system clock, free-running over its 24 bits.
+#[cfg(target_os = "none")]
+fn start_clock() -> Result<(), ()> {
+    let mut core = cortex_m::Peripherals::take().ok_or(())?;
+    core.SYST.set_clock_source(SystClkSource::Core);
+    core.SYST.set_reload(0x00FF_FFFF);
+    core.SYST.clear_current();
+    core.SYST.enable_counter();
+    Ok(())
+}
+
+/// The tick's state, once: a static (counted in .bss) on the chip.
+fn take_state() -> Option<&'static mut State> {
+    let state = State {
+        limbs: heapless::Vec::new(),
+        stage: CommandStage::new(0),
+        channels: [0.0; MAX_CHANNELS],
+        angles: [0.0; MAX_SERVOS],
+        packet: [0; MAX_PACKET],
+    };
+    #[cfg(target_os = "none")]
+    {
+        cortex_m::singleton!(: State = state)
+    }
+    #[cfg(not(target_os = "none"))]
+    {
+        Some(Box::leak(Box::new(state)))
+    }
 }
 
 fn run() -> Result<(), ()> {
@@ -93,26 +160,15 @@ fn run() -> Result<(), ()> {
     let mut input = host::File::open("firmware-in.bin\0", host::READ)?;
     let mut output = host::File::open("firmware-out.bin\0", host::WRITE)?;
     let header = read_header(&mut input)?;
-    let dt = 1.0 / header.rate_hz;
+    let dt = (1.0 / header.rate_hz) as Real;
 
     // Instructions per tick: QEMU runs with `-icount shift=0` (one instruction, one ns of
     // virtual time) and SysTick counts the 25 MHz system clock: 40 instructions a count.
-    let mut core = cortex_m::Peripherals::take().ok_or(())?;
-    core.SYST.set_clock_source(SystClkSource::Core);
-    core.SYST.set_reload(0x00FF_FFFF);
-    core.SYST.clear_current();
-    core.SYST.enable_counter();
+    #[cfg(target_os = "none")]
+    start_clock()?;
 
-    // The tick's state in statics (counted in .bss), dimensioned for MAX_SERVOS servos and
-    // MAX_CHANNELS channels (64 bones).
-    let state = cortex_m::singleton!(: State = State {
-        limbs: heapless::Vec::new(),
-        stage: CommandStage::new(0),
-        channels: [0.0; MAX_CHANNELS],
-        angles: [0.0; MAX_SERVOS],
-        packet: [0; MAX_PACKET],
-    })
-    .ok_or(())?;
+    // The tick's state, dimensioned for MAX_SERVOS servos and MAX_CHANNELS channels (64 bones).
+    let state = take_state().ok_or(())?;
     if header.targets {
         for e in EFFECTORS {
             let lower = skeleton.find(e).ok_or(())?;
@@ -130,33 +186,33 @@ fn run() -> Result<(), ()> {
     state.stage.start_from(rig, &rest[..servos]);
     for _ in 0..header.ticks {
         // One tick's input: the frame's channels, or the limbs' targets (root frame).
-        let mut targets = [DVec3::ZERO; 4];
+        let mut targets = [RealVec3::ZERO; 4];
         if header.targets {
             for t in targets.iter_mut().take(state.limbs.len()) {
                 let mut v = [0.0; 3];
                 read_f64s(&mut input, &mut v)?;
-                *t = DVec3::from_array(v);
+                *t = RealVec3::from_array(v);
             }
         } else {
             read_f64s(&mut input, &mut state.channels[..n])?;
         }
         let mut stamps = [0u32; 5];
-        stamps[0] = SYST::get_current();
+        stamps[0] = now();
         solve(&mut state.limbs, &targets, &mut state.channels[..n]);
-        stamps[1] = SYST::get_current();
+        stamps[1] = now();
         rig.joint_angles(skeleton, &state.channels[..n], &[], &mut state.angles[..servos]);
-        stamps[2] = SYST::get_current();
+        stamps[2] = now();
         // Refused (an angle not finite): the last command stands.
         let _ = state.stage.command(rig, &state.angles[..servos], dt);
-        stamps[3] = SYST::get_current();
+        stamps[3] = now();
         let len = sync_write_goals(state.stage.last(), &mut state.packet);
-        stamps[4] = SYST::get_current();
+        stamps[4] = now();
         // Per tick: SysTick counts of the solve, the mapping, the command stage and the
         // encoding (it counts down), the worst limb's residual, the packet.
         for w in stamps.windows(2) {
             output.write_all(&(w[0].wrapping_sub(w[1]) & 0x00FF_FFFF).to_le_bytes())?;
         }
-        let residual = worst_residual(&state.limbs, &targets, &state.channels[..n]);
+        let residual = f64::from(worst_residual(&state.limbs, &targets, &state.channels[..n]));
         output.write_all(&residual.to_le_bytes())?;
         output.write_all(&(len as u32).to_le_bytes())?;
         output.write_all(&state.packet[..len])?;
@@ -173,28 +229,28 @@ fn run() -> Result<(), ()> {
 
 /// What the tick keeps between ticks.
 struct State {
-    limbs: heapless::Vec<(Limb, Option<f64>), 4>,
+    limbs: heapless::Vec<(Limb, Option<Real>), 4>,
     stage: CommandStage,
-    channels: [f64; MAX_CHANNELS],
-    angles: [f64; MAX_SERVOS],
+    channels: [Real; MAX_CHANNELS],
+    angles: [Real; MAX_SERVOS],
     packet: [u8; MAX_PACKET],
 }
 
-/// Reads little-endian f64s into `out`, a few at a time.
-fn read_f64s(input: &mut host::File, out: &mut [f64]) -> Result<(), ()> {
+/// Reads little-endian f64s into `out` (rounded to [`Real`]), a few at a time.
+fn read_f64s(input: &mut host::File, out: &mut [Real]) -> Result<(), ()> {
     let mut buf = [0u8; 64];
     for chunk in out.chunks_mut(8) {
         let bytes = &mut buf[..8 * chunk.len()];
         input.read_exact(bytes)?;
         for (v, b) in chunk.iter_mut().zip(bytes.chunks_exact(8)) {
-            *v = f64_at(b, 0);
+            *v = f64_at(b, 0) as Real;
         }
     }
     Ok(())
 }
 
 /// The limbs' IK, each swivel searched around the last (the host loop's `Swivel::Track`).
-fn solve(limbs: &mut [(Limb, Option<f64>)], targets: &[DVec3; 4], channels: &mut [f64]) {
+fn solve(limbs: &mut [(Limb, Option<Real>)], targets: &[RealVec3; 4], channels: &mut [Real]) {
     let skeleton = &data::SKELETON;
     for ((limb, swivel), target) in limbs.iter_mut().zip(targets) {
         let search = match *swivel {
@@ -211,19 +267,19 @@ fn solve(limbs: &mut [(Limb, Option<f64>)], targets: &[DVec3; 4], channels: &mut
 
 /// The largest distance of a limb's tip from its target after the solve (forward kinematics
 /// down the limb's chain), file units.
-fn worst_residual(limbs: &[(Limb, Option<f64>)], targets: &[DVec3; 4], channels: &[f64]) -> f64 {
+fn worst_residual(limbs: &[(Limb, Option<Real>)], targets: &[RealVec3; 4], channels: &[Real]) -> Real {
     let skeleton = &data::SKELETON;
-    let mut worst = 0.0f64;
+    let mut worst: Real = 0.0;
     for ((limb, _), target) in limbs.iter().zip(targets) {
         let mut chain: heapless::Vec<usize, 16> = heapless::Vec::new();
         let mut b = Some(limb.lower);
         while let Some(i) = b {
             if chain.push(i).is_err() {
-                return f64::NAN;
+                return Real::NAN;
             }
             b = skeleton.bones()[i].parent();
         }
-        let mut parent: Option<(glam::DMat3, DVec3)> = None;
+        let mut parent: Option<(RealMat3, RealVec3)> = None;
         for &i in chain.iter().rev() {
             let (world, _, tip) =
                 fk64_world_step(skeleton, channels, i, parent.as_ref().map(|(w, t)| (w, *t)));
@@ -251,6 +307,7 @@ fn sync_write_goals(goals: &[i32], out: &mut [u8]) -> usize {
 }
 
 /// One Sync Write that turns every servo's torque off.
+#[cfg(target_os = "none")]
 fn torque_off(out: &mut [u8]) -> usize {
     let mut params = [0u8; 4 + 2 * MAX_SERVOS];
     params[..2].copy_from_slice(&addr::TORQUE_ENABLE.to_le_bytes());
@@ -296,8 +353,9 @@ fn f64_at(bytes: &[u8], at: usize) -> f64 {
 }
 
 /// Stops the servos' stream: torque off on the bus (here the output file), then stop.
+#[cfg(target_os = "none")]
 #[panic_handler]
-fn panic(_: &PanicInfo) -> ! {
+fn panic(_: &core::panic::PanicInfo) -> ! {
     let mut packet = [0u8; 2 * (14 + 2 * MAX_SERVOS)];
     let len = torque_off(&mut packet);
     if let Ok(mut out) = host::File::open("firmware-out.bin\0", host::APPEND) {
