@@ -561,6 +561,7 @@ pub fn quat_distance_fast(q1: RealQuat, q2: RealQuat) -> Real {
 /// (Abramowitz & Stegun 4.4.49 on `[0, 1]`; the other octant by `π/2 − atan(1/x)`).
 #[inline]
 #[must_use]
+#[allow(clippy::excessive_precision)] // (the coefficients as published; f32 rounds them)
 pub fn atan_ratio_fast(v: Real, w: Real) -> Real {
     let poly = |x: Real| {
         let z = x * x;
