@@ -393,7 +393,7 @@ impl Limb {
     }
 
     fn elbow_rotation(&self, theta: Real) -> RealMat3 {
-        RealMat3::from_axis_angle(self.elbow_axis, theta)
+        crate::math::mat3_from_axis_angle(self.elbow_axis, theta)
     }
 
     /// Writes the elbow angle into the channels.
@@ -611,8 +611,9 @@ impl Limb {
         // The shoulder rotation in the bone's own frame, `Cᵀ·Q(φ)·C` (eq. 23–26), as a
         // quaternion.
         let c_upper = self.c_upper;
-        let local_q =
-            |phi: Real| c_upper.conjugate() * RealQuat::from_axis_angle(dhat, phi - phi0) * base_q * c_upper;
+        let local_q = |phi: Real| {
+            c_upper.conjugate() * crate::math::quat_from_axis_angle(dhat, phi - phi0) * base_q * c_upper
+        };
         let local = |phi: Real| RealMat3::from_quat(local_q(phi));
         // The swivel circle in closed form: legal arcs and eq. 30's global minimum over them
         // ([`crate::swivel`]); the sampled search below stays for what it cannot settle (no
@@ -939,7 +940,7 @@ pub fn point_bone(
     let v_h = c.transpose() * rest;
     let wanted = (a.transpose() * direction.normalize()).normalize();
     let delta = RealMat3::from_quat(rotation_between(v_h, wanted));
-    let m = delta * RealMat3::from_axis_angle(v_h, real::remainder(roll, crate::math::consts::TAU));
+    let m = delta * crate::math::mat3_from_axis_angle(v_h, real::remainder(roll, crate::math::consts::TAU));
     let first = b.first_channel();
     let present = [0, 1, 2].map(|j| {
         let x = channels[first + ks[j]];

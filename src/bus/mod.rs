@@ -382,7 +382,17 @@ pub enum StartupError {
 /// # Errors
 /// [`StartupError`]; torque stays off on every servo.
 pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, StartupError> {
-    let found = bus.scan()?;
+    let mut found = bus.scan()?;
+    // A broadcast ping's replies come back to back; one that arrives after the scan's window
+    // (a loaded host, a USB adapter's latency timer) is not a missing servo: a profiled id the
+    // scan did not see is pinged on its own, twice, before it counts as missing.
+    for s in &profile.servos {
+        if !found.iter().any(|p| p.id == s.id) {
+            if let Some(p) = (0..2).find_map(|_| bus.ping(s.id).ok()) {
+                found.push(p);
+            }
+        }
+    }
     for s in &profile.servos {
         match found.iter().find(|p| p.id == s.id) {
             None => {

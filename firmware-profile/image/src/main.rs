@@ -84,7 +84,7 @@ struct Header {
     targets: bool,
     /// A test of the stop path: panic after the first tick.
     panic_after_one: bool,
-    rate_hz: f64,
+    rate_hz: Real,
     ticks: u32,
 }
 
@@ -160,7 +160,7 @@ fn run() -> Result<(), ()> {
     let mut input = host::File::open("firmware-in.bin\0", host::READ)?;
     let mut output = host::File::open("firmware-out.bin\0", host::WRITE)?;
     let header = read_header(&mut input)?;
-    let dt = (1.0 / header.rate_hz) as Real;
+    let dt = 1.0 / header.rate_hz;
 
     // Instructions per tick: QEMU runs with `-icount shift=0` (one instruction, one ns of
     // virtual time) and SysTick counts the 25 MHz system clock: 40 instructions a count.
@@ -327,7 +327,8 @@ fn read_header(input: &mut host::File) -> Result<Header, ()> {
     if &h[..4] != b"MRNT" {
         return Err(());
     }
-    let rate_hz = f64_at(&h, 4);
+    // (In Real at once: no f64 arithmetic on the chip.)
+    let rate_hz = f64_at(&h, 4) as Real;
     let ticks = u32::from_le_bytes([h[12], h[13], h[14], h[15]]);
     let (targets, panic_after_one) = match h[16] {
         0 => (false, false),
