@@ -186,8 +186,28 @@ def control_table(model):
     return items
 
 
-READS = {1: ph.read1ByteTxRx, 2: ph.read2ByteTxRx, 4: ph.read4ByteTxRx}
-WRITES = {1: ph.write1ByteTxRx, 2: ph.write2ByteTxRx, 4: ph.write4ByteTxRx}
+def patient(transfer):
+    """An SDK transfer that expects a reply, asked again (up to three times) when none came in
+    the SDK's ~34 ms: on a loaded machine the server's thread can answer late, and a late reply
+    is otherwise taken as the next transfer's (or, short, makes the SDK index past it and
+    raise). Before asking again: wait for the late reply, then clear the port."""
+    def call(*args):
+        for _ in range(3):
+            try:
+                out = transfer(*args)
+            except IndexError:
+                out = None
+            if out is not None and out[-2] == COMM_SUCCESS:
+                return out
+            time.sleep(0.05)
+            port.clearPort()
+        return out if out is not None else ((None,) * (len(args) == 3) + (-3001, 0))
+    return call
+
+
+# The control-table walk: every transfer there is answered (Status Return Level 2).
+READS = {n: patient(f) for n, f in [(1, ph.read1ByteTxRx), (2, ph.read2ByteTxRx), (4, ph.read4ByteTxRx)]}
+WRITES = {n: patient(f) for n, f in [(1, ph.write1ByteTxRx), (2, ph.write2ByteTxRx), (4, ph.write4ByteTxRx)]}
 one_of_each = {}
 for i, m in servos:
     one_of_each.setdefault(m, i)
