@@ -552,7 +552,7 @@ impl Limb {
         let inside = violation <= ROUNDING;
         let first = ub.first_channel();
         for (j, k) in self.upper_rot_dofs.iter().enumerate() {
-            // A legal solution is legal exactly (rounding may leave it 1e-12 outside).
+            // A legal solution is legal exactly (rounding may leave it `ROUNDING` outside).
             channels[first + k] = if inside {
                 angles[j].clamp(self.limits[j].0, self.limits[j].1)
             } else {

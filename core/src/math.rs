@@ -228,34 +228,28 @@ pub trait ToReal {
     fn to_real(self) -> Self::Real;
 }
 
-impl ToReal for Vec3 {
-    type Real = RealVec3;
-    #[inline]
-    fn to_real(self) -> RealVec3 {
-        #[cfg(not(feature = "f32"))]
-        {
-            self.as_dvec3()
+/// `impl ToReal for F32Type { type Real = RealType; … }`, widening with glam's `as_d…` in f64.
+macro_rules! to_real {
+    ($($f32:ty => $real:ty, $widen:ident;)*) => {$(
+        impl ToReal for $f32 {
+            type Real = $real;
+            #[inline]
+            fn to_real(self) -> $real {
+                #[cfg(not(feature = "f32"))]
+                {
+                    self.$widen()
+                }
+                #[cfg(feature = "f32")]
+                {
+                    self
+                }
+            }
         }
-        #[cfg(feature = "f32")]
-        {
-            self
-        }
-    }
+    )*};
 }
-
-impl ToReal for Mat3 {
-    type Real = RealMat3;
-    #[inline]
-    fn to_real(self) -> RealMat3 {
-        #[cfg(not(feature = "f32"))]
-        {
-            self.as_dmat3()
-        }
-        #[cfg(feature = "f32")]
-        {
-            self
-        }
-    }
+to_real! {
+    Vec3 => RealVec3, as_dvec3;
+    Mat3 => RealMat3, as_dmat3;
 }
 
 /// A principal axis.
@@ -303,7 +297,8 @@ impl Axis {
         }
     }
 
-    /// The rotation by `angle` radians about this axis, in f64.
+    /// The rotation by `angle` radians about this axis, in [`Real`] (f64 unless the `f32`
+    /// feature is on, as for every `_f64` name here).
     #[inline]
     #[must_use]
     pub fn rotation_f64(self, angle: Real) -> RealMat3 {
@@ -445,7 +440,7 @@ impl EulerOrder {
             * Quat::from_axis_angle(i.unit(), angles[0])
     }
 
-    /// The rotation `R3(c)·R2(b)·R1(a)` in f64.
+    /// The rotation `R3(c)·R2(b)·R1(a)` in [`Real`].
     #[must_use]
     pub fn to_mat3_f64(self, angles: [Real; 3]) -> RealMat3 {
         let [i, j, k] = self.axes();
@@ -469,7 +464,7 @@ impl EulerOrder {
         self.from_mat3(&Mat3::from_quat(q.normalize()))
     }
 
-    /// Angles `[a, b, c]` (radians) with `self.to_mat3_f64(angles) == m`, in f64.
+    /// Angles `[a, b, c]` (radians) with `self.to_mat3_f64(angles) == m`, in [`Real`].
     #[must_use]
     pub fn from_mat3_f64(self, m: &RealMat3) -> [Real; 3] {
         let r = |i: usize, j: usize| m.col(j)[i];
@@ -745,7 +740,7 @@ pub fn acos_abs_fast(x: Real) -> Real {
     atan_ratio_fast(real::sqrt(((1.0 - w) * (1.0 + w)).max(0.0)), w)
 }
 
-/// [`quat_distance`] in f64.
+/// [`quat_distance`] in [`Real`].
 #[inline]
 #[must_use]
 pub fn quat_distance_f64(q1: RealQuat, q2: RealQuat) -> Real {
