@@ -14,8 +14,9 @@
 //! [`forward_kinematics`] works in f32 on file frames (the display and the f32 pose);
 //! [`fk64`] in f64 on channel vectors in radians (what IK and the control loop use).
 
+use crate::math::Axis;
 use crate::math::{Real, RealMat3, RealVec3, ToReal};
-use crate::skeleton::{dof_rotation, Bone, Dof, Skeleton, MAX_BONES};
+use crate::skeleton::{rotate_about, Bone, Dof, Skeleton, MAX_BONES};
 use glam::{Mat3, Vec3};
 
 /// Global state of every bone for one frame.
@@ -193,17 +194,21 @@ pub fn fk64_step(
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> (RealMat3, RealMat3, RealVec3, RealVec3) {
     let bone = &skeleton.bones()[i];
-    let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
-    let m = dof_rotation(bone.dofs(), bone.channels().map(value));
+    // One pass over the DOFs: the rotations into `M` (eq. 2), the translations and the
+    // length change apart.
+    let mut m = RealMat3::IDENTITY;
     let mut t = RealVec3::ZERO;
     let mut l = 0.0;
     for (d, c) in bone.dofs().iter().zip(bone.channels()) {
+        let v = channels.get(c).copied().unwrap_or(0.0);
         match d {
-            Dof::Tx => t.x = value(c),
-            Dof::Ty => t.y = value(c),
-            Dof::Tz => t.z = value(c),
-            Dof::L => l = value(c),
-            Dof::Rx | Dof::Ry | Dof::Rz => {}
+            Dof::Tx => t.x = v,
+            Dof::Ty => t.y = v,
+            Dof::Tz => t.z = v,
+            Dof::L => l = v,
+            Dof::Rx => rotate_about(&mut m, Axis::X, v),
+            Dof::Ry => rotate_about(&mut m, Axis::Y, v),
+            Dof::Rz => rotate_about(&mut m, Axis::Z, v),
         }
     }
     let c = bone.axis_rotation_f64();
@@ -226,6 +231,32 @@ pub fn fk64_step(
             let tip = start + world * (bone.direction_f64() * ((bone.length() as Real) + l));
             (f, world, start, tip)
         }
+    }
+}
+
+/// Where bone `i` starts, as [`fk64_step`] has it (its parent's tip, moved by its translation
+/// channels in the parent's frame; the root's position plus them), without its rotation.
+#[must_use]
+pub fn fk64_start(
+    skeleton: &Skeleton,
+    channels: &[Real],
+    i: usize,
+    parent: Option<(&RealMat3, RealVec3)>,
+) -> RealVec3 {
+    let bone = &skeleton.bones()[i];
+    let mut t = RealVec3::ZERO;
+    for (d, c) in bone.dofs().iter().zip(bone.channels()) {
+        let v = channels.get(c).copied().unwrap_or(0.0);
+        match d {
+            Dof::Tx => t.x = v,
+            Dof::Ty => t.y = v,
+            Dof::Tz => t.z = v,
+            _ => {}
+        }
+    }
+    match parent {
+        None => skeleton.root().position.to_real() + t,
+        Some((parent_world, parent_tip)) => parent_tip + (*parent_world * bone.axis_rotation_f64()) * t,
     }
 }
 

@@ -8,7 +8,7 @@
 
 use crate::math::{precision, real, Real, RealMat3, RealQuat, RealVec3, ToReal};
 
-use crate::fk::{ancestors, fk64, fk64_bones, fk64_step, fk64_world_step, Pose64};
+use crate::fk::{ancestors, fk64, fk64_bones, fk64_start, fk64_step, fk64_world_step, Pose64};
 use crate::math::{euler_near, quat_distance_fast, sort_by_real, wrap_near, EulerOrder};
 use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
 use crate::swivel::{self, LimitForms, SwivelCircle};
@@ -455,35 +455,38 @@ impl Limb {
                     .map(|p| real::remainder(p, crate::math::consts::TAU)),
             },
         };
-        // FK down the limb's chain (a path from the root), keeping only the last bone's world
-        // rotation and tip: the shoulder's parent, the shoulder, the effector.
+        // FK down the limb's chain (a path from the root) to the shoulder's parent, keeping
+        // only the last bone's world rotation and tip; then where the shoulder starts.
         let ub = &skeleton.bones()[self.upper];
-        let mut last: Option<(RealMat3, RealVec3)> = None;
-        let mut above = (RealMat3::IDENTITY, RealVec3::ZERO);
-        let mut s = RealVec3::ZERO;
-        for &b in &self.chain {
-            if b == self.upper {
-                above = last.unwrap_or((RealMat3::IDENTITY, RealVec3::ZERO));
-            }
-            let (world, start, tip) =
-                fk64_world_step(skeleton, channels, b, last.as_ref().map(|(w, t)| (w, *t)));
-            if b == self.upper {
-                s = start;
-            }
-            last = Some((world, tip));
+        let mut above: Option<(RealMat3, RealVec3)> = None;
+        for &b in self.chain.iter().take_while(|&&b| b != self.upper) {
+            let (world, _, tip) =
+                fk64_world_step(skeleton, channels, b, above.as_ref().map(|(w, t)| (w, *t)));
+            above = Some((world, tip));
         }
-        let parent_world = if ub.parent().is_some() {
-            above.0
-        } else {
-            RealMat3::IDENTITY
+        let parent = above.as_ref().map(|(w, t)| (w, *t));
+        let s = fk64_start(skeleton, channels, self.upper, parent);
+        let parent_world = match (ub.parent(), above) {
+            (Some(_), Some((w, _))) => w,
+            _ => RealMat3::IDENTITY,
         };
-        // The limb's present direction (zero when its channels hold garbage): the fallback for
-        // a target that is not finite, or one at the shoulder.
-        let mut present_dir = last.map_or(s, |(_, tip)| tip) - s;
-        if !present_dir.is_finite() {
-            present_dir = RealVec3::ZERO;
-        }
         let mut to_target = target - s;
+        // The limb's present direction (zero when its channels hold garbage): the fallback for
+        // a target that is not finite, or one at the shoulder; the limb's FK only then.
+        let degenerate = !(to_target.is_finite() && to_target.length() >= precision(1e-6, 1e-4));
+        let present_dir = if degenerate {
+            let (_, upper_world, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
+            let (_, _, _, tip) = fk64_step(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
+            let d = tip - s;
+            if d.is_finite() {
+                d
+            } else {
+                RealVec3::ZERO
+            }
+        } else {
+            // (Not read: `shoulder_for` falls back to it only for a degenerate target.)
+            RealVec3::ZERO
+        };
         if !to_target.is_finite() {
             to_target = present_dir;
         }
@@ -561,7 +564,6 @@ impl Limb {
         }
         self.set_elbow(skeleton, channels, theta);
         // The ancestors' pose stands: only the limb's two bones moved.
-        let parent = ub.parent().map(|_| (&above.0, above.1));
         let (_, upper_world, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
         let (_, _, _, tip) = fk64_step(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
         let error = (tip - target).length();
@@ -858,7 +860,7 @@ fn legal_euler(
         let (mut w, mut v, mut off) = ([0.0; 3], 0.0, 0.0);
         for k in 0..3 {
             w[k] = wrap_near(cand[k], centre[k]);
-            v += (limits[k].0 - w[k]).max(0.0) + (w[k] - limits[k].1).max(0.0);
+            v += real::max(limits[k].0 - w[k], 0.0) + real::max(w[k] - limits[k].1, 0.0);
             off += (w[k] - reference[k]).abs();
         }
         if v < best.1 - ROUNDING || (v <= best.1 + ROUNDING && off < best.2) {

@@ -72,13 +72,78 @@ pub mod real {
         acos / acosf (x) -> Real;
         atan / atanf (x) -> Real;
         atan2 / atan2f (y, x) -> Real;
-        sqrt / sqrtf (x) -> Real;
         fabs / fabsf (x) -> Real;
         copysign / copysignf (x, y) -> Real;
         fmod / fmodf (x, y) -> Real;
         hypot / hypotf (x, y) -> Real;
         remainder / remainderf (x, y) -> Real;
-        round / roundf (x) -> Real;
+    }
+
+    /// The nearest integer, halves away from zero: libm's in f64; in f32, [`super::round_f32`]
+    /// (libm's `roundf` works on the bits, some fifty instructions).
+    #[inline]
+    #[must_use]
+    pub fn round(x: Real) -> Real {
+        #[cfg(not(feature = "f32"))]
+        {
+            libm::round(x)
+        }
+        #[cfg(feature = "f32")]
+        {
+            super::round_f32(x)
+        }
+    }
+
+    /// `√x`: libm's in f64; in f32, [`super::sqrt_f32`] (libm's `sqrtf` is integer arithmetic,
+    /// about a hundred instructions on a chip without a square-root instruction in reach).
+    #[inline]
+    #[must_use]
+    pub fn sqrt(x: Real) -> Real {
+        #[cfg(not(feature = "f32"))]
+        {
+            libm::sqrt(x)
+        }
+        #[cfg(feature = "f32")]
+        {
+            super::sqrt_f32(x)
+        }
+    }
+
+    /// The larger of `a` and `b`, the other when one is NaN (`f64::max`). In f32 by comparison:
+    /// `f32::max` is a library call on a chip without a max instruction (Armv7-M).
+    #[inline]
+    #[must_use]
+    pub fn max(a: Real, b: Real) -> Real {
+        #[cfg(not(feature = "f32"))]
+        {
+            a.max(b)
+        }
+        #[cfg(feature = "f32")]
+        {
+            if a.is_nan() || a < b {
+                b
+            } else {
+                a
+            }
+        }
+    }
+
+    /// The smaller of `a` and `b`, the other when one is NaN (`f64::min`; see [`max`]).
+    #[inline]
+    #[must_use]
+    pub fn min(a: Real, b: Real) -> Real {
+        #[cfg(not(feature = "f32"))]
+        {
+            a.min(b)
+        }
+        #[cfg(feature = "f32")]
+        {
+            if a.is_nan() || a > b {
+                b
+            } else {
+                a
+            }
+        }
     }
 
     /// `(sin x, cos x)`: libm's in f64; in f32, [`super::sincos_f32`] (libm's `sincosf` works
@@ -107,7 +172,7 @@ pub mod real {
         }
         #[cfg(feature = "f32")]
         {
-            libm::atan2f(x, libm::sqrtf((1.0 - x) * (1.0 + x)))
+            libm::atan2f(x, super::sqrt_f32((1.0 - x) * (1.0 + x)))
         }
     }
 
@@ -155,18 +220,92 @@ pub fn sincos_f32(x: f32) -> (f32, f32) {
     if !x.is_finite() {
         return (f32::NAN, f32::NAN);
     }
-    let q = libm::roundf(x * FRAC_2_PI);
+    // The nearest quarter turn (a tie either way: both reductions stay within the
+    // polynomials' range). Integer conversions, not libm's `roundf`: one instruction each.
+    let t = x * FRAC_2_PI;
+    let quadrant = (t + copysign_half(t)) as i32;
+    let q = quadrant as f32;
     let r = ((x - q * PIO2_1) - q * PIO2_2) - q * PIO2_3;
     let z = r * r;
     let s = r + r * z * (-1.666_665_461_1e-1 + z * (8.332_160_873_6e-3 + z * -1.951_529_589_1e-4));
     let c = 1.0 - 0.5 * z
         + z * z * (4.166_664_568_298_827e-2 + z * (-1.388_731_625_493_765e-3 + z * 2.443_315_711_809_948e-5));
-    // (An f32 beyond i32's range is a multiple of 4 quarter turns: any quadrant is as good.)
-    match (q as i64) & 3 {
+    match quadrant & 3 {
         0 => (s, c),
         1 => (c, -s),
         2 => (-s, -c),
         _ => (-c, s),
+    }
+}
+
+/// The nearest integer to `x`, halves away from zero (libm's `roundf`, bit for bit, signed
+/// zeros included; NaN for NaN: `tests::round_f32_is_libms`), through the FPU's conversion to `i32`:
+/// below 2²³ the truncation and `x` minus it are exact; from 2²³ on every f32 is an integer.
+#[must_use]
+#[inline]
+#[allow(clippy::cast_possible_truncation, clippy::cast_precision_loss)]
+pub fn round_f32(x: f32) -> f32 {
+    if !(x.abs() < 8_388_608.0) {
+        // An integer already, ±∞ or NaN.
+        return x;
+    }
+    let t = x as i32 as f32;
+    let fraction = x - t;
+    let r = if fraction >= 0.5 {
+        t + 1.0
+    } else if fraction <= -0.5 {
+        t - 1.0
+    } else {
+        t
+    };
+    libm::copysignf(r, x)
+}
+
+/// `±0.5` with the sign of `t`.
+fn copysign_half(t: f32) -> f32 {
+    if t < 0.0 {
+        -0.5
+    } else {
+        0.5
+    }
+}
+
+/// `√x` in f32 by Heron's iteration, `y ← (y + x/y)/2` (three steps from a first guess read off
+/// the exponent and mantissa bits: relative error 4.5 % → 1e-3 → 5e-7 → rounding), no integer
+/// arithmetic beyond one shift. Within 1 ulp of the correctly rounded root (equal to it for
+/// three in four) for every positive
+/// normal and subnormal `x` (`tests::sqrt_f32_is_within_one_ulp`, all of `[1, 4)` and the
+/// subnormals sampled); 0 for ±0, NaN below 0, ∞ for ∞.
+#[must_use]
+#[inline]
+pub fn sqrt_f32(x: f32) -> f32 {
+    // (False for NaN.)
+    if x >= f32::MIN_POSITIVE && x < f32::INFINITY {
+        heron_f32(x)
+    } else {
+        sqrt_f32_rare(x)
+    }
+}
+
+/// [`sqrt_f32`] of a positive normal `x`.
+#[inline]
+fn heron_f32(x: f32) -> f32 {
+    let y = f32::from_bits(0x1FBD_1DF5 + (x.to_bits() >> 1));
+    let y = 0.5 * (y + x / y);
+    let y = 0.5 * (y + x / y);
+    0.5 * (y + x / y)
+}
+
+/// [`sqrt_f32`] off the positive normals: a subnormal is scaled by 2²⁴ (exactly) and its root
+/// back by 2⁻¹²; ±0 and ∞ are their own roots; negatives and NaN have none.
+#[cold]
+fn sqrt_f32_rare(x: f32) -> f32 {
+    if x > 0.0 && x < f32::MIN_POSITIVE {
+        heron_f32(x * 16_777_216.0) * (1.0 / 4096.0)
+    } else if x == 0.0 || x == f32::INFINITY {
+        x
+    } else {
+        f32::NAN
     }
 }
 
@@ -981,12 +1120,101 @@ mod tests {
         assert!(worst <= 1.2e-7, "{worst:e}");
         assert!(sincos_f32(f32::NAN).0.is_nan() && sincos_f32(f32::INFINITY).1.is_nan());
     }
+    /// Ulps between `y` and the correctly rounded root of `x` (f64's root rounded once to f32).
+    fn sqrt_ulps(x: f32, y: f32) -> u32 {
+        let exact = libm::sqrt(f64::from(x)) as f32;
+        exact.to_bits().abs_diff(y.to_bits())
+    }
+
+    #[test]
+    fn sqrt_f32_is_within_one_ulp() {
+        // Every f32 in [1, 4): the iteration is exact under scaling by 4 (the guess's exponent
+        // halves, every step scales by 2), so this covers every normal exponent.
+        let (mut worst, mut rounded) = (0, 0u32);
+        let (lo, hi) = (1.0f32.to_bits(), 4.0f32.to_bits());
+        for bits in lo..hi {
+            let x = f32::from_bits(bits);
+            let u = sqrt_ulps(x, sqrt_f32(x));
+            worst = worst.max(u);
+            rounded += u32::from(u == 0);
+        }
+        assert!(worst <= 1, "{worst} ulps");
+        // Most roots are the correctly rounded ones (74.99 %).
+        assert!(
+            f64::from(rounded) / f64::from(hi - lo) > 0.7,
+            "{rounded} of {}",
+            hi - lo
+        );
+        // Subnormals, the smallest and largest normals, and every exponent at a few mantissas.
+        let check = |x: f32| assert!(sqrt_ulps(x, sqrt_f32(x)) <= 1, "√{x:e}: {:e}", sqrt_f32(x));
+        for x in [f32::MIN_POSITIVE, f32::MAX, 1.0e-45, 1.17e-38, 3.0e-39] {
+            check(x);
+        }
+        (1..1u32 << 23).step_by(4099).map(f32::from_bits).for_each(check);
+        for e in 0..255u32 {
+            for m in [0u32, 1, 0x2A_AAAA, 0x7F_FFFF] {
+                check(f32::from_bits(e << 23 | m));
+            }
+        }
+        assert_eq!(sqrt_f32(0.0).to_bits(), 0.0f32.to_bits());
+        assert_eq!(sqrt_f32(-0.0).to_bits(), (-0.0f32).to_bits());
+        assert_eq!(sqrt_f32(f32::INFINITY), f32::INFINITY);
+        assert!(
+            sqrt_f32(-1.0).is_nan() && sqrt_f32(f32::NAN).is_nan() && sqrt_f32(-f32::MIN_POSITIVE).is_nan()
+        );
+    }
+
+    #[test]
+    fn round_f32_is_libms() {
+        let check = |x: f32| {
+            if x.is_nan() {
+                assert!(round_f32(x).is_nan());
+            } else {
+                assert_eq!(round_f32(x).to_bits(), libm::roundf(x).to_bits(), "round({x:e})");
+            }
+        };
+        // A sample of every sign and exponent, and the halves and their neighbours.
+        (0..=u32::MAX).step_by(997).map(f32::from_bits).for_each(check);
+        for k in -100_000..100_000 {
+            let half = k as f32 + 0.5;
+            for x in [
+                half,
+                f32::from_bits(half.to_bits() - 1),
+                f32::from_bits(half.to_bits() + 1),
+            ] {
+                check(x);
+            }
+        }
+        for x in [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            0.499_999_97,
+            -0.499_999_97,
+            8_388_607.5,
+            -8_388_607.5,
+        ] {
+            check(x);
+        }
+        for x in [
+            8_388_608.0,
+            1.0e30,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MIN_POSITIVE,
+        ] {
+            check(x);
+        }
+        assert!(round_f32(f32::NAN).is_nan());
+    }
+
     #[test]
     fn asin_through_atan2_stays_within_f32s_resolution() {
         let mut worst = 0.0f64;
         for k in -100_000..=100_000 {
             let x = k as f32 * 1.0e-5;
-            let a = libm::atan2f(x, libm::sqrtf((1.0 - x) * (1.0 + x)));
+            let a = libm::atan2f(x, super::sqrt_f32((1.0 - x) * (1.0 + x)));
             worst = worst.max((f64::from(a) - libm::asin(f64::from(x))).abs());
         }
         assert!(worst <= 2.5e-7, "{worst:e}");

@@ -361,7 +361,8 @@ pub fn step_towards(
     if amax > 0.0 && amax.is_finite() {
         // Braking: from speed v we need v²/(2a) to stop; never go faster than that allows.
         let brake = real::sqrt(2.0 * amax * d.abs());
-        v = v.clamp(-brake.max(amax * dt), brake.max(amax * dt));
+        let allowed = real::max(brake, amax * dt);
+        v = v.clamp(-allowed, allowed);
         let dv = amax * dt;
         v = v.clamp(velocity - dv, velocity + dv);
     }

@@ -186,24 +186,30 @@ pub fn dof_rotation(dofs: &[Dof], angles: impl IntoIterator<Item = Real>) -> Rea
     let mut m = RealMat3::IDENTITY;
     for (d, a) in dofs.iter().zip(angles) {
         if let (true, Some(axis)) = (d.is_rotation(), d.axis()) {
-            if a == 0.0 {
-                continue;
-            }
-            // `R_axis(a)·m`: only the two rows across the axis change.
-            let (s, c) = real::sincos(a);
-            let (i, j) = match axis {
-                crate::math::Axis::X => (1, 2),
-                crate::math::Axis::Y => (2, 0),
-                crate::math::Axis::Z => (0, 1),
-            };
-            for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
-                let (u, v) = (col[i], col[j]);
-                col[i] = c * u - s * v;
-                col[j] = s * u + c * v;
-            }
+            rotate_about(&mut m, axis, a);
         }
     }
     m
+}
+
+/// `m ← R_axis(a)·m` (one factor of eq. 2): only the two rows across the axis change; a zero
+/// angle leaves `m` as it is.
+#[inline]
+pub fn rotate_about(m: &mut RealMat3, axis: crate::math::Axis, a: Real) {
+    if a == 0.0 {
+        return;
+    }
+    let (s, c) = real::sincos(a);
+    let (i, j) = match axis {
+        crate::math::Axis::X => (1, 2),
+        crate::math::Axis::Y => (2, 0),
+        crate::math::Axis::Z => (0, 1),
+    };
+    for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
+        let (u, v) = (col[i], col[j]);
+        col[i] = c * u - s * v;
+        col[j] = s * u + c * v;
+    }
 }
 
 /// `c` in f64, re-orthonormalised through a quaternion.

@@ -243,13 +243,13 @@ impl SwivelCircle {
         let mut jump = 0.0;
         for (k, (t, &(a, b))) in terms.iter_mut().zip(&self.ab[..self.corners]).enumerate() {
             let d = a * c + b * s;
-            let w = d.abs().min(1.0);
+            let w = real::min(d.abs(), 1.0);
             let root = real::sqrt((1.0 - w) * (1.0 + w));
             *t = atan_ratio_fast(root, w);
             let dd = 0.5 * (b * c - a * s);
             if kink == Some(k) {
                 // Past its zero the dot product takes the sign of its slope.
-                jump = dd.abs() / root.max(1e-300);
+                jump = dd.abs() / real::max(root, Real::MIN_POSITIVE);
             } else if root > 1e-15 {
                 slope -= real::copysign(1.0, d) * dd / root;
             }
@@ -291,7 +291,7 @@ impl SwivelCircle {
             // d/dψ acos|d| and its second derivative |d|(1 − r²)/(4(1 − d²)^{3/2}) ≥ 0.
             g -= real::copysign(1.0, d) * dd / root;
             let r2 = a * a + b * b;
-            h += d.abs() * (1.0 - r2).max(0.0) / (4.0 * one * root);
+            h += d.abs() * real::max(1.0 - r2, 0.0) / (4.0 * one * root);
         }
         (g, h)
     }
@@ -445,7 +445,7 @@ impl SwivelCircle {
                         acos_abs_fast(radii[k])
                     }
                 } else {
-                    pa.terms[k].min(pb.terms[k])
+                    real::min(pa.terms[k], pb.terms[k])
                 };
             }
             pieces.push((bound, l, h, ga, gb)).ok()?;
