@@ -9,7 +9,10 @@
 use crate::math::{precision, real, Real, RealMat3, RealQuat, RealVec3, ToReal};
 
 use crate::fk::{ancestors, fk64, fk64_bones, fk64_start, fk64_step, fk64_world_step, Pose64};
-use crate::math::{euler_near, quat_distance_fast, sort_by_real, wrap_near, EulerOrder};
+use crate::math::{
+    euler_near, length, normalize, normalize_or_zero, quat_distance_fast, rotation_arc, sort_by_real,
+    wrap_near, EulerOrder,
+};
 use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
 use crate::swivel::{self, LimitForms, SwivelCircle};
 
@@ -52,17 +55,17 @@ pub fn dof_axis(skeleton: &Skeleton, pose: &Pose64, bone: usize, k: usize, chann
 /// composed of two arcs through the perpendicular in the a–b plane: a single arc loses
 /// precision as the vectors become opposite.
 fn rotation_between(a: RealVec3, b: RealVec3) -> RealQuat {
-    let a = a.normalize_or_zero();
-    let b = b.normalize_or_zero();
+    let a = normalize_or_zero(a);
+    let b = normalize_or_zero(b);
     if a.dot(b) >= 0.0 {
-        return RealQuat::from_rotation_arc(a, b);
+        return rotation_arc(a, b);
     }
     let mut m = b - a * a.dot(b);
     if m.length_squared() < 1e-24 {
         m = a.any_orthonormal_vector();
     }
-    let m = m.normalize();
-    RealQuat::from_rotation_arc(m, b) * RealQuat::from_rotation_arc(a, m)
+    let m = normalize(m);
+    rotation_arc(m, b) * rotation_arc(a, m)
 }
 
 /// Why a limb cannot be set up.
@@ -343,7 +346,7 @@ impl Limb {
     /// limb's reference `â` (in the parent's frame) made perpendicular to `n`, `v̂ = n × û`.
     fn swivel_basis(&self, parent_world: RealMat3, n: RealVec3) -> (RealVec3, RealVec3) {
         let mut a = parent_world * self.swivel_reference;
-        if n.cross(a).length() < 1e-3 {
+        if length(n.cross(a)) < 1e-3 {
             // Within 0.06° of the reference: the other of −y and −z.
             let other = if self.swivel_reference == RealVec3::NEG_Y {
                 RealVec3::NEG_Z
@@ -352,7 +355,7 @@ impl Limb {
             };
             a = parent_world * other;
         }
-        let u_hat = (a - n * a.dot(n)).normalize();
+        let u_hat = normalize(a - n * a.dot(n));
         (u_hat, n.cross(u_hat))
     }
 
@@ -473,7 +476,8 @@ impl Limb {
         let mut to_target = target - s;
         // The limb's present direction (zero when its channels hold garbage): the fallback for
         // a target that is not finite, or one at the shoulder; the limb's FK only then.
-        let degenerate = !(to_target.is_finite() && to_target.length() >= precision(1e-6, 1e-4));
+        let dist = length(to_target);
+        let degenerate = !(dist.is_finite() && dist >= precision(1e-6, 1e-4));
         let present_dir = if degenerate {
             let (_, upper_world, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
             let (_, _, _, tip) = fk64_step(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
@@ -487,10 +491,12 @@ impl Limb {
             // (Not read: `shoulder_for` falls back to it only for a degenerate target.)
             RealVec3::ZERO
         };
-        if !to_target.is_finite() {
+        let dist = if to_target.is_finite() {
+            dist
+        } else {
             to_target = present_dir;
-        }
-        let dist = to_target.length();
+            length(to_target)
+        };
         // Elbow (steps 1–3): the branch inside the elbow limit, nearest the present angle.
         let present = match self.elbow {
             Elbow::One(k) => channels[skeleton.bones()[self.lower].first_channel() + k],
@@ -566,7 +572,7 @@ impl Limb {
         // The ancestors' pose stands: only the limb's two bones moved.
         let (_, upper_world, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
         let (_, _, _, tip) = fk64_step(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
-        let error = (tip - target).length();
+        let error = length(tip - target);
         LimbSolution {
             reachable: reachable && error.is_finite(),
             error: if error.is_finite() { error } else { Real::INFINITY },
@@ -591,13 +597,13 @@ impl Limb {
         // Direction to the target in the parent's rest coordinates (degenerate: keep the limb's
         // present direction).
         let mut d = parent_world.transpose() * to_target;
-        if !d.is_finite() || d.length() < 1e-9 {
+        if !d.is_finite() || length(d) < 1e-9 {
             d = parent_world.transpose() * present_dir;
-            if !d.is_finite() || d.length() < 1e-9 {
+            if !d.is_finite() || length(d) < 1e-9 {
                 d = w0;
             }
         }
-        let dhat = d.normalize();
+        let dhat = normalize(d);
         let base_q = rotation_between(w0, dhat);
         let base = RealMat3::from_quat(base_q);
         // Swivel convention (eq. 18–22): n̂ towards the target, û from the limb's â.
@@ -621,8 +627,9 @@ impl Limb {
         // ([`crate::swivel`]); the sampled search below stays for what it cannot settle (no
         // legal swivel, an arc list too long, a result the Euler extraction disagrees with).
         if !matches!(swivel, Swivel::Fixed(_)) {
-            if let Some(phi) = self.closed_form_swivel(c_upper, base_q, dhat, phi0, swivel) {
-                let (angles, violation) = self.shoulder_angles_near(&local(phi), reference);
+            if let Some((phi, angles, violation)) =
+                self.closed_form_swivel(c_upper, base_q, dhat, phi0, swivel, reference)
+            {
                 if violation <= ROUNDING {
                     return (phi, angles, violation);
                 }
@@ -791,7 +798,8 @@ impl Limb {
 impl Limb {
     /// The swivel of a non-fixed `swivel` from the closed-form circle: `q(ψ) = cos(ψ/2)·P +
     /// sin(ψ/2)·Q` with `P = Cᵀ·B·C`, `Q = Cᵀ·n̂·B·C` (`B` the base rotation, `n̂` the
-    /// shoulder–target axis as a pure quaternion, `ψ = φ − φ₀`). `None` when there is no legal
+    /// shoulder–target axis as a pure quaternion, `ψ = φ − φ₀`), with the shoulder's Euler
+    /// angles there (nearest `reference`) and their violation. `None` when there is no legal
     /// swivel or the arcs do not fit.
     fn closed_form_swivel(
         &self,
@@ -800,15 +808,19 @@ impl Limb {
         axis: RealVec3,
         phi0: Real,
         swivel: Swivel,
-    ) -> Option<Real> {
+        reference: &[Real; 3],
+    ) -> Option<(Real, [Real; 3], Real)> {
         let n = RealQuat::from_xyzw(axis.x, axis.y, axis.z, 0.0);
         let p = c.conjugate() * base * c;
         let q = c.conjugate() * n * base * c;
         let circle = SwivelCircle::new(p, q, &self.corners);
-        // Legal as the Euler extraction reads it (exact).
-        let legal_at = |psi: Real| {
+        // The swivel `φ` of `ψ`, the Euler angles there and their violation: legal as the
+        // Euler extraction reads it (exact).
+        let at = |psi: Real| {
             let (s, c) = real::sincos(0.5 * psi);
-            self.shoulder_angles(&RealMat3::from_quat(p * c + q * s)).1 <= ROUNDING
+            let (angles, violation) =
+                self.shoulder_angles_near(&RealMat3::from_quat(p * c + q * s), reference);
+            (wrap_near(psi + phi0, 0.0), angles, violation)
         };
         match swivel {
             // A stream: the optimum within the window, when legal, is the optimum over the
@@ -816,11 +828,17 @@ impl Limb {
             Swivel::Track { previous, window } => {
                 let keep = Some(previous - phi0);
                 let free = circle.minimise(&swivel::window(previous - phi0, window), keep)?;
-                if legal_at(free) {
-                    return Some(wrap_near(free + phi0, 0.0));
+                let solution = at(free);
+                if solution.2 <= ROUNDING {
+                    return Some(solution);
                 }
             }
-            Swivel::Nearest(p) if legal_at(p - phi0) => return Some(p),
+            Swivel::Nearest(p) => {
+                let solution = at(p - phi0);
+                if solution.2 <= ROUNDING {
+                    return Some((p, solution.1, solution.2));
+                }
+            }
             _ => {}
         }
         let legal = circle.legal_arcs(&self.limit_forms)?;
@@ -828,7 +846,7 @@ impl Limb {
             return None;
         }
         let psi = match swivel {
-            Swivel::Fixed(p) => return Some(p),
+            Swivel::Fixed(p) => p - phi0,
             Swivel::Nearest(p) => swivel::nearest(&legal, p - phi0)?,
             Swivel::Auto { previous } => circle.minimise(&legal, previous.map(|p| p - phi0))?,
             Swivel::Track { previous, window } => {
@@ -838,7 +856,7 @@ impl Limb {
                 circle.minimise(if near.is_empty() { &legal } else { &near }, keep)?
             }
         };
-        Some(wrap_near(psi + phi0, 0.0))
+        Some(at(psi))
     }
 }
 

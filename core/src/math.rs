@@ -346,16 +346,59 @@ pub fn quat_from_axis_angle(axis: RealVec3, angle: Real) -> RealQuat {
     }
 }
 
+/// `|v|` through [`real::sqrt`]: glam's `length`, whose f32 square root is libm's.
+#[inline]
+#[must_use]
+pub fn length(v: RealVec3) -> Real {
+    real::sqrt(v.dot(v))
+}
+
+/// `v / |v|`: glam's `normalize` through [`length`] (not finite for a zero `v`).
+#[inline]
+#[must_use]
+pub fn normalize(v: RealVec3) -> RealVec3 {
+    v * (1.0 / length(v))
+}
+
+/// `v / |v|`, or zero when that is not finite: glam's `normalize_or_zero` through [`length`].
+#[inline]
+#[must_use]
+pub fn normalize_or_zero(v: RealVec3) -> RealVec3 {
+    let rcp = 1.0 / length(v);
+    if rcp.is_finite() && rcp > 0.0 {
+        v * rcp
+    } else {
+        RealVec3::ZERO
+    }
+}
+
+/// The shortest rotation taking unit `from` to unit `to`: glam's `from_rotation_arc`, its
+/// normalisation through [`real::sqrt`].
+#[must_use]
+pub fn rotation_arc(from: RealVec3, to: RealVec3) -> RealQuat {
+    let dot = from.dot(to);
+    let c = from.cross(to);
+    if dot > 1.0 - 2.0 * Real::EPSILON || dot < -1.0 + 2.0 * Real::EPSILON {
+        // Parallel or opposite: glam's own cases.
+        return RealQuat::from_rotation_arc(from, to);
+    }
+    let q = RealQuat::from_xyzw(c.x, c.y, c.z, 1.0 + dot);
+    q * (1.0 / real::sqrt(q.dot(q)))
+}
+
 /// Sorts a short slice by a [`Real`] key, ascending in `total_cmp` order (stable insertion
 /// sort: the solver's lists hold a few dozen entries, and core's general sort costs 7 KB of
 /// a firmware image's flash).
-pub fn sort_by_real<T>(v: &mut [T], key: impl Fn(&T) -> Real) {
+pub fn sort_by_real<T: Copy>(v: &mut [T], key: impl Fn(&T) -> Real) {
     for i in 1..v.len() {
+        let x = v[i];
+        let k = key(&x);
         let mut j = i;
-        while j > 0 && key(&v[j - 1]).total_cmp(&key(&v[j])).is_gt() {
-            v.swap(j - 1, j);
+        while j > 0 && key(&v[j - 1]).total_cmp(&k).is_gt() {
+            v[j] = v[j - 1];
             j -= 1;
         }
+        v[j] = x;
     }
 }
 

@@ -190,8 +190,33 @@ pub struct SwivelCircle {
     /// `(aᵢ, bᵢ)` of each limit corner.
     ab: [(Real, Real); 8],
     corners: usize,
-    /// `M₀`, `M₁`, `M₂`, row-major.
-    m: [[[Real; 3]; 3]; 3],
+    /// `P` and `Q`.
+    p: RealQuat,
+    q: RealQuat,
+}
+
+/// `M₀`, `M₁`, `M₂` of `M(ψ) = M₀ + M₁·cos ψ + M₂·sin ψ`, row-major.
+struct CircleMatrices([[[Real; 3]; 3]; 3]);
+
+impl CircleMatrices {
+    /// The matrices of the circle `cos(ψ/2)·p + sin(ψ/2)·q`.
+    fn new(p: RealQuat, q: RealQuat) -> CircleMatrices {
+        let (rp, rq, rs) = (rotation_rows(p), rotation_rows(q), rotation_rows(p + q));
+        let mut m = [[[0.0; 3]; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                m[0][i][j] = 0.5 * (rp[i][j] + rq[i][j]);
+                m[1][i][j] = 0.5 * (rp[i][j] - rq[i][j]);
+                m[2][i][j] = 0.5 * (rs[i][j] - rp[i][j] - rq[i][j]);
+            }
+        }
+        CircleMatrices(m)
+    }
+
+    /// One element of `M(ψ)` as `a + b·cos ψ + c·sin ψ`.
+    fn element(&self, e: Element) -> Lin {
+        [0, 1, 2].map(|k| e.sign * self.0[k][e.row][e.col])
+    }
 }
 
 /// Eq. 30 (plus the continuity term), its terms and its slope at one swivel.
@@ -212,24 +237,12 @@ impl SwivelCircle {
         for (slot, c) in ab.iter_mut().zip(corners) {
             *slot = (p.dot(*c), q.dot(*c));
         }
-        let (rp, rq, rs) = (rotation_rows(p), rotation_rows(q), rotation_rows(p + q));
-        let mut m = [[[0.0; 3]; 3]; 3];
-        for i in 0..3 {
-            for j in 0..3 {
-                m[0][i][j] = 0.5 * (rp[i][j] + rq[i][j]);
-                m[1][i][j] = 0.5 * (rp[i][j] - rq[i][j]);
-                m[2][i][j] = 0.5 * (rs[i][j] - rp[i][j] - rq[i][j]);
-            }
-        }
         SwivelCircle {
             ab,
             corners: corners.len().min(8),
-            m,
+            p,
+            q,
         }
-    }
-
-    fn element(&self, e: Element) -> Lin {
-        [0, 1, 2].map(|k| e.sign * self.m[k][e.row][e.col])
     }
 
     /// Eq. 30 at `psi`, with `0.5·(ψ − keep)²` (wrapped) when a previous swivel is kept, term
@@ -301,6 +314,7 @@ impl SwivelCircle {
     /// the arc lists do not fit (the caller searches by sampling instead).
     #[must_use]
     pub fn legal_arcs(&self, limits: &LimitForms) -> Option<Arcs> {
+        let m = CircleMatrices::new(self.p, self.q);
         let mut legal = Arcs::new();
         for solution in &limits.0 {
             let mut set = full();
@@ -308,7 +322,7 @@ impl SwivelCircle {
                 let cond = match *angle {
                     AngleLimit::Free => continue,
                     AngleLimit::Sector { y, x, lo, hi, narrow } => {
-                        let (y, x) = (self.element(y), self.element(x));
+                        let (y, x) = (m.element(y), m.element(x));
                         // Counter-clockwise of the lower edge, clockwise of the upper.
                         let after_lo = [0, 1, 2].map(|k| lo.1 * y[k] - lo.0 * x[k]);
                         let before_hi = [0, 1, 2].map(|k| hi.0 * x[k] - hi.1 * y[k]);
@@ -320,7 +334,7 @@ impl SwivelCircle {
                         }
                     }
                     AngleLimit::Middle { e, stretches, count } => {
-                        let e = self.element(e);
+                        let e = m.element(e);
                         let mut out = Arcs::new();
                         for &(lower, upper) in &stretches[..count] {
                             let mut part = full();
