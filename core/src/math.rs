@@ -69,7 +69,6 @@ pub mod real {
         )*};
     }
     real_fns! {
-        acos / acosf (x) -> Real;
         atan / atanf (x) -> Real;
         atan2 / atan2f (y, x) -> Real;
         fabs / fabsf (x) -> Real;
@@ -158,6 +157,21 @@ pub mod real {
         #[cfg(feature = "f32")]
         {
             super::sincos_f32(x)
+        }
+    }
+
+    /// `acos x`: libm's in f64; in f32, `atan2(√((1 − x)(1 + x)), x)` (as [`asin`]; one libm
+    /// function fewer in a firmware image). NaN outside `[−1, 1]`.
+    #[inline]
+    #[must_use]
+    pub fn acos(x: Real) -> Real {
+        #[cfg(not(feature = "f32"))]
+        {
+            libm::acos(x)
+        }
+        #[cfg(feature = "f32")]
+        {
+            libm::atan2f(super::sqrt_f32((1.0 - x) * (1.0 + x)), x)
         }
     }
 
@@ -1262,5 +1276,17 @@ mod tests {
         }
         assert!(worst <= 2.5e-7, "{worst:e}");
         assert!(libm::atan2f(1.5, libm::sqrtf((1.0 - 1.5) * (1.0 + 1.5))).is_nan());
+    }
+
+    #[test]
+    fn acos_through_atan2_stays_within_f32s_resolution() {
+        let mut worst = 0.0f64;
+        for k in -100_000..=100_000 {
+            let x = k as f32 * 1.0e-5;
+            let a = libm::atan2f(super::sqrt_f32((1.0 - x) * (1.0 + x)), x);
+            worst = worst.max((f64::from(a) - libm::acos(f64::from(x))).abs());
+        }
+        assert!(worst <= 2.5e-7, "{worst:e}");
+        assert!(libm::atan2f(super::sqrt_f32((1.0 - 1.5) * (1.0 + 1.5)), 1.5).is_nan());
     }
 }

@@ -355,6 +355,10 @@ pub fn step_towards(
     dt: Real,
 ) -> (Real, Real) {
     let d = target - position;
+    if d == 0.0 {
+        // At the target: whatever the bounds, the step below ends there, at rest.
+        return (target, 0.0);
+    }
     let mut v = d / dt;
     let vmax = if vmax > 0.0 { vmax } else { Real::INFINITY };
     v = v.clamp(-vmax, vmax);

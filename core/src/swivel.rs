@@ -54,6 +54,9 @@ pub fn full() -> Arcs {
 /// `x` in `[−π, π)`.
 #[must_use]
 pub fn wrap(x: Real) -> Real {
+    if (-PI..PI).contains(&x) {
+        return x;
+    }
     if !x.is_finite() {
         return x;
     }
@@ -396,6 +399,8 @@ impl SwivelCircle {
             centres[8] = wrap(k);
             points.push((wrap(k + PI), 8)).ok()?;
         }
+        // A kink outside the allowed arcs only splits a piece that is not allowed.
+        points.retain(|&(x, _)| contains(allowed, x));
         for &(s, l) in allowed {
             if l < TAU {
                 points.push((wrap(s), 9)).ok()?;
