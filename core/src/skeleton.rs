@@ -331,11 +331,13 @@ pub struct Bone {
     spec: BoneSpec,
     parent: Option<usize>,
     first_channel: usize,
-    /// `C`: the local frame at rest (the `axis` rotation), help note eq. (3).
+    /// `C`: the local frame at rest (the `axis` rotation), help note eq. (3). In an f32 core,
+    /// `axis_rotation_f64` itself: one copy (a firmware image's skeleton is flash).
     axis_rotation: Mat3,
     /// The direction in the bone's local frame, eq. (5): `Cᵀ · direction`.
     local_direction: Vec3,
     /// `C` in f64, re-orthonormalised once (FK reads it for every bone of every pose).
+    #[cfg(not(feature = "f32"))]
     axis_rotation_f64: RealMat3,
     /// The rest direction in f64, unit length (zero for a zero direction).
     direction_f64: RealVec3,
@@ -356,12 +358,18 @@ impl Bone {
         axis_rotation_f64: RealMat3,
         direction_f64: RealVec3,
     ) -> Bone {
+        #[cfg(feature = "f32")]
+        let axis_rotation = {
+            let _ = axis_rotation;
+            axis_rotation_f64
+        };
         Bone {
             spec,
             parent,
             first_channel,
             axis_rotation,
             local_direction,
+            #[cfg(not(feature = "f32"))]
             axis_rotation_f64,
             direction_f64,
         }
@@ -426,7 +434,14 @@ impl Bone {
     /// would make `Cᵀ·Q·C` no rotation, which Euler extraction amplifies near gimbal lock.
     #[must_use]
     pub fn axis_rotation_f64(&self) -> RealMat3 {
-        self.axis_rotation_f64
+        #[cfg(not(feature = "f32"))]
+        {
+            self.axis_rotation_f64
+        }
+        #[cfg(feature = "f32")]
+        {
+            self.axis_rotation
+        }
     }
     /// The rest direction (global) in f64, unit length (zero for a zero direction).
     #[must_use]
@@ -615,15 +630,15 @@ impl Skeleton {
         }
         let root_rot = root.axis_order.to_mat3(root.orientation);
         let mut channel = root.order.len();
-        let _ = out.push(Bone {
-            spec: root_spec,
-            parent: None,
-            first_channel: 0,
-            axis_rotation: root_rot,
-            local_direction: Vec3::ZERO,
-            axis_rotation_f64: orthonormal_f64(root_rot),
-            direction_f64: RealVec3::ZERO,
-        });
+        let _ = out.push(Bone::from_parts(
+            root_spec,
+            None,
+            0,
+            root_rot,
+            Vec3::ZERO,
+            orthonormal_f64(root_rot),
+            RealVec3::ZERO,
+        ));
         for &input in &order {
             let spec = bones[input].clone();
             let parent = match parents[input] {
@@ -634,15 +649,15 @@ impl Skeleton {
             let local_direction = c.transpose() * spec.direction;
             let n = spec.dofs.len();
             let direction_f64 = spec.direction.to_real().normalize_or_zero();
-            let _ = out.push(Bone {
+            let _ = out.push(Bone::from_parts(
                 spec,
-                parent: Some(parent),
-                first_channel: channel,
-                axis_rotation: c,
+                Some(parent),
+                channel,
+                c,
                 local_direction,
-                axis_rotation_f64: orthonormal_f64(c),
+                orthonormal_f64(c),
                 direction_f64,
-            });
+            ));
             channel += n;
         }
         Ok(Skeleton {
