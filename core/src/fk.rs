@@ -199,8 +199,9 @@ pub fn fk64_step(
     let mut m = RealMat3::IDENTITY;
     let mut t = RealVec3::ZERO;
     let mut l = 0.0;
-    for (d, c) in bone.dofs().iter().zip(bone.channels()) {
-        let v = channels.get(c).copied().unwrap_or(0.0);
+    let first = bone.first_channel();
+    for (k, d) in bone.dofs().iter().enumerate() {
+        let v = channels.get(first + k).copied().unwrap_or(0.0);
         match d {
             Dof::Tx => t.x = v,
             Dof::Ty => t.y = v,

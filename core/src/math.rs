@@ -293,8 +293,9 @@ fn copysign_half(t: f32) -> f32 {
 #[must_use]
 #[inline]
 pub fn sqrt_f32(x: f32) -> f32 {
-    // (False for NaN.)
-    if x >= f32::MIN_POSITIVE && x < f32::INFINITY {
+    // Positive, normal and finite: the bits in [0x0080_0000, 0x7F80_0000), one unsigned
+    // comparison (false for NaN and for either sign of zero).
+    if x.to_bits().wrapping_sub(0x0080_0000) < 0x7F00_0000 {
         heron_f32(x)
     } else {
         sqrt_f32_rare(x)
