@@ -135,7 +135,7 @@ impl CommandStage {
         let mut limited = Limited::default();
         for (k, (servo, &wanted)) in rig.servos.iter().zip(targets).enumerate() {
             let (lo, hi) = ((servo.min_tick as Real), (servo.max_tick as Real));
-            let target = wanted.clamp(lo, hi);
+            let target = real::clamp(wanted, lo, hi);
             if target != wanted {
                 limited.clamped += 1;
             }
@@ -191,7 +191,7 @@ impl CommandStage {
         for (k, (servo, &angle)) in rig.servos.iter().zip(angles).enumerate() {
             let (lo, hi) = ((servo.min_tick as Real), (servo.max_tick as Real));
             let wanted = servo.angle_to_ticks_exact(angle);
-            let target = wanted.clamp(lo, hi);
+            let target = real::clamp(wanted, lo, hi);
             if target != wanted {
                 limited.clamped += 1;
             }
@@ -211,7 +211,7 @@ impl CommandStage {
             if (p - target).abs() > 1e-9 {
                 limited.rate_limited += 1;
             }
-            self.position[k] = p.clamp(lo, hi);
+            self.position[k] = real::clamp(p, lo, hi);
             self.velocity[k] = v;
         }
         self.started = true;

@@ -515,7 +515,7 @@ impl Limb {
             for turn in [-1.0, 0.0, 1.0] {
                 let t = c + turn * crate::math::consts::TAU;
                 let inside = t >= lo - ROUNDING && t <= hi + ROUNDING;
-                let clamped = t.clamp(lo, hi);
+                let clamped = real::clamp(t, lo, hi);
                 if inside {
                     let _ = inside_angles.push(clamped);
                 }
@@ -563,7 +563,7 @@ impl Limb {
         for (j, k) in self.upper_rot_dofs.iter().enumerate() {
             // A legal solution is legal exactly (rounding may leave it `ROUNDING` outside).
             channels[first + k] = if inside {
-                angles[j].clamp(self.limits[j].0, self.limits[j].1)
+                real::clamp(angles[j], self.limits[j].0, self.limits[j].1)
             } else {
                 angles[j]
             };

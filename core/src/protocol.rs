@@ -120,17 +120,14 @@ impl PatternState {
     /// Feeds a byte; true when it completes `FF FF FD`.
     #[inline]
     fn feed(&mut self, b: u8) -> bool {
-        self.0 = match (self.0, b) {
-            (0, 0xFF) => 1,
-            (1, 0xFF) => 2,
-            (2, 0xFF) => 2, // "FF FF FF": the last two still start the pattern
-            (2, 0xFD) => {
-                self.0 = 0;
-                return true;
-            }
-            _ => 0,
-        };
-        false
+        if b == 0xFF {
+            // "FF FF FF": the last two still start the pattern.
+            self.0 = if self.0 == 0 { 1 } else { 2 };
+            return false;
+        }
+        let done = self.0 == 2 && b == 0xFD;
+        self.0 = 0;
+        done
     }
 }
 

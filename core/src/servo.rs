@@ -361,14 +361,14 @@ pub fn step_towards(
     }
     let mut v = d / dt;
     let vmax = if vmax > 0.0 { vmax } else { Real::INFINITY };
-    v = v.clamp(-vmax, vmax);
+    v = real::clamp(v, -vmax, vmax);
     if amax > 0.0 && amax.is_finite() {
         // Braking: from speed v we need v²/(2a) to stop; never go faster than that allows.
         let brake = real::sqrt(2.0 * amax * d.abs());
         let allowed = real::max(brake, amax * dt);
-        v = v.clamp(-allowed, allowed);
+        v = real::clamp(v, -allowed, allowed);
         let dv = amax * dt;
-        v = v.clamp(velocity - dv, velocity + dv);
+        v = real::clamp(v, velocity - dv, velocity + dv);
     }
     // Never step past the target.
     let step = v * dt;
