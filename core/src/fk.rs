@@ -271,12 +271,17 @@ pub fn fk64_world_step(
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> (RealMat3, RealVec3, RealVec3) {
     let bone = &skeleton.bones()[i];
+    let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
+    let still = bone.channels().all(|c| value(c) == 0.0);
     let Some((parent_world, parent_tip)) = parent else {
+        if still {
+            // The root at rest: `W = C`, at the root's position.
+            let p = skeleton.root().position.to_real();
+            return (bone.axis_rotation_f64(), p, p);
+        }
         let (_, world, start, tip) = fk64_step(skeleton, channels, i, None);
         return (world, start, tip);
     };
-    let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
-    let still = bone.channels().all(|c| value(c) == 0.0);
     if still {
         let tip = parent_tip + *parent_world * (bone.direction_f64() * (bone.length() as Real));
         return (*parent_world, parent_tip, tip);
