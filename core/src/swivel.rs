@@ -386,21 +386,26 @@ impl SwivelCircle {
         let mut centres = [Real::NAN; 9];
         // Each term's radius; its floor acos(r) is taken only where a bound needs it.
         let mut radii = [1.0; 9];
+        // (A kink outside the allowed arcs only splits a piece that is not allowed: left out.)
         for (k, &(a, b)) in self.ab[..self.corners].iter().enumerate() {
             let r = real::sqrt(a * a + b * b);
             radii[k] = r;
             if r > ROUNDING {
                 let centre = 2.0 * atan2_fast(b, a);
                 centres[k] = wrap(centre);
-                points.push((wrap(centre + PI), k)).ok()?;
+                let kink = wrap(centre + PI);
+                if contains(allowed, kink) {
+                    points.push((kink, k)).ok()?;
+                }
             }
         }
         if let Some(k) = keep {
             centres[8] = wrap(k);
-            points.push((wrap(k + PI), 8)).ok()?;
+            let kink = wrap(k + PI);
+            if contains(allowed, kink) {
+                points.push((kink, 8)).ok()?;
+            }
         }
-        // A kink outside the allowed arcs only splits a piece that is not allowed.
-        points.retain(|&(x, _)| contains(allowed, x));
         for &(s, l) in allowed {
             if l < TAU {
                 points.push((wrap(s), 9)).ok()?;
