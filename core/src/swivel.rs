@@ -424,6 +424,27 @@ impl SwivelCircle {
                 points[0].0 + TAU
             }
         };
+        // One allowed arc with no kink inside (a stream's window, mostly): eq. 30 is convex
+        // over it, so its minimum is where the slope crosses zero, or the end the slope
+        // falls towards. Slopes only: no value is needed to choose.
+        if let [(start, length)] = allowed[..] {
+            if n == 2 && length < TAU {
+                let i = usize::from(points[0].0 != wrap(start));
+                let (l, h) = (points[i].0, end(i));
+                let (gl, gh) = (self.slope(l, keep).0, self.slope(h, keep).0);
+                // (Slopes that are not numbers: the general search below decides.)
+                if gl.is_finite() && gh.is_finite() {
+                    let x = if gl >= 0.0 {
+                        l
+                    } else if gh <= 0.0 {
+                        h
+                    } else {
+                        self.slope_zero(l, h, gl, gh, keep)
+                    };
+                    return Some(wrap(x));
+                }
+            }
+        }
         // Each breakpoint probed once, when a piece next to it is allowed.
         let mut probes: heapless::Vec<(usize, Probe), 48> = heapless::Vec::new();
         let probe_of = |i: usize, probes: &mut heapless::Vec<(usize, Probe), 48>| -> Option<usize> {
@@ -479,34 +500,7 @@ impl SwivelCircle {
             if bound >= best.0 - ROUNDING {
                 break;
             }
-            // The slope rises through the piece: Newton inside the bracket, else halving.
-            let (mut a, mut b) = (l, h);
-            let mut x = a - gl * (b - a) / (gh - gl);
-            for _ in 0..60 {
-                let (g, curvature) = self.slope(x, keep);
-                if g == 0.0 {
-                    break;
-                }
-                if g < 0.0 {
-                    a = x;
-                } else {
-                    b = x;
-                }
-                let next = x - g / curvature;
-                // 1e-8 rad of swivel: eq. 30 is flat there to ~1e-16.
-                if next.is_finite() && (next - x).abs() < NEWTON_STOP {
-                    x = next.clamp(a, b);
-                    break;
-                }
-                x = if next.is_finite() && next > a && next < b {
-                    next
-                } else {
-                    0.5 * (a + b)
-                };
-                if b - a < NEWTON_STOP {
-                    break;
-                }
-            }
+            let x = self.slope_zero(l, h, gl, gh, keep);
             let v = self.probe(x, keep).total;
             if v < best.0 {
                 best = (v, x);
@@ -516,6 +510,39 @@ impl SwivelCircle {
             return None;
         }
         Some(wrap(best.1))
+    }
+
+    /// Where the slope of eq. 30 crosses zero in `[l, h]`, a piece where it rises from `gl < 0`
+    /// to `gh > 0`: Newton's method inside the bracket, else halving.
+    fn slope_zero(&self, l: Real, h: Real, gl: Real, gh: Real, keep: Option<Real>) -> Real {
+        let (mut a, mut b) = (l, h);
+        let mut x = a - gl * (b - a) / (gh - gl);
+        for _ in 0..60 {
+            let (g, curvature) = self.slope(x, keep);
+            if g == 0.0 {
+                break;
+            }
+            if g < 0.0 {
+                a = x;
+            } else {
+                b = x;
+            }
+            let next = x - g / curvature;
+            // 1e-8 rad of swivel: eq. 30 is flat there to ~1e-16.
+            if next.is_finite() && (next - x).abs() < NEWTON_STOP {
+                x = real::clamp(next, a, b);
+                break;
+            }
+            x = if next.is_finite() && next > a && next < b {
+                next
+            } else {
+                0.5 * (a + b)
+            };
+            if b - a < NEWTON_STOP {
+                break;
+            }
+        }
+        x
     }
 }
 
