@@ -380,6 +380,27 @@ impl SwivelCircle {
         if allowed.is_empty() {
             return None;
         }
+        // One allowed arc with no kink inside (a stream's window, mostly): eq. 30 is convex
+        // over it, so its minimum is where the slope crosses zero, or the end the slope
+        // falls towards. Slopes only: no value is needed to choose.
+        if let [(l, length)] = allowed[..] {
+            let h = l + length;
+            let keep_kink_outside = keep.is_none_or(|k| !contains(allowed, wrap(k + PI)));
+            if length < TAU && keep_kink_outside && self.kink_free(l, h) {
+                let (gl, gh) = (self.slope(l, keep).0, self.slope(h, keep).0);
+                // (Slopes that are not numbers: the general search below decides.)
+                if gl.is_finite() && gh.is_finite() {
+                    let x = if gl >= 0.0 {
+                        l
+                    } else if gh <= 0.0 {
+                        h
+                    } else {
+                        self.slope_zero(l, h, gl, gh, keep)
+                    };
+                    return Some(wrap(x));
+                }
+            }
+        }
         // Breakpoints: each term's kink (its maximum), the continuity term's, arc ends; with
         // the term kinked there (9: none).
         let mut points: heapless::Vec<(Real, usize), 48> = heapless::Vec::new();
@@ -424,27 +445,6 @@ impl SwivelCircle {
                 points[0].0 + TAU
             }
         };
-        // One allowed arc with no kink inside (a stream's window, mostly): eq. 30 is convex
-        // over it, so its minimum is where the slope crosses zero, or the end the slope
-        // falls towards. Slopes only: no value is needed to choose.
-        if let [(start, length)] = allowed[..] {
-            if n == 2 && length < TAU {
-                let i = usize::from(points[0].0 != wrap(start));
-                let (l, h) = (points[i].0, end(i));
-                let (gl, gh) = (self.slope(l, keep).0, self.slope(h, keep).0);
-                // (Slopes that are not numbers: the general search below decides.)
-                if gl.is_finite() && gh.is_finite() {
-                    let x = if gl >= 0.0 {
-                        l
-                    } else if gh <= 0.0 {
-                        h
-                    } else {
-                        self.slope_zero(l, h, gl, gh, keep)
-                    };
-                    return Some(wrap(x));
-                }
-            }
-        }
         // Each breakpoint probed once, when a piece next to it is allowed.
         let mut probes: heapless::Vec<(usize, Probe), 48> = heapless::Vec::new();
         let probe_of = |i: usize, probes: &mut heapless::Vec<(usize, Probe), 48>| -> Option<usize> {
@@ -510,6 +510,16 @@ impl SwivelCircle {
             return None;
         }
         Some(wrap(best.1))
+    }
+
+    /// True when no corner term has its kink in `[l, h]` (`h − l < 2π`): each dot product
+    /// `aᵢ·cos(ψ/2) + bᵢ·sin(ψ/2)` keeps its sign there (over less than π of `ψ/2` it has
+    /// at most one zero, so the ends' signs tell).
+    fn kink_free(&self, l: Real, h: Real) -> bool {
+        let ((sl, cl), (sh, ch)) = (real::sincos(0.5 * l), real::sincos(0.5 * h));
+        self.ab[..self.corners]
+            .iter()
+            .all(|&(a, b)| (a * cl + b * sl) * (a * ch + b * sh) > 0.0)
     }
 
     /// Where the slope of eq. 30 crosses zero in `[l, h]`, a piece where it rises from `gl < 0`
