@@ -464,12 +464,19 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
     };
 
     // The Cortex-M4 (MPS2 AN386), f32: bit for bit the same image code on the host.
-    let m4 = run_both(
-        &image(None, Precision::Single),
-        Some("mps2-an386"),
-        "cortex-m4 f32",
-        &r,
+    let m4_image = image(None, Precision::Single);
+    // Issue 21's budget, with capacity for 64 bones and 32 servos compiled in: 64 KiB of
+    // flash, 16 KiB of static RAM (the sizes are the linker's, the same on every machine).
+    let (flash, ram, _) = footprint(&std::fs::read(&m4_image).unwrap());
+    assert!(
+        flash <= 64 * 1024,
+        "the M4 image's flash, {flash} bytes, fits 64 KiB"
     );
+    assert!(
+        ram <= 16 * 1024,
+        "the M4 image's static RAM, {ram} bytes, fits 16 KiB"
+    );
+    let m4 = run_both(&m4_image, Some("mps2-an386"), "cortex-m4 f32", &r);
     let host_f32 = run_both(&host_image(), None, "host f32", &r);
     assert_equal("cortex-m4 f32 against the host's f32 build", &m4, &host_f32, 0.0);
     // Against the f64 host path: clip frames go through the mapping and the command stage
