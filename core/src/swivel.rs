@@ -294,7 +294,11 @@ impl SwivelCircle {
 
     /// The slope and curvature of [`SwivelCircle::value`] at `psi` (inside a piece).
     fn slope(&self, psi: Real, keep: Option<Real>) -> (Real, Real) {
-        let (s, c) = real::sincos(0.5 * psi);
+        self.slope_at(real::sincos(0.5 * psi), psi, keep)
+    }
+
+    /// [`SwivelCircle::slope`] with `(sin, cos)` of `ψ/2` given.
+    fn slope_at(&self, (s, c): (Real, Real), psi: Real, keep: Option<Real>) -> (Real, Real) {
         let (mut g, mut h) = keep.map_or((0.0, 0.0), |k| (wrap(psi - k), 1.0));
         for &(a, b) in &self.ab[..self.corners] {
             let d = a * c + b * s;
@@ -386,8 +390,9 @@ impl SwivelCircle {
         if let [(l, length)] = allowed[..] {
             let h = l + length;
             let keep_kink_outside = keep.is_none_or(|k| !contains(allowed, wrap(k + PI)));
-            if length < TAU && keep_kink_outside && self.kink_free(l, h) {
-                let (gl, gh) = (self.slope(l, keep).0, self.slope(h, keep).0);
+            let ends = (real::sincos(0.5 * l), real::sincos(0.5 * h));
+            if length < TAU && keep_kink_outside && self.kink_free(ends) {
+                let (gl, gh) = (self.slope_at(ends.0, l, keep).0, self.slope_at(ends.1, h, keep).0);
                 // (Slopes that are not numbers: the general search below decides.)
                 if gl.is_finite() && gh.is_finite() {
                     let x = if gl >= 0.0 {
@@ -512,11 +517,11 @@ impl SwivelCircle {
         Some(wrap(best.1))
     }
 
-    /// True when no corner term has its kink in `[l, h]` (`h − l < 2π`): each dot product
+    /// True when no corner term has its kink in `[l, h]` (`h − l < 2π`; given `(sin, cos)` of
+    /// `l/2` and `h/2`): each dot product
     /// `aᵢ·cos(ψ/2) + bᵢ·sin(ψ/2)` keeps its sign there (over less than π of `ψ/2` it has
     /// at most one zero, so the ends' signs tell).
-    fn kink_free(&self, l: Real, h: Real) -> bool {
-        let ((sl, cl), (sh, ch)) = (real::sincos(0.5 * l), real::sincos(0.5 * h));
+    fn kink_free(&self, ((sl, cl), (sh, ch)): ((Real, Real), (Real, Real))) -> bool {
         self.ab[..self.corners]
             .iter()
             .all(|&(a, b)| (a * cl + b * sl) * (a * ch + b * sh) > 0.0)
