@@ -203,12 +203,21 @@ pub fn encode(id: u8, instruction: u8, params: &[u8], out: &mut [u8]) -> Result<
     let _ = state.feed(instruction); // an instruction byte alone never completes the pattern
     out[7] = instruction;
     let mut n = 8;
-    for &b in params {
-        *out.get_mut(n).ok_or(CodecError::BufferFull)? = b;
-        n += 1;
-        if state.feed(b) {
-            *out.get_mut(n).ok_or(CodecError::BufferFull)? = 0xFD;
+    let mut scan = state;
+    if !params.iter().any(|&b| scan.feed(b)) {
+        // Nothing to stuff (the common case): one copy.
+        out.get_mut(n..n + params.len())
+            .ok_or(CodecError::BufferFull)?
+            .copy_from_slice(params);
+        n += params.len();
+    } else {
+        for &b in params {
+            *out.get_mut(n).ok_or(CodecError::BufferFull)? = b;
             n += 1;
+            if state.feed(b) {
+                *out.get_mut(n).ok_or(CodecError::BufferFull)? = 0xFD;
+                n += 1;
+            }
         }
     }
     let len = n - 7 + 2;
@@ -329,5 +338,30 @@ mod tests {
             unstuff(&[0xFF, 0xFF, 0xFD, 0x00], &mut back),
             Err(CodecError::BadStuffing)
         );
+    }
+
+    #[test]
+    fn encode_stuffs_a_pattern_begun_by_the_instruction_byte() {
+        // `FF` (instruction) + `FF FD` (parameters): stuffed, though the parameters alone
+        // hold no pattern; parameters without one are copied as they are.
+        for (instruction, params, stuffed) in [
+            (0xFF, &[0xFF, 0xFD, 0x01][..], &[0xFF, 0xFD, 0xFD, 0x01][..]),
+            (0x03, &[0xFF, 0xFD, 0x01][..], &[0xFF, 0xFD, 0x01][..]),
+            (
+                0x03,
+                &[0x01, 0xFF, 0xFF, 0xFD][..],
+                &[0x01, 0xFF, 0xFF, 0xFD, 0xFD][..],
+            ),
+        ] {
+            let mut out = [0u8; 32];
+            let n = encode(7, instruction, params, &mut out).unwrap();
+            assert_eq!(&out[8..n - 2], stuffed, "{instruction:02X} {params:02X?}");
+            let mut back = [0u8; 32];
+            let (packet, used) = decode(&out[..n], &mut back).unwrap();
+            assert_eq!(
+                (packet.instruction, packet.params, used),
+                (instruction, params, n)
+            );
+        }
     }
 }
