@@ -273,7 +273,7 @@ pub fn sincos_f32(x: f32) -> (f32, f32) {
 #[inline]
 #[allow(clippy::cast_possible_truncation, clippy::cast_precision_loss)]
 pub fn round_f32(x: f32) -> f32 {
-    if !(x.abs() < 8_388_608.0) {
+    if x.abs() >= 8_388_608.0 || x.is_nan() {
         // An integer already, ±∞ or NaN.
         return x;
     }
@@ -407,7 +407,7 @@ pub fn normalize_or_zero(v: RealVec3) -> RealVec3 {
 pub fn rotation_arc(from: RealVec3, to: RealVec3) -> RealQuat {
     let dot = from.dot(to);
     let c = from.cross(to);
-    if dot > 1.0 - 2.0 * Real::EPSILON || dot < -1.0 + 2.0 * Real::EPSILON {
+    if !(-1.0 + 2.0 * Real::EPSILON..=1.0 - 2.0 * Real::EPSILON).contains(&dot) {
         // Parallel or opposite: glam's own cases.
         return RealQuat::from_rotation_arc(from, to);
     }
