@@ -68,16 +68,6 @@ fn rotation_between(a: RealVec3, b: RealVec3) -> RealQuat {
     rotation_arc(m, b) * rotation_arc(a, m)
 }
 
-/// `remainder(x, 2π)`, in `[−π, π]`: a swivel from the last solve is there already.
-fn within_a_half_turn(x: Real) -> Real {
-    let pi = crate::math::consts::PI;
-    if (-pi..=pi).contains(&x) {
-        x
-    } else {
-        real::remainder(x, crate::math::consts::TAU)
-    }
-}
-
 /// Why a limb cannot be set up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[non_exhaustive]
@@ -457,13 +447,13 @@ impl Limb {
                 Swivel::Auto { previous: None }
             }
             Swivel::Track { previous, window } => Swivel::Track {
-                previous: within_a_half_turn(previous),
+                previous: swivel::wrap(previous),
                 window: real::min(window, crate::math::consts::PI),
             },
-            Swivel::Nearest(p) => Swivel::Nearest(within_a_half_turn(p)),
-            Swivel::Fixed(p) => Swivel::Fixed(within_a_half_turn(p)),
+            Swivel::Nearest(p) => Swivel::Nearest(swivel::wrap(p)),
+            Swivel::Fixed(p) => Swivel::Fixed(swivel::wrap(p)),
             Swivel::Auto { previous } => Swivel::Auto {
-                previous: previous.filter(|p| p.is_finite()).map(within_a_half_turn),
+                previous: previous.filter(|p| p.is_finite()).map(swivel::wrap),
             },
         };
         // FK down the limb's chain (a path from the root) to the shoulder's parent, keeping
