@@ -19,6 +19,7 @@
 //!   fault injection).
 //! * [`control`] — the fixed-rate loop, its inputs, statistics and fault policy.
 //! * [`signals`] — termination signals as the loop's stop requests.
+//! * `ros2` — ROS 2 over DDS: `/joint_states` out, effector targets in (the `ros2` feature).
 //! * [`sim`] — MuJoCo models of rigs and simulated servos (the simulator itself needs the
 //!   `sim` feature).
 //! * [`plot`] — pictures (SVG or PNG by the file's extension).
@@ -56,6 +57,9 @@ pub mod bus;
 pub mod control;
 
 pub mod signals;
+
+#[cfg(feature = "ros2")]
+pub mod ros2;
 
 pub mod sim;
 

@@ -249,7 +249,7 @@ fn control_loop_ticks_allocate_nothing() {
             config,
         );
         let (ttx, trx) = crossbeam_channel::bounded(8);
-        c.set_telemetry(ttx);
+        c.add_telemetry(ttx).unwrap();
         // The studio's live view: updated every tick, skipped while a reader holds it.
         let live = Arc::new(marionette::control::live::LiveView::default());
         c.set_live_view(Arc::clone(&live));

@@ -11,6 +11,7 @@ mod inspect;
 mod play;
 mod retarget;
 mod rig;
+mod ros2;
 mod sim;
 mod soak;
 #[cfg(feature = "studio")]
@@ -104,7 +105,9 @@ enum Command {
         profile: PathBuf,
         /// Skeleton (.asf).
         asf: PathBuf,
-        /// Targets: a CSV or JSON-lines file, `-` for stdin, or udp://127.0.0.1:PORT.
+        /// Targets: a CSV or JSON-lines file, `-` for stdin, udp://127.0.0.1:PORT, or `ros2`
+        /// (the topics /marionette/targets/<effector>, metres on the rig in the root's frame;
+        /// implies --ros2).
         #[arg(long)]
         targets: String,
         /// The effector bones (their tips follow the targets).

@@ -186,9 +186,23 @@ pub struct LoopArgs {
     /// baud, return delays, the adapter's latency): for loop rates beyond what the bus allows.
     #[arg(long)]
     pub no_line_time: bool,
+    /// Join ROS 2 in the domain of ROS_DOMAIN_ID (default 0) as the node /marionette and
+    /// publish the servos' present positions on /joint_states (sensor_msgs/msg/JointState).
+    /// Needs a build with `--features ros2`.
+    #[arg(long)]
+    pub ros2: bool,
+    /// Rate of /joint_states, Hz (each message the newest read; independent of --rate).
+    #[arg(long, default_value_t = 100.0)]
+    pub ros2_rate: f64,
+    /// Message type of the target topics of `follow --targets ros2`.
+    #[arg(long, value_enum, default_value_t = super::ros2::Ros2Targets::Point)]
+    pub ros2_targets: super::ros2::Ros2Targets,
     /// Where the loop publishes its goals, present angles and timing (the studio).
     #[arg(skip)]
     pub live: Option<Arc<crate::control::live::LiveView>>,
+    /// The run's ROS 2 node, when a target source made it before the loop.
+    #[arg(skip)]
+    pub ros2_node: Option<super::ros2::Ros2Handle>,
 }
 
 /// The opened bus: the virtual chain (kept alive while the bus is used) or a port.
@@ -227,6 +241,12 @@ fn check(args: &LoopArgs) -> Result<(), CliError> {
         if let Some(Err(e)) = picture.as_deref().map(Format::of) {
             return Err(CliError::Usage(format!("{option} {e}")));
         }
+    }
+    if !(args.ros2_rate.is_finite() && (0.1..=1000.0).contains(&args.ros2_rate)) {
+        return Err(CliError::Usage(format!(
+            "--ros2-rate must be between 0.1 and 1000 Hz, got {}",
+            args.ros2_rate
+        )));
     }
     if args.hold_after == 0 {
         return Err(CliError::Usage("--hold-after must be at least 1".into()));
@@ -614,6 +634,11 @@ pub(super) fn run_loop(
         (profile.rig(Some(&skeleton))?, None)
     };
     let start_producer = match producer {
+        Producer::Lockstep(..) if args.ros2 || args.ros2_node.is_some() => {
+            return Err(CliError::Usage(
+                "--ros2 runs in real time and --bus sim in simulated time: serve the simulator on a pseudo-terminal (`marionette sim serve`) and give its path to --bus".into(),
+            ))
+        }
         Producer::Lockstep(tx, make_source) => {
             return run_sim(
                 args,
@@ -632,6 +657,7 @@ pub(super) fn run_loop(
         }
         Producer::Thread(start) => start,
     };
+    let ros2_node = super::ros2::node(args, out)?;
     let OpenBus {
         mut bus,
         _chain,
@@ -646,6 +672,7 @@ pub(super) fn run_loop(
     // Real time: the fidelity's lag search on a thread of its own, off the tick.
     config.fidelity_worker = true;
     let planner = lookahead(args, profile, &rig);
+    let rig_for_ros2 = rig.clone();
     let mut controller = Controller::new(skeleton, rig, profile.ids(), &present, port, solve, config);
     controller.set_servo_names(profile.servos.iter().map(|s| s.name.clone()).collect());
     if let Some(r) = retarget {
@@ -658,9 +685,18 @@ pub(super) fn run_loop(
         controller.set_live_view(Arc::clone(v));
     }
     let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
-    controller.set_telemetry(ttx);
+    let _ = controller.add_telemetry(ttx);
     let period = controller.period_ns();
     let mut clock = SystemClock::new(200_000);
+    let publishing = super::ros2::publish(
+        ros2_node.as_ref(),
+        args,
+        &mut controller,
+        &rig_for_ros2,
+        profile.servos.iter().map(|s| s.name.clone()).collect(),
+        clock,
+        out,
+    )?;
     // The first tick a little ahead, so the producer has filled the channel.
     // (At most half the Bus Watchdog away: it was armed at the end of the start-up.)
     let lead_ns = match profile.bus.watchdog_ms {
@@ -692,6 +728,7 @@ pub(super) fn run_loop(
         writeln!(out, "{w}")?;
     }
     let producer = producer.join().unwrap_or_default();
+    super::ros2::finish(publishing, out)?;
     Ok(Outcome {
         stats,
         end,
@@ -1013,11 +1050,15 @@ enum TargetSource {
     File(TargetTrack),
     Stdin,
     Udp(UdpSocket),
+    Ros2,
 }
 
 fn target_source(spec: &str, effectors: &[String]) -> Result<TargetSource, CliError> {
     if spec == "-" {
         return Ok(TargetSource::Stdin);
+    }
+    if spec == "ros2" {
+        return Ok(TargetSource::Ros2);
     }
     if let Some(addr) = spec.strip_prefix("udp://") {
         let addr: SocketAddr = addr
@@ -1076,9 +1117,37 @@ pub fn follow_cmd(
                 .map_or_else(|_| targets.to_string(), |a| a.to_string()),
             effectors.join(", ")
         )?,
+        TargetSource::Ros2 => {}
     }
+    let mut args = args.clone();
+    let ros2_node = if matches!(source, TargetSource::Ros2) {
+        args.ros2 = true;
+        let node = super::ros2::node(&args, out)?;
+        args.ros2_node.clone_from(&node);
+        node
+    } else {
+        None
+    };
+    let args = &args;
     let (tx, port): (InputSender, InputPort) = input_channel(input_capacity(args.rate));
     let names = effectors.to_vec();
+    let root = skeleton
+        .bones()
+        .first()
+        .map_or_else(String::new, |b| b.name().to_string());
+    let metres_per_unit = args.scale * f64::from(skeleton.units().meters_per_unit());
+    let kind = args.ros2_targets;
+    if ros2_node.is_some() {
+        writeln!(
+            out,
+            "ros2: targets on /marionette/targets/{{{}}} ({}, metres on the rig, frame '{root}')",
+            effectors.join(","),
+            match kind {
+                super::ros2::Ros2Targets::Point => "geometry_msgs/msg/PointStamped",
+                super::ros2::Ros2Targets::Pose => "geometry_msgs/msg/PoseStamped",
+            }
+        )?;
+    }
     let producer = match source {
         TargetSource::File(track) if args.bus == BusArg::Sim => {
             if looping {
@@ -1092,6 +1161,12 @@ pub fn follow_cmd(
             TargetSource::File(track) => spawn_track(track, tx, clock, start, preview, looping),
             TargetSource::Stdin => spawn_stdin(names, tx, clock),
             TargetSource::Udp(socket) => spawn_udp(socket, names, tx, clock),
+            TargetSource::Ros2 => match &ros2_node {
+                Some(node) => {
+                    super::ros2::spawn_targets(node, &names, &root, kind, metres_per_unit, tx, clock)
+                }
+                None => Err(std::io::Error::other("no ROS 2 node")),
+            },
         })),
     };
     let outcome = run_loop(

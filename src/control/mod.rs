@@ -122,8 +122,8 @@ impl Default for LoopConfig {
     }
 }
 
-/// One tick's figures, sent to a telemetry consumer (never blocking the loop).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// One tick's figures, sent to each telemetry consumer (never blocking the loop).
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Telemetry {
     /// Tick index.
     pub index: u64,
@@ -148,7 +148,48 @@ pub struct Telemetry {
     pub tips: [DVec3; 4],
     /// Clip time of the frame used (play), seconds.
     pub clip_time: f64,
+    /// Present positions of the last valid read, ticks (`servos` of them, rig order).
+    pub present: [i32; MAX_SERVOS],
+    /// Number of servos.
+    pub servos: usize,
+    /// Loop-clock time (ns) of the last valid read: when `present` was measured.
+    pub read_ns: u64,
+    /// Whether the tick belongs to the stop ramp (after the input's end or a stop request).
+    pub stopping: bool,
 }
+
+impl Default for Telemetry {
+    fn default() -> Self {
+        Telemetry {
+            index: 0,
+            deadline_ns: 0,
+            woke_ns: 0,
+            compute_ns: 0,
+            total_ns: 0,
+            missed: false,
+            read_ok: false,
+            held: false,
+            tracking_rms_deg: f64::NAN,
+            tips: [DVec3::ZERO; 4],
+            clip_time: f64::NAN,
+            present: [0; MAX_SERVOS],
+            servos: 0,
+            read_ns: 0,
+            stopping: false,
+        }
+    }
+}
+
+impl Telemetry {
+    /// The present positions (ticks), rig order.
+    #[must_use]
+    pub fn present(&self) -> &[i32] {
+        &self.present[..self.servos.min(MAX_SERVOS)]
+    }
+}
+
+/// Most telemetry consumers a controller feeds (the status line, a ROS 2 publisher).
+pub const MAX_TELEMETRY_SINKS: usize = 4;
 
 /// Why a run ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -587,7 +628,7 @@ pub struct Controller {
     watched_chains: heapless::Vec<usize, MAX_BONES>,
     input: InputPort,
     solve: Solve,
-    telemetry: Option<Sender<Telemetry>>,
+    telemetry: heapless::Vec<Sender<Telemetry>, MAX_TELEMETRY_SINKS>,
     live: Option<Arc<LiveView>>,
     /// The statistics so far.
     pub stats: LoopStats,
@@ -741,7 +782,7 @@ impl Controller {
             watched_chains,
             input,
             solve,
-            telemetry: None,
+            telemetry: heapless::Vec::new(),
             live: None,
             have_input: false,
             clip_time: f64::NAN,
@@ -932,9 +973,22 @@ impl Controller {
         self.live = Some(view);
     }
 
-    /// Sends per-tick figures to `tx` (bounded; a full channel drops the record, counted).
-    pub fn set_telemetry(&mut self, tx: Sender<Telemetry>) {
-        self.telemetry = Some(tx);
+    /// Sends per-tick figures to `tx` as well (bounded; a full channel drops the record,
+    /// counted). Each consumer has its own channel; up to [`MAX_TELEMETRY_SINKS`].
+    ///
+    /// # Errors
+    /// `tx` back when there are [`MAX_TELEMETRY_SINKS`] already.
+    pub fn add_telemetry(&mut self, tx: Sender<Telemetry>) -> Result<(), Sender<Telemetry>> {
+        self.telemetry.push(tx)
+    }
+
+    /// Sends `record` to every consumer without waiting; a full channel drops it (counted).
+    fn emit(&mut self, record: &Telemetry) {
+        for tx in &self.telemetry {
+            if let Err(TrySendError::Full(_)) = tx.try_send(*record) {
+                self.stats.telemetry_dropped += 1;
+            }
+        }
     }
 
     /// The period, nanoseconds.
@@ -1026,6 +1080,20 @@ impl Controller {
                 return Taken::Nothing;
             };
             if msg.due_ns <= due_now && self.input.next_is_due(due_now) {
+                // Not solved, but its targets stand: a newer message may name other effectors
+                // (live sources send one effector a line or a topic).
+                if let (Payload::Targets(targets), Solve::Follow(f)) = (&msg.payload, &mut self.solve) {
+                    if targets
+                        .iter()
+                        .all(|t| t.is_finite() && t.effector < f.effectors.len())
+                    {
+                        for t in targets {
+                            f.targets[t.effector] = Some(*t);
+                        }
+                    } else {
+                        self.stats.inputs_rejected += 1;
+                    }
+                }
                 self.input.superseded += 1;
                 return Taken::PassedOver;
             }
@@ -1372,8 +1440,8 @@ impl Controller {
                 view.record_carried(current_made, t_write);
             }
         }
-        if let Some(tx) = &self.telemetry {
-            let t = Telemetry {
+        if !self.telemetry.is_empty() {
+            let mut t = Telemetry {
                 index: tick.index,
                 deadline_ns: tick.deadline_ns,
                 woke_ns: tick.woke_ns,
@@ -1385,10 +1453,13 @@ impl Controller {
                 tracking_rms_deg: tracking,
                 tips,
                 clip_time: self.clip_time,
+                present: [0; MAX_SERVOS],
+                servos: len,
+                read_ns: self.last_valid_read_ns,
+                stopping: false,
             };
-            if let Err(TrySendError::Full(_)) = tx.try_send(t) {
-                self.stats.telemetry_dropped += 1;
-            }
+            t.present[..len].copy_from_slice(&self.present);
+            self.emit(&t);
         }
         if let (Some(f), Some(before)) = (self.config.allocations, allocs) {
             *self.stats.allocations_in_tick.get_or_insert(0) += f().saturating_sub(before);
@@ -1435,9 +1506,11 @@ impl Controller {
         }
         self.stats.fidelity = Some(self.fidelity_report());
         if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
+            self.record_final_present();
             return why;
         }
         self.finish(schedule, bus, clock, stop);
+        self.record_final_present();
         // The port may fail during the ramp: that, not the reason the ramp began, is the end.
         if self.port_error.is_some() {
             return RunEnd::PortLost;
@@ -1478,7 +1551,7 @@ impl Controller {
             0
         };
         for k in 1..=ticks + extra {
-            let _ = schedule.wait(clock);
+            let tick = schedule.wait(clock);
             if stop.made() > requests_at_start {
                 break;
             }
@@ -1504,14 +1577,59 @@ impl Controller {
                 self.port_error = Some(why);
                 break;
             }
-            if bus.read_positions(&self.ids, &mut self.read_buf).is_ok() {
+            let read_ok = bus.read_positions(&self.ids, &mut self.read_buf).is_ok();
+            if read_ok {
                 self.present.copy_from_slice(&self.read_buf);
+                self.last_valid_read_ns = clock.now_ns();
+            }
+            if !self.telemetry.is_empty() {
+                let len = self.present.len().min(MAX_SERVOS);
+                let mut t = Telemetry {
+                    index: tick.index,
+                    deadline_ns: tick.deadline_ns,
+                    woke_ns: tick.woke_ns,
+                    read_ok,
+                    servos: len,
+                    read_ns: self.last_valid_read_ns,
+                    stopping: true,
+                    ..Telemetry::default()
+                };
+                t.present[..len].copy_from_slice(&self.present[..len]);
+                self.emit(&t);
             }
             if arrived {
                 break;
             }
         }
         self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
+    }
+
+    /// Puts the last valid read's positions, by servo name, into the statistics.
+    fn record_final_present(&mut self) {
+        let angles = self.present_angles();
+        self.stats.final_present = angles
+            .into_iter()
+            .enumerate()
+            .map(|(k, rad)| stats::ServoAngle {
+                name: self
+                    .servo_names
+                    .get(k)
+                    .cloned()
+                    .unwrap_or_else(|| format!("servo {}", k + 1)),
+                rad,
+            })
+            .collect();
+    }
+
+    /// The present positions of the last valid read as angles (radians), rig order.
+    #[must_use]
+    pub fn present_angles(&self) -> Vec<f64> {
+        self.rig
+            .servos
+            .iter()
+            .zip(&self.present)
+            .map(|(s, p)| s.ticks_to_angle(f64::from(*p)))
+            .collect()
     }
 }
 

@@ -250,6 +250,9 @@ pub struct LoopStats {
     pub held_ticks: u64,
     /// Telemetry records dropped because the consumer was behind.
     pub telemetry_dropped: u64,
+    /// The last valid read's positions when the run ended (set after the loop, never in a
+    /// tick).
+    pub final_present: Vec<ServoAngle>,
     /// Heap allocations inside ticks (`None` without a counting allocator).
     pub allocations_in_tick: Option<u64>,
     /// Servos that acknowledged the torque-off at the end (`None` before the end).
@@ -373,6 +376,7 @@ impl LoopStats {
             unreachable: self.unreachable,
             held_ticks: self.held_ticks,
             telemetry_dropped: self.telemetry_dropped,
+            final_present: self.final_present.clone(),
             ik_error_rms: if self.ik_error_n == 0 {
                 0.0
             } else {
@@ -447,10 +451,21 @@ pub struct Report {
     pub held_ticks: u64,
     /// Telemetry records dropped.
     pub telemetry_dropped: u64,
+    /// Each servo's present position at the end of the run (the last valid read), radians.
+    pub final_present: Vec<ServoAngle>,
     /// RMS IK residual, file units.
     pub ik_error_rms: f64,
     /// Largest IK residual, file units.
     pub ik_error_max: f64,
+}
+
+/// One servo's angle.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ServoAngle {
+    /// The servo's name in the profile.
+    pub name: String,
+    /// Radians (the rig's joint angle).
+    pub rad: f64,
 }
 
 /// Per-stage latency quantiles of a run, µs (the stages of [`Stage`], by [`Stage::name`]).

@@ -1,0 +1,182 @@
+//! `--ros2` and `--targets ros2`: the run's ROS 2 node (the `ros2` feature; without it these
+//! options say how to build it).
+
+use std::io::Write;
+
+use super::play::LoopArgs;
+use super::CliError;
+use crate::clock::SystemClock;
+use crate::control::input::InputSender;
+use crate::control::sources::ProducerReport;
+use crate::control::Controller;
+use crate::rig::Rig;
+
+/// The node shared by the run's publisher and its target subscriptions.
+#[cfg(feature = "ros2")]
+pub type Ros2Handle = std::sync::Arc<std::sync::Mutex<crate::ros2::Ros2Node>>;
+
+/// The node of a build without ROS 2: there is none.
+#[cfg(not(feature = "ros2"))]
+#[derive(Clone, Debug)]
+pub enum Ros2Handle {}
+
+/// The message type of `/marionette/targets/<effector>`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Ros2Targets {
+    /// geometry_msgs/msg/PointStamped: a position.
+    #[default]
+    Point,
+    /// geometry_msgs/msg/PoseStamped: a position, and its orientation's +x as the direction of
+    /// the bone after the effector (hand, foot).
+    Pose,
+}
+
+/// The joint-state publisher of a run, to join when the loop has ended.
+pub(super) struct Publishing {
+    #[cfg(feature = "ros2")]
+    thread: std::thread::JoinHandle<crate::ros2::PublishReport>,
+}
+
+#[cfg(not(feature = "ros2"))]
+fn not_built() -> CliError {
+    CliError::Usage(
+        "--ros2 and --targets ros2 need a build with ROS 2: cargo build --release --features ros2".into(),
+    )
+}
+
+/// The run's node: the one `args` carries, or (with `--ros2`) a new one from `ROS_DOMAIN_ID`.
+/// `None` without `--ros2`.
+///
+/// # Errors
+/// A build without the `ros2` feature; a bad `ROS_DOMAIN_ID`; DDS failing to start.
+pub(super) fn node(args: &LoopArgs, out: &mut dyn Write) -> Result<Option<Ros2Handle>, CliError> {
+    #[cfg(feature = "ros2")]
+    if let Some(n) = &args.ros2_node {
+        return Ok(Some(n.clone()));
+    }
+    if !args.ros2 {
+        return Ok(None);
+    }
+    #[cfg(feature = "ros2")]
+    {
+        let node = crate::ros2::Ros2Node::from_env("marionette")
+            .map_err(|e| CliError::Usage(format!("--ros2: {e}")))?;
+        writeln!(
+            out,
+            "ros2: node {} in domain {}{}",
+            node.name(),
+            node.domain_id(),
+            if crate::ros2::localhost_only_from_env() {
+                " (this host only)"
+            } else {
+                ""
+            }
+        )?;
+        Ok(Some(std::sync::Arc::new(std::sync::Mutex::new(node))))
+    }
+    #[cfg(not(feature = "ros2"))]
+    {
+        let _ = out;
+        Err(not_built())
+    }
+}
+
+/// Starts publishing `/joint_states` from `controller`'s telemetry, when the run has a node.
+///
+/// # Errors
+/// DDS failing to make the topic or the writer; the thread not starting.
+pub(super) fn publish(
+    node: Option<&Ros2Handle>,
+    args: &LoopArgs,
+    controller: &mut Controller,
+    rig: &Rig,
+    names: Vec<String>,
+    clock: SystemClock,
+    out: &mut dyn Write,
+) -> Result<Option<Publishing>, CliError> {
+    let Some(node) = node else {
+        return Ok(None);
+    };
+    #[cfg(feature = "ros2")]
+    {
+        // A second of records at 1 kHz: the publisher polls at its own rate and takes the newest.
+        let (tx, rx) = crossbeam_channel::bounded(1024);
+        if controller.add_telemetry(tx).is_err() {
+            return Err(CliError::Usage(
+                "--ros2: no telemetry slot left on the loop".into(),
+            ));
+        }
+        let thread = node
+            .lock()
+            .map_err(|_| CliError::Usage("--ros2: the node was poisoned".into()))?
+            .spawn_joint_states(rx, rig.clone(), names, clock, args.ros2_rate)
+            .map_err(|e| CliError::Usage(format!("--ros2: {e}")))?;
+        writeln!(
+            out,
+            "ros2: /joint_states at {} Hz (sensor_msgs/msg/JointState, reliable)",
+            args.ros2_rate
+        )?;
+        Ok(Some(Publishing { thread }))
+    }
+    #[cfg(not(feature = "ros2"))]
+    {
+        let _ = (args, controller, rig, names, clock, out);
+        match *node {}
+    }
+}
+
+/// Waits for the publisher's last message and says what it did.
+///
+/// # Errors
+/// Output errors.
+pub(super) fn finish(publishing: Option<Publishing>, out: &mut dyn Write) -> Result<(), CliError> {
+    let Some(p) = publishing else {
+        return Ok(());
+    };
+    #[cfg(feature = "ros2")]
+    {
+        let r = p.thread.join().unwrap_or_default();
+        writeln!(
+            out,
+            "ros2: {} joint states published on /joint_states ({} failed) from {} tick records",
+            r.published, r.failed, r.records
+        )?;
+    }
+    #[cfg(not(feature = "ros2"))]
+    {
+        let _ = (p, out);
+    }
+    Ok(())
+}
+
+/// Subscribes to `/marionette/targets/<effector>` and feeds the loop from a thread.
+///
+/// # Errors
+/// An effector name that makes no topic name; DDS failing.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn spawn_targets(
+    node: &Ros2Handle,
+    effectors: &[String],
+    root: &str,
+    kind: Ros2Targets,
+    metres_per_unit: f64,
+    tx: InputSender,
+    clock: SystemClock,
+) -> std::io::Result<std::thread::JoinHandle<ProducerReport>> {
+    #[cfg(feature = "ros2")]
+    {
+        let kind = match kind {
+            Ros2Targets::Point => crate::ros2::TargetKind::Point,
+            Ros2Targets::Pose => crate::ros2::TargetKind::Pose,
+        };
+        node.lock()
+            .map_err(|_| std::io::Error::other("the ROS 2 node was poisoned"))?
+            .spawn_targets(effectors, root, kind, metres_per_unit, tx, clock)
+            .map_err(std::io::Error::other)
+    }
+    #[cfg(not(feature = "ros2"))]
+    {
+        let _ = (effectors, root, kind, metres_per_unit, tx, clock);
+        match *node {}
+    }
+}
