@@ -782,11 +782,52 @@ mod tests {
     }
 
     #[test]
-    fn stamps_and_velocities() {
+    fn joint_states_carry_the_reads_in_radians_with_stamps_and_velocities() {
         assert_eq!(msg::Time::from_ns(3_000_000_007).to_ns(), 3_000_000_007);
         assert_eq!(
             msg::Time::from_ns(3_000_000_007),
             msg::Time { sec: 3, nanosec: 7 }
         );
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let skel = crate::formats::asf::load(&root.join("data/cmu/16.asf"))
+            .unwrap()
+            .skeleton;
+        let profile = crate::profile::Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
+        let rig = profile.rig(Some(&skel)).unwrap();
+        let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
+        let wall = WallClock {
+            offset_ns: 1_000_000_000_000,
+        };
+        let mut states = JointStates::new(rig.clone(), names.clone(), wall);
+        let mut t = Telemetry {
+            servos: rig.len(),
+            read_ns: 5_000_000,
+            ..Telemetry::default()
+        };
+        for (k, p) in t.present[..rig.len()].iter_mut().enumerate() {
+            *p = 2048 + 10 * k as i32;
+        }
+        let first = states.message(&t).unwrap();
+        assert_eq!(first.name, names);
+        assert_eq!(first.header.stamp.to_ns(), 1_000_005_000_000);
+        assert_eq!(first.header.frame_id, "");
+        for (k, s) in rig.servos.iter().enumerate() {
+            assert_eq!(first.position[k], s.ticks_to_angle(f64::from(t.present[k])));
+        }
+        assert!(first.velocity.iter().all(|v| *v == 0.0));
+        assert!(first.effort.is_empty());
+        // The same read again: nothing new to publish.
+        assert_eq!(states.message(&t), None);
+        // 10 ms later, each servo 4 ticks further: the velocity over those 10 ms.
+        t.read_ns += 10_000_000;
+        for p in &mut t.present[..rig.len()] {
+            *p += 4;
+        }
+        let second = states.message(&t).unwrap();
+        for k in 0..rig.len() {
+            let want = (second.position[k] - first.position[k]) / 0.01;
+            assert!((second.velocity[k] - want).abs() < 1e-9, "{k}");
+            assert!(second.velocity[k] != 0.0);
+        }
     }
 }

@@ -250,6 +250,10 @@ fn control_loop_ticks_allocate_nothing() {
         );
         let (ttx, trx) = crossbeam_channel::bounded(8);
         c.add_telemetry(ttx).unwrap();
+        // A second consumer (the ROS 2 publisher's place), never drained: a full channel costs
+        // the tick a dropped record, not an allocation.
+        let (rtx, _rrx) = crossbeam_channel::bounded(16);
+        c.add_telemetry(rtx).unwrap();
         // The studio's live view: updated every tick, skipped while a reader holds it.
         let live = Arc::new(marionette::control::live::LiveView::default());
         c.set_live_view(Arc::clone(&live));
