@@ -1059,3 +1059,61 @@ fn targets_taken_ahead_are_solved_over_ticks_with_the_same_result() {
     // Both end on the same last sample, at the same tick.
     assert_eq!(sliced.last().map(|(d, _)| *d), at_once.last().map(|(d, _)| *d));
 }
+
+/// Live sources (a UDP line, a ROS 2 topic) name one effector a message. Messages due together
+/// are taken in one tick and only the newest is solved, but the targets of those it supersedes
+/// still stand: four one-effector messages give the pose that one four-effector message gives.
+#[test]
+fn superseded_live_targets_still_set_their_effectors() {
+    let names = effectors();
+    let s = setup();
+    let track = clip_track(&s.skel, &s.motion, &names, TrackFrame::Limb).unwrap();
+    let targets = &track.samples[100].1;
+    assert_eq!(targets.len(), 4);
+    let pose_after = |messages: Vec<heapless::Vec<marionette::control::input::Target, 8>>| {
+        let (mut c, tx) = controller(
+            &s,
+            Solve::Follow(Box::new(Follower::new(&s.skel, &names).unwrap())),
+            config(120.0),
+            8,
+        );
+        let mut vr = s.vr.clone();
+        let mut clock = vr.clone();
+        let period = c.period_ns();
+        let mut schedule = Schedule::new(clock.now_ns() + period, period);
+        for (seq, m) in messages.into_iter().enumerate() {
+            let msg = Input {
+                seq: seq as u64,
+                due_ns: 0,
+                made_ns: clock.now_ns(),
+                payload: Payload::Targets(m),
+            };
+            tx.send_newest(msg).unwrap();
+        }
+        for _ in 0..3 {
+            let tick = schedule.wait(&mut clock);
+            c.tick(&tick, &mut vr, &mut clock);
+        }
+        (
+            c.channels().to_vec(),
+            c.stats.inputs_used,
+            c.stats.inputs_rejected,
+        )
+    };
+    let (together, used, rejected) = pose_after(vec![targets.clone()]);
+    assert_eq!((used, rejected), (1, 0));
+    let one_each = targets
+        .iter()
+        .map(|t| {
+            let mut v = heapless::Vec::new();
+            v.push(*t).unwrap();
+            v
+        })
+        .collect();
+    let (apart, used, rejected) = pose_after(one_each);
+    // One solved (the newest), three passed over with their targets set.
+    assert_eq!((used, rejected), (1, 0));
+    assert_eq!(apart, together);
+    // And the pose is not the rest pose: the targets were acted on.
+    assert!(together.iter().any(|a| a.abs() > 0.1));
+}
