@@ -1117,3 +1117,69 @@ fn superseded_live_targets_still_set_their_effectors() {
     // And the pose is not the rest pose: the targets were acted on.
     assert!(together.iter().any(|a| a.abs() > 0.1));
 }
+
+/// `targets --directions`: each target carries the unit direction of the bone its effector
+/// points (the hand, the foot) — as captured in the root frame, turned with the limb in the
+/// limb frame — and following them turns the feet where points alone leave them at rest.
+#[test]
+fn pointing_tracks_carry_the_captured_directions_and_turn_the_feet() {
+    use marionette::control::pointer_bone;
+    use marionette::control::sources::clip_track_pointing;
+    use marionette::fk::{fk64, Pose64};
+    let names = effectors();
+    let s = setup();
+    let pointers: Vec<usize> = names
+        .iter()
+        .map(|n| pointer_bone(&s.skel, s.skel.find(n).unwrap()).unwrap())
+        .collect();
+    assert_eq!(s.skel.bones()[pointers[2]].name(), "lfoot");
+    let root = clip_track_pointing(&s.skel, &s.motion, &names, TrackFrame::Root).unwrap();
+    let limb = clip_track_pointing(&s.skel, &s.motion, &names, TrackFrame::Limb).unwrap();
+    let plain = clip_track(&s.skel, &s.motion, &names, TrackFrame::Root).unwrap();
+    let mut pose = Pose64::default();
+    for f in [0, 150, 300] {
+        let mut ch = marionette::motion::frame_to_radians(&s.skel, s.motion.frame(f));
+        for c in s.skel.bones()[0].channels() {
+            ch[c] = 0.0;
+        }
+        fk64(&s.skel, &ch, &mut pose);
+        for (k, &h) in pointers.iter().enumerate() {
+            let want = (pose.tip[h] - pose.start[h]).normalize();
+            let got = root.samples[f].1[k].direction.unwrap();
+            assert!((got - want).length() < 1e-12, "frame {f}, {}", names[k]);
+            assert_eq!(root.samples[f].1[k].position, plain.samples[f].1[k].position);
+            assert!((limb.samples[f].1[k].direction.unwrap().length() - 1.0).abs() < 1e-12);
+        }
+    }
+    // Following them: the feet turn (points alone leave them at rest).
+    let feet = |track: &marionette::control::sources::TargetTrack| {
+        let (mut c, tx) = follow_controller(&s, &names);
+        let mut vr = s.vr.clone();
+        let mut clock = vr.clone();
+        let period = c.period_ns();
+        let mut schedule = Schedule::new(clock.now_ns() + period, period);
+        let lfoot = s.skel.find("lfoot").unwrap();
+        let mut most: f64 = 0.0;
+        for (seq, (_, targets)) in track.samples.iter().enumerate().step_by(10) {
+            let msg = Input {
+                seq: seq as u64,
+                due_ns: 0,
+                made_ns: clock.now_ns(),
+                payload: Payload::Targets(targets.clone()),
+            };
+            tx.send_newest(msg).unwrap();
+            let tick = schedule.wait(&mut clock);
+            c.tick(&tick, &mut vr, &mut clock);
+            for ch in s.skel.bones()[lfoot].channels() {
+                most = most.max(c.channels()[ch].abs());
+            }
+        }
+        most
+    };
+    assert_eq!(
+        feet(&clip_track(&s.skel, &s.motion, &names, TrackFrame::Limb).unwrap()),
+        0.0
+    );
+    let turned = feet(&limb);
+    assert!(turned > 0.1, "the left foot turned {turned} rad at most");
+}

@@ -135,6 +135,10 @@ enum Command {
         /// File format.
         #[arg(long, value_enum, default_value_t = play::TargetFormat::Csv)]
         format: play::TargetFormat,
+        /// Add each target's pointing direction: the captured direction of the bone after the
+        /// effector (the hand, the foot), which `follow` turns that bone to.
+        #[arg(long)]
+        directions: bool,
         /// Output file.
         #[arg(short, long)]
         output: PathBuf,
@@ -574,6 +578,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
             effectors,
             frame,
             format,
+            directions,
             output,
         } => play::targets_cmd(
             &asf,
@@ -584,6 +589,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
                 FrameArg::Root => crate::control::sources::TrackFrame::Root,
             },
             format,
+            directions,
             &output,
             &mut io::stdout().lock(),
         ),

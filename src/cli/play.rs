@@ -25,8 +25,8 @@ use crate::control::lookahead::{Lookahead, LookaheadSettings};
 use crate::control::plot::Histograms;
 use crate::control::rt::RealTime;
 use crate::control::sources::{
-    clip_track, spawn_player, spawn_stdin, spawn_track, spawn_udp, write_csv, ClipPlayer, PlayerCommand,
-    ProducerReport, TargetTrack, TrackFrame,
+    clip_track, clip_track_pointing, spawn_player, spawn_stdin, spawn_track, spawn_udp, write_csv,
+    ClipPlayer, PlayerCommand, ProducerReport, TargetTrack, TrackFrame,
 };
 use crate::control::stats::{ClipFigures, LoopStats, RunReport};
 use crate::control::{
@@ -1204,18 +1204,25 @@ pub enum TargetFormat {
 ///
 /// # Errors
 /// [`CliError`].
+#[allow(clippy::too_many_arguments)]
 pub fn targets_cmd(
     asf_path: &Path,
     amc_path: &Path,
     effectors: &[String],
     frame: TrackFrame,
     format: TargetFormat,
+    directions: bool,
     output: &Path,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
     let skeleton = asf::load(asf_path)?.skeleton;
     let motion = amc::load(&skeleton, amc_path)?;
-    let track = clip_track(&skeleton, &motion, effectors, frame).map_err(CliError::Usage)?;
+    let track = if directions {
+        clip_track_pointing(&skeleton, &motion, effectors, frame)
+    } else {
+        clip_track(&skeleton, &motion, effectors, frame)
+    }
+    .map_err(CliError::Usage)?;
     let mut text = Vec::new();
     match format {
         TargetFormat::Csv => write_csv(&track, effectors, &mut text)?,
@@ -1224,10 +1231,14 @@ pub fn targets_cmd(
                 let list: Vec<serde_json::Value> = targets
                     .iter()
                     .map(|x| {
-                        serde_json::json!({
+                        let mut o = serde_json::json!({
                             "effector": effectors[x.effector],
                             "position": [x.position.x, x.position.y, x.position.z],
-                        })
+                        });
+                        if let Some(d) = x.direction {
+                            o["direction"] = serde_json::json!([d.x, d.y, d.z]);
+                        }
+                        o
                     })
                     .collect();
                 writeln!(text, "{}", serde_json::json!({ "t": t, "targets": list }))?;

@@ -287,6 +287,30 @@ pub enum FollowError {
     TooMany,
 }
 
+/// The bone a direction target of effector `bone` points (the hand after the forearm, the foot
+/// after the shin): down the first children until two rotation DOFs are passed.
+#[must_use]
+pub fn pointer_bone(skeleton: &Skeleton, bone: usize) -> Option<usize> {
+    let mut dofs = 0;
+    let mut at = skeleton.children(bone).next();
+    while let Some(c) = at {
+        dofs += rotations(skeleton, c);
+        if dofs >= 2 {
+            return Some(c);
+        }
+        at = skeleton.children(c).next();
+    }
+    None
+}
+
+fn rotations(skeleton: &Skeleton, bone: usize) -> usize {
+    skeleton.bones()[bone]
+        .dofs()
+        .iter()
+        .filter(|d| d.is_rotation())
+        .count()
+}
+
 /// IK targets → joint angles, all state prepared before the loop.
 #[derive(Debug)]
 pub struct Follower {
@@ -346,31 +370,22 @@ impl Follower {
                     EffectorSolver::Numeric(Box::new(Solver::new(skeleton, &mask, false)))
                 }
             };
-            // The bone a direction points: down the first children until two DOFs are passed.
-            let mut pointer = None;
-            let mut dofs = 0;
-            let mut mask = [false; MAX_BONES];
-            let mut at = skeleton.children(bone).next();
-            while let Some(c) = at {
-                dofs += skeleton.bones()[c]
-                    .dofs()
-                    .iter()
-                    .filter(|d| d.is_rotation())
-                    .count();
-                mask[c] = true;
-                if dofs >= 2 {
-                    let three = skeleton.bones()[c]
-                        .dofs()
-                        .iter()
-                        .filter(|d| d.is_rotation())
-                        .count()
-                        == 3;
-                    let numeric = (!three).then(|| Box::new(Solver::new(skeleton, &mask, false)));
-                    pointer = Some((c, numeric));
-                    break;
+            // The bone a direction points, and a numerical solver over the bones down to it
+            // unless it turns on three axes of its own.
+            let pointer = pointer_bone(skeleton, bone).map(|c| {
+                let mut mask = [false; MAX_BONES];
+                let mut at = skeleton.children(bone).next();
+                while let Some(b) = at {
+                    mask[b] = true;
+                    if b == c {
+                        break;
+                    }
+                    at = skeleton.children(b).next();
                 }
-                at = skeleton.children(c).next();
-            }
+                let numeric =
+                    (rotations(skeleton, c) != 3).then(|| Box::new(Solver::new(skeleton, &mask, false)));
+                (c, numeric)
+            });
             effectors.push(Effector {
                 name: name.clone(),
                 bone,

@@ -594,6 +594,31 @@ pub fn clip_track(
     effectors: &[String],
     frame: TrackFrame,
 ) -> Result<TargetTrack, String> {
+    track_of_clip(skeleton, motion, effectors, frame, false)
+}
+
+/// [`clip_track`] with each target's pointing direction: the captured direction of the bone the
+/// effector's direction target turns ([`super::pointer_bone`]: the hand, the foot), in the
+/// same frame as the positions.
+///
+/// # Errors
+/// The name of an effector the skeleton does not have.
+pub fn clip_track_pointing(
+    skeleton: &Skeleton,
+    motion: &Motion,
+    effectors: &[String],
+    frame: TrackFrame,
+) -> Result<TargetTrack, String> {
+    track_of_clip(skeleton, motion, effectors, frame, true)
+}
+
+fn track_of_clip(
+    skeleton: &Skeleton,
+    motion: &Motion,
+    effectors: &[String],
+    frame: TrackFrame,
+    pointing: bool,
+) -> Result<TargetTrack, String> {
     let bones = effectors
         .iter()
         .map(|n| {
@@ -612,6 +637,7 @@ pub fn clip_track(
         let up = skeleton.bones()[b].parent()?;
         skeleton.bones()[up].parent()
     };
+    let pointers: Vec<Option<usize>> = bones.iter().map(|&b| super::pointer_bone(skeleton, b)).collect();
     let mut track = TargetTrack::default();
     for f in 0..motion.len() {
         let mut ch = crate::motion::frame_to_radians(skeleton, motion.frame(f));
@@ -623,17 +649,23 @@ pub fn clip_track(
         crate::fk::fk64(skeleton, &ch, &mut pose);
         let mut targets = heapless::Vec::new();
         for (k, &b) in bones.iter().enumerate() {
-            let position = match (frame, limb_parent(b)) {
+            // Limb frame: the limb's motion relative to its parent, put on the rest pose.
+            let (position, turn) = match (frame, limb_parent(b)) {
                 (TrackFrame::Limb, Some(p)) => {
-                    let local = pose.frame[p].transpose() * (pose.tip[b] - pose.tip[p]);
-                    rest.tip[p] + rest.frame[p] * local
+                    let turn = rest.frame[p] * pose.frame[p].transpose();
+                    (rest.tip[p] + turn * (pose.tip[b] - pose.tip[p]), turn)
                 }
-                _ => pose.tip[b],
+                _ => (pose.tip[b], glam::DMat3::IDENTITY),
             };
+            let direction = pointers[k]
+                .filter(|_| pointing)
+                .map(|h| turn * (pose.tip[h] - pose.start[h]))
+                .filter(|d| d.length() > 1e-9)
+                .map(glam::DVec3::normalize);
             let _ = targets.push(Target {
                 effector: k,
                 position,
-                direction: None,
+                direction,
             });
         }
         track.samples.push((f as f64 / motion.frame_rate, targets));
