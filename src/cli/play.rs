@@ -760,6 +760,10 @@ fn status_line<T>(
         // send wake it (a futex call in the loop thread, and a wake-up competing for a core).
         std::thread::sleep(Duration::from_millis(20));
         while let Ok(t) = rx.try_recv() {
+            // The ramp to rest after the run is not the loop's work.
+            if t.stopping {
+                continue;
+            }
             ticks += 1;
             misses += u64::from(t.missed);
             window.push(t);
