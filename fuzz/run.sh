@@ -27,14 +27,17 @@ for f in data/cmu/*.bvh; do
          body { if (++n > 4) exit } { print }' "$f" >"$seeds/bvh/$(basename "$f")"
 done
 cp firmware-profile/*.toml "$seeds/profile/"
-bin=target/debug/marionette
-[ -x "$bin" ] || cargo build -q --bin marionette
+# The seed tools are built with FUZZ_SEED_BUILD's cargo options when set (CI passes its test
+# build's, so that the two builds share their artifacts).
+read -r -a build <<<"${FUZZ_SEED_BUILD:-}"
+cargo build -q "${build[@]}" --bin marionette --example wire_seeds
+debug=${CARGO_TARGET_DIR:-target}/debug
 for format in csv jsonl; do
-    "$bin" targets data/cmu/16.asf data/cmu/16_15.amc --format "$format" --output "$seeds/targets/all.$format" >/dev/null
+    "$debug/marionette" targets data/cmu/16.asf data/cmu/16_15.amc --format "$format" --output "$seeds/targets/all.$format" >/dev/null
     head -n 40 "$seeds/targets/all.$format" >"$seeds/targets/16_15.$format"
     rm "$seeds/targets/all.$format"
 done
-cargo run -q --example wire_seeds -- "$seeds"
+"$debug/examples/wire_seeds" "$seeds"
 
 cd fuzz
 cargo +nightly fuzz build -O
