@@ -44,24 +44,31 @@ enum Precision {
     Double,
 }
 
+/// The image's build directory, shared by every variant and by CI's lint of the image: the
+/// variants differ in features, flags and target only, so they share the host-built loaders
+/// (`marionette` in release, the build step's dependency) instead of building them three times.
+fn image_target_dir() -> PathBuf {
+    root().join("target/firmware-image")
+}
+
+/// Copies a just-built image to a path of its own (the next variant's build writes over cargo's).
+fn keep(built: &Path, variant: &str) -> PathBuf {
+    let dir = image_target_dir().join("variants");
+    std::fs::create_dir_all(&dir).unwrap();
+    let kept = dir.join(variant);
+    std::fs::copy(built, &kept).expect("the built image is there");
+    kept
+}
+
 /// Builds the image (cargo, for the Cortex-M target) and returns its path: for the Cortex-M4
 /// (single-precision FPU), or with `cpu` for another core (`cortex-m7`: a double-precision
 /// FPU, as on STM32F76x/H7 or i.MX RT).
 fn image(cpu: Option<&str>, precision: Precision) -> PathBuf {
-    let target_dir = root().join(format!(
-        "target/firmware-image{}{}",
-        cpu.map_or(String::new(), |c| format!("-{c}")),
-        if precision == Precision::Double {
-            "-f64"
-        } else {
-            ""
-        }
-    ));
     // From its directory, so that its `.cargo/config.toml` (target, linker script) applies.
     let mut cargo = Command::new(env!("CARGO"));
     cargo
         .args(["build", "--release", "--target-dir"])
-        .arg(&target_dir)
+        .arg(image_target_dir())
         .current_dir(root().join("firmware-profile/image"));
     if precision == Precision::Double {
         cargo.arg("--no-default-features");
@@ -77,7 +84,19 @@ fn image(cpu: Option<&str>, precision: Precision) -> PathBuf {
         cargo.status().expect("cargo runs").success(),
         "the firmware image builds"
     );
-    target_dir.join("thumbv7em-none-eabihf/release/marionette-firmware-image")
+    let variant = format!(
+        "{}-{}",
+        cpu.unwrap_or("cortex-m4"),
+        if precision == Precision::Double {
+            "f64"
+        } else {
+            "f32"
+        }
+    );
+    keep(
+        &image_target_dir().join("thumbv7em-none-eabihf/release/marionette-firmware-image"),
+        &variant,
+    )
 }
 
 /// The same image code built for the host (f32): the bit-for-bit reference of the f32 image.
@@ -87,18 +106,21 @@ fn host_image() -> PathBuf {
         .lines()
         .find_map(|l| l.strip_prefix("host: ").map(str::to_string))
         .expect("rustc -vV names the host");
-    let target_dir = root().join("target/firmware-image-host");
     let status = Command::new(env!("CARGO"))
         .args(["build", "--release", "--target", &host, "--target-dir"])
-        .arg(&target_dir)
+        .arg(image_target_dir())
         .current_dir(root().join("firmware-profile/image"))
         .status()
         .expect("cargo runs");
     assert!(status.success(), "the image builds for the host");
-    target_dir.join(&host).join("release/marionette-firmware-image")
+    keep(
+        &image_target_dir()
+            .join(&host)
+            .join("release/marionette-firmware-image"),
+        "host-f32",
+    )
 }
 
-/// The image's footprint from its ELF section headers: (flash, static RAM, per section).
 fn footprint(elf: &[u8]) -> (u64, u64, Vec<(String, u64)>) {
     let u16_at = |at: usize| u64::from(u16::from_le_bytes([elf[at], elf[at + 1]]));
     let u32_at = |at: usize| u64::from(u32::from_le_bytes(elf[at..at + 4].try_into().unwrap()));
@@ -434,7 +456,7 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
     std::fs::write(&bad, good.replacen("baud = 4_000_000", "baud = \"fast\"", 1)).unwrap();
     let out = Command::new(env!("CARGO"))
         .args(["build", "--release", "--target-dir"])
-        .arg(root().join("target/firmware-image"))
+        .arg(image_target_dir())
         .env("MARIONETTE_PROFILE", &bad)
         .current_dir(root().join("firmware-profile/image"))
         .output()
@@ -534,12 +556,7 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
     // Torque Enable 0 to every servo, and the image exits with failure.
     let mut input = r.frames_input.clone();
     input[16] = 2;
-    let (ok, bytes) = execute(
-        &image(None, Precision::Single),
-        Some("mps2-an386"),
-        &input,
-        "panic",
-    );
+    let (ok, bytes) = execute(&m4_image, Some("mps2-an386"), &input, "panic");
     assert!(!ok, "a panic ends the run with failure");
     let first = 28 + u32::from_le_bytes(bytes[24..28].try_into().unwrap()) as usize;
     assert_eq!(
