@@ -80,7 +80,9 @@ enum Command {
         args: identify::IdentifyArgs,
     },
     /// Serve the studio on 127.0.0.1: drag IK targets in a browser, compare the solvers, and
-    /// drive the rig live (the virtual chain by default, --bus sim or a port).
+    /// drive the rig live (the virtual chain by default, --bus sim or a port). Only its own page
+    /// drives it: other host names, other origins, non-JSON posts and oversized input are
+    /// refused.
     #[cfg(feature = "studio")]
     Studio {
         /// The rig profile.
@@ -92,10 +94,22 @@ enum Command {
         /// Port to serve on (0: any free one; the URL is printed).
         #[arg(long, default_value_t = 8080)]
         port: u16,
-        /// Listen on this address instead of loopback (the page and the API have no
-        /// authentication: anyone who reaches the port moves the rig).
+        /// Listen on this address instead of loopback; other machines then need the token
+        /// (printed in the URL once).
         #[arg(long)]
         listen: Option<std::net::IpAddr>,
+        /// Another host name the page may be reached by (NAME or NAME:PORT; a proxy's, an SSH
+        /// tunnel's); repeatable.
+        #[arg(long, value_name = "NAME")]
+        allow_host: Vec<String>,
+        /// Another origin whose pages may drive the rig (scheme://host[:port]); repeatable.
+        #[arg(long, value_name = "ORIGIN")]
+        allow_origin: Vec<String>,
+        /// The token requests must carry (default: a random one per run when --listen is not
+        /// loopback, none on loopback); better given in the environment than on the command
+        /// line.
+        #[arg(long, env = "MARIONETTE_STUDIO_TOKEN", hide_env_values = true)]
+        token: Option<String>,
         #[command(flatten)]
         loop_args: play::LoopArgs,
     },
@@ -542,6 +556,9 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
             amc,
             port,
             listen,
+            allow_host,
+            allow_origin,
+            token,
             loop_args,
         } => studio::studio_cmd(
             &studio::StudioArgs {
@@ -550,6 +567,11 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
                 amc: amc.as_deref(),
                 port,
                 listen,
+                access: crate::studio::access::AccessOptions {
+                    allow_hosts: allow_host,
+                    allow_origins: allow_origin,
+                    token,
+                },
             },
             &loop_args,
             allocations,

@@ -12,7 +12,9 @@ use crate::control::input::input_channel;
 use crate::control::Solve;
 use crate::formats::{amc, asf};
 use crate::profile::{Drive, Profile};
+use crate::studio::access::{host_name, url_host, Access, AccessOptions};
 use crate::studio::scene::Scene;
+use crate::studio::server::Server;
 use crate::studio::{server, Feed, LiveFeed, ServoInfo, Studio};
 
 /// Options of `marionette studio`.
@@ -28,6 +30,8 @@ pub struct StudioArgs<'a> {
     pub port: u16,
     /// Address to listen on (default loopback).
     pub listen: Option<IpAddr>,
+    /// Host names, origins and the token.
+    pub access: AccessOptions,
 }
 
 /// Runs `marionette studio` until a stop request (or the loop's own end).
@@ -47,6 +51,7 @@ pub fn studio_cmd(
     let listener =
         TcpListener::bind(addr).map_err(|e| CliError::Usage(format!("cannot listen on {addr}: {e}")))?;
     let local = listener.local_addr().map_err(CliError::Output)?;
+    let access = Arc::new(Access::new(local.ip(), local.port(), &a.access).map_err(CliError::Usage)?);
     let servos = profile
         .servos
         .iter()
@@ -101,14 +106,32 @@ pub fn studio_cmd(
     } else {
         None
     };
-    let s = Arc::clone(&studio);
+    let web = Arc::new(Server::new(Arc::clone(&studio), Arc::clone(&access)));
+    let s = Arc::clone(&web);
     let http = std::thread::Builder::new()
         .name("studio-server".into())
         .spawn(move || server::serve(s, listener))
         .map_err(CliError::Output)?;
+    // The URL to open: with the token when there is one (printed this once), under the
+    // machine's name when the studio listens on every address.
+    let host = if local.ip().is_unspecified() {
+        host_name().unwrap_or_else(|| "127.0.0.1".into())
+    } else {
+        url_host(local.ip())
+    };
+    let url = match access.token() {
+        Some(token) => format!("http://{host}:{}/?token={token}", local.port()),
+        None => format!("http://{host}:{}/", local.port()),
+    };
+    if !access.loopback() {
+        writeln!(
+            out,
+            "studio: listening on {local}, reachable from other machines: every request needs the token in the URL below"
+        )?;
+    }
     writeln!(
         out,
-        "studio: http://{local}/ — {} effectors, {}; Ctrl-C stops (ramp to rest, torque off)",
+        "studio: {url} — {} effectors, {}; Ctrl-C stops (ramp to rest, torque off)",
         studio.scene().effectors.len(),
         if clip.is_some() {
             "timeline on the clip"
@@ -138,6 +161,9 @@ pub fn studio_cmd(
     let outcome = outcome?;
     if let Ok(Err(e)) = served {
         writeln!(out, "studio server: {e}")?;
+    }
+    if web.access.refused.total() > 0 {
+        writeln!(out, "studio refused: {}", web.access.refused.json())?;
     }
     let (l, r) = studio.latency();
     writeln!(

@@ -5,6 +5,9 @@
 //! back as the servos' commanded and present angles. [`server`] serves the page, its WebSocket
 //! and the JSON API.
 
+#[cfg(feature = "studio")]
+pub mod access;
+pub mod request;
 pub mod scene;
 #[cfg(feature = "studio")]
 pub mod server;
@@ -23,7 +26,8 @@ use crate::control::live::LiveView;
 use crate::control::lockstep::LockstepSource;
 use crate::control::sources::ProducerReport;
 use crate::schedule::Clock;
-use scene::{Method, Scene, SceneError};
+use request::{PageEvent, PageMessage, SolverRequest};
+use scene::{Scene, SceneError};
 
 /// Drag latencies kept for the percentiles.
 const LATENCY_WINDOW: usize = 20_000;
@@ -376,18 +380,74 @@ impl Studio {
         Ok(())
     }
 
-    /// `POST /api/solver`: the method, and optionally one to compare.
+    /// `POST /api/solver`, the page's `solver`: the method, and optionally one to compare.
+    pub fn set_solver(&self, request: SolverRequest) {
+        let mut scene = self.scene();
+        scene.set_methods(request.method, request.compare);
+        self.commit(&mut scene, None);
+    }
+
+    /// Carries out a page's message; `selected` is that page's selected effector.
     ///
     /// # Errors
-    /// [`SceneError::UnknownMethod`].
-    pub fn set_solver(&self, method: &str, compare: Option<&str>) -> Result<(), SceneError> {
-        let m = Method::parse(method).ok_or_else(|| SceneError::UnknownMethod(method.to_string()))?;
-        let c = compare
-            .map(|c| Method::parse(c).ok_or_else(|| SceneError::UnknownMethod(c.to_string())))
-            .transpose()?;
+    /// Why it cannot be done, in one line (an unknown bone, the timeline without a clip …).
+    pub fn apply(&self, event: PageEvent, selected: &mut Option<String>) -> Result<(), String> {
         let mut scene = self.scene();
-        scene.set_methods(m, c);
-        self.commit(&mut scene, None);
+        let effector = |scene: &mut Scene, name: &str| scene.effector(name).map_err(|e| e.to_string());
+        match event.message {
+            PageMessage::Drag {
+                effector: name,
+                position,
+            } => {
+                let k = effector(&mut scene, &name)?;
+                scene.set_target(k, Some(position)).map_err(|e| e.to_string())?;
+                *selected = Some(name);
+            }
+            PageMessage::Release { effector: name } => {
+                let k = effector(&mut scene, &name)?;
+                scene.set_target(k, None).map_err(|e| e.to_string())?;
+            }
+            PageMessage::Pin { effector: name } => {
+                let k = effector(&mut scene, &name)?;
+                scene.pin(k);
+            }
+            PageMessage::Select { effector: name } => {
+                if let Some(name) = &name {
+                    effector(&mut scene, name)?;
+                }
+                *selected = name;
+            }
+            PageMessage::Solver(request) => scene.set_methods(request.method, request.compare),
+            PageMessage::Swivel { deg } => scene.swivel = deg.map(f64::to_radians),
+            PageMessage::Timeline {
+                playing,
+                looping,
+                speed,
+                time,
+            } => {
+                if !scene.has_clip() {
+                    return Err("no clip: start the studio with an AMC to use the timeline".into());
+                }
+                if let Some(p) = playing {
+                    scene.timeline.playing = p;
+                }
+                if let Some(l) = looping {
+                    scene.timeline.looping = l;
+                }
+                if let Some(s) = speed {
+                    scene.timeline.speed = s;
+                }
+                if let Some(t) = time {
+                    scene.seek(t).map_err(|e| e.to_string())?;
+                }
+            }
+            PageMessage::Reset => {
+                for k in 0..scene.effectors.len() {
+                    let _ = scene.set_target(k, None);
+                }
+            }
+        }
+        self.commit(&mut scene, event.event_ms);
         Ok(())
     }
 }

@@ -1,22 +1,26 @@
 //! The studio's HTTP server: the page, its WebSocket (`/ws`) and the JSON API (`/api/…`).
 //!
-//! Every request that cannot be done answers 400 with a one-line reason; nothing a client
-//! sends stops the loop.
+//! Every request passes [`access::guard`] first (Host, token, Origin, media type, size). A
+//! request that cannot be done answers 400 with a one-line reason; nothing a client sends stops
+//! the loop. The server holds at most [`MAX_CONNECTIONS`] connections and [`MAX_PAGES`]
+//! WebSockets, closes a connection whose request head is not in within [`READ_TIMEOUT`], and
+//! drops a page that does not take its state within [`SEND_TIMEOUT`].
 
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use axum::body::Bytes;
-use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::body::{Body, Bytes};
+use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
 use axum::extract::State;
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use glam::DVec3;
 use serde_json::{json, Value};
 
+use super::access::{self, Access, Refusal};
+use super::request::{PageEvent, SolverRequest, TargetRequest, MAX_MESSAGE_BYTES};
 use super::scene::{Method, Scene};
 use super::Studio;
 
@@ -26,17 +30,50 @@ const STYLE: &str = include_str!("page/studio.css");
 
 /// How often a connected page gets the state without asking.
 const PUSH: Duration = Duration::from_millis(33);
+/// Pages connected at once over the WebSocket; one more is answered 503.
+pub const MAX_PAGES: usize = 16;
+/// HTTP connections open at once (WebSockets not counted); one more is closed at once.
+pub const MAX_CONNECTIONS: usize = 64;
+/// A request's head, and its body, must arrive within this.
+pub const READ_TIMEOUT: Duration = Duration::from_secs(10);
+/// A page that takes no state for this long is dropped.
+pub const SEND_TIMEOUT: Duration = Duration::from_secs(5);
+/// WebSocket close code: the message was too big (RFC 6455, 7.4.1).
+const CLOSE_TOO_BIG: u16 = 1009;
 
-type Reply = Result<Json<Value>, (StatusCode, String)>;
-
-fn bad(reason: impl std::fmt::Display) -> (StatusCode, String) {
-    // One line, whatever the reason's text held.
-    let line = reason.to_string().replace(['\n', '\r'], " ");
-    (StatusCode::BAD_REQUEST, line + "\n")
+/// The server's shared state: the studio and the checks.
+#[derive(Debug)]
+pub struct Server {
+    /// The studio.
+    pub studio: Arc<Studio>,
+    /// Who may talk to it.
+    pub access: Arc<Access>,
+    pages: AtomicUsize,
 }
 
-/// The routes.
-pub fn router(studio: Arc<Studio>) -> Router {
+impl Server {
+    /// A server of `studio` under `access`.
+    #[must_use]
+    pub fn new(studio: Arc<Studio>, access: Arc<Access>) -> Server {
+        Server {
+            studio,
+            access,
+            pages: AtomicUsize::new(0),
+        }
+    }
+}
+
+type Reply = Result<Json<Value>, Response>;
+
+fn bad(reason: impl std::fmt::Display) -> Response {
+    // One line, whatever the reason's text held.
+    let line = reason.to_string().replace(['\n', '\r'], " ");
+    (StatusCode::BAD_REQUEST, line + "\n").into_response()
+}
+
+/// The routes, behind the checks.
+pub fn router(server: Arc<Server>) -> Router {
+    let access = Arc::clone(&server.access);
     Router::new()
         .route(
             "/",
@@ -55,74 +92,94 @@ pub fn router(studio: Arc<Studio>) -> Router {
         .route("/api/target", post(target))
         .route("/api/solver", post(solver))
         .route("/api/stats", get(stats))
-        .with_state(studio)
+        .with_state(server)
+        .layer(axum::middleware::from_fn_with_state(access, access::guard))
 }
 
 /// Serves `listener` until the studio stops.
 ///
 /// # Errors
 /// The listener cannot be handed to the runtime.
-pub fn serve(studio: Arc<Studio>, listener: std::net::TcpListener) -> std::io::Result<()> {
+pub fn serve(server: Arc<Server>, listener: std::net::TcpListener) -> std::io::Result<()> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("studio-http")
         .enable_all()
         .build()?;
     listener.set_nonblocking(true)?;
-    let result = rt.block_on(async {
-        let listener = tokio::net::TcpListener::from_std(listener)?;
-        let stopping = Arc::clone(&studio);
-        axum::serve(listener, router(studio))
-            .with_graceful_shutdown(async move {
-                while !stopping.stop.load(Ordering::Relaxed) {
-                    tokio::time::sleep(Duration::from_millis(50)).await;
-                }
-            })
-            .await
-    });
+    let result = rt.block_on(accept(server, listener));
     rt.shutdown_timeout(Duration::from_secs(1));
     result
 }
 
-fn parse(body: &[u8]) -> Result<Value, (StatusCode, String)> {
-    let v: Value = serde_json::from_slice(body).map_err(|e| bad(format!("bad JSON: {e}")))?;
-    if !v.is_object() {
-        return Err(bad("expected a JSON object"));
+/// Accepts connections until the studio stops: each one served as HTTP/1.1 (with upgrades) on
+/// a task of its own, while fewer than [`MAX_CONNECTIONS`] are open.
+async fn accept(server: Arc<Server>, listener: std::net::TcpListener) -> std::io::Result<()> {
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    use hyper_util::service::TowerToHyperService;
+
+    let listener = tokio::net::TcpListener::from_std(listener)?;
+    let app = router(Arc::clone(&server));
+    let open = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    let mut stopping = tokio::time::interval(Duration::from_millis(50));
+    loop {
+        let stream = tokio::select! {
+            accepted = listener.accept() => match accepted {
+                Ok((stream, _)) => stream,
+                // Out of descriptors and the like: the next accept may do.
+                Err(_) => {
+                    tokio::time::sleep(Duration::from_millis(10)).await;
+                    continue;
+                }
+            },
+            _ = stopping.tick() => {
+                if server.studio.stop.load(Ordering::Relaxed) {
+                    return Ok(());
+                }
+                continue;
+            }
+        };
+        let Ok(permit) = Arc::clone(&open).try_acquire_owned() else {
+            server.access.refused.count(Refusal::Busy);
+            drop(stream);
+            continue;
+        };
+        let _ = stream.set_nodelay(true);
+        let service = TowerToHyperService::new(app.clone());
+        tokio::spawn(async move {
+            let _ = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(READ_TIMEOUT)
+                .max_buf_size(2 * MAX_MESSAGE_BYTES)
+                .serve_connection(TokioIo::new(stream), service)
+                .with_upgrades()
+                .await;
+            drop(permit);
+        });
     }
-    Ok(v)
 }
 
-fn vec3(v: &Value, what: &str) -> Result<DVec3, String> {
-    let a = v
-        .as_array()
-        .filter(|a| a.len() == 3)
-        .ok_or_else(|| format!("{what} must be [x, y, z]"))?;
-    let mut p = [0.0; 3];
-    for (x, v) in p.iter_mut().zip(a) {
-        *x = v
-            .as_f64()
-            .ok_or_else(|| format!("{what} must be three numbers"))?;
-    }
-    let p = DVec3::from_array(p);
-    if !p.is_finite() {
-        return Err(format!("{what} must be finite numbers"));
-    }
-    Ok(p)
-}
-
-fn string<'a>(v: &'a Value, key: &str) -> Result<&'a str, String> {
-    match v.get(key) {
-        Some(Value::String(s)) => Ok(s),
-        Some(_) => Err(format!("`{key}` must be a string")),
-        None => Err(format!("missing field `{key}`")),
+/// A request's body, read within [`READ_TIMEOUT`] and up to [`MAX_MESSAGE_BYTES`].
+async fn body_of(server: &Server, body: Body) -> Result<Bytes, Response> {
+    match tokio::time::timeout(READ_TIMEOUT, axum::body::to_bytes(body, MAX_MESSAGE_BYTES)).await {
+        Ok(Ok(bytes)) => Ok(bytes),
+        Ok(Err(_)) => {
+            server.access.refused.count(Refusal::TooLarge);
+            Err(access::too_large().into_response())
+        }
+        Err(_) => {
+            server.access.refused.count(Refusal::Busy);
+            Err((StatusCode::REQUEST_TIMEOUT, "the body did not arrive in time\n").into_response())
+        }
     }
 }
 
-async fn pose(State(studio): State<Arc<Studio>>) -> Json<Value> {
-    Json(studio.pose_json())
+async fn pose(State(server): State<Arc<Server>>) -> Json<Value> {
+    Json(server.studio.pose_json())
 }
 
-async fn stats(State(studio): State<Arc<Studio>>) -> Json<Value> {
+async fn stats(State(server): State<Arc<Server>>) -> Json<Value> {
+    let studio = &server.studio;
     let scene = studio.scene();
     let report = scene.primary.report.clone();
     drop(scene);
@@ -132,38 +189,64 @@ async fn stats(State(studio): State<Arc<Studio>>) -> Json<Value> {
         "drag_to_write_us": event,
         "receipt_to_write_us": receipt,
         "solve": report,
+        "refused": server.access.refused.json(),
+        "pages": server.pages.load(Ordering::Relaxed),
     }))
 }
 
 /// `{"effector": "lradius", "position": [x, y, z]}` (root frame; `null` releases it).
-async fn target(State(studio): State<Arc<Studio>>, body: Bytes) -> Reply {
-    let v = parse(&body)?;
-    let effector = string(&v, "effector").map_err(bad)?;
-    let position = match v.get("position") {
-        None => return Err(bad("missing field `position`")),
-        Some(Value::Null) => None,
-        Some(p) => Some(vec3(p, "position").map_err(bad)?),
-    };
-    studio.set_target(effector, position, None).map_err(bad)?;
-    Ok(Json(studio.pose_json()))
+async fn target(State(server): State<Arc<Server>>, body: Body) -> Reply {
+    let body = body_of(&server, body).await?;
+    let r = TargetRequest::decode(&body).map_err(bad)?;
+    server
+        .studio
+        .set_target(&r.effector, r.position, None)
+        .map_err(bad)?;
+    Ok(Json(server.studio.pose_json()))
 }
 
 /// `{"method": "ccd"}`, optionally `"compare": "dls"`.
-async fn solver(State(studio): State<Arc<Studio>>, body: Bytes) -> Reply {
-    let v = parse(&body)?;
-    let method = string(&v, "method").map_err(bad)?;
-    let compare = match v.get("compare") {
-        None | Some(Value::Null) => None,
-        Some(Value::String(s)) => Some(s.as_str()),
-        Some(_) => return Err(bad("`compare` must be a method name or null")),
-    };
-    studio.set_solver(method, compare).map_err(bad)?;
-    Ok(Json(studio.pose_json()))
+async fn solver(State(server): State<Arc<Server>>, body: Body) -> Reply {
+    let body = body_of(&server, body).await?;
+    server
+        .studio
+        .set_solver(SolverRequest::decode(&body).map_err(bad)?);
+    Ok(Json(server.studio.pose_json()))
 }
 
-async fn ws(State(studio): State<Arc<Studio>>, upgrade: WebSocketUpgrade) -> Response {
+/// One page's place among the [`MAX_PAGES`]; given back when dropped.
+struct Page(Arc<Server>);
+
+impl Page {
+    fn take(server: &Arc<Server>) -> Option<Page> {
+        server
+            .pages
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < MAX_PAGES).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Page(Arc::clone(server)))
+    }
+}
+
+impl Drop for Page {
+    fn drop(&mut self) {
+        self.0.pages.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+async fn ws(State(server): State<Arc<Server>>, upgrade: WebSocketUpgrade) -> Response {
+    let Some(page) = Page::take(&server) else {
+        server.access.refused.count(Refusal::Busy);
+        return access::busy(format!(
+            "{MAX_PAGES} pages are connected already, the most this studio serves"
+        ))
+        .into_response();
+    };
     upgrade
-        .on_upgrade(move |socket| session(studio, socket))
+        .max_message_size(MAX_MESSAGE_BYTES)
+        .max_frame_size(MAX_MESSAGE_BYTES)
+        .on_upgrade(move |socket| session(page, socket))
         .into_response()
 }
 
@@ -247,13 +330,18 @@ fn state(studio: &Studio, selected: Option<&str>) -> Value {
     v
 }
 
+/// Sends within [`SEND_TIMEOUT`]; false when the page is gone or does not read.
+async fn send(socket: &mut WebSocket, message: Message) -> bool {
+    matches!(
+        tokio::time::timeout(SEND_TIMEOUT, socket.send(message)).await,
+        Ok(Ok(()))
+    )
+}
+
 /// One page's WebSocket: its messages in, the state out after each and every [`PUSH`].
-async fn session(studio: Arc<Studio>, mut socket: WebSocket) {
-    if socket
-        .send(Message::Text(hello(&studio).to_string().into()))
-        .await
-        .is_err()
-    {
+async fn session(page: Page, mut socket: WebSocket) {
+    let studio = Arc::clone(&page.0.studio);
+    if !send(&mut socket, Message::Text(hello(&studio).to_string().into())).await {
         return;
     }
     let mut selected: Option<String> = None;
@@ -262,113 +350,38 @@ async fn session(studio: Arc<Studio>, mut socket: WebSocket) {
         tokio::select! {
             msg = socket.recv() => match msg {
                 Some(Ok(Message::Text(text))) => {
-                    if let Err(reason) = handle(&studio, &text, &mut selected) {
+                    let done = PageEvent::decode(&text).and_then(|e| studio.apply(e, &mut selected));
+                    if let Err(reason) = done {
                         let e = json!({"type": "error", "message": reason});
-                        if socket.send(Message::Text(e.to_string().into())).await.is_err() {
+                        if !send(&mut socket, Message::Text(e.to_string().into())).await {
                             break;
                         }
                     }
                 }
-                Some(Ok(Message::Close(_)) | Err(_)) | None => break,
+                Some(Ok(Message::Binary(b))) if b.len() > MAX_MESSAGE_BYTES => break,
+                Some(Err(e)) => {
+                    // Over the size limit (or broken): told why, then closed.
+                    if e.to_string().contains("too long") {
+                        page.0.access.refused.count(Refusal::TooLarge);
+                        let reason = format!("a message may hold at most {MAX_MESSAGE_BYTES} bytes");
+                        let frame = CloseFrame { code: CLOSE_TOO_BIG, reason: reason.into() };
+                        let _ = send(&mut socket, Message::Close(Some(frame))).await;
+                    }
+                    break;
+                }
+                Some(Ok(Message::Close(_))) | None => break,
                 Some(Ok(_)) => continue,
             },
             _ = push.tick() => {
                 if studio.stop.load(Ordering::Relaxed) {
-                    let _ = socket.send(Message::Close(None)).await;
+                    let _ = send(&mut socket, Message::Close(None)).await;
                     break;
                 }
             }
         }
         let s = state(&studio, selected.as_deref());
-        if socket.send(Message::Text(s.to_string().into())).await.is_err() {
+        if !send(&mut socket, Message::Text(s.to_string().into())).await {
             break;
         }
     }
-}
-
-/// A page's message: `drag`, `release`, `pin`, `pick`, `select`, `solver`, `swivel`,
-/// `timeline`, `reset`.
-fn handle(studio: &Studio, text: &str, selected: &mut Option<String>) -> Result<(), String> {
-    let v: Value = serde_json::from_str(text).map_err(|e| format!("bad JSON: {e}"))?;
-    let kind = string(&v, "type")?;
-    let event_ms = v.get("t").and_then(Value::as_f64);
-    let mut scene = studio.scene();
-    match kind {
-        "drag" => {
-            let name = string(&v, "effector")?;
-            let p = vec3(v.get("position").unwrap_or(&Value::Null), "position")?;
-            let k = scene.effector(name).map_err(|e| e.to_string())?;
-            scene.set_target(k, Some(p)).map_err(|e| e.to_string())?;
-            *selected = Some(name.to_string());
-        }
-        "release" => {
-            let k = scene
-                .effector(string(&v, "effector")?)
-                .map_err(|e| e.to_string())?;
-            scene.set_target(k, None).map_err(|e| e.to_string())?;
-        }
-        "pin" => {
-            let k = scene
-                .effector(string(&v, "effector")?)
-                .map_err(|e| e.to_string())?;
-            scene.pin(k);
-        }
-        "pick" | "select" => {
-            *selected = match v.get("effector").or_else(|| v.get("bone")) {
-                Some(Value::String(name)) => {
-                    scene.effector(name).map_err(|e| e.to_string())?;
-                    Some(name.clone())
-                }
-                _ => None,
-            };
-        }
-        "solver" => {
-            let m = string(&v, "method")?;
-            let m = Method::parse(m).ok_or_else(|| format!("unknown method '{m}'"))?;
-            let c = match v.get("compare") {
-                Some(Value::String(c)) => {
-                    Some(Method::parse(c).ok_or_else(|| format!("unknown method '{c}'"))?)
-                }
-                _ => None,
-            };
-            scene.set_methods(m, c);
-        }
-        "swivel" => {
-            scene.swivel = match v.get("deg") {
-                Some(Value::Number(n)) => {
-                    let d = n.as_f64().filter(|d| d.is_finite()).ok_or("deg must be finite")?;
-                    Some(d.to_radians())
-                }
-                _ => None,
-            };
-        }
-        "timeline" => {
-            if !scene.has_clip() {
-                return Err("no clip: start the studio with an AMC to use the timeline".into());
-            }
-            if let Some(p) = v.get("playing").and_then(Value::as_bool) {
-                scene.timeline.playing = p;
-            }
-            if let Some(l) = v.get("looping").and_then(Value::as_bool) {
-                scene.timeline.looping = l;
-            }
-            if let Some(s) = v.get("speed").and_then(Value::as_f64) {
-                if !(s.is_finite() && (0.0..=4.0).contains(&s)) {
-                    return Err("speed must be between 0 and 4".into());
-                }
-                scene.timeline.speed = s;
-            }
-            if let Some(t) = v.get("time").and_then(Value::as_f64) {
-                scene.seek(t).map_err(|e| e.to_string())?;
-            }
-        }
-        "reset" => {
-            for k in 0..scene.effectors.len() {
-                let _ = scene.set_target(k, None);
-            }
-        }
-        other => return Err(format!("unknown message type '{other}'")),
-    }
-    studio.commit(&mut scene, event_ms);
-    Ok(())
 }
