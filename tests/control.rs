@@ -393,7 +393,7 @@ fn watchdog_stops_servos_when_the_host_goes_quiet() {
 }
 
 #[test]
-fn nan_inputs_never_reach_the_bus() {
+fn nan_and_out_of_range_inputs_never_reach_the_bus() {
     let s = setup();
     let names = effectors();
     let track = clip_track(&s.skel, &s.motion, &names, TrackFrame::Limb).unwrap();
@@ -411,7 +411,17 @@ fn nan_inputs_never_reach_the_bus() {
             let (_, targets) = samples.get(k as usize)?;
             let mut targets = targets.clone();
             if poisoned(k) {
-                let bad = [f64::NAN, f64::INFINITY, -f64::INFINITY, 1e308 * 10.0][(k as usize / 7) % 4];
+                // Not finite, or finite and beyond the target range (a wrong unit, a corrupt
+                // message): ten times the skeleton's reach.
+                let range = marionette::control::target_range(&s.skel);
+                let bad = [
+                    f64::NAN,
+                    f64::INFINITY,
+                    -f64::INFINITY,
+                    1e308 * 10.0,
+                    1e300,
+                    -1.01 * range,
+                ][(k as usize / 7) % 6];
                 targets[(k as usize) % 4].position.y = bad;
                 if k % 2 == 0 {
                     targets[0].direction = Some(DVec3::new(0.0, bad, 0.0));

@@ -24,6 +24,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
 }
 
 use common::{run, tempdir};
+use marionette::control::sources::MAX_DATAGRAM_BYTES;
 
 fn json(path: &std::path::Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
@@ -251,20 +252,68 @@ fn follow_reads_targets_from_stdin_and_udp() {
     let child = spawn_follow(&format!("udp://127.0.0.1:{port}"), "2", &stats, Stdio::null());
     let sender = UdpSocket::bind("127.0.0.1:0").unwrap();
     let t0 = Instant::now();
-    for chunk in lines.chunks(4).cycle() {
+    // Among them, datagrams over the size limit (refused whole, counted) and a target a
+    // kilometre off (refused by the loop: out of range).
+    let oversized = format!("{}\n", lines[0]).repeat(1 + MAX_DATAGRAM_BYTES / lines[0].len());
+    let mut sent_oversized = 0;
+    let mut sent_far = false;
+    for (k, chunk) in lines.chunks(4).cycle().enumerate() {
         if t0.elapsed() > Duration::from_millis(1800) {
             break;
         }
-        let _ = sender.send_to(chunk.join("\n").as_bytes(), ("127.0.0.1", port));
+        let datagram = match k {
+            20..=24 => {
+                sent_oversized +=
+                    u64::from(sender.send_to(oversized.as_bytes(), ("127.0.0.1", port)).is_ok());
+                continue;
+            }
+            30 => {
+                sent_far = true;
+                "0,lradius,40000,0,0".to_string()
+            }
+            _ => chunk.join("\n"),
+        };
+        let _ = sender.send_to(datagram.as_bytes(), ("127.0.0.1", port));
         std::thread::sleep(Duration::from_millis(8));
     }
     let out = child.wait_with_output().unwrap();
     let text = ok(&out);
     println!("{text}");
+    assert!(!text.contains("warning: not loopback"), "{text}");
     let v = json(&stats);
     check_stats(&v, 120.0);
     assert!(v["inputs_used"].as_u64().unwrap() > 20, "{}", v["inputs_used"]);
     assert_eq!(v["end"].as_str(), Some("duration reached"));
+    assert!(oversized.len() > MAX_DATAGRAM_BYTES && sent_oversized == 5 && sent_far);
+    assert_eq!(v["oversized_datagrams"].as_u64(), Some(5), "{text}");
+    // The far target may be superseded before a tick takes it, but never used.
+    assert!(v["inputs_rejected"].as_u64().unwrap() <= 1);
+    assert!(v["ik_error_max"].as_f64().unwrap() < 1.0, "{}", v["ik_error_max"]);
+
+    // Off loopback only when asked, and then said at start-up.
+    let port = UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let out = common::bin()
+        .args([
+            "follow",
+            PROFILE,
+            ASF,
+            "--targets",
+            &format!("udp://0.0.0.0:{port}"),
+        ])
+        .args(["--targets-from-network", "--ramp", "0.05", "--duration", "0.3"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let text = ok(&out);
+    assert!(
+        text.contains("warning: not loopback: any host that reaches this port moves the servos"),
+        "{text}"
+    );
 }
 
 #[test]

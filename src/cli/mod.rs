@@ -124,6 +124,10 @@ enum Command {
         /// implies --ros2).
         #[arg(long)]
         targets: String,
+        /// Take UDP targets on an address other than loopback (then any host that reaches the
+        /// port moves the servos: a trusted network only).
+        #[arg(long)]
+        targets_from_network: bool,
         /// The effector bones (their tips follow the targets).
         #[arg(long, value_delimiter = ',', default_value = "lradius,rradius,ltibia,rtibia")]
         effectors: Vec<String>,
@@ -581,6 +585,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
             profile,
             asf,
             targets,
+            targets_from_network,
             effectors,
             looping,
             loop_args,
@@ -588,6 +593,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
             &profile,
             &asf,
             &targets,
+            targets_from_network,
             &effectors,
             looping,
             &loop_args,

@@ -26,7 +26,7 @@ use crate::control::plot::Histograms;
 use crate::control::rt::RealTime;
 use crate::control::sources::{
     clip_track, clip_track_pointing, spawn_player, spawn_stdin, spawn_track, spawn_udp, write_csv,
-    ClipPlayer, PlayerCommand, ProducerReport, TargetTrack, TrackFrame,
+    ClipPlayer, PlayerCommand, ProducerReport, TargetTrack, TrackFrame, MAX_DATAGRAM_BYTES,
 };
 use crate::control::stats::{ClipFigures, LoopStats, RunReport};
 use crate::control::{
@@ -836,6 +836,7 @@ pub(super) fn finish(
             inputs_produced: outcome.producer.sent,
             inputs_dropped_by_producer: outcome.producer.dropped,
             bad_input_lines: outcome.producer.bad_lines,
+            oversized_datagrams: outcome.producer.oversized,
             extra,
         };
         let text = serde_json::to_string_pretty(&report)?;
@@ -1057,7 +1058,8 @@ enum TargetSource {
     Ros2,
 }
 
-fn target_source(spec: &str, effectors: &[String]) -> Result<TargetSource, CliError> {
+/// The source `spec` names; a UDP address off loopback only when `any_host` says so.
+fn target_source(spec: &str, effectors: &[String], any_host: bool) -> Result<TargetSource, CliError> {
     if spec == "-" {
         return Ok(TargetSource::Stdin);
     }
@@ -1068,9 +1070,9 @@ fn target_source(spec: &str, effectors: &[String]) -> Result<TargetSource, CliEr
         let addr: SocketAddr = addr
             .parse()
             .map_err(|_| CliError::Usage(format!("--targets {spec}: expected udp://127.0.0.1:PORT")))?;
-        if !addr.ip().is_loopback() {
+        if !addr.ip().is_loopback() && !any_host {
             return Err(CliError::Usage(format!(
-                "--targets {spec}: only a loopback address is accepted (targets move servos; forward other hosts explicitly)"
+                "--targets {spec}: targets move servos, so only a loopback address is taken unless --targets-from-network says otherwise"
             )));
         }
         let socket = UdpSocket::bind(addr).map_err(CliError::at_port(&format!("--targets {spec}")))?;
@@ -1088,6 +1090,7 @@ pub fn follow_cmd(
     profile_path: &Path,
     asf_path: &Path,
     targets: &str,
+    targets_from_network: bool,
     effectors: &[String],
     looping: bool,
     args: &LoopArgs,
@@ -1099,7 +1102,7 @@ pub fn follow_cmd(
     let follower =
         Follower::new(&skeleton, effectors).map_err(|e| CliError::Usage(format!("--effectors: {e}")))?;
     check(args)?;
-    let source = target_source(targets, effectors)?;
+    let source = target_source(targets, effectors, targets_from_network)?;
     match &source {
         TargetSource::File(t) => writeln!(
             out,
@@ -1114,13 +1117,21 @@ pub fn follow_cmd(
             "reading target lines from stdin for {}",
             effectors.join(", ")
         )?,
-        TargetSource::Udp(s) => writeln!(
-            out,
-            "listening for target lines on udp://{} for {}",
-            s.local_addr()
-                .map_or_else(|_| targets.to_string(), |a| a.to_string()),
-            effectors.join(", ")
-        )?,
+        TargetSource::Udp(s) => {
+            let local = s.local_addr().ok();
+            writeln!(
+                out,
+                "listening for target lines on udp://{} for {}",
+                local.map_or_else(|| targets.to_string(), |a| a.to_string()),
+                effectors.join(", ")
+            )?;
+            if local.is_some_and(|a| !a.ip().is_loopback()) {
+                writeln!(
+                    out,
+                    "warning: not loopback: any host that reaches this port moves the servos (no authentication; datagrams over {MAX_DATAGRAM_BYTES} bytes refused)"
+                )?;
+            }
+        }
         TargetSource::Ros2 => {}
     }
     let mut args = args.clone();
@@ -1186,11 +1197,17 @@ pub fn follow_cmd(
     )?;
     writeln!(
         out,
-        "targets: {} messages produced ({} dropped for newer, {} unreadable lines), {} used by the loop",
+        "targets: {} messages produced ({} dropped for newer, {} unreadable lines{}), {} used by the loop, {} refused by it",
         outcome.producer.sent,
         outcome.producer.dropped,
         outcome.producer.bad_lines,
-        outcome.stats.inputs_used
+        if outcome.producer.oversized > 0 {
+            format!(", {} datagrams over {MAX_DATAGRAM_BYTES} bytes", outcome.producer.oversized)
+        } else {
+            String::new()
+        },
+        outcome.stats.inputs_used,
+        outcome.stats.inputs_rejected
     )?;
     finish(&outcome, args, NoFigures {}, out)
 }

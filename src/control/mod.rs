@@ -317,6 +317,27 @@ pub struct Follower {
     effectors: Vec<Effector>,
     targets: [Option<Target>; MAX_EFFECTORS],
     numeric: Settings,
+    range: f64,
+}
+
+/// How many times the skeleton's reach a target may lie from the root before it is refused.
+pub const TARGET_RANGE_REACHES: f64 = 10.0;
+
+/// The farthest from the root a target is taken, file units: [`TARGET_RANGE_REACHES`] times
+/// the longest chain of bones from the root. A target beyond it is no pose a limb could reach
+/// towards but a wrong unit or a corrupt message, refused like a NaN.
+#[must_use]
+pub fn target_range(skeleton: &Skeleton) -> f64 {
+    let bones = skeleton.bones();
+    let mut chain = vec![0.0f64; bones.len()];
+    let mut longest = 0.0f64;
+    // Parents come before their children.
+    for (k, b) in bones.iter().enumerate() {
+        let up = b.parent().map_or(0.0, |p| chain[p]);
+        chain[k] = up + f64::from(b.length());
+        longest = longest.max(chain[k]);
+    }
+    TARGET_RANGE_REACHES * longest
 }
 
 impl Follower {
@@ -404,7 +425,15 @@ impl Follower {
                 damping: 0.05,
                 ..Settings::default()
             },
+            range: target_range(skeleton),
         })
+    }
+
+    /// Whether the loop takes `t`: finite, one of the effectors, within [`target_range`] of
+    /// the root.
+    #[must_use]
+    pub fn accepts(&self, t: &Target) -> bool {
+        t.is_finite() && t.effector < self.effectors.len() && t.position.length() <= self.range
     }
 
     /// The effector names, in order.
@@ -1098,10 +1127,7 @@ impl Controller {
                 // Not solved, but its targets stand: a newer message may name other effectors
                 // (live sources send one effector a line or a topic).
                 if let (Payload::Targets(targets), Solve::Follow(f)) = (&msg.payload, &mut self.solve) {
-                    if targets
-                        .iter()
-                        .all(|t| t.is_finite() && t.effector < f.effectors.len())
-                    {
+                    if targets.iter().all(|t| f.accepts(t)) {
                         for t in targets {
                             f.targets[t.effector] = Some(*t);
                         }
@@ -1127,9 +1153,7 @@ impl Controller {
                     true
                 }
                 (Payload::Targets(targets), Solve::Follow(f)) => {
-                    let valid = targets
-                        .iter()
-                        .all(|t| t.is_finite() && t.effector < f.effectors.len());
+                    let valid = targets.iter().all(|t| f.accepts(t));
                     if valid {
                         for t in targets {
                             f.targets[t.effector] = Some(*t);

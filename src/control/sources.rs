@@ -182,6 +182,8 @@ pub struct ProducerReport {
     pub dropped: u64,
     /// Lines or datagrams that could not be read as targets.
     pub bad_lines: u64,
+    /// Datagrams over [`MAX_DATAGRAM_BYTES`], refused whole.
+    pub oversized: u64,
 }
 
 /// How far ahead of its due time a paced producer makes a message: long enough for a sleeping
@@ -525,8 +527,12 @@ fn live_lines(
     report
 }
 
-/// Receives target lines as UDP datagrams on `socket` (one or more lines per datagram). Ends
-/// when the loop stops.
+/// The largest target datagram read, bytes: eight effectors with directions as JSON take
+/// under 1 KiB. A longer one is refused whole (counted in [`ProducerReport::oversized`]).
+pub const MAX_DATAGRAM_BYTES: usize = 8192;
+
+/// Receives target lines as UDP datagrams on `socket` (one or more lines per datagram, at most
+/// [`MAX_DATAGRAM_BYTES`]). Ends when the loop stops.
 ///
 /// # Errors
 /// When the socket cannot be set up or the thread started.
@@ -541,7 +547,8 @@ pub fn spawn_udp(
         .name("targets-udp".into())
         .spawn(move || {
             let mut report = ProducerReport::default();
-            let mut buf = [0u8; 65_536];
+            // One byte more than the limit: a datagram that fills it is over the limit.
+            let mut buf = [0u8; MAX_DATAGRAM_BYTES + 1];
             while !tx.stopped() {
                 let n = match socket.recv(&mut buf) {
                     Ok(n) => n,
@@ -557,6 +564,10 @@ pub fn spawn_udp(
                     }
                     Err(_) => break,
                 };
+                if n > MAX_DATAGRAM_BYTES {
+                    report.oversized += 1;
+                    continue;
+                }
                 let Ok(text) = std::str::from_utf8(&buf[..n]) else {
                     report.bad_lines += 1;
                     continue;

@@ -515,6 +515,8 @@ pub struct RunReport<X: Serialize> {
     pub inputs_dropped_by_producer: u64,
     /// Input lines that were refused.
     pub bad_input_lines: u64,
+    /// Input datagrams refused whole for their size.
+    pub oversized_datagrams: u64,
     /// The command's own fields.
     #[serde(flatten)]
     pub extra: X,
