@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Coverage-guided fuzzing (cargo fuzz, libFuzzer) of marionette's readers and wire.
-#   fuzz/run.sh [SECONDS] [TARGET...]     default: 600 s for each of the seven targets
+# Coverage-guided fuzzing (cargo fuzz, libFuzzer) of marionette's readers, wire and the
+# studio's requests.
+#   fuzz/run.sh [SECONDS] [TARGET...]     default: 600 s for each of the eight targets
 # Seeds come from the bundled data (data/cmu, firmware-profile, a clip's targets, the real
-# traffic of each bus transaction); libFuzzer keeps what it finds in fuzz/corpus/TARGET and a
+# traffic of each bus transaction, the studio's requests and a page's messages); libFuzzer keeps what it finds in fuzz/corpus/TARGET and a
 # crashing input in fuzz/artifacts/TARGET. Prints one line per target: executions, corpus size,
 # crashes. Needs the nightly toolchain and cargo-fuzz (`cargo install cargo-fuzz`).
 set -euo pipefail
@@ -11,12 +12,12 @@ seconds=${1:-600}
 shift || true
 targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then
-    targets=(asf amc bvh profile targets wire_host wire_device)
+    targets=(asf amc bvh profile targets wire_host wire_device studio)
 fi
 
 seeds=fuzz/seeds
 rm -rf "$seeds"
-mkdir -p "$seeds"/{asf,amc,bvh,profile,targets}
+mkdir -p "$seeds"/{asf,amc,bvh,profile,targets,studio}
 cp data/cmu/*.asf "$seeds/asf/"
 # AMC and BVH: the header and the first frames of each bundled clip (short inputs fuzz faster).
 for f in data/cmu/*.amc; do
@@ -27,6 +28,21 @@ for f in data/cmu/*.bvh; do
          body { if (++n > 4) exit } { print }' "$f" >"$seeds/bvh/$(basename "$f")"
 done
 cp firmware-profile/*.toml "$seeds/profile/"
+# The studio: an API request of each kind, and a page's session (one message a line).
+echo '{"effector": "lradius", "position": [5, 15, 5]}' >"$seeds/studio/target.json"
+echo '{"effector": "rtibia", "position": null}' >"$seeds/studio/release.json"
+echo '{"method": "dls", "compare": "ccd"}' >"$seeds/studio/solver.json"
+cat >"$seeds/studio/session.jsonl" <<'PAGE'
+{"type": "select", "effector": "lradius"}
+{"type": "drag", "effector": "lradius", "position": [4.5, 16.0, 3.0], "t": 1764190000000.5}
+{"type": "drag", "effector": "ltibia", "position": [-2.0, -14.0, 1.0]}
+{"type": "solver", "method": "cg", "compare": "jt"}
+{"type": "swivel", "deg": 35}
+{"type": "pin", "effector": "rradius"}
+{"type": "timeline", "playing": true, "looping": false, "speed": 1.5, "time": 0.25}
+{"type": "release", "effector": "lradius"}
+{"type": "reset"}
+PAGE
 # The seed tools are built with FUZZ_SEED_BUILD's cargo options when set (CI passes its test
 # build's, so that the two builds share their artifacts).
 read -r -a build <<<"${FUZZ_SEED_BUILD:-}"

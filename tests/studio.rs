@@ -13,13 +13,23 @@ use std::time::Duration;
 use glam::DVec3;
 use marionette::fk::{fk64, Pose64};
 use marionette::formats::asf;
+use marionette::studio::request::MAX_MESSAGE_BYTES;
+use marionette::studio::server::{MAX_CONNECTIONS, MAX_PAGES};
 use serde_json::{json, Value};
+use tungstenite::client::IntoClientRequest;
+use tungstenite::protocol::frame::coding::CloseCode;
+use tungstenite::Message;
 
 const PROFILE: &str = "firmware-profile/cmu-puppet.toml";
 
 struct Studio {
     child: Child,
+    /// `127.0.0.1:PORT`.
     addr: String,
+    /// The token it printed in its URL, sent with every request of [`Studio::request`].
+    token: Option<String>,
+    /// What it printed up to its URL.
+    banner: Vec<String>,
     lines: mpsc::Receiver<String>,
 }
 
@@ -33,7 +43,13 @@ impl Drop for Studio {
 
 impl Studio {
     fn start(extra: &[&str]) -> Studio {
+        Studio::start_with(extra, &[])
+    }
+
+    fn start_with(extra: &[&str], env: &[(&str, &str)]) -> Studio {
         let mut child = common::bin()
+            .env_remove("MARIONETTE_STUDIO_TOKEN")
+            .envs(env.iter().copied())
             .arg("studio")
             .arg(PROFILE)
             .arg(common::data("16.asf"))
@@ -52,20 +68,26 @@ impl Studio {
                 let _ = tx.send(l);
             }
         });
-        let mut addr = None;
+        let mut url = None;
         let mut seen = Vec::new();
-        while addr.is_none() {
+        while url.is_none() {
             let l = lines
                 .recv_timeout(Duration::from_secs(60))
                 .unwrap_or_else(|_| panic!("no URL printed: {seen:?}"));
             if let Some(rest) = l.strip_prefix("studio: http://") {
-                addr = Some(rest.split('/').next().unwrap().to_string());
+                url = Some(rest.split(' ').next().unwrap().to_string());
             }
             seen.push(l);
         }
+        // http://HOST:PORT/ or, with a token, http://HOST:PORT/?token=T; reached on loopback.
+        let url = url.unwrap();
+        let (host, rest) = url.split_once('/').unwrap();
+        let port = host.rsplit_once(':').unwrap().1;
         let s = Studio {
             child,
-            addr: addr.unwrap(),
+            addr: format!("127.0.0.1:{port}"),
+            token: rest.strip_prefix("?token=").map(str::to_string),
+            banner: seen,
             lines,
         };
         // The loop is up once its goals are in the pose.
@@ -79,20 +101,46 @@ impl Studio {
     }
 
     fn request(&self, method: &str, path: &str, body: &str) -> (u16, String) {
+        let auth = self
+            .token
+            .as_ref()
+            .map_or_else(String::new, |t| format!("Authorization: Bearer {t}\r\n"));
+        let head = format!(
+            "{method} {path} HTTP/1.1\r\nHost: {}\r\n{auth}Content-Type: application/json\r\n",
+            self.addr
+        );
+        let (status, _, body) = self.raw(&head, body.as_bytes());
+        (status, body)
+    }
+
+    /// `head` (request line and headers, each ending in CRLF) with Content-Length (unless it
+    /// says Transfer-Encoding) and `Connection: close` added, then `body`: the status, the
+    /// headers (lower case), the body.
+    fn raw(&self, head: &str, body: &[u8]) -> (u16, String, String) {
         let mut s = TcpStream::connect(&self.addr).unwrap();
         s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
-        write!(
-            s,
-            "{method} {path} HTTP/1.1\r\nHost: {}\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-            self.addr,
-            body.len()
-        )
-        .unwrap();
-        let mut text = String::new();
-        s.read_to_string(&mut text).unwrap();
-        let status = text[9..12].parse().unwrap();
-        let body = text.split_once("\r\n\r\n").map_or("", |(_, b)| b).to_string();
-        (status, body)
+        let length = if head.contains("Transfer-Encoding") {
+            String::new()
+        } else {
+            format!("Content-Length: {}\r\n", body.len())
+        };
+        let head = format!("{head}{length}Connection: close\r\n\r\n");
+        s.write_all(head.as_bytes()).unwrap();
+        // The server may answer (413) and close before the whole body is in: the body goes out
+        // from another thread while this one reads the answer.
+        let mut w = s.try_clone().unwrap();
+        let body = body.to_vec();
+        let writer = std::thread::spawn(move || {
+            let _ = w.write_all(&body);
+        });
+        let mut text = Vec::new();
+        let _ = s.read_to_end(&mut text);
+        let _ = s.shutdown(std::net::Shutdown::Both);
+        let _ = writer.join();
+        let text = String::from_utf8_lossy(&text).to_string();
+        let status = text.get(9..12).and_then(|c| c.parse().ok()).unwrap_or(0);
+        let (headers, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+        (status, headers.to_ascii_lowercase(), body.to_string())
     }
 
     fn get(&self, path: &str) -> (u16, Value) {
@@ -369,4 +417,325 @@ fn the_page_drags_the_left_hand_in_a_real_browser() {
     let summary = studio.stop();
     println!("{summary}");
     assert!(summary.contains("drag → Sync Write:"), "{summary}");
+}
+
+type Ws = tungstenite::WebSocket<TcpStream>;
+
+/// A WebSocket to the studio's `/ws` with these extra headers; the refusal's status (0: the
+/// connection was closed without an answer).
+fn ws_connect(addr: &str, headers: &[(&'static str, &str)]) -> Result<Ws, u16> {
+    let mut req = format!("ws://{addr}/ws").into_client_request().unwrap();
+    for (k, v) in headers {
+        req.headers_mut().insert(*k, v.parse().unwrap());
+    }
+    let stream = TcpStream::connect(addr).map_err(|_| 0u16)?;
+    stream.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+    match tungstenite::client(req, stream) {
+        Ok((ws, _)) => Ok(ws),
+        Err(tungstenite::HandshakeError::Failure(tungstenite::Error::Http(r))) => Err(r.status().as_u16()),
+        Err(_) => Err(0),
+    }
+}
+
+/// Resident memory of a process, bytes.
+fn rss(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let kb: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    kb * 1024
+}
+
+/// Every servo's goal and present angle, degrees.
+fn positions(studio: &Studio) -> Vec<(f64, f64)> {
+    studio.get("/api/pose").1["servos"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| {
+            (
+                s["goal_deg"].as_f64().unwrap(),
+                s["present_deg"].as_f64().unwrap(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn foreign_hosts_origins_media_types_and_oversized_input_are_refused() {
+    let mut studio = Studio::start(&[]);
+    let addr = studio.addr.clone();
+    let own = format!("http://{addr}");
+    let before = positions(&studio);
+    let json_post = |host: &str, extra: &str, body: &str| {
+        let head =
+            format!("POST /api/target HTTP/1.1\r\nHost: {host}\r\nContent-Type: application/json\r\n{extra}");
+        studio.raw(&head, body.as_bytes())
+    };
+    let target = r#"{"effector": "lradius", "position": [5, 15, 5]}"#;
+
+    // DNS rebinding: a name that is not this server's, on every route.
+    for path in ["/", "/api/pose", "/studio.js", "/api/stats"] {
+        let (status, _, body) = studio.raw(
+            &format!("GET {path} HTTP/1.1\r\nHost: evil.example:{}\r\n", &addr[10..]),
+            b"",
+        );
+        assert_eq!(status, 403, "{path}: {body}");
+        assert_eq!(body.trim_end().lines().count(), 1, "{body}");
+        assert!(body.contains("is not a name of this studio"), "{body}");
+    }
+    assert_eq!(json_post("evil.example", "", target).0, 403);
+    assert_eq!(ws_connect(&addr, &[("Host", "evil.example")]).err(), Some(403));
+
+    // Foreign origins: a page of another site, another port, `null` (a sandboxed frame).
+    for origin in [
+        "http://evil.example",
+        "http://127.0.0.1:1",
+        "null",
+        "http://localhost",
+    ] {
+        let (status, headers, body) = json_post(&addr, &format!("Origin: {origin}\r\n"), target);
+        assert_eq!(status, 403, "{origin}: {body}");
+        assert!(body.contains("may not drive this studio"), "{body}");
+        assert!(!headers.contains("access-control-allow"), "{headers}");
+        assert_eq!(
+            ws_connect(&addr, &[("Origin", origin)]).err(),
+            Some(403),
+            "{origin}"
+        );
+    }
+    // A preflight is never granted.
+    let (status, headers, _) = studio.raw(
+        &format!("OPTIONS /api/target HTTP/1.1\r\nHost: {addr}\r\nOrigin: http://evil.example\r\nAccess-Control-Request-Method: POST\r\n"),
+        b"",
+    );
+    assert!(
+        status >= 400 && !headers.contains("access-control-allow"),
+        "{status} {headers}"
+    );
+
+    // Not JSON: a "simple" request's media types, and none.
+    for media in [
+        "text/plain",
+        "application/x-www-form-urlencoded",
+        "multipart/form-data; boundary=x",
+    ] {
+        let head = format!("POST /api/target HTTP/1.1\r\nHost: {addr}\r\nContent-Type: {media}\r\n");
+        let (status, _, body) = studio.raw(&head, target.as_bytes());
+        assert_eq!(status, 415, "{media}: {body}");
+        assert!(body.contains("expected Content-Type: application/json"), "{body}");
+    }
+    let (status, _, _) = studio.raw(
+        &format!("POST /api/solver HTTP/1.1\r\nHost: {addr}\r\n"),
+        br#"{"method": "ccd"}"#,
+    );
+    assert_eq!(status, 415);
+
+    // 10 MB bodies, declared and chunked: 413, and the server's memory stays where it was.
+    let pid = studio.child.id();
+    let rss_before = rss(pid);
+    let big = vec![b' '; 10_000_000];
+    for _ in 0..5 {
+        let (status, _, body) = json_post(&addr, "", std::str::from_utf8(&big).unwrap());
+        assert_eq!(status, 413, "{body}");
+        let mut chunked = Vec::new();
+        for chunk in big.chunks(65_536) {
+            chunked.extend_from_slice(format!("{:x}\r\n", chunk.len()).as_bytes());
+            chunked.extend_from_slice(chunk);
+            chunked.extend_from_slice(b"\r\n");
+        }
+        chunked.extend_from_slice(b"0\r\n\r\n");
+        let head = format!(
+            "POST /api/target HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n"
+        );
+        let (status, _, body) = studio.raw(&head, &chunked);
+        assert_eq!(status, 413, "{body}");
+    }
+    let rss_after = rss(pid);
+    let grown = rss_after.saturating_sub(rss_before);
+    println!("resident memory {rss_before} → {rss_after} bytes after ten 10 MB bodies");
+    assert!(
+        grown < 4_000_000,
+        "the server kept the bodies: {grown} bytes more"
+    );
+
+    // A WebSocket message over the limit: closed with 1009 and the reason.
+    let mut ws = ws_connect(&addr, &[("Origin", &own)]).expect("the own page's WebSocket");
+    let hello = ws.read().unwrap();
+    assert!(hello.to_text().unwrap().contains("\"hello\""));
+    let _ = ws.send(Message::text("x".repeat(MAX_MESSAGE_BYTES + 1)));
+    let close = loop {
+        match ws.read() {
+            Ok(Message::Close(frame)) => break frame,
+            Ok(_) => continue,
+            Err(e) => panic!("no close frame: {e}"),
+        }
+    };
+    let close = close.expect("a close frame with a reason");
+    assert_eq!(close.code, CloseCode::Size);
+    assert!(close.reason.contains("at most 65536 bytes"), "{}", close.reason);
+
+    // Nothing of it moved a servo; the loop goes on; own requests work as before.
+    let after = positions(&studio);
+    for (k, (b, a)) in before.iter().zip(&after).enumerate() {
+        assert!(
+            (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 0.01,
+            "servo {k}: {b:?} → {a:?}"
+        );
+    }
+    let (_, stats) = studio.get("/api/stats");
+    println!("refused: {}", stats["refused"]);
+    assert!(stats["refused"]["host"].as_u64().unwrap() >= 6);
+    assert!(stats["refused"]["origin"].as_u64().unwrap() >= 9);
+    assert!(stats["refused"]["media_type"].as_u64().unwrap() >= 4);
+    assert!(stats["refused"]["too_large"].as_u64().unwrap() >= 11);
+    let (status, _) = studio.post(
+        "/api/target",
+        &json!({"effector": "lradius", "position": [5, 15, 5]}),
+    );
+    assert_eq!(status, 200);
+    let out = studio.stop();
+    assert!(out.contains("studio refused: {"), "{out}");
+}
+
+#[test]
+fn two_hundred_websockets_at_once_leave_the_page_limit_and_the_loop_as_they_were() {
+    let mut studio = Studio::start(&[]);
+    let addr = studio.addr.clone();
+    let own = format!("http://{addr}");
+    // A second of the loop alone, then a second with the flood on (figures printed).
+    std::thread::sleep(Duration::from_millis(2100));
+    let quiet = studio.get("/api/stats").1["loop"].clone();
+    let opened: Vec<Result<Ws, u16>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..200)
+            .map(|_| scope.spawn(|| ws_connect(&addr, &[("Origin", own.as_str())])))
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let accepted = opened.iter().filter(|r| r.is_ok()).count();
+    let busy = opened.iter().filter(|r| r.as_ref().err() == Some(&503)).count();
+    let closed = opened.iter().filter(|r| r.as_ref().err() == Some(&0)).count();
+    std::thread::sleep(Duration::from_millis(1100));
+    let (_, flooded) = studio.get("/api/stats");
+    println!(
+        "200 WebSockets: {accepted} accepted, {busy} answered 503, {closed} closed unanswered (at most {MAX_CONNECTIONS} connections); loop before {quiet}, during {}",
+        flooded["loop"]
+    );
+    assert_eq!(accepted, MAX_PAGES);
+    assert_eq!(accepted + busy + closed, 200);
+    assert_eq!(flooded["pages"].as_u64(), Some(MAX_PAGES as u64));
+    assert!(flooded["loop"]["ticks"].as_u64() > quiet["ticks"].as_u64());
+    drop(opened);
+    // The places come back when the pages go.
+    let mut pages = u64::MAX;
+    for _ in 0..200 {
+        pages = studio.get("/api/stats").1["pages"].as_u64().unwrap();
+        if pages == 0 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(pages, 0);
+    assert!(ws_connect(&addr, &[("Origin", own.as_str())]).is_ok());
+    println!("{}", studio.stop());
+}
+
+#[test]
+fn off_loopback_every_request_needs_the_token() {
+    let mut studio = Studio::start(&["--listen", "0.0.0.0"]);
+    let token = studio.token.clone().expect("a token in the printed URL");
+    assert_eq!(token.len(), 64);
+    let addr = studio.addr.clone();
+    let get =
+        |extra: &str, path: &str| studio.raw(&format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\n{extra}"), b"");
+    for (extra, path) in [
+        ("", "/api/pose"),
+        ("", "/"),
+        ("Authorization: Bearer wrong\r\n", "/api/pose"),
+        (
+            &format!("Authorization: Bearer {}\r\n", &token[..63]) as &str,
+            "/api/pose",
+        ),
+        (&format!("Cookie: marionette_studio_1={token}\r\n"), "/api/pose"),
+    ] {
+        let (status, headers, body) = get(extra, path);
+        assert_eq!(status, 401, "{extra} {path}: {body}");
+        assert!(headers.contains("www-authenticate: bearer"), "{headers}");
+        assert!(body.contains("needs its token"), "{body}");
+    }
+    let (status, _, body) = studio.raw(
+        &format!("POST /api/target HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\n"),
+        br#"{"effector": "lradius", "position": [5, 15, 5]}"#,
+    );
+    assert_eq!(status, 401, "{body}");
+    assert_eq!(ws_connect(&addr, &[]).err(), Some(401));
+    // The right token: in the header, the URL (which sets the cookie), the cookie.
+    assert_eq!(studio.get("/api/pose").0, 200);
+    let (status, headers, _) = get("", &format!("/?token={token}"));
+    assert_eq!(status, 303);
+    let cookie = headers
+        .lines()
+        .find_map(|l| l.strip_prefix("set-cookie: "))
+        .expect("a cookie")
+        .to_string();
+    assert!(
+        cookie.contains("; httponly") && cookie.contains("; samesite=strict"),
+        "{cookie}"
+    );
+    let pair = cookie.split(';').next().unwrap().to_string();
+    assert!(pair.ends_with(&token), "{pair}");
+    let with_cookie = format!("Cookie: {pair}\r\n");
+    assert_eq!(get(&with_cookie, "/").0, 200);
+    assert_eq!(get(&with_cookie, "/api/pose").0, 200);
+    let own = format!("http://{addr}");
+    assert!(ws_connect(&addr, &[("Origin", own.as_str()), ("Cookie", &pair)]).is_ok());
+    let (status, _) = studio.post(
+        "/api/target",
+        &json!({"effector": "lradius", "position": [5, 15, 5]}),
+    );
+    assert_eq!(status, 200);
+    assert!(
+        studio.banner[0].contains("reachable from other machines: every request needs the token"),
+        "{:?}",
+        studio.banner
+    );
+    studio.stop();
+
+    // A fixed token from the environment.
+    let mut studio = Studio::start_with(
+        &["--listen", "0.0.0.0"],
+        &[("MARIONETTE_STUDIO_TOKEN", "a-fixed-token-42")],
+    );
+    assert_eq!(studio.token.as_deref(), Some("a-fixed-token-42"));
+    assert_eq!(studio.get("/api/pose").0, 200);
+    studio.stop();
+}
+
+#[test]
+fn a_foreign_page_in_a_real_browser_moves_nothing_and_the_own_page_still_drags() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/studio-hostile");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut studio = Studio::start(&[]);
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/browser/hostile_page.py");
+    let out = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(format!("http://{}/", studio.addr))
+        .arg(&dir)
+        .output()
+        .expect("python3 (with selenium, chromium and chromium-driver: see .ci/run)");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("{stdout}{stderr}");
+    assert!(
+        out.status.success(),
+        "the browser test failed:\n{stdout}\n{stderr}"
+    );
+    let seen: Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    assert!(!seen["own_page_moved"].as_array().unwrap().is_empty());
+    let summary = studio.stop();
+    println!("{summary}");
+    assert!(summary.contains("studio refused: {"), "{summary}");
 }

@@ -243,16 +243,19 @@ def main():
             last[e] = (x * m, y * m, z * m)
             sent["targets"] += 1
         del period
-        # What the loop must refuse: not a number, and a frame it does not know. Apart, so
-        # each reaches the reader (keep-last 1); then the last good target again.
+        # What must be refused: not a number and a frame it does not know (by the reader), a
+        # target a kilometre away (by the loop: out of range). Apart, so each reaches the
+        # reader (keep-last 1); then the last good target again.
         e0 = effectors[0]
         time.sleep(0.05)
         send(e0, math.nan, 0.0, 0.0)
         time.sleep(0.05)
         send(e0, *last[e0], frame="map")
         time.sleep(0.05)
+        send(e0, 1000.0, 0.0, 0.0)
+        time.sleep(0.05)
         send(e0, *last[e0])
-        sent["bad"] = 2
+        sent["bad"] = 3
 
     # Until the publisher has been quiet for a second (the run ended), or the timeout.
     while time.monotonic() - start < a.timeout:
