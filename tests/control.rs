@@ -414,6 +414,8 @@ fn nan_and_out_of_range_inputs_never_reach_the_bus() {
                 // Not finite, or finite and beyond the target range (a wrong unit, a corrupt
                 // message): ten times the skeleton's reach.
                 let range = marionette::control::target_range(&s.skel);
+                // Ten times the spine, the right clavicle and arm down to the fingers.
+                assert!((range - 220.296).abs() < 0.01, "{range}");
                 let bad = [
                     f64::NAN,
                     f64::INFINITY,

@@ -739,3 +739,26 @@ fn a_foreign_page_in_a_real_browser_moves_nothing_and_the_own_page_still_drags()
     println!("{summary}");
     assert!(summary.contains("studio refused: {"), "{summary}");
 }
+
+#[test]
+fn off_loopback_the_page_keeps_its_token_in_a_cookie_and_drags_in_a_real_browser() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/studio-token");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut studio = Studio::start(&["--listen", "0.0.0.0"]);
+    let token = studio.token.clone().unwrap();
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/browser/token_page.py");
+    let out = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(format!("http://{}/?token={token}", studio.addr))
+        .arg(&dir)
+        .output()
+        .expect("python3 (with selenium, chromium and chromium-driver: see .ci/run)");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("{stdout}{stderr}");
+    assert!(
+        out.status.success(),
+        "the browser test failed:\n{stdout}\n{stderr}"
+    );
+    studio.stop();
+}
