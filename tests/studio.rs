@@ -390,15 +390,16 @@ fn the_api_reaches_random_targets_with_every_method_and_refuses_bad_requests() {
     );
 }
 
-#[test]
-fn the_page_drags_the_left_hand_in_a_real_browser() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/studio");
+/// Runs `tests/browser/SCRIPT URL DIR` (Selenium driving headless Chromium), where DIR is
+/// `target/DIR_NAME` for its screenshots; asserts that it passed and returns the JSON of its
+/// last line and DIR.
+fn browser(script: &str, url: &str, dir_name: &str) -> (Value, std::path::PathBuf) {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = root.join("target").join(dir_name);
     std::fs::create_dir_all(&dir).unwrap();
-    let mut studio = Studio::start(&[]);
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/browser/studio_page.py");
     let out = std::process::Command::new("python3")
-        .arg(&script)
-        .arg(format!("http://{}/", studio.addr))
+        .arg(root.join("tests/browser").join(script))
+        .arg(url)
         .arg(&dir)
         .output()
         .expect("python3 (with selenium, chromium and chromium-driver: see .ci/run)");
@@ -409,7 +410,13 @@ fn the_page_drags_the_left_hand_in_a_real_browser() {
         out.status.success(),
         "the browser test failed:\n{stdout}\n{stderr}"
     );
-    let measured: Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    (serde_json::from_str(stdout.lines().last().unwrap()).unwrap(), dir)
+}
+
+#[test]
+fn the_page_drags_the_left_hand_in_a_real_browser() {
+    let mut studio = Studio::start(&[]);
+    let (measured, dir) = browser("studio_page.py", &format!("http://{}/", studio.addr), "studio");
     assert!(measured["residual"].as_f64().unwrap() < 1e-3);
     for shot in ["loaded.png", "dragged.png", "compare.png"] {
         assert!(dir.join(shot).metadata().unwrap().len() > 10_000, "{shot}");
@@ -716,24 +723,12 @@ fn off_loopback_every_request_needs_the_token() {
 
 #[test]
 fn a_foreign_page_in_a_real_browser_moves_nothing_and_the_own_page_still_drags() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/studio-hostile");
-    std::fs::create_dir_all(&dir).unwrap();
     let mut studio = Studio::start(&[]);
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/browser/hostile_page.py");
-    let out = std::process::Command::new("python3")
-        .arg(&script)
-        .arg(format!("http://{}/", studio.addr))
-        .arg(&dir)
-        .output()
-        .expect("python3 (with selenium, chromium and chromium-driver: see .ci/run)");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    println!("{stdout}{stderr}");
-    assert!(
-        out.status.success(),
-        "the browser test failed:\n{stdout}\n{stderr}"
+    let (seen, _) = browser(
+        "hostile_page.py",
+        &format!("http://{}/", studio.addr),
+        "studio-hostile",
     );
-    let seen: Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
     assert!(!seen["own_page_moved"].as_array().unwrap().is_empty());
     let summary = studio.stop();
     println!("{summary}");
@@ -742,23 +737,10 @@ fn a_foreign_page_in_a_real_browser_moves_nothing_and_the_own_page_still_drags()
 
 #[test]
 fn off_loopback_the_page_keeps_its_token_in_a_cookie_and_drags_in_a_real_browser() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/studio-token");
-    std::fs::create_dir_all(&dir).unwrap();
     let mut studio = Studio::start(&["--listen", "0.0.0.0"]);
     let token = studio.token.clone().unwrap();
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/browser/token_page.py");
-    let out = std::process::Command::new("python3")
-        .arg(&script)
-        .arg(format!("http://{}/?token={token}", studio.addr))
-        .arg(&dir)
-        .output()
-        .expect("python3 (with selenium, chromium and chromium-driver: see .ci/run)");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    println!("{stdout}{stderr}");
-    assert!(
-        out.status.success(),
-        "the browser test failed:\n{stdout}\n{stderr}"
-    );
+    let url = format!("http://{}/?token={token}", studio.addr);
+    let (seen, _) = browser("token_page.py", &url, "studio-token");
+    assert!(!seen["moved"].as_array().unwrap().is_empty());
     studio.stop();
 }

@@ -68,6 +68,19 @@ def drag(driver, name, dx, dy, steps, pause):
     return time.time() - t0
 
 
+def drags_left_arm(driver, goals):
+    """Once the page has its state, drags the left hand's handle in and up; the left-arm servos
+    whose goal (from `goals()`, name → degrees) moved more than half a degree."""
+    wait("the first state", lambda: driver.execute_script("return !!(window.studio && studio.state && studio.hello)"))
+    time.sleep(0.5)
+    before = goals()
+    drag(driver, "lradius", -2, -1, 40, 0.03)
+    time.sleep(0.6)
+    after = goals()
+    return [n for n in after if (n.startswith("lhumerus") or n.startswith("lradius"))
+            and abs(after[n] - before[n]) > 0.5]
+
+
 def console_errors(driver):
     errors = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
     return errors + (driver.execute_script("return window.studioErrors") or [])

@@ -15,7 +15,7 @@ import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from urllib.parse import urlsplit
 
-from browser import api as api_at, chromium, drag, fail, wait
+from browser import api as api_at, chromium, drags_left_arm, fail, wait
 
 URL, OUT = sys.argv[1], sys.argv[2]
 STUDIO = URL.rstrip("/")
@@ -137,13 +137,7 @@ try:
 
     # The user's own page still drags the arm.
     driver.get(URL)
-    wait("the first state", lambda: driver.execute_script("return !!(window.studio && studio.state && studio.hello)"))
-    time.sleep(0.5)
-    drag(driver, "lradius", -2, -1, 40, 0.03)
-    time.sleep(0.6)
-    dragged = positions()
-    arm = [n for n in dragged if (n.startswith("lhumerus") or n.startswith("lradius"))
-           and abs(dragged[n][0] - before[n][0]) > 0.5]
+    arm = drags_left_arm(driver, lambda: {n: p[0] for n, p in positions().items()})
     result["own_page_moved"] = arm
     if not arm:
         fail("the studio's own page no longer drags the left arm")

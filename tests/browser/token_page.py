@@ -7,10 +7,9 @@ first check that fails. Run by tests/studio.rs.
 """
 import json
 import sys
-import time
 import urllib.request
 
-from browser import chromium, drag, fail, wait
+from browser import chromium, drags_left_arm, fail, wait
 
 URL, OUT = sys.argv[1], sys.argv[2]
 BASE, TOKEN = URL.split("?token=")
@@ -41,12 +40,7 @@ try:
     cookie = next((c for n, c in cookies.items() if n.startswith("marionette_studio_")), None)
     if not cookie or not cookie["httpOnly"] or cookie.get("sameSite") != "Strict":
         fail(f"the token's cookie: {cookie}")
-    before = {s["name"]: s["goal_deg"] for s in pose()["servos"]}
-    time.sleep(0.3)
-    drag(driver, "lradius", -2, -1, 40, 0.03)
-    time.sleep(0.6)
-    after = {s["name"]: s["goal_deg"] for s in pose()["servos"]}
-    moved = [n for n in after if n.startswith("lhumerus") and abs(after[n] - before[n]) > 0.5]
+    moved = drags_left_arm(driver, lambda: {s["name"]: s["goal_deg"] for s in pose()["servos"]})
     result["moved"] = moved
     if not moved:
         fail("the page with the token did not drag the arm")
