@@ -14,12 +14,21 @@ use marionette::studio::{Feed, Studio};
 
 fn finite_pose(studio: &Studio) {
     let scene = studio.scene();
-    assert!(scene.primary.channels.iter().all(|c| c.is_finite()), "a non-finite pose");
+    assert!(
+        scene.primary.channels.iter().all(|c| c.is_finite()),
+        "a non-finite pose"
+    );
 }
 
 fuzz_target!(|data: &[u8]| {
     let skeleton = Arc::new(bundled::skeleton().clone());
-    let studio = Studio::new(Scene::new(skeleton, None), Feed::None, Vec::new(), 120.0, String::new());
+    let studio = Studio::new(
+        Scene::new(skeleton, None),
+        Feed::None,
+        Vec::new(),
+        120.0,
+        String::new(),
+    );
     if let Ok(r) = TargetRequest::decode(data) {
         assert!(data.len() <= MAX_MESSAGE_BYTES);
         assert!(r.position.is_none_or(|p| p.is_finite()));

@@ -223,7 +223,7 @@ pub fn same_secret(a: &[u8], b: &[u8]) -> bool {
     std::hint::black_box(diff) == 0
 }
 
-/// A new token: [`TOKEN_BYTES`] from the operating system's generator, as hex.
+/// A new token: 32 bytes from the operating system's generator, as hex.
 ///
 /// # Errors
 /// The generator failed.
