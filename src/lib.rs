@@ -8,6 +8,8 @@
 //!
 //! * [`alloc_count`] — the counting global allocator (`allocations_in_tick`, allocation tests).
 //! * [`clock`] — the machine's clock for the core's schedule.
+//! * [`rt`] — real-time settings of a thread (`SCHED_FIFO`, CPU affinity, `mlockall`), for the
+//!   loop and for the virtual chain's thread.
 //! * [`motion`] — a clip of frames (values as files hold them), its frame vectors, editing
 //!   (matching, connecting, blending, seams).
 //! * [`formats`] — file loading with `file:line:column` errors, AMC read/write, ASF write,
@@ -41,6 +43,8 @@ pub use marionette_core::{
 pub mod alloc_count;
 
 pub mod clock;
+
+pub mod rt;
 
 pub mod motion;
 

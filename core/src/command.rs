@@ -120,48 +120,7 @@ impl CommandStage {
         targets: &[Real],
         dt: Real,
     ) -> Result<(&[i32], Limited), CommandError> {
-        if targets.len() != rig.len() || rig.len() != self.len {
-            return Err(CommandError::WrongLength {
-                got: targets.len(),
-                want: rig.len(),
-            });
-        }
-        if !(dt.is_finite() && dt > 0.0) {
-            return Err(CommandError::BadTimeStep);
-        }
-        if let Some(servo) = targets.iter().position(|a| !a.is_finite()) {
-            return Err(CommandError::NotFinite { servo });
-        }
-        let mut limited = Limited::default();
-        for (k, (servo, &wanted)) in rig.servos.iter().zip(targets).enumerate() {
-            let (lo, hi) = ((servo.min_tick as Real), (servo.max_tick as Real));
-            let target = real::clamp(wanted, lo, hi);
-            if target != wanted {
-                limited.clamped += 1;
-            }
-            if !self.started {
-                self.position[k] = target;
-                self.velocity[k] = 0.0;
-                continue;
-            }
-            let limits = MotionLimits {
-                velocity: servo.max_velocity,
-                acceleration: servo.max_acceleration,
-                min: lo,
-                max: hi,
-            };
-            let (p, v) = step_along(self.position[k], self.velocity[k], target, dt, &limits);
-            if (p - target).abs() > 1e-9 {
-                limited.rate_limited += 1;
-            }
-            self.position[k] = p;
-            self.velocity[k] = v;
-        }
-        self.started = true;
-        for k in 0..self.len {
-            self.ticks[k] = real::round(self.position[k]) as i32;
-        }
-        Ok((&self.ticks[..self.len], limited))
+        self.advance(rig, targets, dt, Goal::PlannedTicks)
     }
 
     /// Turns joint angles (radians) into the next goal positions, `dt` seconds after the
@@ -175,22 +134,37 @@ impl CommandStage {
         angles: &[Real],
         dt: Real,
     ) -> Result<(&[i32], Limited), CommandError> {
-        if angles.len() != rig.len() || rig.len() != self.len {
+        self.advance(rig, angles, dt, Goal::Angles)
+    }
+
+    /// One command: checked whole, each servo's goal clamped to its limits, then stepped
+    /// towards it within its velocity and acceleration (as `goal` says how), rounded to ticks.
+    fn advance(
+        &mut self,
+        rig: &Rig,
+        inputs: &[Real],
+        dt: Real,
+        goal: Goal,
+    ) -> Result<(&[i32], Limited), CommandError> {
+        if inputs.len() != rig.len() || rig.len() != self.len {
             return Err(CommandError::WrongLength {
-                got: angles.len(),
+                got: inputs.len(),
                 want: rig.len(),
             });
         }
         if !(dt.is_finite() && dt > 0.0) {
             return Err(CommandError::BadTimeStep);
         }
-        if let Some(servo) = angles.iter().position(|a| !a.is_finite()) {
+        if let Some(servo) = inputs.iter().position(|a| !a.is_finite()) {
             return Err(CommandError::NotFinite { servo });
         }
         let mut limited = Limited::default();
-        for (k, (servo, &angle)) in rig.servos.iter().zip(angles).enumerate() {
+        for (k, (servo, &input)) in rig.servos.iter().zip(inputs).enumerate() {
             let (lo, hi) = ((servo.min_tick as Real), (servo.max_tick as Real));
-            let wanted = servo.angle_to_ticks_exact(angle);
+            let wanted = match goal {
+                Goal::Angles => servo.angle_to_ticks_exact(input),
+                Goal::PlannedTicks => input,
+            };
             let target = real::clamp(wanted, lo, hi);
             if target != wanted {
                 limited.clamped += 1;
@@ -200,18 +174,33 @@ impl CommandStage {
                 self.velocity[k] = 0.0;
                 continue;
             }
-            let (p, v) = step_towards(
-                self.position[k],
-                self.velocity[k],
-                target,
-                servo.max_velocity,
-                servo.max_acceleration,
-                dt,
-            );
+            let (p, v) = match goal {
+                Goal::Angles => step_towards(
+                    self.position[k],
+                    self.velocity[k],
+                    target,
+                    servo.max_velocity,
+                    servo.max_acceleration,
+                    dt,
+                ),
+                Goal::PlannedTicks => {
+                    let limits = MotionLimits {
+                        velocity: servo.max_velocity,
+                        acceleration: servo.max_acceleration,
+                        min: lo,
+                        max: hi,
+                    };
+                    step_along(self.position[k], self.velocity[k], target, dt, &limits)
+                }
+            };
             if (p - target).abs() > 1e-9 {
                 limited.rate_limited += 1;
             }
-            self.position[k] = real::clamp(p, lo, hi);
+            // A planned step keeps within the limits itself (it brakes for them).
+            self.position[k] = match goal {
+                Goal::Angles => real::clamp(p, lo, hi),
+                Goal::PlannedTicks => p,
+            };
             self.velocity[k] = v;
         }
         self.started = true;
@@ -220,4 +209,13 @@ impl CommandStage {
         }
         Ok((&self.ticks[..self.len], limited))
     }
+}
+
+/// What a command's inputs are and how the stage moves towards them.
+#[derive(Clone, Copy)]
+enum Goal {
+    /// Joint angles (radians), each a target to stop at: braking towards it.
+    Angles,
+    /// Fractional ticks, points of planned paths: no braking towards them.
+    PlannedTicks,
 }

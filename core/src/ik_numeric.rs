@@ -53,6 +53,64 @@ impl Method {
     ];
 }
 
+/// An IK method as a user names it (`marionette ik --method`, the studio): the analytic limb
+/// or one of the numerical [`Method`]s.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IkMethod {
+    /// Analytic 2-bone limb with the swivel searched inside the joint limits (eq. 27–30).
+    Analytic,
+    /// Cyclic coordinate descent.
+    Ccd,
+    /// Jacobian transpose.
+    Jt,
+    /// Pseudoinverse.
+    Pinv,
+    /// Damped least squares.
+    Dls,
+    /// Conjugate gradient on eq. (35).
+    Cg,
+}
+
+impl IkMethod {
+    /// Every method.
+    pub const ALL: [IkMethod; 6] = [
+        IkMethod::Analytic,
+        IkMethod::Ccd,
+        IkMethod::Jt,
+        IkMethod::Pinv,
+        IkMethod::Dls,
+        IkMethod::Cg,
+    ];
+
+    /// Every method's name, in the order of [`IkMethod::ALL`].
+    pub const NAMES: [&'static str; 6] = ["analytic", "ccd", "jt", "pinv", "dls", "cg"];
+
+    /// The name (`ik --method`).
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
+
+    /// The method called `name`.
+    #[must_use]
+    pub fn parse(name: &str) -> Option<IkMethod> {
+        IkMethod::ALL.into_iter().find(|m| m.name() == name)
+    }
+
+    /// The numerical method, `None` for the analytic limb.
+    #[must_use]
+    pub fn numeric(self) -> Option<Method> {
+        match self {
+            IkMethod::Analytic => None,
+            IkMethod::Ccd => Some(Method::Ccd),
+            IkMethod::Jt => Some(Method::Transpose),
+            IkMethod::Pinv => Some(Method::Pseudoinverse),
+            IkMethod::Dls => Some(Method::DampedLeastSquares),
+            IkMethod::Cg => Some(Method::ConjugateGradient),
+        }
+    }
+}
+
 /// Jacobian by eq. (43)–(47), or by finite differences.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JacobianKind {

@@ -432,7 +432,7 @@ impl PtyChain {
                 .spawn(move || {
                     if let Some(p) = timing.and_then(|t| t.priority) {
                         // Best effort: a refusal leaves the thread at normal priority.
-                        let _ = crate::control::rt::RealTime {
+                        let _ = crate::rt::RealTime {
                             priority: Some(p),
                             ..Default::default()
                         }

@@ -9,24 +9,14 @@ use super::error::CliError;
 use crate::fk::{fk64, Pose64};
 use crate::formats::{amc, asf};
 use crate::ik::{Limb, Swivel};
-use crate::ik_numeric::{chain_mask, Constraint, Method, Settings, Solver};
+use crate::ik_numeric::{chain_mask, Constraint, IkMethod, Method, Settings, Solver};
 use crate::motion::{frame_to_radians, radians_to_frame, Motion, CMU_FRAME_RATE};
 
-/// The solver asked for on the command line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum IkMethod {
-    /// Analytic 2-bone limb with swivel search (default where the effector ends a limb).
-    Analytic,
-    /// Cyclic coordinate descent.
-    Ccd,
-    /// Jacobian transpose.
-    Jt,
-    /// Pseudoinverse.
-    Pinv,
-    /// Damped least squares.
-    Dls,
-    /// Conjugate gradient on eq. (35).
-    Cg,
+/// `--method NAME`: one of [`IkMethod::NAMES`] (listed in `--help`).
+pub fn method_arg() -> impl clap::builder::TypedValueParser<Value = IkMethod> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(IkMethod::NAMES)
+        .map(|name: String| IkMethod::parse(&name).unwrap_or(IkMethod::Dls))
 }
 
 /// Parses `X,Y,Z`.
@@ -188,13 +178,7 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
             }
         }
         m => {
-            let method = match m {
-                IkMethod::Ccd => Method::Ccd,
-                IkMethod::Jt => Method::Transpose,
-                IkMethod::Pinv => Method::Pseudoinverse,
-                IkMethod::Cg => Method::ConjugateGradient,
-                _ => Method::DampedLeastSquares,
-            };
+            let method = m.numeric().unwrap_or(Method::DampedLeastSquares);
             let from = parent.unwrap_or(eff);
             let mask = chain_mask(skel, from, eff);
             let mut solver = Solver::new(skel, &mask, false);

@@ -286,8 +286,8 @@ enum Command {
         #[arg(long, allow_hyphen_values = true)]
         roll: Option<f64>,
         /// Solver (default: analytic where the effector ends a 2-bone limb, else dls).
-        #[arg(long, value_enum)]
-        method: Option<ik::IkMethod>,
+        #[arg(long, value_parser = ik::method_arg())]
+        method: Option<crate::ik_numeric::IkMethod>,
         /// Write the solved pose as a one-frame AMC.
         #[arg(short = 'o', long)]
         output: Option<PathBuf>,

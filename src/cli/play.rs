@@ -23,7 +23,6 @@ use crate::control::input::{input_channel, InputPort, InputSender};
 use crate::control::lockstep::{LockstepSource, PlayerFeed, TrackFeed};
 use crate::control::lookahead::{Lookahead, LookaheadSettings};
 use crate::control::plot::Histograms;
-use crate::control::rt::RealTime;
 use crate::control::sources::{
     clip_track, clip_track_pointing, spawn_player, spawn_stdin, spawn_track, spawn_udp, write_csv,
     ClipPlayer, PlayerCommand, ProducerReport, TargetTrack, TrackFrame, MAX_DATAGRAM_BYTES,
@@ -37,6 +36,7 @@ use crate::motion::Motion;
 use crate::plot::{draw, Format};
 use crate::profile::Profile;
 use crate::retarget::{floor_of_clip, floor_of_rest, Options as RetargetOptions, Setup};
+use crate::rt::RealTime;
 use crate::schedule::{Clock, Schedule};
 use crate::skeleton::Skeleton;
 

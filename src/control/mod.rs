@@ -23,7 +23,6 @@ pub mod live;
 pub mod lockstep;
 pub mod lookahead;
 pub mod plot;
-pub mod rt;
 pub mod soak;
 pub mod sources;
 pub mod stats;

@@ -7,7 +7,8 @@
 use glam::DVec3;
 use serde_json::Value;
 
-use super::scene::{Method, SceneError};
+use super::scene::SceneError;
+use crate::ik_numeric::IkMethod;
 
 /// The largest request body or WebSocket message the studio reads, bytes. A page's message is
 /// under 200 bytes; anything near this is not a page's.
@@ -30,9 +31,9 @@ pub struct TargetRequest {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SolverRequest {
     /// The method that drives the rig.
-    pub method: Method,
+    pub method: IkMethod,
     /// A second method solved beside it and drawn as a ghost.
-    pub compare: Option<Method>,
+    pub compare: Option<IkMethod>,
 }
 
 /// One message of the page over its WebSocket.
@@ -128,8 +129,8 @@ fn string(v: &Value, key: &str) -> Result<String, String> {
     }
 }
 
-fn method(name: &str) -> Result<Method, String> {
-    Method::parse(name).ok_or_else(|| SceneError::UnknownMethod(name.to_string()).to_string())
+fn method(name: &str) -> Result<IkMethod, String> {
+    IkMethod::parse(name).ok_or_else(|| SceneError::UnknownMethod(name.to_string()).to_string())
 }
 
 impl TargetRequest {
@@ -239,7 +240,7 @@ mod tests {
         let t = TargetRequest::decode(br#"{"effector":"lradius","position":null}"#).unwrap();
         assert_eq!(t.position, None);
         let s = SolverRequest::decode(br#"{"method":"dls","compare":"ccd"}"#).unwrap();
-        assert_eq!((s.method, s.compare), (Method::Dls, Some(Method::Ccd)));
+        assert_eq!((s.method, s.compare), (IkMethod::Dls, Some(IkMethod::Ccd)));
         for (body, says) in [
             (
                 &br#"{"effector":"lradius","position":[1e999,0,0]}"#[..],
@@ -285,7 +286,7 @@ mod tests {
                 .unwrap()
                 .message,
             PageMessage::Solver(SolverRequest {
-                method: Method::Cg,
+                method: IkMethod::Cg,
                 compare: None
             })
         );

@@ -13,69 +13,9 @@ use glam::{DMat3, DVec3};
 
 use crate::fk::{fk64, Pose64};
 use crate::ik::{Limb, Swivel};
-use crate::ik_numeric::{self, chain_mask, BoneMask, Constraint, Settings, Solver};
+use crate::ik_numeric::{chain_mask, BoneMask, Constraint, IkMethod, Settings, Solver};
 use crate::motion::{frame_to_radians, Motion};
 use crate::skeleton::{Skeleton, MAX_BONES};
-
-/// An IK method, named as in `marionette ik --method`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Method {
-    /// Analytic 2-bone limb with the swivel searched inside the joint limits (eq. 27–30).
-    Analytic,
-    /// Cyclic coordinate descent.
-    Ccd,
-    /// Jacobian transpose.
-    Jt,
-    /// Pseudoinverse.
-    Pinv,
-    /// Damped least squares.
-    Dls,
-    /// Conjugate gradient on eq. (35).
-    Cg,
-}
-
-impl Method {
-    /// Every method.
-    pub const ALL: [Method; 6] = [
-        Method::Analytic,
-        Method::Ccd,
-        Method::Jt,
-        Method::Pinv,
-        Method::Dls,
-        Method::Cg,
-    ];
-
-    /// The name (`ik --method`).
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Analytic => "analytic",
-            Method::Ccd => "ccd",
-            Method::Jt => "jt",
-            Method::Pinv => "pinv",
-            Method::Dls => "dls",
-            Method::Cg => "cg",
-        }
-    }
-
-    /// The method called `name`.
-    #[must_use]
-    pub fn parse(name: &str) -> Option<Method> {
-        Method::ALL.into_iter().find(|m| m.name() == name)
-    }
-
-    fn numeric(self) -> Option<ik_numeric::Method> {
-        match self {
-            Method::Analytic => None,
-            Method::Ccd => Some(ik_numeric::Method::Ccd),
-            Method::Jt => Some(ik_numeric::Method::Transpose),
-            Method::Pinv => Some(ik_numeric::Method::Pseudoinverse),
-            Method::Dls => Some(ik_numeric::Method::DampedLeastSquares),
-            Method::Cg => Some(ik_numeric::Method::ConjugateGradient),
-        }
-    }
-}
 
 /// Why a request cannot be done (the API answers 400 with it).
 #[derive(Debug, PartialEq, thiserror::Error)]
@@ -146,7 +86,7 @@ pub struct SolveReport {
 #[derive(Clone, Debug)]
 pub struct Solved {
     /// The method.
-    pub method: Method,
+    pub method: IkMethod,
     /// Channel values (radians).
     pub channels: Vec<f64>,
     /// The last solve.
@@ -156,7 +96,7 @@ pub struct Solved {
 }
 
 impl Solved {
-    fn new(method: Method, channels: Vec<f64>) -> Solved {
+    fn new(method: IkMethod, channels: Vec<f64>) -> Solved {
         Solved {
             method,
             channels,
@@ -240,7 +180,7 @@ impl Scene {
             frame_rate,
             rest_root,
             effectors: Vec::new(),
-            primary: Solved::new(Method::Analytic, base.clone()),
+            primary: Solved::new(IkMethod::Analytic, base.clone()),
             ghost: None,
             swivel: None,
             timeline: Timeline {
@@ -387,7 +327,7 @@ impl Scene {
     }
 
     /// Chooses the driving method, and the compared one (`None`: no comparison).
-    pub fn set_methods(&mut self, primary: Method, compare: Option<Method>) {
+    pub fn set_methods(&mut self, primary: IkMethod, compare: Option<IkMethod>) {
         if primary != self.primary.method {
             self.primary = Solved::new(primary, self.primary.channels.clone());
         }
@@ -466,7 +406,7 @@ impl Scene {
 
     /// Solves the primary method and the compared one from the base frame.
     pub fn solve(&mut self) {
-        let mut primary = std::mem::replace(&mut self.primary, Solved::new(Method::Dls, Vec::new()));
+        let mut primary = std::mem::replace(&mut self.primary, Solved::new(IkMethod::Dls, Vec::new()));
         self.solve_one(&mut primary);
         self.primary = primary;
         if let Some(mut g) = self.ghost.take() {
@@ -506,7 +446,7 @@ impl Scene {
                 continue;
             };
             match (solved.method, &e.limb) {
-                (Method::Analytic, Some(limb)) => {
+                (IkMethod::Analytic, Some(limb)) => {
                     let swivel = match (self.swivel, solved.swivel[k]) {
                         (Some(fixed), _) => Swivel::Fixed(fixed),
                         (None, previous) => Swivel::Auto { previous },
@@ -518,7 +458,9 @@ impl Scene {
                 }
                 (method, _) => {
                     // A bone that ends no limb takes damped least squares under "analytic".
-                    let numeric = method.numeric().unwrap_or(ik_numeric::Method::DampedLeastSquares);
+                    let numeric = method
+                        .numeric()
+                        .unwrap_or(crate::ik_numeric::Method::DampedLeastSquares);
                     let solver = solved.solvers[k].get_or_insert_with(|| Solver::new(skel, &e.mask, false));
                     let settings = Settings {
                         method: numeric,
@@ -660,7 +602,7 @@ mod tests {
         // Three quarters of the way out, and a little up and forward: bent, within reach.
         let goal = shoulder + (tip - shoulder) * 0.75 + DVec3::new(0.0, 2.0, 1.0);
         s.set_target(k, Some(goal)).unwrap();
-        for m in Method::ALL {
+        for m in IkMethod::ALL {
             s.set_methods(m, None);
             for _ in 0..5 {
                 s.solve();
@@ -734,8 +676,8 @@ mod tests {
         let mut s = scene();
         let k = s.effector("rtibia").unwrap();
         s.set_target(k, Some(DVec3::new(500.0, -300.0, 200.0))).unwrap();
-        for m in Method::ALL {
-            s.set_methods(m, Some(Method::Ccd));
+        for m in IkMethod::ALL {
+            s.set_methods(m, Some(IkMethod::Ccd));
             s.solve();
             assert!(s.primary.channels.iter().all(|c| c.is_finite()), "{m:?}");
             assert!(s.primary.report.residual.is_finite());

@@ -21,8 +21,9 @@ use serde_json::{json, Value};
 
 use super::access::{self, Access, Refusal};
 use super::request::{PageEvent, SolverRequest, TargetRequest, MAX_MESSAGE_BYTES};
-use super::scene::{Method, Scene};
+use super::scene::Scene;
 use super::Studio;
+use crate::ik_numeric::IkMethod;
 
 const INDEX: &str = include_str!("page/index.html");
 const SCRIPT: &str = include_str!("page/studio.js");
@@ -264,7 +265,7 @@ fn hello(studio: &Studio) -> Value {
         "bones": bones,
         "metres_per_unit": skel.units().meters_per_unit(),
         "servos": studio.servos,
-        "methods": Method::ALL.iter().map(|m| m.name()).collect::<Vec<_>>(),
+        "methods": IkMethod::ALL.iter().map(|m| m.name()).collect::<Vec<_>>(),
         "has_clip": scene.has_clip(),
         "rate_hz": studio.rate_hz,
         "bus": studio.bus,
