@@ -17,12 +17,14 @@
 //! hold); a second during the ramp cuts it short and turns torque off at once.
 
 pub mod fidelity;
+mod follow;
 pub mod identify;
 pub mod input;
 pub mod live;
 pub mod lockstep;
 pub mod lookahead;
 pub mod plot;
+mod retarget_stage;
 pub mod soak;
 pub mod sources;
 pub mod stats;
@@ -36,19 +38,18 @@ use glam::DVec3;
 use crate::bus::{BusError, ServoBus};
 use crate::command::CommandStage;
 use crate::fk::{ancestors, fk64, fk64_bones, Pose64};
-use crate::ik::{point_bone, Limb, Swivel};
-use crate::ik_numeric::{Constraint, Settings, Solver};
-use crate::retarget::{Floor, Options, ReportBuilder, RetargetFrame, RetargetReport, Retargeter, Setup};
 use crate::rig::Rig;
-use crate::robot::{Robot, RobotPose, MAX_ROBOT_JOINTS};
 use crate::schedule::{Clock, Schedule, Tick};
 use crate::servo::MAX_SERVOS;
 use crate::servo::{addr, TICKS_PER_TURN};
 use crate::skeleton::{Skeleton, MAX_BONES, MAX_CHANNELS};
-use input::{InputPort, Payload, Target, MAX_EFFECTORS};
+use input::{InputPort, Payload};
 use live::LiveView;
 use lookahead::{EaseIn, Lookahead, Preview, SourceSample};
 use stats::{LoopStats, Stage};
+
+pub use follow::{pointer_bone, target_range, Effector, FollowError, Follower, TARGET_RANGE_REACHES};
+pub use retarget_stage::RetargetStage;
 
 /// Most inputs turned into source samples in one tick (a look-ahead's preview fills over a few
 /// ticks at the start rather than in one long tick).
@@ -248,356 +249,6 @@ pub enum Solve {
     Frames,
     /// Effector targets solved by IK.
     Follow(Box<Follower>),
-}
-
-/// How one effector is solved.
-#[derive(Debug)]
-enum EffectorSolver {
-    /// Analytic 2-bone limb (help note §IV) with the swivel kept near the previous one.
-    Limb(Box<Limb>),
-    /// Damped least squares up the chain to six rotational DOFs (bones of analytic limbs left
-    /// out).
-    Numeric(Box<Solver>),
-}
-
-/// One effector of a follower.
-#[derive(Debug)]
-pub struct Effector {
-    /// Bone name (its tip is the effector).
-    pub name: String,
-    bone: usize,
-    solver: EffectorSolver,
-    swivel: Option<f64>,
-    /// The bone pointed by a direction target (hand, foot) and its solver when not 3-DOF.
-    pointer: Option<(usize, Option<Box<Solver>>)>,
-}
-
-/// Why a follower cannot be set up.
-#[derive(Debug, thiserror::Error)]
-pub enum FollowError {
-    /// Unknown bone.
-    #[error("no bone named '{0}' in the skeleton")]
-    UnknownBone(String),
-    /// The root or its direct children.
-    #[error("'{0}' is the root or hangs from it: it cannot be an effector")]
-    TooHigh(String),
-    /// Too many.
-    #[error("at most {MAX_EFFECTORS} effectors")]
-    TooMany,
-}
-
-/// The bone a direction target of effector `bone` points (the hand after the forearm, the foot
-/// after the shin): down the first children until two rotation DOFs are passed.
-#[must_use]
-pub fn pointer_bone(skeleton: &Skeleton, bone: usize) -> Option<usize> {
-    let mut dofs = 0;
-    let mut at = skeleton.children(bone).next();
-    while let Some(c) = at {
-        dofs += rotations(skeleton, c);
-        if dofs >= 2 {
-            return Some(c);
-        }
-        at = skeleton.children(c).next();
-    }
-    None
-}
-
-fn rotations(skeleton: &Skeleton, bone: usize) -> usize {
-    skeleton.bones()[bone]
-        .dofs()
-        .iter()
-        .filter(|d| d.is_rotation())
-        .count()
-}
-
-/// IK targets → joint angles, all state prepared before the loop.
-#[derive(Debug)]
-pub struct Follower {
-    effectors: Vec<Effector>,
-    targets: [Option<Target>; MAX_EFFECTORS],
-    numeric: Settings,
-    range: f64,
-}
-
-/// How many times the skeleton's reach a target may lie from the root before it is refused.
-pub const TARGET_RANGE_REACHES: f64 = 10.0;
-
-/// The farthest from the root a target is taken, file units: [`TARGET_RANGE_REACHES`] times
-/// the longest chain of bones from the root. A target beyond it is no pose a limb could reach
-/// towards but a wrong unit or a corrupt message, refused like a NaN.
-#[must_use]
-pub fn target_range(skeleton: &Skeleton) -> f64 {
-    let bones = skeleton.bones();
-    let mut chain = vec![0.0f64; bones.len()];
-    let mut longest = 0.0f64;
-    // Parents come before their children.
-    for (k, b) in bones.iter().enumerate() {
-        let up = b.parent().map_or(0.0, |p| chain[p]);
-        chain[k] = up + f64::from(b.length());
-        longest = longest.max(chain[k]);
-    }
-    TARGET_RANGE_REACHES * longest
-}
-
-impl Follower {
-    /// Effectors by bone name: each ends a 2-bone limb (analytic) or is solved numerically.
-    ///
-    /// # Errors
-    /// [`FollowError`].
-    pub fn new(skeleton: &Skeleton, names: &[String]) -> Result<Follower, FollowError> {
-        if names.len() > MAX_EFFECTORS {
-            return Err(FollowError::TooMany);
-        }
-        // Analytic limbs first: the bones they own are left out of numerical chains.
-        let mut owned = [false; MAX_BONES];
-        let mut limbs = Vec::new();
-        for name in names {
-            let bone = skeleton
-                .find(name)
-                .ok_or_else(|| FollowError::UnknownBone(name.clone()))?;
-            let parent = skeleton.bones()[bone]
-                .parent()
-                .filter(|&p| skeleton.bones()[p].parent().is_some())
-                .ok_or_else(|| FollowError::TooHigh(name.clone()))?;
-            let limb = Limb::new(skeleton, parent, bone, None).ok();
-            if limb.is_some() {
-                owned[parent] = true;
-                owned[bone] = true;
-            }
-            limbs.push((bone, limb));
-        }
-        let mut effectors = Vec::new();
-        for (name, (bone, limb)) in names.iter().zip(limbs) {
-            let solver = match limb {
-                Some(l) => EffectorSolver::Limb(Box::new(l)),
-                None => {
-                    // Up the chain until six rotational DOFs (a position and some slack) or a
-                    // bone hanging from the root, skipping bones an analytic limb moves.
-                    let mut mask = [false; MAX_BONES];
-                    let mut dofs = 0;
-                    let mut i = Some(bone);
-                    while let Some(k) = i.filter(|&k| skeleton.bones()[k].parent().is_some() && dofs < 6) {
-                        if !owned[k] {
-                            mask[k] = true;
-                            dofs += skeleton.bones()[k]
-                                .dofs()
-                                .iter()
-                                .filter(|d| d.is_rotation())
-                                .count();
-                        }
-                        i = skeleton.bones()[k].parent();
-                    }
-                    EffectorSolver::Numeric(Box::new(Solver::new(skeleton, &mask, false)))
-                }
-            };
-            // The bone a direction points, and a numerical solver over the bones down to it
-            // unless it turns on three axes of its own.
-            let pointer = pointer_bone(skeleton, bone).map(|c| {
-                let mut mask = [false; MAX_BONES];
-                let mut at = skeleton.children(bone).next();
-                while let Some(b) = at {
-                    mask[b] = true;
-                    if b == c {
-                        break;
-                    }
-                    at = skeleton.children(b).next();
-                }
-                let numeric =
-                    (rotations(skeleton, c) != 3).then(|| Box::new(Solver::new(skeleton, &mask, false)));
-                (c, numeric)
-            });
-            effectors.push(Effector {
-                name: name.clone(),
-                bone,
-                solver,
-                swivel: None,
-                pointer,
-            });
-        }
-        Ok(Follower {
-            effectors,
-            targets: [None; MAX_EFFECTORS],
-            numeric: Settings {
-                max_iterations: 30,
-                restarts: 0,
-                tolerance: 1e-4,
-                damping: 0.05,
-                ..Settings::default()
-            },
-            range: target_range(skeleton),
-        })
-    }
-
-    /// Whether the loop takes `t`: finite, one of the effectors, within [`target_range`] of
-    /// the root.
-    #[must_use]
-    pub fn accepts(&self, t: &Target) -> bool {
-        t.is_finite() && t.effector < self.effectors.len() && t.position.length() <= self.range
-    }
-
-    /// The effector names, in order.
-    pub fn names(&self) -> impl Iterator<Item = &str> {
-        self.effectors.iter().map(|e| e.name.as_str())
-    }
-
-    /// Solves the effectors in `which` that have a target, in place on `channels`, counting
-    /// unreachable ones and residuals in `stats`. An input's effectors may be solved a few at
-    /// a time, in order, on the same channels: the result is the same.
-    fn solve_some(
-        &mut self,
-        skeleton: &Skeleton,
-        channels: &mut [f64],
-        pose: &mut Pose64,
-        stats: &mut LoopStats,
-        which: std::ops::Range<usize>,
-    ) {
-        for (k, e) in self
-            .effectors
-            .iter_mut()
-            .enumerate()
-            .take(which.end)
-            .skip(which.start)
-        {
-            let Some(t) = self.targets[k] else { continue };
-            let residual = match &mut e.solver {
-                EffectorSolver::Limb(limb) => {
-                    // The first solve searches the whole swivel circle, later ones a window
-                    // around the previous swivel (no elbow flips, a quarter of the work).
-                    let swivel = match e.swivel {
-                        Some(previous) => Swivel::Track {
-                            previous,
-                            window: SWIVEL_WINDOW,
-                        },
-                        None => Swivel::Auto { previous: None },
-                    };
-                    let s = limb.solve(skeleton, channels, t.position, swivel);
-                    e.swivel = Some(s.swivel);
-                    if !s.reachable {
-                        stats.unreachable += 1;
-                    }
-                    s.error
-                }
-                EffectorSolver::Numeric(solver) => {
-                    let c = Constraint {
-                        bone: e.bone,
-                        position: t.position,
-                        axes: None,
-                    };
-                    solver
-                        .solve(skeleton, &[c], channels, &self.numeric)
-                        .position_error
-                }
-            };
-            stats.ik_error(residual);
-            if let (Some(dir), Some((hand, numeric))) = (t.direction, &mut e.pointer) {
-                let dir = dir.normalize();
-                match numeric {
-                    None => {
-                        let _ = point_bone(skeleton, channels, *hand, dir, 0.0);
-                    }
-                    Some(solver) => {
-                        fk64(skeleton, channels, pose);
-                        let len = (pose.tip[*hand] - pose.start[*hand]).length();
-                        let c = Constraint {
-                            bone: *hand,
-                            position: pose.start[*hand] + dir * len,
-                            axes: None,
-                        };
-                        solver.solve(skeleton, &[c], channels, &self.numeric);
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// Retargeting inside the tick, for profiles whose servos follow a robot's joints: each new
-/// human pose becomes the robot's joint vector, which the rig's servos read.
-#[derive(Debug)]
-pub struct RetargetStage {
-    robot: Robot,
-    retargeter: Retargeter,
-    frame: RetargetFrame,
-    report: ReportBuilder,
-    names: Vec<String>,
-    last_clip_time: f64,
-    pose: Box<RobotPose>,
-    present_q: [f64; MAX_ROBOT_JOINTS],
-    /// Frames retargeted ahead (the look-ahead's preview) and their due times, reported when
-    /// they are played: a frame taken ahead but never played is not the run's.
-    pending: std::collections::VecDeque<(u64, RetargetFrame)>,
-}
-
-impl RetargetStage {
-    /// A stage for `setup` over `skeleton`, the human floor at `floor`.
-    #[must_use]
-    pub fn new(setup: &Setup, skeleton: &Skeleton, floor: Floor, options: Options) -> RetargetStage {
-        RetargetStage {
-            robot: setup.robot.clone(),
-            retargeter: setup.retargeter(skeleton, floor, options),
-            frame: RetargetFrame::default(),
-            report: ReportBuilder::new(setup.robot.joints().len()),
-            names: setup.joint_names(),
-            last_clip_time: f64::NAN,
-            pose: Box::default(),
-            present_q: [0.0; MAX_ROBOT_JOINTS],
-            pending: std::collections::VecDeque::new(),
-        }
-    }
-
-    /// Room for `frames` frames retargeted ahead (before the first tick).
-    fn reserve(&mut self, frames: usize) {
-        self.pending = std::collections::VecDeque::with_capacity(frames.max(4));
-    }
-
-    /// Reports the frames due by `due_ns` (played now).
-    fn report_until(&mut self, due_ns: u64) {
-        while self.pending.front().is_some_and(|(d, _)| *d <= due_ns) {
-            if let Some((_, f)) = self.pending.pop_front() {
-                self.report.add(&f, f.lowest_sole);
-            }
-        }
-    }
-
-    /// The effectors (hands, soles) at the `present` angles of the rig's servos, the base
-    /// where the retargeting put it for that source sample, metres.
-    fn present_effectors(&mut self, rig: &Rig, present: &[f64], base: (DVec3, glam::DQuat)) -> [DVec3; 4] {
-        let (pos, rot) = self.retargeter.model_placement(base.0, base.1);
-        self.present_q.copy_from_slice(&self.frame.q);
-        for (servo, angle) in rig.servos.iter().zip(present) {
-            if let crate::rig::JointSource::Joint(j) = servo.source {
-                if let Some(q) = self.present_q.get_mut(j) {
-                    *q = *angle;
-                }
-            }
-        }
-        self.robot.forward(pos, rot, &self.present_q, &mut self.pose);
-        self.retargeter.effector_points(&self.robot, &self.pose)
-    }
-
-    /// What the run's retargeting measured.
-    #[must_use]
-    pub fn report(&self) -> RetargetReport {
-        self.report.finish(&self.retargeter, &self.names, None)
-    }
-
-    /// One human pose, `dt` seconds after the previous one (clip time when the input has
-    /// it). Allocates nothing.
-    fn step(&mut self, pose: &Pose64, clip_time: f64, tick_dt: f64, due_ns: u64) {
-        let dt =
-            if clip_time.is_finite() && self.last_clip_time.is_finite() && clip_time > self.last_clip_time {
-                clip_time - self.last_clip_time
-            } else {
-                tick_dt
-            };
-        self.last_clip_time = clip_time;
-        self.retargeter.step(&self.robot, pose, dt, &mut self.frame);
-        if self.pending.len() == self.pending.capacity() {
-            // Never grown in a tick: the oldest goes to the report now.
-            self.report_until(self.pending.front().map_or(0, |(d, _)| *d));
-        }
-        self.pending.push_back((due_ns, self.frame.clone()));
-    }
 }
 
 /// What a read taken after a tick's Sync Write belongs to (kept until a pipelined read's

@@ -1,0 +1,103 @@
+//! Retargeting inside the tick: each human pose becomes the robot's joint vector.
+
+use glam::DVec3;
+
+use crate::fk::Pose64;
+use crate::retarget::{Floor, Options, ReportBuilder, RetargetFrame, RetargetReport, Retargeter, Setup};
+use crate::rig::Rig;
+use crate::robot::{Robot, RobotPose, MAX_ROBOT_JOINTS};
+use crate::skeleton::Skeleton;
+
+/// Retargeting inside the tick, for profiles whose servos follow a robot's joints: each new
+/// human pose becomes the robot's joint vector, which the rig's servos read.
+#[derive(Debug)]
+pub struct RetargetStage {
+    robot: Robot,
+    retargeter: Retargeter,
+    pub(super) frame: RetargetFrame,
+    report: ReportBuilder,
+    names: Vec<String>,
+    last_clip_time: f64,
+    pose: Box<RobotPose>,
+    present_q: [f64; MAX_ROBOT_JOINTS],
+    /// Frames retargeted ahead (the look-ahead's preview) and their due times, reported when
+    /// they are played: a frame taken ahead but never played is not the run's.
+    pending: std::collections::VecDeque<(u64, RetargetFrame)>,
+}
+
+impl RetargetStage {
+    /// A stage for `setup` over `skeleton`, the human floor at `floor`.
+    #[must_use]
+    pub fn new(setup: &Setup, skeleton: &Skeleton, floor: Floor, options: Options) -> RetargetStage {
+        RetargetStage {
+            robot: setup.robot.clone(),
+            retargeter: setup.retargeter(skeleton, floor, options),
+            frame: RetargetFrame::default(),
+            report: ReportBuilder::new(setup.robot.joints().len()),
+            names: setup.joint_names(),
+            last_clip_time: f64::NAN,
+            pose: Box::default(),
+            present_q: [0.0; MAX_ROBOT_JOINTS],
+            pending: std::collections::VecDeque::new(),
+        }
+    }
+
+    /// Room for `frames` frames retargeted ahead (before the first tick).
+    pub(super) fn reserve(&mut self, frames: usize) {
+        self.pending = std::collections::VecDeque::with_capacity(frames.max(4));
+    }
+
+    /// Reports the frames due by `due_ns` (played now).
+    pub(super) fn report_until(&mut self, due_ns: u64) {
+        while self.pending.front().is_some_and(|(d, _)| *d <= due_ns) {
+            if let Some((_, f)) = self.pending.pop_front() {
+                self.report.add(&f, f.lowest_sole);
+            }
+        }
+    }
+
+    /// The effectors (hands, soles) at the `present` angles of the rig's servos, the base
+    /// where the retargeting put it for that source sample, metres.
+    pub(super) fn present_effectors(
+        &mut self,
+        rig: &Rig,
+        present: &[f64],
+        base: (DVec3, glam::DQuat),
+    ) -> [DVec3; 4] {
+        let (pos, rot) = self.retargeter.model_placement(base.0, base.1);
+        self.present_q.copy_from_slice(&self.frame.q);
+        for (servo, angle) in rig.servos.iter().zip(present) {
+            if let crate::rig::JointSource::Joint(j) = servo.source {
+                if let Some(q) = self.present_q.get_mut(j) {
+                    *q = *angle;
+                }
+            }
+        }
+        self.robot.forward(pos, rot, &self.present_q, &mut self.pose);
+        self.retargeter.effector_points(&self.robot, &self.pose)
+    }
+
+    /// What the run's retargeting measured.
+    #[must_use]
+    pub fn report(&self) -> RetargetReport {
+        self.report.finish(&self.retargeter, &self.names, None)
+    }
+
+    /// One human pose, `dt` seconds after the previous one (clip time when the input has
+    /// it). Allocates nothing.
+    pub(super) fn step(&mut self, pose: &Pose64, clip_time: f64, tick_dt: f64, due_ns: u64) {
+        let dt =
+            if clip_time.is_finite() && self.last_clip_time.is_finite() && clip_time > self.last_clip_time {
+                clip_time - self.last_clip_time
+            } else {
+                tick_dt
+            };
+        self.last_clip_time = clip_time;
+        self.retargeter.step(&self.robot, pose, dt, &mut self.frame);
+        if self.pending.len() == self.pending.capacity() {
+            // Never grown in a tick: the oldest goes to the report now.
+            self.report_until(self.pending.front().map_or(0, |(d, _)| *d));
+        }
+        self.pending.push_back((due_ns, self.frame.clone()));
+    }
+}
