@@ -1,0 +1,339 @@
+//! The tick's phases, in order: the timing of the tick, the pipelined replies, the input (a
+//! source sample solved, retargeted and mapped), the command (mapping and the command stage, or
+//! a hold), the bus (Sync Write, then Sync Read or its request), the telemetry.
+
+use glam::DVec3;
+
+use super::lookahead::EaseIn;
+use super::stats::Stage;
+use super::{torque_off, Absorbed, Controller, ReadContext, RunEnd, Telemetry};
+use crate::bus::{BusError, ServoBus};
+use crate::schedule::{Clock, Tick};
+use crate::servo::MAX_SERVOS;
+
+/// This tick's source sample, as the phases after the input read it.
+pub(super) struct Current {
+    /// Its due time and the time it was made (0: none).
+    due_ns: u64,
+    made_ns: u64,
+    /// The effectors' tips it asked for (NaN: none).
+    tips: [DVec3; 4],
+    clip_time: f64,
+    /// A new sample became current this tick.
+    pub(super) fresh: bool,
+}
+
+/// The command phase's goals, and when the bus phase began.
+pub(super) struct Command {
+    pub(super) goals: [i32; MAX_SERVOS],
+    /// The last command again (failed reads).
+    pub(super) holding: bool,
+    pub(super) t_write: u64,
+}
+
+/// What the bus phase did.
+pub(super) struct BusDone {
+    written: bool,
+    read_ok: bool,
+    tracking: f64,
+    /// ns on the bus this tick: the write, the read or its request, the pipelined replies.
+    bus_ns: u64,
+    pub(super) end: Option<RunEnd>,
+}
+
+impl Controller {
+    /// The tick's own timing: wake lateness, period error; the start of the torque-off clock.
+    pub(super) fn begin(&mut self, tick: &Tick, clock: &mut dyn Clock) -> u64 {
+        let start = clock.now_ns();
+        self.stats.ticks += 1;
+        self.stats.skipped_ticks += tick.skipped;
+        self.stats.wake_late.record(tick.lateness_ns());
+        if let Some((index, at)) = self.last_tick {
+            let expected = (tick.index - index) * self.period_ns;
+            let got = start.saturating_sub(at);
+            self.stats.period_error.record(got.abs_diff(expected));
+        }
+        self.last_tick = Some((tick.index, start));
+        if self.last_valid_read_ns == 0 {
+            self.last_valid_read_ns = start;
+        }
+        start
+    }
+
+    /// Pipelined: the replies to the last tick's request (they came in while the loop slept),
+    /// taken before deciding whether to hold; with the ns it took. `Err`: the run ends.
+    pub(super) fn collect_replies(
+        &mut self,
+        bus: &mut dyn ServoBus,
+        clock: &mut dyn Clock,
+    ) -> Result<(Option<Absorbed>, u64), RunEnd> {
+        let Some(context) = self.in_flight.take() else {
+            return Ok((None, 0));
+        };
+        let t0 = clock.now_ns();
+        let read = bus.collect_positions(&self.ids, &mut self.read_buf);
+        let t1 = clock.now_ns();
+        let (r, lost) = self.absorb_read(read, t1, &context, bus);
+        if let Some(why) = lost {
+            // The port is gone: command nothing more.
+            self.port_error = Some(why);
+            self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
+            return Err(RunEnd::PortLost);
+        }
+        if let Some(end) = r.end {
+            return Err(end);
+        }
+        Ok((Some(r), t1 - t0))
+    }
+
+    /// Input: every one due by the look-ahead's horizon becomes a source sample (solved,
+    /// retargeted, mapped); the newest due in this tick's half-period window is current
+    /// (inputs stamped with their ideal times, such as a 120 Hz file at 120 Hz, land on the
+    /// nearest tick).
+    pub(super) fn take_current(&mut self, tick: &Tick, start: u64, dt: f64) -> Current {
+        let due_now = tick.deadline_ns + self.period_ns / 2;
+        self.ingest(due_now, due_now + self.preview_ns, start, dt);
+        let fresh = self.preview.advance(due_now);
+        if fresh {
+            self.have_input = true;
+            self.ease_start_ns.get_or_insert(tick.deadline_ns);
+        } else if self.have_input {
+            self.stats.inputs_stale += 1;
+        }
+        // This tick's sample stays in the preview: only what the tick reads is copied.
+        let (due_ns, made_ns, tips, clip_time) = self
+            .preview
+            .current()
+            .map_or((0, 0, [DVec3::NAN; 4], f64::NAN), |c| {
+                (c.due_ns, c.made_ns, c.tips, c.clip_time)
+            });
+        if let (true, Some(r)) = (fresh, &mut self.retarget) {
+            r.report_until(due_ns);
+        }
+        self.clip_time = clip_time;
+        Current {
+            due_ns,
+            made_ns,
+            tips,
+            clip_time,
+            fresh,
+        }
+    }
+
+    /// The goals: the current sample through the look-ahead's planned path (or the greedy
+    /// limiter with the ease-in) and the command stage — or, holding or without input, the last
+    /// command again.
+    pub(super) fn encode(&mut self, tick: &Tick, dt: f64, holding: bool) -> [i32; MAX_SERVOS] {
+        let mut goals = [0i32; MAX_SERVOS];
+        let len = self.ids.len();
+        if holding {
+            self.stats.held_ticks += 1;
+            goals[..len].copy_from_slice(self.stage.last());
+            return goals;
+        }
+        if !self.have_input {
+            // No input yet: keep the servos where they are (and their watchdog fed).
+            goals[..len].copy_from_slice(self.stage.last());
+            return goals;
+        }
+        // What a perfect rig would do this tick: the fidelity's reference.
+        match self.preview.current() {
+            Some(c) => self.source_angles.copy_from_slice(&c.angles[..len]),
+            None => self.source_angles.fill(f64::NAN),
+        }
+        if self.source_log.len() < self.source_log.capacity() {
+            let mut a = [f64::NAN; MAX_SERVOS];
+            a[..len].copy_from_slice(&self.source_angles[..len]);
+            self.source_log.push((tick.deadline_ns, a));
+        }
+        if self.eased < self.ease_ticks {
+            self.eased += 1;
+        }
+        let command = if let Some(la) = &mut self.lookahead {
+            // The goal path planned over the preview, each servo led by its lag.
+            let ease = (self.ease_ticks > 0).then(|| EaseIn {
+                from: &self.ease_from,
+                start_ns: self.ease_start_ns.unwrap_or(tick.deadline_ns),
+                length_ns: self.ease_ticks * self.period_ns,
+            });
+            self.preview.live = !self.input.finished();
+            let targets = la.targets(&self.rig, &self.stage, &self.preview, tick.deadline_ns, dt, ease);
+            self.stage.command_planned(&self.rig, targets, dt)
+        } else {
+            self.angles.copy_from_slice(&self.source_angles);
+            if self.eased <= self.ease_ticks && self.ease_ticks > 0 {
+                // Ease in: blend from where the servos stood (smoothstep weight).
+                let t = self.eased as f64 / self.ease_ticks as f64;
+                let w = t * t * (3.0 - 2.0 * t);
+                for (a, from) in self.angles.iter_mut().zip(&self.ease_from) {
+                    *a = from + w * (*a - from);
+                }
+            }
+            self.stage.command(&self.rig, &self.angles, dt)
+        };
+        match command {
+            Ok((g, limited)) => {
+                goals[..len].copy_from_slice(g);
+                self.stats.clamped += limited.clamped as u64;
+                self.stats.rate_limited += limited.rate_limited as u64;
+            }
+            // Refused as a whole: the last command stands.
+            Err(_) => {
+                self.stats.commands_refused += 1;
+                goals[..len].copy_from_slice(self.stage.last());
+            }
+        }
+        goals
+    }
+
+    /// The bus: the goals' Sync Write, then the read — used only when every reply passed every
+    /// check; pipelined, its request goes out now and the replies are taken at the start of the
+    /// next tick. A failed port ends the run with one torque-off try.
+    pub(super) fn exchange(
+        &mut self,
+        tick: &Tick,
+        bus: &mut dyn ServoBus,
+        clock: &mut dyn Clock,
+        command: &Command,
+        current: &Current,
+        (absorbed, collect_ns): (Option<Absorbed>, u64),
+    ) -> BusDone {
+        let len = self.ids.len();
+        let (goals, holding, t_write) = (&command.goals, command.holding, command.t_write);
+        let written = bus.write_goals(&self.ids, &goals[..len]);
+        match &written {
+            Ok(()) => self.stats.commands_sent += 1,
+            Err(e) => self.stats.bus_error(e.kind()),
+        }
+        let mut lost = written.as_ref().err().and_then(BusError::port_failure);
+        let t_read = clock.now_ns();
+        self.stats.stage_mut(Stage::BusWrite).record(t_read - t_write);
+
+        // Not in a pre-roll (negative clip times; targets have none).
+        let pre_roll = current.clip_time < 0.0;
+        let mut context = ReadContext {
+            sample_due: current.due_ns,
+            holding,
+            goals: *goals,
+            tracked: None,
+            record: self.have_input && !holding && self.eased >= self.ease_ticks && !pre_roll,
+            tick: tick.index,
+        };
+        if self.have_previous {
+            let mut g = [0i32; MAX_SERVOS];
+            g[..len].copy_from_slice(&self.previous_goals);
+            context.tracked = Some(g);
+        }
+        let read_ok;
+        let mut tracking = f64::NAN;
+        let mut end = None;
+        let t_after;
+        if self.config.pipelined {
+            let requested = bus.request_positions(&self.ids);
+            t_after = clock.now_ns();
+            let request_ok = requested.is_ok();
+            match requested {
+                Ok(()) => self.in_flight = Some(context),
+                Err(e) => {
+                    let (r, l) = self.absorb_read(Err(e), t_after, &context, bus);
+                    (end, lost) = (r.end, lost.or(l));
+                }
+            }
+            match absorbed {
+                Some(r) => {
+                    (read_ok, tracking) = (r.ok && request_ok, r.tracking);
+                    end = end.or(r.end);
+                }
+                // The first tick has no replies to take: only its request can fail.
+                None => read_ok = request_ok,
+            }
+        } else {
+            let read = bus.read_positions(&self.ids, &mut self.read_buf);
+            t_after = clock.now_ns();
+            let (r, l) = self.absorb_read(read, t_after, &context, bus);
+            (read_ok, tracking, end) = (r.ok, r.tracking, r.end);
+            lost = lost.or(l);
+        }
+        self.stats
+            .stage_mut(Stage::BusRead)
+            .record(t_after - t_read + collect_ns);
+        if let Some(why) = lost {
+            // The port is gone: command nothing more; one torque-off (its Sync Write fails
+            // too, so no servo is asked on its own).
+            self.port_error = Some(why);
+            self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
+            end = Some(RunEnd::PortLost);
+        }
+        if written.is_ok() {
+            self.previous_goals.copy_from_slice(&goals[..len]);
+            self.have_previous = true;
+        }
+        BusDone {
+            written: written.is_ok(),
+            read_ok,
+            tracking,
+            bus_ns: t_after - t_write + collect_ns,
+            end,
+        }
+    }
+
+    /// Telemetry: the tick's timing and deadline, the live view (goals, present angles, the
+    /// input carried to the bus), a record to each telemetry sink.
+    pub(super) fn report(
+        &mut self,
+        tick: &Tick,
+        start: u64,
+        done: u64,
+        command: &Command,
+        current: &Current,
+        bus: &BusDone,
+    ) {
+        let len = self.ids.len();
+        let total = done - start;
+        let compute = total.saturating_sub(bus.bus_ns);
+        self.stats.tick_total.record(total);
+        self.stats.tick_compute.record(compute);
+        let missed = done > tick.deadline_ns + self.period_ns;
+        if missed {
+            self.stats.deadline_misses += 1;
+        }
+        if let Some(mut view) = self.live.as_ref().and_then(|v| v.try_update()) {
+            view.record_tick(done, compute, missed);
+            view.len = len;
+            for (k, (s, (g, p))) in self
+                .rig
+                .servos
+                .iter()
+                .zip(command.goals[..len].iter().zip(&self.present))
+                .enumerate()
+            {
+                view.goal_rad[k] = s.ticks_to_angle(f64::from(*g));
+                view.present_rad[k] = s.ticks_to_angle(f64::from(*p));
+            }
+            if bus.written && self.have_input && !command.holding {
+                view.record_carried(current.made_ns, command.t_write);
+            }
+        }
+        if !self.telemetry.is_empty() {
+            let mut t = Telemetry {
+                index: tick.index,
+                deadline_ns: tick.deadline_ns,
+                woke_ns: tick.woke_ns,
+                compute_ns: compute,
+                total_ns: total,
+                missed,
+                read_ok: bus.read_ok,
+                held: command.holding,
+                tracking_rms_deg: bus.tracking,
+                tips: current.tips,
+                clip_time: self.clip_time,
+                present: [0; MAX_SERVOS],
+                servos: len,
+                read_ns: self.last_valid_read_ns,
+                stopping: false,
+            };
+            t.present[..len].copy_from_slice(&self.present);
+            self.emit(&t);
+        }
+    }
+}
