@@ -657,7 +657,7 @@ pub(super) fn run_loop(
         }
         Producer::Thread(start) => start,
     };
-    let ros2_node = super::ros2::node(args, out)?;
+    let ros2_node = super::ros2::node(args.ros2, args.ros2_node.as_ref(), out)?;
     let OpenBus {
         mut bus,
         _chain,
@@ -690,7 +690,7 @@ pub(super) fn run_loop(
     let mut clock = SystemClock::new(200_000);
     let publishing = super::ros2::publish(
         ros2_node.as_ref(),
-        args,
+        args.ros2_rate,
         &mut controller,
         &rig_for_ros2,
         profile.servos.iter().map(|s| s.name.clone()).collect(),
@@ -1137,7 +1137,7 @@ pub fn follow_cmd(
     let mut args = args.clone();
     let ros2_node = if matches!(source, TargetSource::Ros2) {
         args.ros2 = true;
-        let node = super::ros2::node(&args, out)?;
+        let node = super::ros2::node(true, args.ros2_node.as_ref(), out)?;
         args.ros2_node.clone_from(&node);
         node
     } else {

@@ -3,7 +3,6 @@
 
 use std::io::Write;
 
-use super::play::LoopArgs;
 use super::CliError;
 use crate::clock::SystemClock;
 use crate::control::input::InputSender;
@@ -44,17 +43,23 @@ fn not_built() -> CliError {
     )
 }
 
-/// The run's node: the one `args` carries, or (with `--ros2`) a new one from `ROS_DOMAIN_ID`.
-/// `None` without `--ros2`.
+/// The run's node: `existing`, or (when `wanted`: `--ros2`) a new one from `ROS_DOMAIN_ID`.
+/// `None` when not wanted.
 ///
 /// # Errors
 /// A build without the `ros2` feature; a bad `ROS_DOMAIN_ID`; DDS failing to start.
-pub(super) fn node(args: &LoopArgs, out: &mut dyn Write) -> Result<Option<Ros2Handle>, CliError> {
+pub(super) fn node(
+    wanted: bool,
+    existing: Option<&Ros2Handle>,
+    out: &mut dyn Write,
+) -> Result<Option<Ros2Handle>, CliError> {
     #[cfg(feature = "ros2")]
-    if let Some(n) = &args.ros2_node {
+    if let Some(n) = existing {
         return Ok(Some(n.clone()));
     }
-    if !args.ros2 {
+    #[cfg(not(feature = "ros2"))]
+    let _ = existing;
+    if !wanted {
         return Ok(None);
     }
     #[cfg(feature = "ros2")]
@@ -87,7 +92,7 @@ pub(super) fn node(args: &LoopArgs, out: &mut dyn Write) -> Result<Option<Ros2Ha
 /// DDS failing to make the topic or the writer; the thread not starting.
 pub(super) fn publish(
     node: Option<&Ros2Handle>,
-    args: &LoopArgs,
+    rate_hz: f64,
     controller: &mut Controller,
     rig: &Rig,
     names: Vec<String>,
@@ -109,18 +114,17 @@ pub(super) fn publish(
         let thread = node
             .lock()
             .map_err(|_| CliError::Usage("--ros2: the node was poisoned".into()))?
-            .spawn_joint_states(rx, rig.clone(), names, clock, args.ros2_rate)
+            .spawn_joint_states(rx, rig.clone(), names, clock, rate_hz)
             .map_err(|e| CliError::Usage(format!("--ros2: {e}")))?;
         writeln!(
             out,
-            "ros2: /joint_states at {} Hz (sensor_msgs/msg/JointState, reliable)",
-            args.ros2_rate
+            "ros2: /joint_states at {rate_hz} Hz (sensor_msgs/msg/JointState, reliable)"
         )?;
         Ok(Some(Publishing { thread }))
     }
     #[cfg(not(feature = "ros2"))]
     {
-        let _ = (args, controller, rig, names, clock, out);
+        let _ = (rate_hz, controller, rig, names, clock, out);
         match *node {}
     }
 }
