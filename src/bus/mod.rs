@@ -531,10 +531,34 @@ pub fn reply_margin(bus: &crate::profile::BusConfig, servos: usize) -> std::time
 /// # Errors
 /// The port cannot be opened.
 pub fn open_port(path: &str, baud: u32, profile: &Profile) -> std::io::Result<Box<dyn ServoBus + Send>> {
-    let margin = reply_margin(&profile.bus, profile.servos.len());
-    Ok(Box::new(
-        packet::PacketBus::new(serial::SerialTransport::open(path, baud)?, margin)
-            .with_read_mode(profile.bus.read)
-            .with_single_margin(4 * margin),
-    ))
+    let link = serial::SerialTransport::open(path, baud)?;
+    Ok(Box::new(host(link, &profile.bus, profile.servos.len())))
+}
+
+/// The project's host on `link` for `servos` servos on `bus`: reads as the bus section says,
+/// each waiting its wire time and [`reply_margin`]; start-up's single transactions four times
+/// the margin.
+pub fn host<T: packet::Transport>(
+    link: T,
+    bus: &crate::profile::BusConfig,
+    servos: usize,
+) -> packet::PacketBus<T> {
+    let margin = reply_margin(bus, servos);
+    packet::PacketBus::new(link, margin)
+        .with_read_mode(bus.read)
+        .with_single_margin(4 * margin)
+}
+
+/// A virtual chain in process that keeps the line time of `bus` in real time (its baud, the USB
+/// adapter's latency), with the project's host on it as on a port ([`host`]).
+#[must_use]
+pub fn line_timed_chain(
+    chain: crate::device::Chain,
+    bus: &crate::profile::BusConfig,
+) -> packet::PacketBus<virtual_chain::InProcess> {
+    let servos = chain.servos().len();
+    let link = virtual_chain::InProcess::new(chain, bus.baud)
+        .with_usb_latency(std::time::Duration::from_micros(u64::from(bus.usb_latency_us)))
+        .real_time();
+    host(link, bus, servos)
 }

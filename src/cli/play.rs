@@ -15,9 +15,8 @@ use clap::{Args, ValueEnum};
 
 use super::error::CliError;
 use crate::budget::plan;
-use crate::bus::packet::PacketBus;
 use crate::bus::start_up;
-use crate::bus::virtual_chain::{chain_for, InProcess, PtyChain};
+use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::clock::SystemClock;
 use crate::control::input::{input_channel, InputPort, InputSender};
 use crate::control::lockstep::{LockstepSource, PlayerFeed, TrackFeed};
@@ -325,13 +324,7 @@ fn open_bus(
             warn_if_over_budget(args, &profile.bus, n, out)?;
             let mut bus_config = profile.bus.clone();
             bus_config.baud = args.baud.unwrap_or(profile.bus.baud);
-            let margin = crate::bus::reply_margin(&bus_config, n);
-            let link = InProcess::new(chain, bus_config.baud)
-                .with_usb_latency(Duration::from_micros(u64::from(bus_config.usb_latency_us)))
-                .real_time();
-            let bus = PacketBus::new(link, margin)
-                .with_read_mode(profile.bus.read)
-                .with_single_margin(4 * margin);
+            let bus = crate::bus::line_timed_chain(chain, &bus_config);
             Ok(OpenBus {
                 bus: Box::new(bus),
                 label: format!(

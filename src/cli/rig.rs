@@ -108,22 +108,13 @@ pub fn budget_cmd(
 /// and the host's wake-ups). The chain starts up as the loop does (the profile's Return Delay
 /// Time written; the factory's is 500 µs per servo).
 fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Write) -> Result<(), CliError> {
-    use std::time::Duration;
-
-    use crate::bus::packet::PacketBus;
-    use crate::bus::virtual_chain::{InProcess, LineTiming};
+    use crate::bus::virtual_chain::LineTiming;
 
     if cycles == 0 {
         return Err(CliError::Usage("--measure needs at least one cycle".into()));
     }
     let planned = plan(&profile.bus, profile.servos.len(), None);
-    let margin = crate::bus::reply_margin(&profile.bus, profile.servos.len());
-    let link = InProcess::new(chain_for(profile, |_| 2048), profile.bus.baud)
-        .with_usb_latency(Duration::from_micros(u64::from(profile.bus.usb_latency_us)))
-        .real_time();
-    let mut in_process = PacketBus::new(link, margin)
-        .with_read_mode(profile.bus.read)
-        .with_single_margin(4 * margin);
+    let mut in_process = crate::bus::line_timed_chain(chain_for(profile, |_| 2048), &profile.bus);
     let in_process = time_cycles(&mut in_process, profile, cycles, "in process")?;
     let pty = PtyChain::serve_timed(chain_for(profile, |_| 2048), LineTiming::of(&profile.bus))
         .map_err(CliError::Output)?;
