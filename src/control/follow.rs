@@ -192,7 +192,9 @@ impl Follower {
     /// the root.
     #[must_use]
     pub fn accepts(&self, t: &Target) -> bool {
-        t.is_finite() && t.effector < self.effectors.len() && t.position.length() <= self.range
+        t.is_finite()
+            && t.effector < self.effectors.len()
+            && t.position.length_squared() <= self.range * self.range
     }
 
     /// The effector names, in order.

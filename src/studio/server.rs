@@ -359,7 +359,6 @@ async fn session(page: Page, mut socket: WebSocket) {
                         }
                     }
                 }
-                Some(Ok(Message::Binary(b))) if b.len() > MAX_MESSAGE_BYTES => break,
                 Some(Err(e)) => {
                     // Over the size limit (or broken): told why, then closed.
                     if e.to_string().contains("too long") {
