@@ -377,7 +377,8 @@ pub enum StartupError {
 /// off (EEPROM is writable only then); Return Delay Time, Status Return Level 2, the position
 /// limits, the profile's Position P Gain (when it gives one); read present positions and copy
 /// them into the goals; only then torque on — so no servo jumps; last, the Bus Watchdog on all
-/// servos at once (the caller's first command must follow within it).
+/// servos at once (the caller's first command must follow within it). Each transaction that
+/// meets a busy line or host is tried again ([`STARTUP_TRIES`] in all).
 ///
 /// # Errors
 /// [`StartupError`]; torque stays off on every servo.
@@ -418,8 +419,8 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
         .map(crate::profile::ServoSpec::tick_limits)
         .collect();
     for (s, (lo, hi)) in profile.servos.iter().zip(&rig_limits) {
-        bus.set_torque(s.id, false)?;
-        let status = bus.hardware_error(s.id)?;
+        retried(|| bus.set_torque(s.id, false))?;
+        let status = retried(|| bus.hardware_error(s.id))?;
         if status != 0 {
             return Err(StartupError::HardwareError {
                 id: s.id,
@@ -427,23 +428,20 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
                 status,
             });
         }
-        bus.write(
-            s.id,
-            addr::RETURN_DELAY_TIME,
-            &[(profile.bus.return_delay_us / 2) as u8],
-        )?;
-        bus.write(s.id, addr::STATUS_RETURN_LEVEL, &[2])?;
-        bus.write(s.id, addr::MAX_POSITION_LIMIT, &hi.to_le_bytes())?;
-        bus.write(s.id, addr::MIN_POSITION_LIMIT, &lo.to_le_bytes())?;
+        let delay = [(profile.bus.return_delay_us / 2) as u8];
+        retried(|| bus.write(s.id, addr::RETURN_DELAY_TIME, &delay))?;
+        retried(|| bus.write(s.id, addr::STATUS_RETURN_LEVEL, &[2]))?;
+        retried(|| bus.write(s.id, addr::MAX_POSITION_LIMIT, &hi.to_le_bytes()))?;
+        retried(|| bus.write(s.id, addr::MIN_POSITION_LIMIT, &lo.to_le_bytes()))?;
         if let Some(gain) = s.position_p_gain {
-            bus.write(s.id, addr::POSITION_P_GAIN, &gain.to_le_bytes())?;
+            retried(|| bus.write(s.id, addr::POSITION_P_GAIN, &gain.to_le_bytes()))?;
         }
         // Clear an expired watchdog (writing 0), then arm it.
-        bus.write(s.id, addr::BUS_WATCHDOG, &[0])?;
+        retried(|| bus.write(s.id, addr::BUS_WATCHDOG, &[0]))?;
     }
     let ids = profile.ids();
     let mut present = vec![0i32; ids.len()];
-    bus.read_positions(&ids, &mut present)?;
+    retried(|| bus.read_positions(&ids, &mut present))?;
     for (s, (p, (lo, hi))) in profile.servos.iter().zip(present.iter().zip(&rig_limits)) {
         if p < lo || p > hi {
             return Err(StartupError::OutsideLimits {
@@ -458,7 +456,7 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
     bus.write_goals(&ids, &present)?;
     for (s, p) in profile.servos.iter().zip(&present) {
         // Read back: the goal must equal the present position before torque goes on.
-        let goal = bus.read_value(s.id, addr::GOAL_POSITION, 4)? as i32;
+        let goal = retried(|| bus.read_value(s.id, addr::GOAL_POSITION, 4))? as i32;
         if goal != *p {
             return Err(StartupError::Bus(BusError::Malformed {
                 id: s.id,
@@ -466,8 +464,19 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
             }));
         }
     }
+    if let Err(e) = torque_on_and_arm(bus, profile, &ids) {
+        // Torque off again everywhere (best effort; the error that stopped start-up is the one
+        // to report).
+        let _ = shut_down(bus, profile);
+        return Err(e);
+    }
+    Ok(present)
+}
+
+/// Torque on every servo, then the Bus Watchdog armed on all of them at once and read back.
+fn torque_on_and_arm(bus: &mut dyn ServoBus, profile: &Profile, ids: &[u8]) -> Result<(), StartupError> {
     for s in &profile.servos {
-        bus.set_torque(s.id, true)?;
+        retried(|| bus.set_torque(s.id, true))?;
     }
     // The watchdog armed on every servo at once, last: armed one by one, the first servos'
     // would run out while the others are still being set up (28 acknowledged writes take
@@ -476,17 +485,9 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
     let wd = (profile.bus.watchdog_ms / 20).min(127) as u8;
     if wd > 0 {
         let n = ids.len();
-        bus.sync_write(addr::BUS_WATCHDOG, 1, &ids, &vec![wd; n])?;
+        bus.sync_write(addr::BUS_WATCHDOG, 1, ids, &vec![wd; n])?;
         let mut armed = vec![0u8; n];
-        // Three tries: a read that need not fit in a tick may meet a busy line or host.
-        let mut read = bus.sync_read(addr::BUS_WATCHDOG, 1, &ids, &mut armed);
-        for _ in 0..2 {
-            if read.is_ok() {
-                break;
-            }
-            read = bus.sync_read(addr::BUS_WATCHDOG, 1, &ids, &mut armed);
-        }
-        read?;
+        retried(|| bus.sync_read(addr::BUS_WATCHDOG, 1, ids, &mut armed))?;
         if let Some(k) = armed.iter().position(|a| *a != wd) {
             return Err(StartupError::Bus(BusError::Malformed {
                 id: ids[k],
@@ -494,17 +495,38 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
             }));
         }
     }
-    Ok(present)
+    Ok(())
 }
 
-/// Torque off on every profiled servo (all are tried; the first error is returned).
+/// How many times start-up tries each of its transactions.
+const STARTUP_TRIES: usize = 3;
+
+/// Start-up's transactions are idempotent (reads, and writes of fixed values): one that meets a
+/// busy line or host — no reply in time, a bad CRC, the late reply of the one before — is tried
+/// again, [`STARTUP_TRIES`] times in all, before it fails the start-up. A servo's own error
+/// answer is not retried.
+fn retried<T>(mut transaction: impl FnMut() -> Result<T, BusError>) -> Result<T, BusError> {
+    let mut outcome = transaction();
+    for _ in 1..STARTUP_TRIES {
+        match outcome {
+            Err(BusError::Timeout { .. } | BusError::Crc { .. } | BusError::WrongId { .. }) => {
+                outcome = transaction();
+            }
+            _ => break,
+        }
+    }
+    outcome
+}
+
+/// Torque off on every profiled servo (all are tried, each write again on a busy line; the
+/// first error is returned).
 ///
 /// # Errors
 /// [`BusError`].
 pub fn shut_down(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(), BusError> {
     let mut first = None;
     for s in &profile.servos {
-        if let Err(e) = bus.set_torque(s.id, false) {
+        if let Err(e) = retried(|| bus.set_torque(s.id, false)) {
             first.get_or_insert(e);
         }
     }
