@@ -15,12 +15,13 @@ use marionette::command::CommandStage;
 use marionette::control::input::{input_channel, Input, Payload};
 use marionette::control::lookahead::{Lookahead, LookaheadSettings, Preview, SourceSample};
 use marionette::control::sources::{clip_track, ClipPlayer, TrackFrame};
-use marionette::control::{Controller, Follower, LoopConfig, Solve};
+use marionette::control::{Follower, Solve};
 use marionette::formats::{amc, asf};
 use marionette::profile::Profile;
 use marionette::protocol::{encode, instruction, BROADCAST_ID};
 use marionette::rig::ServoMap;
 use marionette::schedule::{Clock, Tick};
+use marionette::session::{self, Lead, RigDrive, SessionSpec};
 use marionette::skeleton::MAX_CHANNELS;
 use std::path::Path;
 use std::sync::Arc;
@@ -105,29 +106,21 @@ fn bench(c: &mut Criterion) {
         } else {
             Solve::Frames
         };
-        // As a real-time run: the fidelity accumulated on a thread of its own.
-        let config = LoopConfig {
+        // As a real-time run (the fidelity accumulated on a thread of its own), with or without
+        // the look-ahead led by the profile's lags.
+        let spec = SessionSpec {
             rate_hz: 500.0,
-            fidelity_worker: true,
-            ..LoopConfig::default()
+            lead: if lookahead { Lead::Profile } else { Lead::Off },
+            // No effector errors in metres: the tick's own work.
+            scale: 0.0,
+            ..SessionSpec::default()
         };
-        let mut ctl = Controller::new(
-            Arc::clone(&skel),
-            rig.clone(),
-            profile.ids(),
-            &present,
-            port,
-            solve,
-            config,
-        );
-        if lookahead {
-            let leads: Vec<f64> = profile
-                .servos
-                .iter()
-                .map(|s| s.lag_ms.unwrap_or(0.0) * 1e-3 + 0.002)
-                .collect();
-            ctl.set_lookahead(Lookahead::new(&rig, 500.0, &leads, LookaheadSettings::default()));
-        }
+        let drive = RigDrive {
+            skeleton: Arc::clone(&skel),
+            rig: rig.clone(),
+            retarget: None,
+        };
+        let mut ctl = session::controller(&spec, &profile, drive, &present, port, solve, true);
         let mut bus = EncodeBus {
             packet: [0; 4096],
             params: [0; 4096],

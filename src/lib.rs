@@ -71,4 +71,6 @@ pub mod plot;
 
 pub mod studio;
 
+pub mod session;
+
 pub mod cli;

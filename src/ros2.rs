@@ -38,7 +38,8 @@ use ros2_client::{
 };
 
 use crate::clock::SystemClock;
-use crate::control::input::{Input, InputSender, Payload, Target, MAX_EFFECTORS};
+use crate::control::input::{Input, Payload, Target, MAX_EFFECTORS};
+use crate::control::source::{Grid, Sink, Source};
 use crate::control::sources::ProducerReport;
 use crate::control::Telemetry;
 use crate::rig::Rig;
@@ -357,21 +358,19 @@ impl Ros2Node {
             })?)
     }
 
-    /// Subscribes to `/marionette/targets/<effector>` for each of `effectors` and sends what
-    /// arrives to the loop as live target inputs (positions in metres on the rig turned into
-    /// file units by `metres_per_unit`), until the loop stops.
+    /// Subscribes to `/marionette/targets/<effector>` for each of `effectors`: a live source
+    /// of target inputs (positions in metres on the rig turned into file units by
+    /// `metres_per_unit`), until the loop stops.
     ///
     /// # Errors
     /// [`Ros2Error`] for an effector name that makes no ROS 2 topic name, or DDS failing.
-    pub fn spawn_targets(
+    pub fn targets(
         &mut self,
         effectors: &[String],
         root: &str,
         kind: TargetKind,
         metres_per_unit: f64,
-        tx: InputSender,
-        clock: SystemClock,
-    ) -> Result<JoinHandle<ProducerReport>, Ros2Error> {
+    ) -> Result<TargetSource, Ros2Error> {
         let qos = targets_qos();
         let type_name = match kind {
             TargetKind::Point => MessageTypeName::new("geometry_msgs", "PointStamped"),
@@ -402,69 +401,139 @@ impl Ros2Node {
                 }
             }
         }
-        let reader = TargetReader {
-            root: root.to_string(),
-            metres_per_unit,
+        Ok(TargetSource {
+            points,
+            poses,
+            reader: TargetReader {
+                root: root.to_string(),
+                metres_per_unit,
+            },
+            clock: None,
+            seq: 0,
+            report: ProducerReport::default(),
+        })
+    }
+}
+
+/// Target topics as the loop's live source (made by [`Ros2Node::targets`]; real time only).
+pub struct TargetSource {
+    points: Vec<(usize, Subscription<msg::PointStamped>)>,
+    poses: Vec<(usize, Subscription<msg::PoseStamped>)>,
+    reader: TargetReader,
+    clock: Option<SystemClock>,
+    seq: u64,
+    report: ProducerReport,
+}
+
+impl std::fmt::Debug for TargetSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TargetSource")
+            .field("topics", &(self.points.len() + self.poses.len()))
+            .finish_non_exhaustive()
+    }
+}
+
+impl TargetSource {
+    /// Sends a target (or counts a refusal); false once the loop has stopped.
+    fn send(&mut self, target: Result<Target, String>, sink: &Sink<'_>) -> bool {
+        let Ok(target) = target else {
+            self.report.bad_lines += 1;
+            return true;
         };
-        Ok(std::thread::Builder::new()
-            .name("ros2-targets".into())
+        let mut targets = heapless::Vec::new();
+        let _ = targets.push(target);
+        let msg = Input {
+            seq: self.seq,
+            due_ns: 0,
+            made_ns: self.clock.as_mut().map_or(0, Clock::now_ns),
+            payload: Payload::Targets(targets),
+        };
+        self.seq += 1;
+        match sink.send_newest(msg) {
+            Ok(dropped) => {
+                self.report.sent += 1;
+                self.report.dropped += u64::from(dropped);
+                true
+            }
+            Err(_) => false,
+        }
+    }
+}
+
+impl Source for TargetSource {
+    fn name(&self) -> &'static str {
+        "ros2-targets"
+    }
+    fn live(&self) -> bool {
+        true
+    }
+    fn runs_in_lockstep(&self) -> bool {
+        false
+    }
+    fn next_due(&self, _grid: Grid) -> Option<u64> {
+        None
+    }
+    fn begin(&mut self, clock: SystemClock) {
+        self.clock = Some(clock);
+    }
+    fn feed(&mut self, _grid: Grid, _until_ns: u64, _now_ns: u64, sink: &Sink<'_>) -> bool {
+        // The streams wake this thread when a sample arrives; a watcher ends the wait when the
+        // loop stops (the loop's stop is a flag, not a waker).
+        let stop = Arc::new(AtomicBool::new(false));
+        let (done_tx, done_rx) = futures::channel::oneshot::channel::<()>();
+        let watch_stop = Arc::clone(&stop);
+        let stopped = sink.stop_flag();
+        let watcher = std::thread::Builder::new()
+            .name("ros2-targets-stop".into())
             .spawn(move || {
-                let mut sink = TargetSink {
-                    tx,
-                    clock,
-                    seq: 0,
-                    report: ProducerReport::default(),
-                };
-                // The streams wake this thread when a sample arrives; a watcher ends the wait
-                // when the loop stops (the loop's stop is a flag, not a waker).
-                let stop = Arc::new(AtomicBool::new(false));
-                let (done_tx, done_rx) = futures::channel::oneshot::channel::<()>();
-                let watch_tx = sink.tx.clone();
-                let watch_stop = Arc::clone(&stop);
-                let watcher = std::thread::Builder::new()
-                    .name("ros2-targets-stop".into())
-                    .spawn(move || {
-                        while !watch_tx.stopped() && !watch_stop.load(Ordering::Relaxed) {
-                            std::thread::sleep(Duration::from_millis(20));
-                        }
-                        let _ = done_tx.send(());
-                    });
-                if watcher.is_err() {
-                    return sink.report;
+                while !stopped.load(Ordering::Relaxed) && !watch_stop.load(Ordering::Relaxed) {
+                    std::thread::sleep(Duration::from_millis(20));
                 }
-                let point_streams = points.iter().map(|(k, s)| {
-                    s.async_stream()
-                        .map(move |r| (*k, r.map(|(m, _)| Incoming::Point(m))))
-                });
-                let pose_streams = poses.iter().map(|(k, s)| {
-                    s.async_stream()
-                        .map(move |r| (*k, r.map(|(m, _)| Incoming::Pose(m))))
-                });
-                let mut all = futures::stream::select_all(
-                    point_streams
-                        .map(futures::StreamExt::boxed)
-                        .chain(pose_streams.map(futures::StreamExt::boxed)),
-                );
-                futures::executor::block_on(async {
-                    let mut done = done_rx;
-                    loop {
-                        futures::select! {
-                            item = all.next() => match item {
-                                Some((k, Ok(m))) => {
-                                    if !sink.send(reader.target(k, &m)) {
-                                        break;
-                                    }
+                let _ = done_tx.send(());
+            });
+        if watcher.is_err() {
+            return false;
+        }
+        let points = std::mem::take(&mut self.points);
+        let poses = std::mem::take(&mut self.poses);
+        {
+            let point_streams = points.iter().map(|(k, s)| {
+                s.async_stream()
+                    .map(move |r| (*k, r.map(|(m, _)| Incoming::Point(m))))
+            });
+            let pose_streams = poses.iter().map(|(k, s)| {
+                s.async_stream()
+                    .map(move |r| (*k, r.map(|(m, _)| Incoming::Pose(m))))
+            });
+            let mut all = futures::stream::select_all(
+                point_streams
+                    .map(futures::StreamExt::boxed)
+                    .chain(pose_streams.map(futures::StreamExt::boxed)),
+            );
+            futures::executor::block_on(async {
+                let mut done = done_rx;
+                loop {
+                    futures::select! {
+                        item = all.next() => match item {
+                            Some((k, Ok(m))) => {
+                                let target = self.reader.target(k, &m);
+                                if !self.send(target, sink) {
+                                    break;
                                 }
-                                Some((_, Err(_))) => sink.report.bad_lines += 1,
-                                None => break,
-                            },
-                            _ = done => break,
-                        }
+                            }
+                            Some((_, Err(_))) => self.report.bad_lines += 1,
+                            None => break,
+                        },
+                        _ = done => break,
                     }
-                });
-                stop.store(true, Ordering::Relaxed);
-                sink.report
-            })?)
+                }
+            });
+        }
+        stop.store(true, Ordering::Relaxed);
+        false
+    }
+    fn report(&self) -> ProducerReport {
+        self.report
     }
 }
 
@@ -629,41 +698,6 @@ impl TargetReader {
             return Err("target: not finite in the skeleton's units".into());
         }
         Ok(target)
-    }
-}
-
-/// The target thread's end of the loop's input channel.
-struct TargetSink {
-    tx: InputSender,
-    clock: SystemClock,
-    seq: u64,
-    report: ProducerReport,
-}
-
-impl TargetSink {
-    /// Sends a target (or counts a refusal); false once the loop has stopped.
-    fn send(&mut self, target: Result<Target, String>) -> bool {
-        let Ok(target) = target else {
-            self.report.bad_lines += 1;
-            return true;
-        };
-        let mut targets = heapless::Vec::new();
-        let _ = targets.push(target);
-        let msg = Input {
-            seq: self.seq,
-            due_ns: 0,
-            made_ns: self.clock.now_ns(),
-            payload: Payload::Targets(targets),
-        };
-        self.seq += 1;
-        match self.tx.send_newest(msg) {
-            Ok(dropped) => {
-                self.report.sent += 1;
-                self.report.dropped += u64::from(dropped);
-                true
-            }
-            Err(_) => false,
-        }
     }
 }
 

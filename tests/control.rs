@@ -892,8 +892,9 @@ fn walk_in_lockstep(
     rate: f64,
     lookahead: Option<f64>,
 ) -> (marionette::control::fidelity::FidelityReport, u64) {
-    use marionette::control::lockstep::{FeedingClock, PlayerFeed};
+    use marionette::control::lockstep::FeedingClock;
     use marionette::control::lookahead::{Lookahead, LookaheadSettings};
+    use marionette::control::source::{ClipSource, Grid};
     let s = setup();
     let mut motion = (*s.motion).clone();
     let dropouts = marionette::motion::dropouts::repair(&s.skel, &mut motion);
@@ -917,8 +918,12 @@ fn walk_in_lockstep(
     let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::new(motion), rate, false);
     player.set_pre_roll(0.5);
     let pre_roll = player.pre_roll_samples();
-    let feed = PlayerFeed::new(player, period, s.skel.channel_count());
-    let mut clock = FeedingClock::new(vr.clone(), feed, tx, start, period).with_preview(c.preview_ns());
+    let feed = Box::new(ClipSource::new(player, None));
+    let grid = Grid {
+        start_ns: start,
+        period_ns: period,
+    };
+    let mut clock = FeedingClock::new(vr.clone(), feed, tx, grid).with_preview(c.preview_ns());
     let mut schedule = Schedule::new(start, period);
     let end = c.run(&mut schedule, &mut vr, &mut clock, &StopRequests::new());
     assert_eq!(end, RunEnd::InputEnded);

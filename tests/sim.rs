@@ -14,7 +14,8 @@ use std::sync::Arc;
 use glam::{DQuat, DVec3};
 use marionette::bus::{start_up, ServoBus};
 use marionette::control::input::input_channel;
-use marionette::control::lockstep::{FeedingClock, PlayerFeed};
+use marionette::control::lockstep::FeedingClock;
+use marionette::control::source::{ClipSource, Grid};
 use marionette::control::sources::ClipPlayer;
 use marionette::control::{Controller, LoopConfig, RunEnd, Solve, StopMode, StopRequests};
 use marionette::fk::{fk64, Pose64};
@@ -130,8 +131,12 @@ fn walk_in_lockstep() -> (TrackingReport, Vec<f64>, u64, RunEnd) {
     let period = c.period_ns();
     let start = bus.now_ns() + period;
     let player = ClipPlayer::new(Arc::clone(&skel), motion, 120.0, false);
-    let feed = PlayerFeed::new(player, period, skel.channel_count());
-    let mut clock = FeedingClock::new(bus.clone(), feed, tx, start, period);
+    let feed = Box::new(ClipSource::new(player, None));
+    let grid = Grid {
+        start_ns: start,
+        period_ns: period,
+    };
+    let mut clock = FeedingClock::new(bus.clone(), feed, tx, grid);
     let mut schedule = Schedule::new(start, period);
     let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
     assert_eq!(clock.report().sent, 471);

@@ -6,9 +6,9 @@ mod common;
 use std::sync::Arc;
 
 use marionette::bus::faults::Fault;
-use marionette::control::soak::{soak, SoakConfig};
 use marionette::formats::{amc, asf};
 use marionette::profile::Profile;
+use marionette::session::soak::{soak, SoakConfig};
 
 #[test]
 fn a_short_soak_counts_no_violation_and_recovers_within_a_tick() {

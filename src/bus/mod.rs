@@ -499,7 +499,7 @@ fn torque_on_and_arm(bus: &mut dyn ServoBus, profile: &Profile, ids: &[u8]) -> R
 }
 
 /// How many times start-up tries each of its transactions.
-const STARTUP_TRIES: usize = 3;
+pub const STARTUP_TRIES: usize = 3;
 
 /// Start-up's transactions are idempotent (reads, and writes of fixed values): one that meets a
 /// busy line or host — no reply in time, a bad CRC, the late reply of the one before — is tried
@@ -543,18 +543,37 @@ pub fn reply_margin(bus: &crate::profile::BusConfig, servos: usize) -> std::time
     )
 }
 
-/// Opens the loop's bus on a serial port for `profile`: the project's own host
-/// ([`packet::PacketBus`] over [`serial::SerialTransport`]), reading positions as the profile
-/// says (Sync, Bulk, Fast Sync or Fast Bulk Read — `dynamixel2` 0.9.1 has no fast reads and
-/// builds a wrong Bulk Read for more than one servo); its reads can be pipelined and wait only
-/// their wire time and [`reply_margin`]. Start-up's single transactions wait four times the
-/// margin.
+/// What a bus runs over.
+#[derive(Debug)]
+pub enum Wire {
+    /// A serial port (a USB adapter, or a pseudo-terminal serving a virtual chain), at the bus
+    /// section's baud.
+    Port(String),
+    /// A virtual chain in process, keeping the line time of the bus section in real time.
+    Chain(Box<crate::device::Chain>),
+}
+
+/// Opens the project's host ([`packet::PacketBus`]) for `servos` servos on `wire`, reading
+/// positions as `config` says (Sync, Bulk, Fast Sync or Fast Bulk Read — `dynamixel2` 0.9.1 has
+/// no fast reads and builds a wrong Bulk Read for more than one servo); its reads can be
+/// pipelined and wait only their wire time and [`reply_margin`]. Start-up's single transactions
+/// wait four times the margin.
 ///
 /// # Errors
 /// The port cannot be opened.
-pub fn open_port(path: &str, baud: u32, profile: &Profile) -> std::io::Result<Box<dyn ServoBus + Send>> {
-    let link = serial::SerialTransport::open(path, baud)?;
-    Ok(Box::new(host(link, &profile.bus, profile.servos.len())))
+pub fn open(
+    wire: Wire,
+    config: &crate::profile::BusConfig,
+    servos: usize,
+) -> std::io::Result<Box<dyn ServoBus + Send>> {
+    Ok(match wire {
+        Wire::Port(path) => Box::new(host(
+            serial::SerialTransport::open(&path, config.baud)?,
+            config,
+            servos,
+        )),
+        Wire::Chain(chain) => Box::new(line_timed_chain(*chain, config)),
+    })
 }
 
 /// The project's host on `link` for `servos` servos on `bus`: reads as the bus section says,

@@ -63,7 +63,7 @@ pub enum CliError {
     },
     /// The soak could not run.
     #[error("soak: {0}")]
-    Soak(#[from] crate::control::soak::SoakError),
+    Soak(#[from] crate::session::soak::SoakError),
     /// The soak counted safety violations (panics, corrupt values used, goals outside limits,
     /// torque left on).
     #[error("the soak counted {0} safety violations (see the figures above)")]
@@ -101,6 +101,26 @@ pub enum CliError {
     /// A report could not be written as JSON.
     #[error("JSON: {0}")]
     Json(#[from] serde_json::Error),
+}
+
+impl From<crate::session::SessionError> for CliError {
+    /// The session's errors as the command line has always printed them.
+    fn from(e: crate::session::SessionError) -> CliError {
+        use crate::session::SessionError as S;
+        match e {
+            S::Invalid(s) => CliError::Usage(s),
+            S::File(f) => CliError::File(f),
+            S::Port { port, source } => CliError::Port { port, source },
+            S::StartUp(s) => CliError::StartUp(s),
+            S::Output(e) => CliError::Output(e),
+            S::LoopPanicked => CliError::LoopPanicked,
+            #[cfg(feature = "sim")]
+            S::Sim(e) => CliError::Sim(e),
+            S::NoSimulator(s) => CliError::NoSimulator(s),
+            S::Plot(e) => CliError::Plot(e),
+            S::Json(e) => CliError::Json(e),
+        }
+    }
 }
 
 impl CliError {

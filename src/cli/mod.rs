@@ -11,7 +11,6 @@ mod inspect;
 mod play;
 mod retarget;
 mod rig;
-mod ros2;
 mod sim;
 mod soak;
 #[cfg(feature = "studio")]

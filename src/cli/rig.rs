@@ -119,8 +119,12 @@ fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Wr
     let pty = PtyChain::serve_timed(chain_for(profile, |_| 2048), LineTiming::of(&profile.bus))
         .map_err(CliError::Output)?;
     let path = pty.path().to_string();
-    let mut bus =
-        crate::bus::open_port(&path, profile.bus.baud, profile).map_err(CliError::at_port(&path))?;
+    let mut bus = crate::bus::open(
+        crate::bus::Wire::Port(path.clone()),
+        &profile.bus,
+        profile.servos.len(),
+    )
+    .map_err(CliError::at_port(&path))?;
     let served = time_cycles(bus.as_mut(), profile, cycles, &path)?;
     if json {
         let v = serde_json::json!({

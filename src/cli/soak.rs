@@ -1,13 +1,13 @@
-//! `marionette soak`: the fault soak in virtual time ([`crate::control::soak`]).
+//! `marionette soak`: the fault soak in virtual time ([`crate::session::soak`]).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::error::CliError;
-use crate::control::soak::{soak, SoakConfig};
 use crate::formats::{amc, asf};
 use crate::profile::Profile;
+use crate::session::soak::{soak, SoakConfig};
 
 /// The soak's settings from the command line.
 pub struct SoakArgs {

@@ -7,15 +7,15 @@ use std::sync::atomic::Ordering;
 use std::sync::{Arc, OnceLock};
 
 use super::error::CliError;
-use super::play::{finish, input_capacity, run_loop, BusArg, LoopArgs, NoFigures, Producer};
-use crate::control::input::input_channel;
+use super::play::{finish, BusArg, LoopArgs, NoFigures};
 use crate::control::Solve;
 use crate::formats::{amc, asf};
 use crate::profile::{Drive, Profile};
+use crate::session::Session;
 use crate::studio::access::{host_name, url_host, Access, AccessOptions};
 use crate::studio::scene::Scene;
 use crate::studio::server::Server;
-use crate::studio::{server, Feed, LiveFeed, ServoInfo, Studio};
+use crate::studio::{server, Feed, ServoInfo, Studio, StudioSource};
 
 /// Options of `marionette studio`.
 #[derive(Debug)]
@@ -64,48 +64,29 @@ pub fn studio_cmd(
         })
         .collect();
     let scene = Scene::new(Arc::clone(&skeleton), clip.as_ref());
-    let (tx, port) = input_channel(input_capacity(args.rate));
+    let live = Arc::new(crate::control::live::LiveView::default());
+    let session = Session::new(args.spec(false, Some(Arc::clone(&live)), allocations, out)?)?;
     let bus = match &args.bus {
         BusArg::Virtual => "the virtual chain".to_string(),
         BusArg::Sim => "the simulator".to_string(),
         BusArg::Port(p) => p.clone(),
     };
-    let (studio, producer, lockstep) = if args.bus == BusArg::Sim {
+    // In real time the drags go straight into the loop's channel; in lockstep through the
+    // source, which the simulator's clock drains.
+    let (feed, lockstep) = if args.bus == BusArg::Sim {
         let (ptx, prx) = crossbeam_channel::bounded(256);
-        let studio = Arc::new(Studio::new(scene, Feed::Lockstep(ptx), servos, args.rate, bus));
-        let producer = Producer::Lockstep(tx, Box::new(move |_| Box::new(LiveFeed::new(prx))));
-        (studio, producer, true)
+        (Feed::Lockstep(ptx), Some(prx))
     } else {
-        let feed = Feed::Direct {
-            tx: tx.clone(),
-            clock: OnceLock::new(),
-        };
-        let studio = Arc::new(Studio::new(scene, feed, servos, args.rate, bus));
-        let s = Arc::clone(&studio);
-        let producer = Producer::Thread(Box::new(move |clock, _start, _period, _preview| {
-            s.set_loop_clock(clock);
-            s.republish();
-            std::thread::Builder::new()
-                .name("studio-frames".into())
-                .spawn(move || {
-                    s.run_frames(|| tx.stopped());
-                    s.report()
-                })
-        }));
-        (studio, producer, false)
-    };
-    let frames = if lockstep {
-        studio.republish();
-        let s = Arc::clone(&studio);
-        Some(
-            std::thread::Builder::new()
-                .name("studio-frames".into())
-                .spawn(move || s.run_frames(|| false))
-                .map_err(CliError::Output)?,
+        (
+            Feed::Direct {
+                tx: session.input(),
+                clock: OnceLock::new(),
+            },
+            None,
         )
-    } else {
-        None
     };
+    let studio = Arc::new(Studio::new(scene, feed, servos, args.rate, bus).with_live_view(live));
+    let source = Box::new(StudioSource::new(Arc::clone(&studio), lockstep));
     let web = Arc::new(Server::new(Arc::clone(&studio), Arc::clone(&access)));
     let s = Arc::clone(&web);
     let http = std::thread::Builder::new()
@@ -140,24 +121,9 @@ pub fn studio_cmd(
         }
     )?;
     out.flush()?;
-    let mut args = args.clone();
-    args.live = Some(Arc::clone(&studio.live));
-    let outcome = run_loop(
-        &args,
-        &profile,
-        skeleton,
-        Solve::Frames,
-        port,
-        producer,
-        allocations,
-        clip.as_ref(),
-        out,
-    );
+    let outcome = session.run(&profile, skeleton, Solve::Frames, clip.as_ref(), source, out);
     studio.stop.store(true, Ordering::Relaxed);
     let served = http.join();
-    if let Some(f) = frames {
-        let _ = f.join();
-    }
     let outcome = outcome?;
     if let Ok(Err(e)) = served {
         writeln!(out, "studio server: {e}")?;
@@ -171,5 +137,5 @@ pub fn studio_cmd(
         "drag → Sync Write: {} drags carried, p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs from the browser's event (p50 {:.0} µs, p99 {:.0} µs from the server's receipt)",
         l.n, l.p50, l.p99, l.max, r.p50, r.p99
     )?;
-    finish(&outcome, &args, NoFigures {}, out)
+    finish(&outcome, args, NoFigures {}, out)
 }

@@ -150,6 +150,12 @@ impl InputSender {
     pub fn stopped(&self) -> bool {
         self.stop.load(Ordering::Relaxed)
     }
+
+    /// The flag [`InputSender::stopped`] reads, for a thread that waits on something else.
+    #[must_use]
+    pub fn stop_flag(&self) -> Arc<AtomicBool> {
+        Arc::clone(&self.stop)
+    }
 }
 
 /// The loop's end of an input channel.

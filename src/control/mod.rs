@@ -25,7 +25,7 @@ pub mod lockstep;
 pub mod lookahead;
 pub mod plot;
 mod retarget_stage;
-pub mod soak;
+pub mod source;
 pub mod sources;
 pub mod stats;
 mod tick;

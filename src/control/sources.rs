@@ -1,6 +1,6 @@
-//! Producers of loop inputs, outside the tick: the clip player (SLERP resampling to the loop
-//! rate, looping, pause/seek/speed), target tracks from CSV or JSON-lines files, and live target
-//! lines from stdin or a UDP socket on loopback.
+//! What the loop's sources play, outside the tick: the clip player (SLERP resampling to the loop
+//! rate, looping, pause/seek/speed), target tracks from CSV or JSON-lines files, and the target
+//! line format that live sources (stdin, UDP) read too ([`super::source`] feeds them in).
 //!
 //! Target lines, in the root's frame (file units), time in seconds:
 //!
@@ -9,23 +9,16 @@
 //! * JSON lines: `{"t":0.5,"targets":[{"effector":"lradius","position":[x,y,z],"direction":[dx,dy,dz]}]}`
 //!   (`direction` optional), or one target per line as `{"t":…,"effector":…,"position":…}`.
 
-use std::io::BufRead;
-use std::net::UdpSocket;
 use std::path::Path;
 use std::sync::Arc;
-use std::thread::JoinHandle;
-use std::time::Duration;
 
-use crossbeam_channel::Receiver;
 use glam::DVec3;
 
-use super::input::{Input, InputSender, Payload, Target, MAX_EFFECTORS};
-use crate::clock::SystemClock;
+use super::input::{Target, MAX_EFFECTORS};
 use crate::formats::{read_text, FileError, TextError};
 use crate::interp::interpolate_frames;
 use crate::motion::Motion;
-use crate::schedule::Clock;
-use crate::skeleton::{Skeleton, MAX_CHANNELS};
+use crate::skeleton::Skeleton;
 
 /// A clip sampled at the loop's rate: each call gives the frame at the next tick's clip time,
 /// SLERP between the two nearest clip frames (eq. 12), rotations in radians.
@@ -76,6 +69,12 @@ impl ClipPlayer {
             pre_roll: 0,
             buf: vec![0.0; n],
         }
+    }
+
+    /// Channels of a sample (the skeleton's).
+    #[must_use]
+    pub fn channel_count(&self) -> usize {
+        self.skeleton.channel_count()
     }
 
     /// The clip's length, seconds (time of its last frame).
@@ -184,68 +183,6 @@ pub struct ProducerReport {
     pub bad_lines: u64,
     /// Datagrams over [`MAX_DATAGRAM_BYTES`], refused whole.
     pub oversized: u64,
-}
-
-/// How far ahead of its due time a paced producer makes a message: long enough for a sleeping
-/// thread to wake and to ride out a few milliseconds of preemption on a loaded machine (a late
-/// sample would be passed over for the next), short enough for the input to be fresh.
-pub const LEAD_NS: u64 = 10_000_000;
-
-fn lead_ns(period_ns: u64) -> u64 {
-    (2 * period_ns).max(LEAD_NS)
-}
-
-/// Sleeps (plain sleep: producers do not spin) until `lead` before `due`.
-fn sleep_until_lead(clock: &mut SystemClock, due: u64, lead: u64) {
-    let at = due.saturating_sub(lead);
-    let now = clock.now_ns();
-    if at > now {
-        std::thread::sleep(Duration::from_nanos(at - now));
-    }
-}
-
-/// Runs `player` in a thread: sample `k` is due at tick `k` of the loop's grid
-/// (`start_ns + k·period_ns` on `clock`) and made shortly before (two periods, at least 10 ms)
-/// plus `preview_ns` (the loop's look-ahead takes samples that far ahead).
-/// Commands arrive on `commands`. The thread ends with the clip (played once) or when the
-/// loop stops.
-///
-/// # Errors
-/// When the thread cannot be started.
-pub fn spawn_player(
-    mut player: ClipPlayer,
-    tx: InputSender,
-    mut clock: SystemClock,
-    start_ns: u64,
-    period_ns: u64,
-    preview_ns: u64,
-    commands: Option<Receiver<PlayerCommand>>,
-) -> std::io::Result<JoinHandle<ProducerReport>> {
-    std::thread::Builder::new()
-        .name("clip-player".into())
-        .spawn(move || {
-            let mut report = ProducerReport::default();
-            let mut frame = [0.0f64; MAX_CHANNELS];
-            let n = player.skeleton.channel_count().min(MAX_CHANNELS);
-            for k in 0u64.. {
-                if let Some(rx) = &commands {
-                    while let Ok(c) = rx.try_recv() {
-                        player.control(c);
-                    }
-                }
-                let Some(t) = player.next_sample(&mut frame[..n]) else {
-                    break;
-                };
-                let due = start_ns + k * period_ns;
-                sleep_until_lead(&mut clock, due, lead_ns(period_ns) + preview_ns);
-                let msg = Input::frame(k, due, clock.now_ns(), &frame[..n], t);
-                if tx.send_wait(msg).is_err() {
-                    break;
-                }
-                report.sent += 1;
-            }
-            report
-        })
 }
 
 /// Samples of effector targets over time, read from a file.
@@ -426,160 +363,9 @@ pub fn parse_target_line(
     Ok(Some((t, out)))
 }
 
-/// Streams a track in a thread: the sample at track time `t` is due at
-/// `start_ns + (t − t₀)` on the loop's clock; looping starts over after the last sample.
-///
-/// # Errors
-/// When the thread cannot be started.
-pub fn spawn_track(
-    track: TargetTrack,
-    tx: InputSender,
-    mut clock: SystemClock,
-    start_ns: u64,
-    preview_ns: u64,
-    looping: bool,
-) -> std::io::Result<JoinHandle<ProducerReport>> {
-    std::thread::Builder::new()
-        .name("target-track".into())
-        .spawn(move || {
-            let mut report = ProducerReport::default();
-            let Some(t0) = track.samples.first().map(|s| s.0) else {
-                return report;
-            };
-            // One period past the end before starting over, so the last and first samples of
-            // two passes are not due at the same instant.
-            let pass_ns = ((track.duration() + 1.0 / 120.0) * 1e9) as u64;
-            let mut seq = 0;
-            for pass in 0u64.. {
-                for (t, targets) in &track.samples {
-                    let due = start_ns + pass * pass_ns + ((t - t0) * 1e9) as u64;
-                    sleep_until_lead(&mut clock, due, LEAD_NS + preview_ns);
-                    let msg = Input {
-                        seq,
-                        due_ns: due,
-                        made_ns: clock.now_ns(),
-                        payload: Payload::Targets(targets.clone()),
-                    };
-                    seq += 1;
-                    if tx.send_wait(msg).is_err() {
-                        return report;
-                    }
-                    report.sent += 1;
-                }
-                if !looping {
-                    break;
-                }
-            }
-            report
-        })
-}
-
-/// Reads target lines from stdin as they come (each due at once, newest wins). Ends at the end
-/// of input or when the loop stops (checked between lines).
-///
-/// # Errors
-/// When the thread cannot be started.
-pub fn spawn_stdin(
-    effectors: Vec<String>,
-    tx: InputSender,
-    clock: SystemClock,
-) -> std::io::Result<JoinHandle<ProducerReport>> {
-    std::thread::Builder::new()
-        .name("targets-stdin".into())
-        .spawn(move || {
-            let stdin = std::io::stdin();
-            let lines = stdin.lock().lines().map_while(Result::ok);
-            live_lines(lines, &effectors, &tx, clock)
-        })
-}
-
-fn live_lines(
-    lines: impl Iterator<Item = String>,
-    effectors: &[String],
-    tx: &InputSender,
-    mut clock: SystemClock,
-) -> ProducerReport {
-    let mut report = ProducerReport::default();
-    for (seq, line) in lines.enumerate() {
-        if tx.stopped() {
-            break;
-        }
-        match parse_target_line(&line, effectors) {
-            Ok(Some((_, targets))) => {
-                let msg = Input {
-                    seq: seq as u64,
-                    due_ns: 0,
-                    made_ns: clock.now_ns(),
-                    payload: Payload::Targets(targets),
-                };
-                match tx.send_newest(msg) {
-                    Ok(dropped) => {
-                        report.sent += 1;
-                        report.dropped += u64::from(dropped);
-                    }
-                    Err(_) => break,
-                }
-            }
-            Ok(None) => {}
-            Err(_) => report.bad_lines += 1,
-        }
-    }
-    report
-}
-
 /// The largest target datagram read, bytes: eight effectors with directions as JSON take
 /// under 1 KiB. A longer one is refused whole (counted in [`ProducerReport::oversized`]).
 pub const MAX_DATAGRAM_BYTES: usize = 8192;
-
-/// Receives target lines as UDP datagrams on `socket` (one or more lines per datagram, at most
-/// [`MAX_DATAGRAM_BYTES`]). Ends when the loop stops.
-///
-/// # Errors
-/// When the socket cannot be set up or the thread started.
-pub fn spawn_udp(
-    socket: UdpSocket,
-    effectors: Vec<String>,
-    tx: InputSender,
-    clock: SystemClock,
-) -> std::io::Result<JoinHandle<ProducerReport>> {
-    socket.set_read_timeout(Some(Duration::from_millis(20)))?;
-    std::thread::Builder::new()
-        .name("targets-udp".into())
-        .spawn(move || {
-            let mut report = ProducerReport::default();
-            // One byte more than the limit: a datagram that fills it is over the limit.
-            let mut buf = [0u8; MAX_DATAGRAM_BYTES + 1];
-            while !tx.stopped() {
-                let n = match socket.recv(&mut buf) {
-                    Ok(n) => n,
-                    Err(e)
-                        if matches!(
-                            e.kind(),
-                            std::io::ErrorKind::WouldBlock
-                                | std::io::ErrorKind::TimedOut
-                                | std::io::ErrorKind::Interrupted
-                        ) =>
-                    {
-                        continue
-                    }
-                    Err(_) => break,
-                };
-                if n > MAX_DATAGRAM_BYTES {
-                    report.oversized += 1;
-                    continue;
-                }
-                let Ok(text) = std::str::from_utf8(&buf[..n]) else {
-                    report.bad_lines += 1;
-                    continue;
-                };
-                let r = live_lines(text.lines().map(str::to_string), &effectors, &tx, clock);
-                report.sent += r.sent;
-                report.dropped += r.dropped;
-                report.bad_lines += r.bad_lines;
-            }
-            report
-        })
-}
 
 /// Where a track made from a capture puts its targets.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

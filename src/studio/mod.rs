@@ -23,7 +23,7 @@ use serde_json::{json, Value};
 use crate::clock::SystemClock;
 use crate::control::input::{Input, InputSender};
 use crate::control::live::LiveView;
-use crate::control::lockstep::LockstepSource;
+use crate::control::source::{Grid, Sink, Source};
 use crate::control::sources::ProducerReport;
 use crate::schedule::Clock;
 use request::{PageEvent, PageMessage, SolverRequest};
@@ -53,7 +53,7 @@ pub enum Feed {
         /// The loop's clock and `wall − loop` in ns.
         clock: OnceLock<(SystemClock, i128)>,
     },
-    /// To a [`LiveFeed`] that the simulator's lockstep clock drains.
+    /// To a [`StudioSource`] that the simulator's lockstep clock drains.
     Lockstep(crossbeam_channel::Sender<(Vec<f64>, f64)>),
     /// Nowhere (tests of the scene and the API alone).
     None,
@@ -147,6 +147,13 @@ impl Studio {
             stop: AtomicBool::new(false),
             measured_rate: Mutex::new((Instant::now(), 0, 0.0)),
         }
+    }
+
+    /// The studio showing `live` (the view the loop publishes into) instead of its own.
+    #[must_use]
+    pub fn with_live_view(mut self, live: Arc<LiveView>) -> Studio {
+        self.live = live;
+        self
     }
 
     /// The scene (locked; keep the guard short).
@@ -459,56 +466,101 @@ fn wall_ns() -> i128 {
         .map_or(0, |d| d.as_nanos() as i128)
 }
 
-/// The studio's poses into the simulator's lockstep clock: the newest pose at each tick, the
-/// simulation paced to the wall clock (a person drags in real time).
+/// The studio as the loop's (live) source. In real time its drags go straight into the loop's
+/// channel, stamped on the loop's clock, and this source advances the timeline every
+/// [`FRAME`]. In lockstep with the simulator the drags come through `rx`: at each tick the
+/// newest pose is sent, the simulation paced to the wall clock (a person drags in real time),
+/// and the timeline advanced every [`FRAME`] of wall time.
 #[derive(Debug)]
-pub struct LiveFeed {
-    rx: crossbeam_channel::Receiver<(Vec<f64>, f64)>,
+pub struct StudioSource {
+    studio: Arc<Studio>,
+    rx: Option<crossbeam_channel::Receiver<(Vec<f64>, f64)>>,
     started: Option<(Instant, u64)>,
+    last_frame: Option<Instant>,
     seq: u64,
     sent: u64,
 }
 
-impl LiveFeed {
-    /// A feed from `rx`.
+impl StudioSource {
+    /// The source of `studio`; `rx` receives its poses when its feed is
+    /// [`Feed::Lockstep`].
     #[must_use]
-    pub fn new(rx: crossbeam_channel::Receiver<(Vec<f64>, f64)>) -> LiveFeed {
-        LiveFeed {
+    pub fn new(
+        studio: Arc<Studio>,
+        rx: Option<crossbeam_channel::Receiver<(Vec<f64>, f64)>>,
+    ) -> StudioSource {
+        StudioSource {
+            studio,
             rx,
             started: None,
+            last_frame: None,
             seq: 0,
             sent: 0,
         }
     }
 }
 
-impl LockstepSource for LiveFeed {
-    fn feed(&mut self, _start_ns: u64, _until_ns: u64, now_ns: u64, tx: &InputSender) -> bool {
+impl Source for StudioSource {
+    fn name(&self) -> &'static str {
+        "studio-frames"
+    }
+    fn live(&self) -> bool {
+        true
+    }
+    fn runs_in_lockstep(&self) -> bool {
+        self.rx.is_some()
+    }
+    fn next_due(&self, _grid: Grid) -> Option<u64> {
+        None
+    }
+    fn begin(&mut self, clock: SystemClock) {
+        self.studio.set_loop_clock(clock);
+        self.studio.republish();
+    }
+    fn feed(&mut self, _grid: Grid, until_ns: u64, now_ns: u64, sink: &Sink<'_>) -> bool {
+        let Some(rx) = &self.rx else {
+            // Real time: the drags are sent as they come; the timeline runs here.
+            self.studio.run_frames(|| sink.stopped());
+            return false;
+        };
+        let _ = until_ns;
         let (t0, s0) = *self.started.get_or_insert((Instant::now(), now_ns));
         let due = t0 + Duration::from_nanos(now_ns.saturating_sub(s0));
         if let Some(wait) = due.checked_duration_since(Instant::now()) {
             std::thread::sleep(wait);
         }
+        let last = *self.last_frame.get_or_insert_with(|| {
+            self.studio.republish();
+            Instant::now()
+        });
+        if last.elapsed() >= FRAME {
+            let now = Instant::now();
+            self.studio.frame((now - last).as_secs_f64());
+            self.last_frame = Some(now);
+        }
         let mut newest = None;
-        while let Ok(p) = self.rx.try_recv() {
+        while let Ok(p) = rx.try_recv() {
             newest = Some(p);
         }
         if let Some((channels, clip_time)) = newest {
             self.seq += 1;
-            if tx
+            if sink
                 .send_newest(Input::frame(self.seq, 0, now_ns.max(1), &channels, clip_time))
                 .is_ok()
             {
                 self.sent += 1;
             }
         }
-        !tx.stopped()
+        !sink.stopped() && !self.studio.stop.load(Ordering::Relaxed)
     }
-
     fn report(&self) -> ProducerReport {
-        ProducerReport {
-            sent: self.sent,
-            ..ProducerReport::default()
+        if self.rx.is_some() {
+            ProducerReport {
+                sent: self.sent,
+                ..ProducerReport::default()
+            }
+        } else {
+            self.studio.report()
         }
     }
 }

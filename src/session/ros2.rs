@@ -1,12 +1,11 @@
-//! `--ros2` and `--targets ros2`: the run's ROS 2 node (the `ros2` feature; without it these
-//! options say how to build it).
+//! The run's ROS 2 node: `/joint_states` published from the loop's telemetry, and target
+//! topics as a source (the `ros2` feature; without it asking for them says how to build it).
 
 use std::io::Write;
 
-use super::CliError;
+use super::SessionError;
 use crate::clock::SystemClock;
-use crate::control::input::InputSender;
-use crate::control::sources::ProducerReport;
+use crate::control::source::Source;
 use crate::control::Controller;
 use crate::rig::Rig;
 
@@ -20,7 +19,7 @@ pub type Ros2Handle = std::sync::Arc<std::sync::Mutex<crate::ros2::Ros2Node>>;
 pub enum Ros2Handle {}
 
 /// The message type of `/marionette/targets/<effector>`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Ros2Targets {
     /// geometry_msgs/msg/PointStamped: a position.
     #[default]
@@ -31,41 +30,27 @@ pub enum Ros2Targets {
 }
 
 /// The joint-state publisher of a run, to join when the loop has ended.
-pub(super) struct Publishing {
+pub struct Publishing {
     #[cfg(feature = "ros2")]
     thread: std::thread::JoinHandle<crate::ros2::PublishReport>,
 }
 
 #[cfg(not(feature = "ros2"))]
-fn not_built() -> CliError {
-    CliError::Usage(
+fn not_built() -> SessionError {
+    SessionError::Invalid(
         "--ros2 and --targets ros2 need a build with ROS 2: cargo build --release --features ros2".into(),
     )
 }
 
-/// The run's node: `existing`, or (when `wanted`: `--ros2`) a new one from `ROS_DOMAIN_ID`.
-/// `None` when not wanted.
+/// A new node `/marionette` in the domain of `ROS_DOMAIN_ID`.
 ///
 /// # Errors
 /// A build without the `ros2` feature; a bad `ROS_DOMAIN_ID`; DDS failing to start.
-pub(super) fn node(
-    wanted: bool,
-    existing: Option<&Ros2Handle>,
-    out: &mut dyn Write,
-) -> Result<Option<Ros2Handle>, CliError> {
-    #[cfg(feature = "ros2")]
-    if let Some(n) = existing {
-        return Ok(Some(n.clone()));
-    }
-    #[cfg(not(feature = "ros2"))]
-    let _ = existing;
-    if !wanted {
-        return Ok(None);
-    }
+pub fn node(out: &mut dyn Write) -> Result<Ros2Handle, SessionError> {
     #[cfg(feature = "ros2")]
     {
         let node = crate::ros2::Ros2Node::from_env("marionette")
-            .map_err(|e| CliError::Usage(format!("--ros2: {e}")))?;
+            .map_err(|e| SessionError::Invalid(format!("--ros2: {e}")))?;
         writeln!(
             out,
             "ros2: node {} in domain {}{}",
@@ -77,7 +62,7 @@ pub(super) fn node(
                 ""
             }
         )?;
-        Ok(Some(std::sync::Arc::new(std::sync::Mutex::new(node))))
+        Ok(std::sync::Arc::new(std::sync::Mutex::new(node)))
     }
     #[cfg(not(feature = "ros2"))]
     {
@@ -98,7 +83,7 @@ pub(super) fn publish(
     names: Vec<String>,
     clock: SystemClock,
     out: &mut dyn Write,
-) -> Result<Option<Publishing>, CliError> {
+) -> Result<Option<Publishing>, SessionError> {
     let Some(node) = node else {
         return Ok(None);
     };
@@ -107,15 +92,15 @@ pub(super) fn publish(
         // A second of records at 1 kHz: the publisher polls at its own rate and takes the newest.
         let (tx, rx) = crossbeam_channel::bounded(1024);
         if controller.add_telemetry(tx).is_err() {
-            return Err(CliError::Usage(
+            return Err(SessionError::Invalid(
                 "--ros2: no telemetry slot left on the loop".into(),
             ));
         }
         let thread = node
             .lock()
-            .map_err(|_| CliError::Usage("--ros2: the node was poisoned".into()))?
+            .map_err(|_| SessionError::Invalid("--ros2: the node was poisoned".into()))?
             .spawn_joint_states(rx, rig.clone(), names, clock, rate_hz)
-            .map_err(|e| CliError::Usage(format!("--ros2: {e}")))?;
+            .map_err(|e| SessionError::Invalid(format!("--ros2: {e}")))?;
         writeln!(
             out,
             "ros2: /joint_states at {rate_hz} Hz (sensor_msgs/msg/JointState, reliable)"
@@ -133,7 +118,7 @@ pub(super) fn publish(
 ///
 /// # Errors
 /// Output errors.
-pub(super) fn finish(publishing: Option<Publishing>, out: &mut dyn Write) -> Result<(), CliError> {
+pub(super) fn finish(publishing: Option<Publishing>, out: &mut dyn Write) -> Result<(), SessionError> {
     let Some(p) = publishing else {
         return Ok(());
     };
@@ -153,34 +138,34 @@ pub(super) fn finish(publishing: Option<Publishing>, out: &mut dyn Write) -> Res
     Ok(())
 }
 
-/// Subscribes to `/marionette/targets/<effector>` and feeds the loop from a thread.
+/// The target topics `/marionette/targets/<effector>` on `node` as a live source (positions in
+/// metres on the rig, `metres_per_unit` to the skeleton's units, in the frame of `root`).
 ///
 /// # Errors
 /// An effector name that makes no topic name; DDS failing.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn spawn_targets(
+pub fn targets(
     node: &Ros2Handle,
     effectors: &[String],
     root: &str,
     kind: Ros2Targets,
     metres_per_unit: f64,
-    tx: InputSender,
-    clock: SystemClock,
-) -> std::io::Result<std::thread::JoinHandle<ProducerReport>> {
+) -> Result<Box<dyn Source>, SessionError> {
     #[cfg(feature = "ros2")]
     {
         let kind = match kind {
             Ros2Targets::Point => crate::ros2::TargetKind::Point,
             Ros2Targets::Pose => crate::ros2::TargetKind::Pose,
         };
-        node.lock()
-            .map_err(|_| std::io::Error::other("the ROS 2 node was poisoned"))?
-            .spawn_targets(effectors, root, kind, metres_per_unit, tx, clock)
-            .map_err(std::io::Error::other)
+        let source = node
+            .lock()
+            .map_err(|_| SessionError::Invalid("--targets ros2: the node was poisoned".into()))?
+            .targets(effectors, root, kind, metres_per_unit)
+            .map_err(|e| SessionError::Invalid(format!("--targets ros2: {e}")))?;
+        Ok(Box::new(source))
     }
     #[cfg(not(feature = "ros2"))]
     {
-        let _ = (effectors, root, kind, metres_per_unit, tx, clock);
+        let _ = (effectors, root, kind, metres_per_unit);
         match *node {}
     }
 }

@@ -16,14 +16,13 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use super::input::input_channel;
-use super::input::Input;
-use super::lookahead::{Lookahead, LookaheadSettings};
-use super::sources::ClipPlayer;
-use super::{Controller, LoopConfig, RunEnd, Solve, StopMode};
+use super::{controller, RigDrive, SessionSpec};
 use crate::bus::faults::{Fault, FaultInjector, Rng};
 use crate::bus::virtual_chain::{chain_for, VirtualRig};
 use crate::bus::{start_up, ErrorKind, StartupError};
+use crate::control::input::{input_channel, Input};
+use crate::control::sources::ClipPlayer;
+use crate::control::{RunEnd, Solve, StopMode};
 use crate::motion::Motion;
 use crate::profile::Profile;
 use crate::rig::{Rig, ServoMap};
@@ -162,13 +161,16 @@ pub fn soak(
         recovery_ticks: vec![0; RECOVERY_BINS + 1],
         ..SoakReport::default()
     };
-    let pipelined = profile.bus.pipeline;
-    let loop_config = LoopConfig {
+    // As `play` runs (the goal paths planned over a preview, each servo led by its lag), held
+    // at a stop.
+    let spec = SessionSpec {
         rate_hz: config.rate_hz,
         stop: StopMode::Hold { hold_s: 0.0 },
-        pipelined,
-        ..LoopConfig::default()
+        // No effector errors in metres: the soak checks the servos.
+        scale: 0.0,
+        ..SessionSpec::default()
     };
+    let pipelined = profile.bus.pipeline;
     let n = skeleton.channel_count();
     let mut player = ClipPlayer::new(Arc::clone(skeleton), Arc::clone(motion), config.rate_hz, true);
     let mut frame = [0.0; MAX_CHANNELS];
@@ -184,27 +186,12 @@ pub fn soak(
         vr.with(|t| t.injector = injector);
         let present = present?;
         let (tx, port) = input_channel(4);
-        let mut c = Controller::new(
-            Arc::clone(skeleton),
-            rig.clone(),
-            profile.ids(),
-            &present,
-            port,
-            Solve::Frames,
-            loop_config,
-        );
-        // As `play` runs: the goal paths planned over a preview, each servo led by its lag.
-        let leads: Vec<f64> = profile
-            .servos
-            .iter()
-            .map(|s| s.lag_ms.unwrap_or(0.0) * 1e-3 + 1.0 / config.rate_hz)
-            .collect();
-        c.set_lookahead(Lookahead::new(
-            rig,
-            config.rate_hz,
-            &leads,
-            LookaheadSettings::default(),
-        ));
+        let drive = RigDrive {
+            skeleton: Arc::clone(skeleton),
+            rig: rig.clone(),
+            retarget: None,
+        };
+        let mut c = controller(&spec, profile, drive, &present, port, Solve::Frames, false);
         let ahead = c.preview_ns();
         let period = c.period_ns();
         let mut clock = vr.clone();
