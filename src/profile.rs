@@ -159,6 +159,24 @@ pub struct BusConfig {
     pub pipeline: bool,
 }
 
+impl BusConfig {
+    /// A bus nothing is known about but its baud (a scan): the servos' factory Return Delay
+    /// Time (250 × 2 µs), an FTDI adapter's default latency timer (16 ms), Sync Read, no
+    /// pipelining, the watchdog off.
+    #[must_use]
+    pub fn unknown(baud: u32) -> BusConfig {
+        BusConfig {
+            baud,
+            return_delay_us: 500,
+            read: ReadMode::Sync,
+            read_fields: ReadFields::default(),
+            usb_latency_us: 16_000,
+            watchdog_ms: 0,
+            pipeline: false,
+        }
+    }
+}
+
 /// What drives a servo, as written in the profile.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Drive {

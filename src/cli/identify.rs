@@ -10,9 +10,8 @@ use clap::Args;
 
 use super::error::CliError;
 use super::play::BusArg;
-use crate::bus::dxl::Dynamixel2Bus;
-use crate::bus::start_up;
 use crate::bus::virtual_chain::{chain_for, VirtualRig};
+use crate::bus::{start_up, Wire};
 use crate::clock::SystemClock;
 use crate::control::identify::{identify, Excitation, ServoResponse};
 use crate::control::torque_off;
@@ -138,12 +137,13 @@ pub fn identify_cmd(
         }
         BusArg::Sim => run_sim(args, &profile, skeleton.as_deref(), &rig, &names, &which, &e)?,
         BusArg::Port(port) => {
-            let mut bus = Dynamixel2Bus::open(port, profile.bus.baud).map_err(CliError::at_port(port))?;
-            let present = start_up(&mut bus, &profile)?;
+            let mut bus = crate::bus::open(Wire::Port(port.clone()), &profile.bus, profile.servos.len())
+                .map_err(CliError::at_port(port))?;
+            let present = start_up(bus.as_mut(), &profile)?;
             writeln!(out, "{port}: {} servos up, torque on", present.len())?;
             let mut clock = SystemClock::new(200_000);
             let r = identify(
-                &mut bus,
+                bus.as_mut(),
                 &mut clock,
                 &rig,
                 &profile.ids(),
@@ -153,7 +153,7 @@ pub fn identify_cmd(
                 &e,
                 args.rate,
             );
-            let off = torque_off(&mut bus, &profile.ids());
+            let off = torque_off(bus.as_mut(), &profile.ids());
             writeln!(out, "torque off, acknowledged by {} servos", off.acknowledged)?;
             r
         }

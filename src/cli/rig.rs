@@ -5,11 +5,10 @@ use std::path::Path;
 
 use super::error::CliError;
 use crate::budget::plan;
-use crate::bus::dxl::Dynamixel2Bus;
 use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::bus::ServoBus;
 use crate::formats::asf;
-use crate::profile::{Drive, Profile};
+use crate::profile::{BusConfig, Drive, Profile};
 use crate::rig::JointSource;
 
 /// `marionette profile`: validate a profile (against a skeleton when given) and list it.
@@ -361,7 +360,7 @@ pub fn ports_cmd(out: &mut dyn Write) -> Result<(), CliError> {
 }
 
 /// `marionette scan`: over a port, or over a virtual chain for a profile served on a
-/// pseudo-terminal (so the same `dynamixel2` path is used).
+/// pseudo-terminal (so the same serial path is used), through the project's host.
 pub fn scan_cmd(
     port: Option<&str>,
     baud: u32,
@@ -382,7 +381,8 @@ pub fn scan_cmd(
             ))
         }
     };
-    let mut bus = Dynamixel2Bus::open(&path, baud).map_err(CliError::at_port(&path))?;
+    let mut bus = crate::bus::open(crate::bus::Wire::Port(path.clone()), &BusConfig::unknown(baud), 1)
+        .map_err(CliError::at_port(&path))?;
     let found = bus.scan().map_err(|source| CliError::Bus {
         port: path.clone(),
         source,
