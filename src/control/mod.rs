@@ -1,5 +1,5 @@
 //! The fixed-rate control loop: newest input → FK/IK → rig mapping → command stage → Sync
-//! Write → Sync Read → telemetry, on the absolute-deadline [`Schedule`].
+//! Write → Sync Read → telemetry, on the absolute-deadline [`Schedule`](crate::schedule::Schedule).
 //!
 //! Everything a tick needs is prepared before the loop starts ([`Controller::new`]); a tick
 //! allocates nothing (the `alloc_free` test and the `allocations_in_tick` statistic prove it
@@ -19,15 +19,18 @@
 pub mod fidelity;
 mod follow;
 pub mod identify;
+mod ingest;
 pub mod input;
 pub mod live;
 pub mod lockstep;
 pub mod lookahead;
 pub mod plot;
+mod read;
 mod retarget_stage;
 pub mod source;
 pub mod sources;
 pub mod stats;
+mod stop;
 mod tick;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -36,25 +39,23 @@ use std::sync::Arc;
 use crossbeam_channel::{Sender, TrySendError};
 use glam::DVec3;
 
-use crate::bus::{BusError, ServoBus};
+use crate::bus::ServoBus;
 use crate::command::CommandStage;
-use crate::fk::{ancestors, fk64, fk64_bones, Pose64};
+use crate::fk::{ancestors, Pose64};
 use crate::rig::Rig;
-use crate::schedule::{Clock, Schedule, Tick};
+use crate::schedule::{Clock, Tick};
 use crate::servo::MAX_SERVOS;
-use crate::servo::{addr, TICKS_PER_TURN};
 use crate::skeleton::{Skeleton, MAX_BONES, MAX_CHANNELS};
-use input::{InputPort, Payload};
+use input::InputPort;
 use live::LiveView;
-use lookahead::{Lookahead, Preview, SourceSample};
+use lookahead::{Lookahead, Preview};
 use stats::{LoopStats, Stage};
 
 pub use follow::{pointer_bone, target_range, Effector, FollowError, Follower, TARGET_RANGE_REACHES};
+use ingest::{Solving, MAX_INGEST};
+use read::{Absorbed, ReadContext};
 pub use retarget_stage::RetargetStage;
-
-/// Most inputs turned into source samples in one tick (a look-ahead's preview fills over a few
-/// ticks at the start rather than in one long tick).
-const MAX_INGEST: usize = 16;
+pub use stop::{torque_off, TorqueOff};
 
 /// Half-width of the swivel window searched around the previous frame's swivel (40°).
 const SWIVEL_WINDOW: f64 = 40.0 * core::f64::consts::PI / 180.0;
@@ -252,53 +253,6 @@ pub enum Solve {
     Follow(Box<Follower>),
 }
 
-/// What a read taken after a tick's Sync Write belongs to (kept until a pipelined read's
-/// replies are taken).
-#[derive(Clone, Copy)]
-struct ReadContext {
-    /// Due time of the tick's source sample (the fidelity's reference, in the preview).
-    sample_due: u64,
-    /// Whether the tick held its last command.
-    holding: bool,
-    /// The goals it wrote.
-    goals: [i32; MAX_SERVOS],
-    /// The goals written a tick before, which the servos had a period to reach.
-    tracked: Option<[i32; MAX_SERVOS]>,
-    /// Whether the read counts for fidelity (input flowing, not held, eased in, past the
-    /// pre-roll).
-    record: bool,
-    /// The tick's index.
-    tick: u64,
-}
-
-/// An input taken and being solved (over one tick or several).
-#[derive(Clone, Copy, Debug)]
-struct Solving {
-    /// When its sample is due, ns.
-    due: u64,
-    clip_time: f64,
-    made_ns: u64,
-    /// The first effector not yet solved.
-    next_effector: usize,
-}
-
-/// What [`Controller::take_input`] found.
-enum Taken {
-    /// An input to solve.
-    Input(Solving),
-    /// One passed over (superseded or refused).
-    PassedOver,
-    /// None due.
-    Nothing,
-}
-
-/// What a read gave.
-struct Absorbed {
-    ok: bool,
-    tracking: f64,
-    end: Option<RunEnd>,
-}
-
 /// The loop's state: everything a tick touches, allocated before the first tick.
 pub struct Controller {
     skeleton: Arc<Skeleton>,
@@ -306,55 +260,20 @@ pub struct Controller {
     ids: Vec<u8>,
     config: LoopConfig,
     period_ns: u64,
-    stage: CommandStage,
+    servo_names: Vec<String>,
+    /// The input side: the channel, the pose being solved, the source samples taken ahead.
+    input: InputPort,
+    solve: Solve,
     channels: [f64; MAX_CHANNELS],
     angles: Vec<f64>,
-    present: Vec<i32>,
-    read_buf: Vec<i32>,
-    /// A pipelined read on the wire and the tick it belongs to.
-    in_flight: Option<ReadContext>,
-    /// Goals of the previous tick's write: what the servos had a period to reach.
-    previous_goals: Vec<i32>,
-    have_previous: bool,
     pose: Box<Pose64>,
     watch: [Option<usize>; 4],
     /// The watched bones and their ancestors, parents first: the bones a sample's forward
     /// kinematics needs when nothing else reads the pose.
     watched_chains: heapless::Vec<usize, MAX_BONES>,
-    input: InputPort,
-    solve: Solve,
-    telemetry: heapless::Vec<Sender<Telemetry>, MAX_TELEMETRY_SINKS>,
-    live: Option<Arc<LiveView>>,
-    /// The statistics so far.
-    pub stats: LoopStats,
+    retarget: Option<Box<RetargetStage>>,
     have_input: bool,
     clip_time: f64,
-    failures: u32,
-    /// Why the port failed, when a run ended with [`RunEnd::PortLost`].
-    pub port_error: Option<std::io::Error>,
-    last_valid_read_ns: u64,
-    last_tick: Option<(u64, u64)>,
-    retarget: Option<Box<RetargetStage>>,
-    /// The joint angles the servos stood at (the ease-in's start), its length in ticks, and
-    /// the commanded ticks so far.
-    ease_from: Vec<f64>,
-    ease_ticks: u64,
-    eased: u64,
-    /// Source against present, end to end: accumulated here, or by the worker when there is
-    /// one.
-    fidelity: Box<fidelity::Fidelity>,
-    fidelity_worker: Option<fidelity::FidelityWorker>,
-    /// This tick's source angles (the input mapped through the rig) and the present angles.
-    source_angles: Vec<f64>,
-    present_angles: Vec<f64>,
-    /// Effectors at the present angles (skeleton rigs with a scale, without a worker).
-    effector_pose: Option<fidelity::EffectorPose>,
-    /// The due time and number of the last source pose the worker was given.
-    pose_sent: (Option<u64>, u64),
-    servo_names: Vec<String>,
-    /// Each tick's source angles with its deadline (ns), up to the capacity reserved by
-    /// [`Controller::log_source`]; never grown in a tick.
-    source_log: Vec<(u64, [f64; MAX_SERVOS])>,
     /// Source samples taken ahead (the look-ahead's preview; without it, the current one).
     preview: Preview,
     /// How far ahead inputs are taken, ns.
@@ -362,10 +281,28 @@ pub struct Controller {
     lookahead: Option<Box<Lookahead>>,
     /// Due time of the last input turned into a sample (the retargeting's time step).
     last_due: Option<u64>,
-    /// When the ease-in began (the first tick with a source), ns.
-    ease_start_ns: Option<u64>,
     /// The input being solved, when its solve is spread over ticks.
     solving: Option<Solving>,
+    /// The command side.
+    stage: CommandStage,
+    ease: tick::Ease,
+    /// The bus side: what the servos reported.
+    reads: read::Reads,
+    /// Source against present, end to end.
+    measure: read::Measure,
+    /// Where each tick's figures go.
+    sinks: Sinks,
+    last_tick: Option<(u64, u64)>,
+    /// The statistics so far.
+    pub stats: LoopStats,
+    /// Why the port failed, when a run ended with [`RunEnd::PortLost`].
+    pub port_error: Option<std::io::Error>,
+}
+
+/// Where each tick's figures go: telemetry consumers (never waited on) and the studio's view.
+struct Sinks {
+    telemetry: heapless::Vec<Sender<Telemetry>, MAX_TELEMETRY_SINKS>,
+    live: Option<Arc<LiveView>>,
 }
 
 impl std::fmt::Debug for Controller {
@@ -440,169 +377,60 @@ impl Controller {
             ids,
             config,
             period_ns,
-            stage,
-            channels: [0.0; MAX_CHANNELS],
-            ease_from: angles.clone(),
-            ease_ticks,
-            eased: 0,
-            fidelity: Box::new(fidelity::Fidelity::new(n, period_ns as f64 * 1e-9)),
-            // Without a thread (none could be started) the tick accumulates it.
-            fidelity_worker: config
-                .fidelity_worker
-                .then(|| {
-                    let f = fidelity::Fidelity::new(n, period_ns as f64 * 1e-9);
-                    fidelity::FidelityWorker::spawn(f, effector_pose.clone()).ok()
-                })
-                .flatten(),
-            effector_pose,
-            pose_sent: (None, 0),
-            source_angles: vec![f64::NAN; n],
-            present_angles: vec![f64::NAN; n],
             servo_names: Vec::new(),
-            source_log: Vec::new(),
+            input,
+            solve,
+            channels: [0.0; MAX_CHANNELS],
+            angles: angles.clone(),
+            pose: Box::default(),
+            watch,
+            watched_chains,
+            retarget: None,
+            have_input: false,
+            clip_time: f64::NAN,
             preview: Preview::new(8),
             preview_ns: 0,
             lookahead: None,
             last_due: None,
-            ease_start_ns: None,
             solving: None,
-            angles,
-            present: present.to_vec(),
-            read_buf: vec![0; n],
-            in_flight: None,
-            previous_goals: vec![0; n],
-            have_previous: false,
-            pose: Box::default(),
-            watch,
-            watched_chains,
-            input,
-            solve,
-            telemetry: heapless::Vec::new(),
-            live: None,
-            have_input: false,
-            clip_time: f64::NAN,
-            failures: 0,
-            port_error: None,
-            last_valid_read_ns: 0,
+            stage,
+            ease: tick::Ease {
+                from: angles,
+                ticks: ease_ticks,
+                done: 0,
+                start_ns: None,
+            },
+            reads: read::Reads {
+                present: present.to_vec(),
+                read_buf: vec![0; n],
+                in_flight: None,
+                previous_goals: vec![0; n],
+                have_previous: false,
+                failures: 0,
+                last_valid_ns: 0,
+            },
+            measure: read::Measure {
+                fidelity: Box::new(fidelity::Fidelity::new(n, period_ns as f64 * 1e-9)),
+                // Without a thread (none could be started) the tick accumulates it.
+                worker: config
+                    .fidelity_worker
+                    .then(|| {
+                        let f = fidelity::Fidelity::new(n, period_ns as f64 * 1e-9);
+                        fidelity::FidelityWorker::spawn(f, effector_pose.clone()).ok()
+                    })
+                    .flatten(),
+                effector_pose,
+                pose_sent: (None, 0),
+                source_angles: vec![f64::NAN; n],
+                present_angles: vec![f64::NAN; n],
+                source_log: Vec::new(),
+            },
+            sinks: Sinks {
+                telemetry: heapless::Vec::new(),
+                live: None,
+            },
             last_tick: None,
-            retarget: None,
-        }
-    }
-
-    /// Source against present for this tick (after a valid read): joints, and effectors by
-    /// forward kinematics of both. Allocates nothing.
-    /// Takes a read made after the Sync Write of the tick described by `context`: the present
-    /// positions, tracking against the goals the servos had a period to reach, fidelity
-    /// against that tick's source; a failure counted, and torque off after the torque-off
-    /// time without a valid read. Returns what it found and why the port failed, if it did.
-    fn absorb_read(
-        &mut self,
-        read: Result<(), BusError>,
-        at_ns: u64,
-        context: &ReadContext,
-        bus: &mut dyn ServoBus,
-    ) -> (Absorbed, Option<std::io::Error>) {
-        let len = self.ids.len();
-        let mut found = Absorbed {
-            ok: read.is_ok(),
-            tracking: f64::NAN,
-            end: None,
-        };
-        match read {
-            Ok(()) => {
-                self.present.copy_from_slice(&self.read_buf);
-                self.stats.reads_ok += 1;
-                self.failures = 0;
-                self.last_valid_read_ns = at_ns;
-                if context.holding {
-                    // Back from a hold: the next command starts, at rest, from the one held.
-                    self.stage.start_from(&self.rig, &context.goals[..len]);
-                }
-                if let Some(goals) = &context.tracked {
-                    let mut sq = 0.0;
-                    for (s, (g, p)) in self.rig.servos.iter().zip(goals.iter().zip(&self.present)) {
-                        let deg =
-                            f64::from(g - p) * 360.0 / f64::from(TICKS_PER_TURN) / s.gear.abs().max(1e-9);
-                        self.stats.tracking(deg);
-                        sq += deg * deg;
-                    }
-                    found.tracking = (sq / len.max(1) as f64).sqrt();
-                }
-                if context.record {
-                    self.record_fidelity(context.tick, context.sample_due);
-                }
-                (found, None)
-            }
-            Err(e) => {
-                self.stats.bus_error(e.kind());
-                self.failures = self.failures.saturating_add(1);
-                let lost = e.port_failure();
-                let silent_ms = (at_ns.saturating_sub(self.last_valid_read_ns)) as f64 * 1e-6;
-                if lost.is_none() && silent_ms >= self.config.torque_off_after_ms {
-                    self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
-                    found.end = Some(RunEnd::ReadsFailed);
-                }
-                (found, lost)
-            }
-        }
-    }
-
-    fn record_fidelity(&mut self, tick: u64, sample_due: u64) {
-        for ((p, s), t) in self
-            .present_angles
-            .iter_mut()
-            .zip(&self.rig.servos)
-            .zip(&self.present)
-        {
-            *p = s.ticks_to_angle(f64::from(*t));
-        }
-        // The tick's sample is still in the preview (current, or just behind it); not after a
-        // restart, which nothing is compared across.
-        let Some(sample) = self.preview.find(sample_due) else {
-            return;
-        };
-        let n = self.present_angles.len();
-        let mut record = fidelity::FidelityRecord::new(tick, n);
-        record.source[..n].copy_from_slice(&sample.angles[..n]);
-        record.present[..n].copy_from_slice(&self.present_angles);
-        if let Some(r) = &mut self.retarget {
-            let present = r.present_effectors(&self.rig, &self.present_angles, sample.base);
-            for ((e, s), p) in record.effectors.iter_mut().zip(sample.effectors).zip(present) {
-                *e = (s, p);
-            }
-        } else if let Some(pose) = &mut self.effector_pose {
-            // The forward kinematics of the present pose: by the worker when there is one,
-            // which is given each sample's pose once.
-            let (sent_due, seq) = self.pose_sent;
-            let source = |seq| {
-                let mut s = fidelity::SourcePose {
-                    seq,
-                    channels: [0.0; MAX_CHANNELS],
-                    tips: sample.tips,
-                };
-                let c = self.skeleton.channel_count();
-                s.channels[..c].copy_from_slice(&sample.channels[..c]);
-                s
-            };
-            match &mut self.fidelity_worker {
-                Some(w) => {
-                    if sent_due != Some(sample.due_ns) && w.send_pose(&source(seq + 1)) {
-                        self.pose_sent = (Some(sample.due_ns), seq + 1);
-                    }
-                    // (Not sent: no effectors this tick.)
-                    if self.pose_sent.0 == Some(sample.due_ns) {
-                        record.pose = Some(self.pose_sent.1);
-                    }
-                }
-                None => {
-                    record.pose = Some(0);
-                    pose.fill(&mut record, &source(0));
-                }
-            }
-        }
-        match &mut self.fidelity_worker {
-            Some(w) => w.send(record),
-            None => self.fidelity.take(&record),
+            port_error: None,
         }
     }
 
@@ -610,13 +438,13 @@ impl Controller {
     /// the tick accumulates from here on). [`Controller::run`] puts it in the statistics.
     pub fn fidelity_report(&mut self) -> fidelity::FidelityReport {
         let mut dropped = 0;
-        if let Some(mut w) = self.fidelity_worker.take() {
+        if let Some(mut w) = self.measure.worker.take() {
             if let Some(f) = w.finish() {
-                *self.fidelity = f;
+                *self.measure.fidelity = f;
             }
             dropped = w.dropped;
         }
-        let mut report = self.fidelity.report(&self.servo_names);
+        let mut report = self.measure.fidelity.report(&self.servo_names);
         report.records_dropped = dropped;
         report
     }
@@ -624,13 +452,13 @@ impl Controller {
     /// Keeps the source angles of up to `ticks` ticks (reserved now; the tick stops logging
     /// when it is full rather than grow it), for pictures.
     pub fn log_source(&mut self, ticks: usize) {
-        self.source_log = Vec::with_capacity(ticks);
+        self.measure.source_log = Vec::with_capacity(ticks);
     }
 
     /// The logged source angles: tick deadline (ns on the loop's clock) and radians per servo.
     #[must_use]
     pub fn source_log(&self) -> &[(u64, [f64; MAX_SERVOS])] {
-        &self.source_log
+        &self.measure.source_log
     }
 
     /// Names of the servos (rig order), for the fidelity report.
@@ -665,7 +493,7 @@ impl Controller {
 
     /// Publishes each tick's goals, present angles and timing in `view` (for the studio).
     pub fn set_live_view(&mut self, view: Arc<LiveView>) {
-        self.live = Some(view);
+        self.sinks.live = Some(view);
     }
 
     /// Sends per-tick figures to `tx` as well (bounded; a full channel drops the record,
@@ -674,12 +502,12 @@ impl Controller {
     /// # Errors
     /// `tx` back when there are [`MAX_TELEMETRY_SINKS`] already.
     pub fn add_telemetry(&mut self, tx: Sender<Telemetry>) -> Result<(), Sender<Telemetry>> {
-        self.telemetry.push(tx)
+        self.sinks.telemetry.push(tx)
     }
 
     /// Sends `record` to every consumer without waiting; a full channel drops it (counted).
     fn emit(&mut self, record: &Telemetry) {
-        for tx in &self.telemetry {
+        for tx in &self.sinks.telemetry {
             if let Err(TrySendError::Full(_)) = tx.try_send(*record) {
                 self.stats.telemetry_dropped += 1;
             }
@@ -695,7 +523,7 @@ impl Controller {
     /// The present positions of the last valid read (ticks).
     #[must_use]
     pub fn present(&self) -> &[i32] {
-        &self.present
+        &self.reads.present
     }
 
     /// The last command written (ticks).
@@ -716,189 +544,7 @@ impl Controller {
         self.input.finished()
     }
 
-    /// Takes the inputs due by `horizon` in order (the look-ahead's preview; without one, the
-    /// tick's own window), at most [`MAX_INGEST`] a tick, and turns each into a source sample:
-    /// the solve, forward kinematics, retargeting and the rig's angles — what a perfect rig
-    /// would do at its time. An input already due by `due_now` with a newer one also due is
-    /// passed over (only the newest counts). Ages are measured at `now`. Allocates nothing.
-    ///
-    /// Targets taken ahead of their time with no other input waiting are solved one effector a
-    /// tick (the same solves in the same order, so the same sample, a few ticks later but still
-    /// before it is due): a fast loop's ticks share the work of a slower input's solve. Live
-    /// inputs and inputs due within that time are solved whole.
-    fn ingest(&mut self, due_now: u64, horizon: u64, now: u64, tick_dt: f64) {
-        let n = self.skeleton.channel_count();
-        for _ in 0..MAX_INGEST {
-            let mut p = match self.solving.take() {
-                Some(p) => p,
-                None => match self.take_input(due_now, horizon, now) {
-                    Taken::Input(p) => p,
-                    Taken::PassedOver => continue,
-                    Taken::Nothing => break,
-                },
-            };
-            if let Solve::Follow(f) = &mut self.solve {
-                // Steps: each effector, then the sample.
-                let count = f.effectors.len();
-                let left = (count + 1).saturating_sub(p.next_effector) as u64;
-                let spread =
-                    p.due > due_now + (left + 1) * self.period_ns && !self.input.next_is_due(horizon);
-                if p.next_effector < count {
-                    let end = if spread { p.next_effector + 1 } else { count };
-                    f.solve_some(
-                        &self.skeleton,
-                        &mut self.channels[..n],
-                        &mut self.pose,
-                        &mut self.stats,
-                        p.next_effector..end,
-                    );
-                    if spread && p.next_effector == 0 {
-                        self.stats.inputs_spread += 1;
-                    }
-                    p.next_effector = end;
-                    if spread {
-                        self.solving = Some(p);
-                        break;
-                    }
-                }
-            }
-            self.add_sample(p, tick_dt);
-        }
-    }
-
-    /// The next input due by `horizon`, checked and put in place (a frame's channels, the
-    /// follower's targets).
-    fn take_input(&mut self, due_now: u64, horizon: u64, now: u64) -> Taken {
-        let n = self.skeleton.channel_count();
-        {
-            let Some(msg) = self.input.next_due(horizon) else {
-                return Taken::Nothing;
-            };
-            if msg.due_ns <= due_now && self.input.next_is_due(due_now) {
-                // Not solved, but its targets stand: a newer message may name other effectors
-                // (live sources send one effector a line or a topic).
-                if let (Payload::Targets(targets), Solve::Follow(f)) = (&msg.payload, &mut self.solve) {
-                    if targets.iter().all(|t| f.accepts(t)) {
-                        for t in targets {
-                            f.targets[t.effector] = Some(*t);
-                        }
-                    } else {
-                        self.stats.inputs_rejected += 1;
-                    }
-                }
-                self.input.superseded += 1;
-                return Taken::PassedOver;
-            }
-            let mut clip_time = f64::NAN;
-            let ok = match (&msg.payload, &mut self.solve) {
-                (
-                    Payload::Frame {
-                        channels,
-                        len,
-                        clip_time: t,
-                    },
-                    Solve::Frames,
-                ) if *len >= n && channels[..n].iter().all(|v| v.is_finite()) => {
-                    self.channels[..n].copy_from_slice(&channels[..n]);
-                    clip_time = *t;
-                    true
-                }
-                (Payload::Targets(targets), Solve::Follow(f)) => {
-                    let valid = targets.iter().all(|t| f.accepts(t));
-                    if valid {
-                        for t in targets {
-                            f.targets[t.effector] = Some(*t);
-                        }
-                    }
-                    valid
-                }
-                _ => false,
-            };
-            if !ok {
-                self.stats.inputs_rejected += 1;
-                return Taken::PassedOver;
-            }
-            self.stats.inputs_used += 1;
-            self.stats
-                .stage_mut(Stage::InputAge)
-                .record(now.saturating_sub(msg.made_ns));
-            // Live inputs are due at once: they stand for the time they were made.
-            let due = if msg.due_ns == 0 {
-                msg.made_ns.min(due_now)
-            } else {
-                msg.due_ns
-            };
-            Taken::Input(Solving {
-                due,
-                clip_time,
-                made_ns: msg.made_ns,
-                next_effector: 0,
-            })
-        }
-    }
-
-    /// The solved (or played) pose of the input `p` as a source sample in the preview: its
-    /// forward kinematics, retargeting and the rig's angles.
-    fn add_sample(&mut self, p: Solving, tick_dt: f64) {
-        let n = self.skeleton.channel_count();
-        let Solving {
-            due,
-            clip_time,
-            made_ns,
-            ..
-        } = p;
-        {
-            // The retargeting reads the whole pose; otherwise only the watched tips are used.
-            if self.retarget.is_some() {
-                fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
-            } else {
-                fk64_bones(
-                    &self.skeleton,
-                    &self.channels[..n],
-                    &mut self.pose,
-                    &self.watched_chains,
-                );
-            }
-            let mut sample = SourceSample {
-                due_ns: due,
-                clip_time,
-                made_ns,
-                ..SourceSample::default()
-            };
-            sample.channels[..n].copy_from_slice(&self.channels[..n]);
-            for (t, w) in sample.tips.iter_mut().zip(self.watch) {
-                if let Some(b) = w {
-                    *t = self.pose.tip[b];
-                }
-            }
-            if let Some(r) = &mut self.retarget {
-                let dt = match self.last_due {
-                    Some(d) if due > d => (due - d) as f64 * 1e-9,
-                    _ => tick_dt,
-                };
-                r.step(&self.pose, clip_time, dt, due);
-                sample.effectors = r.frame.effectors;
-                sample.base = (r.frame.base_pos, r.frame.base_rot);
-            }
-            self.last_due = Some(due);
-            let joints: &[f64] = match &self.retarget {
-                Some(r) => &r.frame.q,
-                None => &[],
-            };
-            self.rig
-                .joint_angles(&self.skeleton, &self.channels[..n], joints, &mut self.angles);
-            if self.angles.iter().any(|a| !a.is_finite()) {
-                // Refused as a whole: the servos go on with the samples they have.
-                self.stats.commands_refused += 1;
-                return;
-            }
-            let len = self.angles.len();
-            sample.angles[..len].copy_from_slice(&self.angles);
-            self.preview.push(sample);
-        }
-    }
-
-    /// One tick at `tick` (from [`Schedule::wait`]), in its phases (`control/tick.rs`): the
+    /// One tick at `tick` (from [`crate::schedule::Schedule::wait`]), in its phases (`control/tick.rs`): the
     /// pipelined replies, the input, the command, the bus, the telemetry. Allocates nothing.
     pub fn tick(&mut self, tick: &Tick, bus: &mut dyn ServoBus, clock: &mut dyn Clock) -> Option<RunEnd> {
         let allocs = self.config.allocations.map(|f| f());
@@ -912,7 +558,7 @@ impl Controller {
         let current = self.take_current(tick, start, dt);
         let t_encode = clock.now_ns();
         self.stats.stage_mut(Stage::Solve).record(t_encode - t_solve);
-        let holding = self.failures >= self.config.hold_after;
+        let holding = self.reads.failures >= self.config.hold_after;
         let goals = self.encode(tick, dt, holding);
         let t_write = clock.now_ns();
         self.stats.stage_mut(Stage::Encode).record(t_write - t_encode);
@@ -938,191 +584,14 @@ impl Controller {
         end
     }
 
-    /// Runs ticks on `schedule` until the input ends, `max_ticks` pass, a stop is requested,
-    /// reads fail for the torque-off time or the port fails; then (except after a fault) ramps
-    /// to rest or holds, and turns torque off.
-    pub fn run(
-        &mut self,
-        schedule: &mut Schedule,
-        bus: &mut dyn ServoBus,
-        clock: &mut dyn Clock,
-        stop: &StopRequests,
-    ) -> RunEnd {
-        let why = loop {
-            if stop.made() > 0 {
-                break RunEnd::Interrupted;
-            }
-            let tick = schedule.wait(clock);
-            if stop.made() > 0 {
-                break RunEnd::Interrupted;
-            }
-            if self.config.max_ticks.is_some_and(|m| self.stats.ticks >= m) {
-                break RunEnd::Duration;
-            }
-            if let Some(end) = self.tick(&tick, bus, clock) {
-                break end;
-            }
-        };
-        self.input.stop_producers();
-        if let Some(r) = &self.retarget {
-            self.stats.retarget = Some(r.report());
-        }
-        self.stats.fidelity = Some(self.fidelity_report());
-        if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
-            self.record_final_present();
-            return why;
-        }
-        self.finish(schedule, bus, clock, stop);
-        self.record_final_present();
-        // The port may fail during the ramp: that, not the reason the ramp began, is the end.
-        if self.port_error.is_some() {
-            return RunEnd::PortLost;
-        }
-        why
-    }
-
-    /// The end of a run: ramp to the rest pose (or hold), then torque off. A stop request
-    /// made during the ramp (the second, when a request ended the loop) cuts it short; so does
-    /// the port failing.
-    fn finish(
-        &mut self,
-        schedule: &mut Schedule,
-        bus: &mut dyn ServoBus,
-        clock: &mut dyn Clock,
-        stop: &StopRequests,
-    ) {
-        let (ticks, to_rest) = match self.config.stop {
-            // Nothing was commanded yet: the servos stand where they started.
-            _ if !self.have_input => (0, false),
-            StopMode::Rest { ramp_s } => ((ramp_s.max(0.0) * self.config.rate_hz).ceil() as usize, true),
-            StopMode::Hold { hold_s } => ((hold_s.max(0.0) * self.config.rate_hz).ceil() as usize, false),
-        };
-        // From the last command (what the servos were sent, the plan's lead included).
-        let from: Vec<f64> = self
-            .rig
-            .servos
-            .iter()
-            .zip(self.stage.last())
-            .map(|(s, t)| s.ticks_to_angle(f64::from(*t)))
-            .collect();
-        let dt = self.period_ns as f64 * 1e-9;
-        let requests_at_start = stop.made();
-        // After the ramp, up to two more seconds for the rate limits to arrive at rest.
-        let extra = if to_rest {
-            (2.0 * self.config.rate_hz).ceil() as usize
-        } else {
-            0
-        };
-        for k in 1..=ticks + extra {
-            let tick = schedule.wait(clock);
-            if stop.made() > requests_at_start {
-                break;
-            }
-            if k > ticks && !to_rest {
-                break;
-            }
-            let mut arrived = false;
-            let goals: Vec<i32> = if to_rest && self.have_input {
-                let w = crate::interp::ease_weight(k.min(ticks), ticks + 1);
-                let angles: Vec<f64> = from.iter().map(|a| a * (1.0 - w)).collect();
-                match self.stage.command(&self.rig, &angles, dt) {
-                    Ok((g, limited)) => {
-                        arrived = k >= ticks && limited.rate_limited == 0;
-                        g.to_vec()
-                    }
-                    Err(_) => self.stage.last().to_vec(),
-                }
-            } else {
-                self.stage.last().to_vec()
-            };
-            let written = bus.write_goals(&self.ids, &goals);
-            if let Some(why) = written.as_ref().err().and_then(BusError::port_failure) {
-                self.port_error = Some(why);
-                break;
-            }
-            let read_ok = bus.read_positions(&self.ids, &mut self.read_buf).is_ok();
-            if read_ok {
-                self.present.copy_from_slice(&self.read_buf);
-                self.last_valid_read_ns = clock.now_ns();
-            }
-            if !self.telemetry.is_empty() {
-                let len = self.present.len().min(MAX_SERVOS);
-                let mut t = Telemetry {
-                    index: tick.index,
-                    deadline_ns: tick.deadline_ns,
-                    woke_ns: tick.woke_ns,
-                    read_ok,
-                    servos: len,
-                    read_ns: self.last_valid_read_ns,
-                    stopping: true,
-                    ..Telemetry::default()
-                };
-                t.present[..len].copy_from_slice(&self.present[..len]);
-                self.emit(&t);
-            }
-            if arrived {
-                break;
-            }
-        }
-        self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
-    }
-
-    /// Puts the last valid read's positions, by servo name, into the statistics.
-    fn record_final_present(&mut self) {
-        let angles = self.present_angles();
-        self.stats.final_present = angles
-            .into_iter()
-            .enumerate()
-            .map(|(k, rad)| stats::ServoAngle {
-                name: self
-                    .servo_names
-                    .get(k)
-                    .cloned()
-                    .unwrap_or_else(|| format!("servo {}", k + 1)),
-                rad,
-            })
-            .collect();
-    }
-
     /// The present positions of the last valid read as angles (radians), rig order.
     #[must_use]
     pub fn present_angles(&self) -> Vec<f64> {
         self.rig
             .servos
             .iter()
-            .zip(&self.present)
+            .zip(&self.reads.present)
             .map(|(s, p)| s.ticks_to_angle(f64::from(*p)))
             .collect()
     }
-}
-
-/// What a torque-off achieved.
-#[derive(Debug)]
-pub struct TorqueOff {
-    /// Servos that acknowledged their torque-off write.
-    pub acknowledged: usize,
-    /// The first error, if any.
-    pub error: Option<BusError>,
-}
-
-/// Torque off on every servo: one Sync Write (no replies needed, so it gets through a bus whose
-/// reads fail), then each servo on its own (acknowledged) — unless the port itself failed.
-pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> TorqueOff {
-    let zeros = [0u8; MAX_SERVOS];
-    let n = ids.len().min(MAX_SERVOS);
-    let mut error = bus
-        .sync_write(addr::TORQUE_ENABLE, 1, &ids[..n], &zeros[..n])
-        .err();
-    let mut acknowledged = 0;
-    if error.as_ref().and_then(BusError::port_failure).is_none() {
-        for &id in &ids[..n] {
-            match bus.set_torque(id, false) {
-                Ok(()) => acknowledged += 1,
-                Err(e) => {
-                    error.get_or_insert(e);
-                }
-            }
-        }
-    }
-    TorqueOff { acknowledged, error }
 }

@@ -41,6 +41,15 @@ pub(super) struct BusDone {
     pub(super) end: Option<RunEnd>,
 }
 
+/// The ease-in from where the servos stood: its start (joint angles), its length and the
+/// commanded ticks so far, and when it began (the first tick with a source), ns.
+pub(super) struct Ease {
+    pub(super) from: Vec<f64>,
+    pub(super) ticks: u64,
+    pub(super) done: u64,
+    pub(super) start_ns: Option<u64>,
+}
+
 impl Controller {
     /// The tick's own timing: wake lateness, period error; the start of the torque-off clock.
     pub(super) fn begin(&mut self, tick: &Tick, clock: &mut dyn Clock) -> u64 {
@@ -54,8 +63,8 @@ impl Controller {
             self.stats.period_error.record(got.abs_diff(expected));
         }
         self.last_tick = Some((tick.index, start));
-        if self.last_valid_read_ns == 0 {
-            self.last_valid_read_ns = start;
+        if self.reads.last_valid_ns == 0 {
+            self.reads.last_valid_ns = start;
         }
         start
     }
@@ -67,11 +76,11 @@ impl Controller {
         bus: &mut dyn ServoBus,
         clock: &mut dyn Clock,
     ) -> Result<(Option<Absorbed>, u64), RunEnd> {
-        let Some(context) = self.in_flight.take() else {
+        let Some(context) = self.reads.in_flight.take() else {
             return Ok((None, 0));
         };
         let t0 = clock.now_ns();
-        let read = bus.collect_positions(&self.ids, &mut self.read_buf);
+        let read = bus.collect_positions(&self.ids, &mut self.reads.read_buf);
         let t1 = clock.now_ns();
         let (r, lost) = self.absorb_read(read, t1, &context, bus);
         if let Some(why) = lost {
@@ -96,7 +105,7 @@ impl Controller {
         let fresh = self.preview.advance(due_now);
         if fresh {
             self.have_input = true;
-            self.ease_start_ns.get_or_insert(tick.deadline_ns);
+            self.ease.start_ns.get_or_insert(tick.deadline_ns);
         } else if self.have_input {
             self.stats.inputs_stale += 1;
         }
@@ -138,34 +147,34 @@ impl Controller {
         }
         // What a perfect rig would do this tick: the fidelity's reference.
         match self.preview.current() {
-            Some(c) => self.source_angles.copy_from_slice(&c.angles[..len]),
-            None => self.source_angles.fill(f64::NAN),
+            Some(c) => self.measure.source_angles.copy_from_slice(&c.angles[..len]),
+            None => self.measure.source_angles.fill(f64::NAN),
         }
-        if self.source_log.len() < self.source_log.capacity() {
+        if self.measure.source_log.len() < self.measure.source_log.capacity() {
             let mut a = [f64::NAN; MAX_SERVOS];
-            a[..len].copy_from_slice(&self.source_angles[..len]);
-            self.source_log.push((tick.deadline_ns, a));
+            a[..len].copy_from_slice(&self.measure.source_angles[..len]);
+            self.measure.source_log.push((tick.deadline_ns, a));
         }
-        if self.eased < self.ease_ticks {
-            self.eased += 1;
+        if self.ease.done < self.ease.ticks {
+            self.ease.done += 1;
         }
         let command = if let Some(la) = &mut self.lookahead {
             // The goal path planned over the preview, each servo led by its lag.
-            let ease = (self.ease_ticks > 0).then(|| EaseIn {
-                from: &self.ease_from,
-                start_ns: self.ease_start_ns.unwrap_or(tick.deadline_ns),
-                length_ns: self.ease_ticks * self.period_ns,
+            let ease = (self.ease.ticks > 0).then(|| EaseIn {
+                from: &self.ease.from,
+                start_ns: self.ease.start_ns.unwrap_or(tick.deadline_ns),
+                length_ns: self.ease.ticks * self.period_ns,
             });
             self.preview.live = !self.input.finished();
             let targets = la.targets(&self.rig, &self.stage, &self.preview, tick.deadline_ns, dt, ease);
             self.stage.command_planned(&self.rig, targets, dt)
         } else {
-            self.angles.copy_from_slice(&self.source_angles);
-            if self.eased <= self.ease_ticks && self.ease_ticks > 0 {
+            self.angles.copy_from_slice(&self.measure.source_angles);
+            if self.ease.done <= self.ease.ticks && self.ease.ticks > 0 {
                 // Ease in: blend from where the servos stood (smoothstep weight).
-                let t = self.eased as f64 / self.ease_ticks as f64;
+                let t = self.ease.done as f64 / self.ease.ticks as f64;
                 let w = t * t * (3.0 - 2.0 * t);
-                for (a, from) in self.angles.iter_mut().zip(&self.ease_from) {
+                for (a, from) in self.angles.iter_mut().zip(&self.ease.from) {
                     *a = from + w * (*a - from);
                 }
             }
@@ -216,12 +225,12 @@ impl Controller {
             holding,
             goals: *goals,
             tracked: None,
-            record: self.have_input && !holding && self.eased >= self.ease_ticks && !pre_roll,
+            record: self.have_input && !holding && self.ease.done >= self.ease.ticks && !pre_roll,
             tick: tick.index,
         };
-        if self.have_previous {
+        if self.reads.have_previous {
             let mut g = [0i32; MAX_SERVOS];
-            g[..len].copy_from_slice(&self.previous_goals);
+            g[..len].copy_from_slice(&self.reads.previous_goals);
             context.tracked = Some(g);
         }
         let read_ok;
@@ -233,7 +242,7 @@ impl Controller {
             t_after = clock.now_ns();
             let request_ok = requested.is_ok();
             match requested {
-                Ok(()) => self.in_flight = Some(context),
+                Ok(()) => self.reads.in_flight = Some(context),
                 Err(e) => {
                     let (r, l) = self.absorb_read(Err(e), t_after, &context, bus);
                     (end, lost) = (r.end, lost.or(l));
@@ -248,7 +257,7 @@ impl Controller {
                 None => read_ok = request_ok,
             }
         } else {
-            let read = bus.read_positions(&self.ids, &mut self.read_buf);
+            let read = bus.read_positions(&self.ids, &mut self.reads.read_buf);
             t_after = clock.now_ns();
             let (r, l) = self.absorb_read(read, t_after, &context, bus);
             (read_ok, tracking, end) = (r.ok, r.tracking, r.end);
@@ -265,8 +274,8 @@ impl Controller {
             end = Some(RunEnd::PortLost);
         }
         if written.is_ok() {
-            self.previous_goals.copy_from_slice(&goals[..len]);
-            self.have_previous = true;
+            self.reads.previous_goals.copy_from_slice(&goals[..len]);
+            self.reads.have_previous = true;
         }
         BusDone {
             written: written.is_ok(),
@@ -297,14 +306,14 @@ impl Controller {
         if missed {
             self.stats.deadline_misses += 1;
         }
-        if let Some(mut view) = self.live.as_ref().and_then(|v| v.try_update()) {
+        if let Some(mut view) = self.sinks.live.as_ref().and_then(|v| v.try_update()) {
             view.record_tick(done, compute, missed);
             view.len = len;
             for (k, (s, (g, p))) in self
                 .rig
                 .servos
                 .iter()
-                .zip(command.goals[..len].iter().zip(&self.present))
+                .zip(command.goals[..len].iter().zip(&self.reads.present))
                 .enumerate()
             {
                 view.goal_rad[k] = s.ticks_to_angle(f64::from(*g));
@@ -314,7 +323,7 @@ impl Controller {
                 view.record_carried(current.made_ns, command.t_write);
             }
         }
-        if !self.telemetry.is_empty() {
+        if !self.sinks.telemetry.is_empty() {
             let mut t = Telemetry {
                 index: tick.index,
                 deadline_ns: tick.deadline_ns,
@@ -329,10 +338,10 @@ impl Controller {
                 clip_time: self.clip_time,
                 present: [0; MAX_SERVOS],
                 servos: len,
-                read_ns: self.last_valid_read_ns,
+                read_ns: self.reads.last_valid_ns,
                 stopping: false,
             };
-            t.present[..len].copy_from_slice(&self.present);
+            t.present[..len].copy_from_slice(&self.reads.present);
             self.emit(&t);
         }
     }

@@ -1,0 +1,186 @@
+//! Running ticks to the end of a run, and stopping safely: the ramp to rest (or the hold), then
+//! torque off on every servo.
+
+use super::{stats, Controller, RunEnd, StopMode, StopRequests, Telemetry};
+use crate::bus::{BusError, ServoBus};
+use crate::schedule::{Clock, Schedule};
+use crate::servo::{addr, MAX_SERVOS};
+
+impl Controller {
+    /// Runs ticks on `schedule` until the input ends, `max_ticks` pass, a stop is requested,
+    /// reads fail for the torque-off time or the port fails; then (except after a fault) ramps
+    /// to rest or holds, and turns torque off.
+    pub fn run(
+        &mut self,
+        schedule: &mut Schedule,
+        bus: &mut dyn ServoBus,
+        clock: &mut dyn Clock,
+        stop: &StopRequests,
+    ) -> RunEnd {
+        let why = loop {
+            if stop.made() > 0 {
+                break RunEnd::Interrupted;
+            }
+            let tick = schedule.wait(clock);
+            if stop.made() > 0 {
+                break RunEnd::Interrupted;
+            }
+            if self.config.max_ticks.is_some_and(|m| self.stats.ticks >= m) {
+                break RunEnd::Duration;
+            }
+            if let Some(end) = self.tick(&tick, bus, clock) {
+                break end;
+            }
+        };
+        self.input.stop_producers();
+        if let Some(r) = &self.retarget {
+            self.stats.retarget = Some(r.report());
+        }
+        self.stats.fidelity = Some(self.fidelity_report());
+        if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
+            self.record_final_present();
+            return why;
+        }
+        self.finish(schedule, bus, clock, stop);
+        self.record_final_present();
+        // The port may fail during the ramp: that, not the reason the ramp began, is the end.
+        if self.port_error.is_some() {
+            return RunEnd::PortLost;
+        }
+        why
+    }
+
+    /// The end of a run: ramp to the rest pose (or hold), then torque off. A stop request
+    /// made during the ramp (the second, when a request ended the loop) cuts it short; so does
+    /// the port failing.
+    fn finish(
+        &mut self,
+        schedule: &mut Schedule,
+        bus: &mut dyn ServoBus,
+        clock: &mut dyn Clock,
+        stop: &StopRequests,
+    ) {
+        let (ticks, to_rest) = match self.config.stop {
+            // Nothing was commanded yet: the servos stand where they started.
+            _ if !self.have_input => (0, false),
+            StopMode::Rest { ramp_s } => ((ramp_s.max(0.0) * self.config.rate_hz).ceil() as usize, true),
+            StopMode::Hold { hold_s } => ((hold_s.max(0.0) * self.config.rate_hz).ceil() as usize, false),
+        };
+        // From the last command (what the servos were sent, the plan's lead included).
+        let from: Vec<f64> = self
+            .rig
+            .servos
+            .iter()
+            .zip(self.stage.last())
+            .map(|(s, t)| s.ticks_to_angle(f64::from(*t)))
+            .collect();
+        let dt = self.period_ns as f64 * 1e-9;
+        let requests_at_start = stop.made();
+        // After the ramp, up to two more seconds for the rate limits to arrive at rest.
+        let extra = if to_rest {
+            (2.0 * self.config.rate_hz).ceil() as usize
+        } else {
+            0
+        };
+        for k in 1..=ticks + extra {
+            let tick = schedule.wait(clock);
+            if stop.made() > requests_at_start {
+                break;
+            }
+            if k > ticks && !to_rest {
+                break;
+            }
+            let mut arrived = false;
+            let goals: Vec<i32> = if to_rest && self.have_input {
+                let w = crate::interp::ease_weight(k.min(ticks), ticks + 1);
+                let angles: Vec<f64> = from.iter().map(|a| a * (1.0 - w)).collect();
+                match self.stage.command(&self.rig, &angles, dt) {
+                    Ok((g, limited)) => {
+                        arrived = k >= ticks && limited.rate_limited == 0;
+                        g.to_vec()
+                    }
+                    Err(_) => self.stage.last().to_vec(),
+                }
+            } else {
+                self.stage.last().to_vec()
+            };
+            let written = bus.write_goals(&self.ids, &goals);
+            if let Some(why) = written.as_ref().err().and_then(BusError::port_failure) {
+                self.port_error = Some(why);
+                break;
+            }
+            let read_ok = bus.read_positions(&self.ids, &mut self.reads.read_buf).is_ok();
+            if read_ok {
+                self.reads.present.copy_from_slice(&self.reads.read_buf);
+                self.reads.last_valid_ns = clock.now_ns();
+            }
+            if !self.sinks.telemetry.is_empty() {
+                let len = self.reads.present.len().min(MAX_SERVOS);
+                let mut t = Telemetry {
+                    index: tick.index,
+                    deadline_ns: tick.deadline_ns,
+                    woke_ns: tick.woke_ns,
+                    read_ok,
+                    servos: len,
+                    read_ns: self.reads.last_valid_ns,
+                    stopping: true,
+                    ..Telemetry::default()
+                };
+                t.present[..len].copy_from_slice(&self.reads.present[..len]);
+                self.emit(&t);
+            }
+            if arrived {
+                break;
+            }
+        }
+        self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
+    }
+
+    /// Puts the last valid read's positions, by servo name, into the statistics.
+    fn record_final_present(&mut self) {
+        let angles = self.present_angles();
+        self.stats.final_present = angles
+            .into_iter()
+            .enumerate()
+            .map(|(k, rad)| stats::ServoAngle {
+                name: self
+                    .servo_names
+                    .get(k)
+                    .cloned()
+                    .unwrap_or_else(|| format!("servo {}", k + 1)),
+                rad,
+            })
+            .collect();
+    }
+}
+
+/// What a torque-off achieved.
+#[derive(Debug)]
+pub struct TorqueOff {
+    /// Servos that acknowledged their torque-off write.
+    pub acknowledged: usize,
+    /// The first error, if any.
+    pub error: Option<BusError>,
+}
+
+/// Torque off on every servo: one Sync Write (no replies needed, so it gets through a bus whose
+/// reads fail), then each servo on its own (acknowledged) — unless the port itself failed.
+pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> TorqueOff {
+    let zeros = [0u8; MAX_SERVOS];
+    let n = ids.len().min(MAX_SERVOS);
+    let mut error = bus
+        .sync_write(addr::TORQUE_ENABLE, 1, &ids[..n], &zeros[..n])
+        .err();
+    let mut acknowledged = 0;
+    if error.as_ref().and_then(BusError::port_failure).is_none() {
+        for &id in &ids[..n] {
+            match bus.set_torque(id, false) {
+                Ok(()) => acknowledged += 1,
+                Err(e) => {
+                    error.get_or_insert(e);
+                }
+            }
+        }
+    }
+    TorqueOff { acknowledged, error }
+}
