@@ -7,6 +7,7 @@ use super::args::{extension, BvhUnit};
 use super::error::CliError;
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf, bvh, FileError};
+use clap::Args;
 
 /// The ASF beside an AMC: `<stem>.asf`, then `<subject>.asf` for CMU names like `16_15.amc`.
 fn find_asf(amc_path: &Path) -> Option<PathBuf> {
@@ -86,4 +87,39 @@ fn save_asf(file: &AsfFile, path: &Path) -> Result<(), FileError> {
     asf::write(file, &mut w)
         .and_then(|()| w.flush())
         .map_err(|e| FileError::io(path, e))
+}
+
+/// The arguments of `marionette convert`.
+#[derive(Debug, Args)]
+pub(super) struct ConvertArgs {
+    /// Input: .bvh, or .amc (with its skeleton, see --asf).
+    pub(super) input: PathBuf,
+    /// Output: .amc (the skeleton goes to --asf-out or beside it as .asf), .bvh or .asf.
+    pub(super) output: PathBuf,
+    /// Skeleton of an .amc input (default: IN's stem or subject number with .asf).
+    #[arg(long)]
+    pub(super) asf: Option<PathBuf>,
+    /// Where to write the skeleton of an .amc output (default: OUT with .asf).
+    #[arg(long)]
+    pub(super) asf_out: Option<PathBuf>,
+    /// Length unit of a BVH input (BVH files do not state it).
+    #[arg(long, value_enum, default_value_t = BvhUnit::Cm)]
+    pub(super) bvh_unit: BvhUnit,
+}
+
+impl ConvertArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let ConvertArgs {
+            input,
+            output,
+            asf,
+            asf_out,
+            bvh_unit,
+        } = self;
+        convert(&input, &output, asf.as_deref(), asf_out.as_deref(), bvh_unit)
+    }
 }

@@ -5,6 +5,9 @@ use std::path::Path;
 
 use super::args::extension;
 use super::error::CliError;
+use super::DirectionArg;
+use super::MethodArg;
+use super::MetricArg;
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf};
 use crate::motion::clip::{heading, transform};
@@ -15,6 +18,8 @@ use crate::motion::seam::seam_report;
 use crate::motion::Motion;
 use crate::plot::{draw, Format};
 use crate::skeleton::Skeleton;
+use clap::Args;
+use std::path::PathBuf;
 
 /// Loads the skeleton and the clips, each clip's capture dropouts filled (and said so): an
 /// edit should not carry a capture's glitch into its seams.
@@ -284,4 +289,196 @@ pub(super) fn blend_cmd(
         weight * 100.0
     )?;
     Ok(())
+}
+
+/// The arguments of `marionette connect`.
+#[derive(Debug, Args)]
+pub(super) struct ConnectArgs {
+    /// Skeleton (.asf) of both clips.
+    pub(super) asf: PathBuf,
+    /// First clip (.amc).
+    pub(super) a: PathBuf,
+    /// Second clip (.amc).
+    pub(super) b: PathBuf,
+    /// Interpolate between the end poses, or blend the overlapping windows.
+    #[arg(long, value_enum, default_value_t = MethodArg::Interp)]
+    pub(super) method: MethodArg,
+    /// Forward: match A's end in B (A kept whole); backward: B's start in A.
+    #[arg(long = "match", value_enum, default_value_t = DirectionArg::Forward)]
+    pub(super) direction: DirectionArg,
+    /// Matching window, frames.
+    #[arg(long, default_value_t = 30)]
+    pub(super) window: usize,
+    /// Joint distance for matching.
+    #[arg(long, value_enum, default_value_t = MetricArg::Quat)]
+    pub(super) metric: MetricArg,
+    /// Frames to insert (interp); default: as few as keep every bone, and the root, within
+    /// 1.5× its own 99th-percentile speed in the inputs (+1°).
+    #[arg(long)]
+    pub(super) insert: Option<usize>,
+    /// Frames to blend over (blend); default: from the matching window up, as few as keep
+    /// every bone within its own speeds in the inputs.
+    #[arg(long)]
+    pub(super) blend_window: Option<usize>,
+    /// Output clip (.amc).
+    #[arg(short, long)]
+    pub(super) output: PathBuf,
+    /// Picture of the root paths and the matching curve (.svg or .png).
+    #[arg(long)]
+    pub(super) plot: Option<PathBuf>,
+}
+
+impl ConnectArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let ConnectArgs {
+            asf,
+            a,
+            b,
+            method,
+            direction,
+            window,
+            metric,
+            insert,
+            blend_window,
+            output,
+            plot,
+        } = self;
+        let params = ConnectParams {
+            method: match method {
+                MethodArg::Interp => Method::Interpolate,
+                MethodArg::Blend => Method::Blend,
+            },
+            direction: match direction {
+                DirectionArg::Forward => Direction::Forward,
+                DirectionArg::Backward => Direction::Backward,
+            },
+            matching: MatchParams::new(window, metric.metric()),
+            insert,
+            blend: blend_window,
+        };
+        connect_cmd(&asf, &a, &b, &params, &output, plot.as_deref())
+    }
+}
+
+/// The arguments of `marionette loop`.
+#[derive(Debug, Args)]
+pub(super) struct LoopCmd {
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Clip (.amc).
+    pub(super) input: PathBuf,
+    /// Output clip (.amc).
+    #[arg(short, long)]
+    pub(super) output: PathBuf,
+    /// Matching window, frames.
+    #[arg(long, default_value_t = 30)]
+    pub(super) window: usize,
+    /// Joint distance for matching.
+    #[arg(long, value_enum, default_value_t = MetricArg::Quat)]
+    pub(super) metric: MetricArg,
+    /// How many cycles to write, the root carried on from one to the next.
+    #[arg(long, default_value_t = 2)]
+    pub(super) cycles: usize,
+    /// Picture of the root path and the matching curve (.svg or .png).
+    #[arg(long)]
+    pub(super) plot: Option<PathBuf>,
+}
+
+impl LoopCmd {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let LoopCmd {
+            asf,
+            input,
+            output,
+            window,
+            metric,
+            cycles,
+            plot,
+        } = self;
+        loop_cmd(
+            &asf,
+            &input,
+            &MatchParams::new(window, metric.metric()),
+            cycles,
+            &output,
+            plot.as_deref(),
+        )
+    }
+}
+
+/// The arguments of `marionette transform`.
+#[derive(Debug, Args)]
+pub(super) struct TransformArgs {
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Clip (.amc).
+    pub(super) input: PathBuf,
+    /// Facing of the first frame, degrees (0: +z, 90: +x).
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) facing: f64,
+    /// New start position of the root on the ground, `X,Z` (file units).
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) start: Option<String>,
+    /// Output clip (.amc).
+    #[arg(short, long)]
+    pub(super) output: PathBuf,
+}
+
+impl TransformArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let TransformArgs {
+            asf,
+            input,
+            facing,
+            start,
+            output,
+        } = self;
+        transform_cmd(&asf, &input, facing, start.as_deref(), &output)
+    }
+}
+
+/// The arguments of `marionette blend`.
+#[derive(Debug, Args)]
+pub(super) struct BlendArgs {
+    /// Skeleton (.asf) of both clips.
+    pub(super) asf: PathBuf,
+    /// First clip (.amc).
+    pub(super) a: PathBuf,
+    /// Second clip (.amc).
+    pub(super) b: PathBuf,
+    /// Weight of B, 0 to 1.
+    #[arg(long)]
+    pub(super) weight: f64,
+    /// Output clip (.amc).
+    #[arg(short, long)]
+    pub(super) output: PathBuf,
+}
+
+impl BlendArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let BlendArgs {
+            asf,
+            a,
+            b,
+            weight,
+            output,
+        } = self;
+        blend_cmd(&asf, &a, &b, weight, &output)
+    }
 }

@@ -257,3 +257,25 @@ fn run_sim(
     let _ = torque_off(&mut bus, &profile.ids());
     Ok(r)
 }
+
+/// The arguments of `marionette identify`.
+#[derive(Debug, Args)]
+pub(super) struct IdentifyCmd {
+    /// The rig profile.
+    pub(super) profile: PathBuf,
+    /// Skeleton (.asf): for profiles of bones, and the generated puppet of --bus sim.
+    pub(super) asf: Option<PathBuf>,
+    #[command(flatten)]
+    pub(super) args: IdentifyArgs,
+}
+
+impl IdentifyCmd {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let IdentifyCmd { profile, asf, args } = self;
+        identify_cmd(&profile, asf.as_deref(), &args, &mut std::io::stdout().lock())
+    }
+}

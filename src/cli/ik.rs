@@ -11,6 +11,8 @@ use crate::formats::{amc, asf};
 use crate::ik::{Limb, Swivel};
 use crate::ik_numeric::{chain_mask, Constraint, IkMethod, Method, Settings, Solver};
 use crate::motion::{frame_to_radians, radians_to_frame, Motion, CMU_FRAME_RATE};
+use clap::Args;
+use std::path::PathBuf;
 
 /// `--method NAME`: one of [`IkMethod::NAMES`] (listed in `--help`).
 pub fn method_arg() -> impl clap::builder::TypedValueParser<Value = IkMethod> {
@@ -322,7 +324,7 @@ enum PinSolver {
 }
 
 /// One pin and what happened to it.
-struct Pin {
+struct PinArg {
     bone: usize,
     frame: i64,
     position: DVec3,
@@ -426,7 +428,7 @@ pub fn ik_edit_cmd(args: &IkEditArgs<'_>, out: &mut dyn Write) -> Result<(), Cli
             .flat_map(|&m| skel.bones()[m].channels())
             .filter(|&c| skel.channel_owner(c).is_some_and(|(_, d)| d.is_rotation()))
             .collect();
-        pins.push(Pin {
+        pins.push(PinArg {
             bone,
             frame,
             position: pose.tip[bone],
@@ -521,7 +523,7 @@ pub fn ik_edit_cmd(args: &IkEditArgs<'_>, out: &mut dyn Write) -> Result<(), Cli
         edited += 1;
     }
     // Largest frame-to-frame change of the edited channels, before and after.
-    let step = |m: &Motion, pin: &Pin| -> f64 {
+    let step = |m: &Motion, pin: &PinArg| -> f64 {
         let lo = (from - first).max(1) as usize;
         let hi = ((to - first) as usize + 1).min(m.len() - 1);
         (lo..=hi)
@@ -567,4 +569,119 @@ pub fn ik_edit_cmd(args: &IkEditArgs<'_>, out: &mut dyn Write) -> Result<(), Cli
     amc::save(skel, &motion, args.output)?;
     writeln!(out, "written to {}", args.output.display())?;
     Ok(())
+}
+
+/// The arguments of `marionette ik`.
+#[derive(Debug, Args)]
+pub(super) struct IkCmd {
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Starting motion (.amc); the start is its frame --frame (default: the rest pose).
+    #[arg(long)]
+    pub(super) amc: Option<PathBuf>,
+    /// AMC frame number to start from.
+    #[arg(long)]
+    pub(super) frame: Option<i64>,
+    /// The bone whose tip must reach the target (lradius: wrist, ltibia: ankle).
+    #[arg(long)]
+    pub(super) effector: String,
+    /// Target position X,Y,Z in ASF file units (global).
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) target: String,
+    /// Pointing direction X,Y,Z of the next bone (hand, foot).
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) point_dir: Option<String>,
+    /// Roll about the pointing direction, degrees.
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) roll: Option<f64>,
+    /// Solver (default: analytic where the effector ends a 2-bone limb, else dls).
+    #[arg(long, value_parser = method_arg())]
+    pub(super) method: Option<crate::ik_numeric::IkMethod>,
+    /// Write the solved pose as a one-frame AMC.
+    #[arg(short = 'o', long)]
+    pub(super) output: Option<PathBuf>,
+}
+
+impl IkCmd {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let IkCmd {
+            asf,
+            amc,
+            frame,
+            effector,
+            target,
+            point_dir,
+            roll,
+            method,
+            output,
+        } = self;
+        ik_cmd(
+            &IkArgs {
+                asf: &asf,
+                amc: amc.as_deref(),
+                frame,
+                effector: &effector,
+                target: &target,
+                point_dir: point_dir.as_deref(),
+                roll,
+                method,
+                output: output.as_deref(),
+            },
+            &mut std::io::stdout().lock(),
+        )
+    }
+}
+
+/// The arguments of `marionette ik-edit`.
+#[derive(Debug, Args)]
+pub(super) struct IkEditCmd {
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Motion to edit (.amc).
+    pub(super) amc: PathBuf,
+    /// BONE@FRAME: the bone's tip stays where it was at that frame (repeatable; e.g.
+    /// ltibia@120 for the left ankle).
+    #[arg(long, required = true)]
+    pub(super) pin: Vec<String>,
+    /// A..B: AMC frame numbers (inclusive) over which the pins hold.
+    #[arg(long)]
+    pub(super) frames: String,
+    /// Frames of ease-in before A and ease-out after B.
+    #[arg(long, default_value_t = 12)]
+    pub(super) blend: usize,
+    /// Output motion (.amc).
+    #[arg(short = 'o', long)]
+    pub(super) output: PathBuf,
+}
+
+impl IkEditCmd {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let IkEditCmd {
+            asf,
+            amc,
+            pin,
+            frames,
+            blend,
+            output,
+        } = self;
+        ik_edit_cmd(
+            &IkEditArgs {
+                asf: &asf,
+                amc: &amc,
+                pins: &pin,
+                frames: &frames,
+                blend,
+                output: &output,
+            },
+            &mut std::io::stdout().lock(),
+        )
+    }
 }

@@ -9,7 +9,10 @@ use crate::fk::{forward_kinematics, Pose};
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf, bvh};
 use crate::motion::Motion;
+use crate::motion::CMU_FRAME_RATE;
 use crate::skeleton::MAX_CHANNELS;
+use clap::Args;
+use std::path::PathBuf;
 
 pub(super) fn info(path: &Path, amc_path: Option<&Path>, fps: f64, unit: BvhUnit) -> Result<(), CliError> {
     if !(fps.is_finite() && fps > 0.0) {
@@ -255,4 +258,74 @@ pub(super) fn fk(
     }
     w.flush()?;
     Ok(())
+}
+
+/// The arguments of `marionette info`.
+#[derive(Debug, Args)]
+pub(super) struct InfoArgs {
+    /// Skeleton: an .asf file, or a .bvh file (skeleton and motion).
+    pub(super) skeleton: PathBuf,
+    /// Motion: an .amc file for the skeleton.
+    pub(super) amc: Option<PathBuf>,
+    /// Frame rate of the AMC file (AMC files do not state it; CMU captures are 120 Hz).
+    #[arg(long, default_value_t = CMU_FRAME_RATE)]
+    pub(super) fps: f64,
+    /// Length unit of a BVH file.
+    #[arg(long, value_enum, default_value_t = BvhUnit::Cm)]
+    pub(super) bvh_unit: BvhUnit,
+}
+
+impl InfoArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let InfoArgs {
+            skeleton,
+            amc,
+            fps,
+            bvh_unit,
+        } = self;
+        info(&skeleton, amc.as_deref(), fps, bvh_unit)
+    }
+}
+
+/// The arguments of `marionette fk`.
+#[derive(Debug, Args)]
+pub(super) struct FkArgs {
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Motion (.amc).
+    pub(super) amc: PathBuf,
+    /// Every N-th frame: A, A+N, A+2N, … (A: the first frame of the range).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    pub(super) every: u64,
+    /// Frame range, inclusive, in the AMC's frame numbers: `A..B`, `A..` or `..B`.
+    #[arg(long)]
+    pub(super) frames: Option<String>,
+    /// Positions in metres instead of ASF file units.
+    #[arg(long)]
+    pub(super) meters: bool,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = TableFormat::Csv)]
+    pub(super) format: TableFormat,
+}
+
+impl FkArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let FkArgs {
+            asf,
+            amc,
+            every,
+            frames,
+            meters,
+            format,
+        } = self;
+        fk(&asf, &amc, every as usize, frames.as_deref(), meters, format)
+    }
 }

@@ -12,6 +12,7 @@ use std::sync::Arc;
 use clap::{Args, ValueEnum};
 
 use super::error::CliError;
+use super::FrameArg;
 use crate::control::live::LiveView;
 use crate::control::plot::Histograms;
 use crate::control::source::{ClipSource, LineSource, Source, TrackSource, UdpSource};
@@ -63,22 +64,6 @@ impl std::str::FromStr for BusArg {
 
 /// Seconds a rig of bones spends moving to a clip's first frame before the clip starts.
 pub const DEFAULT_PRE_ROLL_S: f64 = 1.0;
-
-/// How `play` plays its clip.
-#[derive(Clone, Copy, Debug)]
-pub struct Playback {
-    /// Start over at the end.
-    pub looping: bool,
-    /// Playback speed (1 = as captured).
-    pub speed: f64,
-    /// Clip time to start at, seconds.
-    pub start: f64,
-    /// Seconds on the first frame before the clip starts (`None`: 1 s for a rig of bones, 0
-    /// for a retargeted robot).
-    pub pre_roll: Option<f64>,
-    /// Play capture dropouts as recorded.
-    pub keep_dropouts: bool,
-}
 
 /// Options shared by `play` and `follow`.
 #[derive(Clone, Debug, Args)]
@@ -343,23 +328,10 @@ pub(super) fn finish(
 ///
 /// # Errors
 /// [`CliError`].
-#[allow(clippy::too_many_arguments)]
-pub fn play_cmd(
-    profile_path: &Path,
-    asf_path: &Path,
-    amc_path: &Path,
-    playback: Playback,
-    args: &LoopArgs,
-    allocations: Option<fn() -> u64>,
-    out: &mut dyn Write,
-) -> Result<(), CliError> {
-    let Playback {
-        looping,
-        speed,
-        start: start_at,
-        pre_roll,
-        keep_dropouts,
-    } = playback;
+fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write) -> Result<(), CliError> {
+    let (profile_path, asf_path, amc_path, args) = (&a.profile, &a.asf, &a.amc, &a.loop_args);
+    let (looping, speed, start_at, pre_roll, keep_dropouts) =
+        (a.looping, a.speed, a.start, a.pre_roll, a.keep_dropouts);
     if !(speed.is_finite() && speed > 0.0) {
         return Err(CliError::Usage("--speed must be a positive number".into()));
     }
@@ -540,18 +512,15 @@ fn target_source(
 ///
 /// # Errors
 /// [`CliError`].
-#[allow(clippy::too_many_arguments)]
-pub fn follow_cmd(
-    profile_path: &Path,
-    asf_path: &Path,
-    targets: &str,
-    targets_from_network: bool,
-    effectors: &[String],
-    looping: bool,
-    args: &LoopArgs,
-    allocations: Option<fn() -> u64>,
-    out: &mut dyn Write,
-) -> Result<(), CliError> {
+fn follow_cmd(a: &FollowArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write) -> Result<(), CliError> {
+    let (profile_path, asf_path, targets, effectors, args) = (
+        &a.profile,
+        &a.asf,
+        a.targets.as_str(),
+        &a.effectors[..],
+        &a.loop_args,
+    );
+    let (targets_from_network, looping) = (a.targets_from_network, a.looping);
     let profile = Profile::load(profile_path)?;
     let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
     let follower =
@@ -626,17 +595,13 @@ pub enum TargetFormat {
 ///
 /// # Errors
 /// [`CliError`].
-#[allow(clippy::too_many_arguments)]
-pub fn targets_cmd(
-    asf_path: &Path,
-    amc_path: &Path,
-    effectors: &[String],
-    frame: TrackFrame,
-    format: TargetFormat,
-    directions: bool,
-    output: &Path,
-    out: &mut dyn Write,
-) -> Result<(), CliError> {
+fn targets_cmd(a: &TargetsArgs, out: &mut dyn Write) -> Result<(), CliError> {
+    let (asf_path, amc_path, effectors, output) = (&a.asf, &a.amc, &a.effectors[..], &a.output);
+    let (format, directions) = (a.format, a.directions);
+    let frame = match a.frame {
+        FrameArg::Limb => TrackFrame::Limb,
+        FrameArg::Root => TrackFrame::Root,
+    };
     let skeleton = asf::load(asf_path)?.skeleton;
     let motion = amc::load(&skeleton, amc_path)?;
     let track = if directions {
@@ -678,4 +643,119 @@ pub fn targets_cmd(
         output.display()
     )?;
     Ok(())
+}
+
+/// The arguments of `marionette play`.
+#[derive(Debug, Args)]
+pub(super) struct PlayArgs {
+    /// The rig profile, e.g. firmware-profile/cmu-puppet.toml.
+    pub(super) profile: PathBuf,
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Clip (.amc).
+    pub(super) amc: PathBuf,
+    /// Start over at the end of the clip (stop with Ctrl-C or --duration).
+    #[arg(long = "loop")]
+    pub(super) looping: bool,
+    /// Playback speed (1 = as captured).
+    #[arg(long, default_value_t = 1.0)]
+    pub(super) speed: f64,
+    /// Clip time to start at, seconds.
+    #[arg(long, default_value_t = 0.0)]
+    pub(super) start: f64,
+    /// Seconds to move to the clip's first frame before it starts (eased in from where the
+    /// servos stand, unless --ease-in says otherwise); not counted in the fidelity. 0: the
+    /// clip starts at once, from wherever the servos stand. Default: 1 s for a rig of the
+    /// skeleton's bones; 0 for a robot retargeted on its floor (a joint-space blend into a
+    /// clip's first pose, a crouch say, can tip it: give --ease-in, or --pre-roll, knowingly).
+    #[arg(long)]
+    pub(super) pre_roll: Option<f64>,
+    /// Play capture dropouts (a bone reading exactly zero between far-away frames) as
+    /// recorded instead of filling them from their neighbours.
+    #[arg(long)]
+    pub(super) keep_dropouts: bool,
+    #[command(flatten)]
+    pub(super) loop_args: LoopArgs,
+}
+
+impl PlayArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self, allocations: Option<fn() -> u64>) -> Result<(), CliError> {
+        play_cmd(&self, allocations, &mut std::io::stdout().lock())
+    }
+}
+
+/// The arguments of `marionette follow`.
+#[derive(Debug, Args)]
+pub(super) struct FollowArgs {
+    /// The rig profile.
+    pub(super) profile: PathBuf,
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Targets: a CSV or JSON-lines file, `-` for stdin, udp://127.0.0.1:PORT, or `ros2`
+    /// (the topics /marionette/targets/<effector>, metres on the rig in the root's frame;
+    /// implies --ros2).
+    #[arg(long)]
+    pub(super) targets: String,
+    /// Take UDP targets on an address other than loopback (then any host that reaches the
+    /// port moves the servos: a trusted network only).
+    #[arg(long)]
+    pub(super) targets_from_network: bool,
+    /// The effector bones (their tips follow the targets).
+    #[arg(long, value_delimiter = ',', default_value = "lradius,rradius,ltibia,rtibia")]
+    pub(super) effectors: Vec<String>,
+    /// Start a target file over at its end.
+    #[arg(long = "loop")]
+    pub(super) looping: bool,
+    #[command(flatten)]
+    pub(super) loop_args: LoopArgs,
+}
+
+impl FollowArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self, allocations: Option<fn() -> u64>) -> Result<(), CliError> {
+        follow_cmd(&self, allocations, &mut std::io::stdout().lock())
+    }
+}
+
+/// The arguments of `marionette targets`.
+#[derive(Debug, Args)]
+pub(super) struct TargetsArgs {
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Clip (.amc).
+    pub(super) amc: PathBuf,
+    /// The effector bones.
+    #[arg(long, value_delimiter = ',', default_value = "lradius,rradius,ltibia,rtibia")]
+    pub(super) effectors: Vec<String>,
+    /// limb: each path relative to its limb's parent bone, placed on the rest pose (what a
+    /// rig with its other joints at rest can reach); root: as captured, in the root's frame.
+    #[arg(long, value_enum, default_value_t = FrameArg::Limb)]
+    pub(super) frame: FrameArg,
+    /// File format.
+    #[arg(long, value_enum, default_value_t = TargetFormat::Csv)]
+    pub(super) format: TargetFormat,
+    /// Add each target's pointing direction: the captured direction of the bone after the
+    /// effector (the hand, the foot), which `follow` turns that bone to.
+    #[arg(long)]
+    pub(super) directions: bool,
+    /// Output file.
+    #[arg(short, long)]
+    pub(super) output: PathBuf,
+}
+
+impl TargetsArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        targets_cmd(&self, &mut std::io::stdout().lock())
+    }
 }

@@ -8,9 +8,11 @@ use super::args::{extension, BvhUnit};
 use super::error::CliError;
 use crate::formats::{amc, asf, bvh, FileError};
 use crate::motion::Motion;
+use crate::motion::CMU_FRAME_RATE;
 use crate::profile::Profile;
 use crate::retarget::{retarget_clip, write_csv, Options, RetargetReport, Setup};
 use crate::skeleton::Skeleton;
+use clap::Args;
 
 /// The command's settings.
 pub struct RetargetArgs<'a> {
@@ -201,4 +203,72 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
         writeln!(out, "  speed: {fps:.0} frames per second")?;
     }
     Ok(())
+}
+
+/// The arguments of `marionette retarget`.
+#[derive(Debug, Args)]
+pub(super) struct RetargetCmd {
+    /// The rig profile with a [retarget] map, e.g. firmware-profile/robotis-op3.toml.
+    pub(super) profile: PathBuf,
+    /// Skeleton: an .asf file, or a .bvh file (skeleton and motion).
+    pub(super) skeleton: PathBuf,
+    /// Clip (.amc) for an ASF skeleton.
+    pub(super) amc: Option<PathBuf>,
+    /// Joint trajectory: time, then one column per robot joint (radians).
+    #[arg(short, long)]
+    pub(super) output: PathBuf,
+    /// Also write the report as JSON.
+    #[arg(long)]
+    pub(super) report: Option<PathBuf>,
+    /// Draw human and robot side by side at a few frames, and the error curves (.svg/.png).
+    #[arg(long)]
+    pub(super) plot: Option<PathBuf>,
+    /// Keep the legs in a standing stance; retarget arms, head and torso only.
+    #[arg(long)]
+    pub(super) upper_body: bool,
+    /// Do not move the pelvis to keep the centre of mass over the planted feet.
+    #[arg(long)]
+    pub(super) no_balance: bool,
+    /// Frame rate of the AMC file.
+    #[arg(long, default_value_t = CMU_FRAME_RATE)]
+    pub(super) fps: f64,
+    /// Length unit of a BVH file.
+    #[arg(long, value_enum, default_value_t = BvhUnit::Cm)]
+    pub(super) bvh_unit: BvhUnit,
+}
+
+impl RetargetCmd {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let RetargetCmd {
+            profile,
+            skeleton,
+            amc,
+            output,
+            report,
+            plot,
+            upper_body,
+            no_balance,
+            fps,
+            bvh_unit,
+        } = self;
+        retarget_cmd(
+            &RetargetArgs {
+                profile: &profile,
+                skeleton: &skeleton,
+                amc: amc.as_deref(),
+                output: &output,
+                report,
+                plot,
+                upper_body,
+                balance: !no_balance,
+                fps,
+                bvh_unit,
+            },
+            &mut std::io::stdout().lock(),
+        )
+    }
 }

@@ -10,6 +10,8 @@ use crate::bus::ServoBus;
 use crate::formats::asf;
 use crate::profile::{BusConfig, Drive, Profile};
 use crate::rig::JointSource;
+use clap::Args;
+use std::path::PathBuf;
 
 /// `marionette profile`: validate a profile (against a skeleton when given) and list it.
 pub fn profile_cmd(path: &Path, asf_path: Option<&Path>, out: &mut dyn Write) -> Result<(), CliError> {
@@ -397,4 +399,130 @@ pub fn scan_cmd(
         }
     }
     Ok(())
+}
+
+/// The arguments of `marionette profile`.
+#[derive(Debug, Args)]
+pub(super) struct ProfileArgs {
+    /// The profile, e.g. firmware-profile/cmu-puppet.toml.
+    pub(super) profile: PathBuf,
+    /// The skeleton the profile's bones refer to.
+    #[arg(long)]
+    pub(super) asf: Option<PathBuf>,
+}
+
+impl ProfileArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let ProfileArgs { profile, asf } = self;
+        profile_cmd(&profile, asf.as_deref(), &mut std::io::stdout().lock())
+    }
+}
+
+/// The arguments of `marionette budget`.
+#[derive(Debug, Args)]
+pub(super) struct BudgetArgs {
+    /// The profile.
+    pub(super) profile: PathBuf,
+    /// A loop rate to check, Hz.
+    #[arg(long)]
+    pub(super) rate: Option<f64>,
+    /// Print JSON.
+    #[arg(long)]
+    pub(super) json: bool,
+    /// Measure this many cycles on the profile's virtual chain served with line time (baud,
+    /// return delay, USB latency) through the real client, against the plan.
+    #[arg(long)]
+    pub(super) measure: Option<usize>,
+}
+
+impl BudgetArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let BudgetArgs {
+            profile,
+            rate,
+            json,
+            measure,
+        } = self;
+        budget_cmd(&profile, rate, json, measure, &mut std::io::stdout().lock())
+    }
+}
+
+/// The arguments of `marionette serve`.
+#[derive(Debug, Args)]
+pub(super) struct ServeArgs {
+    /// The profile.
+    pub(super) profile: PathBuf,
+    /// Answer at once instead of at line speed.
+    #[arg(long)]
+    pub(super) no_line_time: bool,
+    /// Stop after this many seconds (default: at Ctrl-C).
+    #[arg(long)]
+    pub(super) duration: Option<f64>,
+    /// Serve at this `SCHED_FIFO` priority (1–99; needs CAP_SYS_NICE), as hardware keeps
+    /// its own time whatever else the machine does.
+    #[arg(long)]
+    pub(super) rt_priority: Option<i32>,
+}
+
+impl ServeArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let ServeArgs {
+            profile,
+            no_line_time,
+            duration,
+            rt_priority,
+        } = self;
+        serve_cmd(
+            &profile,
+            (!no_line_time).then_some(rt_priority),
+            duration,
+            &mut std::io::stdout().lock(),
+        )
+    }
+}
+
+/// The arguments of `marionette scan`.
+#[derive(Debug, Args)]
+pub(super) struct ScanArgs {
+    /// Serial port, e.g. /dev/ttyUSB0.
+    #[arg(long, conflicts_with = "virtual")]
+    pub(super) port: Option<String>,
+    /// Baud rate of --port.
+    #[arg(long, default_value_t = 57_600)]
+    pub(super) baud: u32,
+    /// Scan a virtual chain built from this profile (served on a pseudo-terminal).
+    #[arg(long = "virtual", value_name = "PROFILE")]
+    r#virtual: Option<PathBuf>,
+}
+
+impl ScanArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let ScanArgs {
+            port,
+            baud,
+            r#virtual,
+        } = self;
+        scan_cmd(
+            port.as_deref(),
+            baud,
+            r#virtual.as_deref(),
+            &mut std::io::stdout().lock(),
+        )
+    }
 }

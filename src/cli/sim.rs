@@ -10,6 +10,7 @@ use super::error::CliError;
 use crate::formats::asf;
 use crate::profile::Profile;
 use crate::sim::mjcf::{puppet, PuppetOptions};
+use clap::Args;
 
 /// What `marionette sim` does.
 #[derive(Debug, Subcommand)]
@@ -295,4 +296,22 @@ fn serve(
         }
     )?;
     super::rig::serve_until_stopped(&chain, duration, out)
+}
+
+/// The arguments of `marionette sim`.
+#[derive(Debug, Args)]
+pub(super) struct SimArgs {
+    #[command(subcommand)]
+    pub(super) command: SimCommand,
+}
+
+impl SimArgs {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let SimArgs { command } = self;
+        sim_cmd(&command, &mut std::io::stdout().lock())
+    }
 }

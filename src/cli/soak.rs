@@ -8,6 +8,7 @@ use super::error::CliError;
 use crate::formats::{amc, asf};
 use crate::profile::Profile;
 use crate::session::soak::{soak, SoakConfig};
+use clap::Args;
 
 /// The soak's settings from the command line.
 pub struct SoakArgs {
@@ -74,4 +75,62 @@ pub fn soak_cmd(
         return Err(CliError::SoakFailed(bad));
     }
     Ok(())
+}
+
+/// The arguments of `marionette soak`.
+#[derive(Debug, Args)]
+pub(super) struct SoakCmd {
+    /// The profile.
+    pub(super) profile: PathBuf,
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// Clip (.amc), played on a loop.
+    pub(super) amc: PathBuf,
+    /// Faults to apply before stopping.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub(super) faults: u64,
+    /// Seed of the faults and the bursts (the same seed replays the same soak).
+    #[arg(long, default_value_t = 1)]
+    pub(super) seed: u64,
+    /// Loop rate, Hz.
+    #[arg(long, default_value_t = 100.0)]
+    pub(super) rate: f64,
+    /// Longest burst of faults, ticks.
+    #[arg(long, default_value_t = 30)]
+    pub(super) max_burst: u64,
+    /// Also write the figures as JSON to this file.
+    #[arg(long)]
+    pub(super) json: Option<PathBuf>,
+}
+
+impl SoakCmd {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self) -> Result<(), CliError> {
+        let SoakCmd {
+            profile,
+            asf,
+            amc,
+            faults,
+            seed,
+            rate,
+            max_burst,
+            json,
+        } = self;
+        soak_cmd(
+            &profile,
+            &asf,
+            &amc,
+            SoakArgs {
+                faults,
+                seed,
+                rate,
+                max_burst,
+                json,
+            },
+            &mut std::io::stdout().lock(),
+        )
+    }
 }

@@ -16,6 +16,8 @@ use crate::studio::access::{host_name, url_host, Access, AccessOptions};
 use crate::studio::scene::Scene;
 use crate::studio::server::Server;
 use crate::studio::{server, Feed, ServoInfo, Studio, StudioSource};
+use clap::Args;
+use std::path::PathBuf;
 
 /// Options of `marionette studio`.
 #[derive(Debug)]
@@ -138,4 +140,75 @@ pub fn studio_cmd(
         l.n, l.p50, l.p99, l.max, r.p50, r.p99
     )?;
     finish(&outcome, args, NoFigures {}, out)
+}
+
+/// The arguments of `marionette studio`.
+#[cfg(feature = "studio")]
+#[derive(Debug, Args)]
+pub(super) struct StudioCmd {
+    /// The rig profile.
+    pub(super) profile: PathBuf,
+    /// Skeleton (.asf).
+    pub(super) asf: PathBuf,
+    /// A clip (.amc) for the timeline: play, scrub, pin limbs while it plays.
+    pub(super) amc: Option<PathBuf>,
+    /// Port to serve on (0: any free one; the URL is printed).
+    #[arg(long, default_value_t = 8080)]
+    pub(super) port: u16,
+    /// Listen on this address instead of loopback; other machines then need the token
+    /// (printed in the URL once).
+    #[arg(long)]
+    pub(super) listen: Option<std::net::IpAddr>,
+    /// Another host name the page may be reached by (NAME or NAME:PORT; a proxy's, an SSH
+    /// tunnel's); repeatable.
+    #[arg(long, value_name = "NAME")]
+    pub(super) allow_host: Vec<String>,
+    /// Another origin whose pages may drive the rig (scheme://host[:port]); repeatable.
+    #[arg(long, value_name = "ORIGIN")]
+    pub(super) allow_origin: Vec<String>,
+    /// The token requests must carry (default: a random one per run when --listen is not
+    /// loopback, none on loopback); better given in the environment than on the command
+    /// line.
+    #[arg(long, env = "MARIONETTE_STUDIO_TOKEN", hide_env_values = true)]
+    pub(super) token: Option<String>,
+    #[command(flatten)]
+    pub(super) loop_args: LoopArgs,
+}
+
+#[cfg(feature = "studio")]
+impl StudioCmd {
+    /// Runs it.
+    ///
+    /// # Errors
+    /// [`CliError`].
+    pub(super) fn run(self, allocations: Option<fn() -> u64>) -> Result<(), CliError> {
+        let StudioCmd {
+            profile,
+            asf,
+            amc,
+            port,
+            listen,
+            allow_host,
+            allow_origin,
+            token,
+            loop_args,
+        } = self;
+        studio_cmd(
+            &StudioArgs {
+                profile: &profile,
+                asf: &asf,
+                amc: amc.as_deref(),
+                port,
+                listen,
+                access: crate::studio::access::AccessOptions {
+                    allow_hosts: allow_host,
+                    allow_origins: allow_origin,
+                    token,
+                },
+            },
+            &loop_args,
+            allocations,
+            &mut std::io::stdout().lock(),
+        )
+    }
 }
