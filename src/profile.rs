@@ -280,6 +280,23 @@ pub struct Profile {
     pub retarget: Option<RetargetSpec>,
 }
 
+/// What the bus layer needs of a profile: the bus section and the servos on it.
+#[derive(Clone, Copy, Debug)]
+pub struct BusSection<'a> {
+    /// The bus.
+    pub config: &'a BusConfig,
+    /// The servos in file order.
+    pub servos: &'a [ServoSpec],
+}
+
+impl BusSection<'_> {
+    /// Servo ids in bus order.
+    #[must_use]
+    pub fn ids(&self) -> Vec<u8> {
+        self.servos.iter().map(|s| s.id).collect()
+    }
+}
+
 /// A name in a profile and where it was written (1-based line and column).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Named {
@@ -776,6 +793,15 @@ impl Profile {
     #[must_use]
     pub fn ids(&self) -> Vec<u8> {
         self.servos.iter().map(|s| s.id).collect()
+    }
+
+    /// The bus section and its servos, for the bus layer.
+    #[must_use]
+    pub fn bus_section(&self) -> BusSection<'_> {
+        BusSection {
+            config: &self.bus,
+            servos: &self.servos,
+        }
     }
 
     /// Resolves bone DOFs against a skeleton and builds the core's rig.

@@ -73,10 +73,10 @@ fn rig_and_bus_cycle_allocates_nothing() {
     let profile = Profile::load(&path).unwrap();
     let rig = profile.rig(Some(&skel)).unwrap();
     let mut bus = PacketBus::new(
-        InProcess::new(chain_for(&profile, |_| 2048), profile.bus.baud),
+        InProcess::new(chain_for(profile.bus_section(), |_| 2048), profile.bus.baud),
         Duration::from_millis(2),
     );
-    let present = start_up(&mut bus, &profile).unwrap();
+    let present = start_up(&mut bus, profile.bus_section()).unwrap();
     let ids = profile.ids();
     let mut stage = CommandStage::new(rig.len());
     stage.start_from(&rig, &present);
@@ -219,11 +219,11 @@ fn control_loop_ticks_allocate_nothing() {
     let track = clip_track(&skel, &motion, &names, TrackFrame::Limb).unwrap();
     for (follow, lookahead) in [(false, false), (true, false), (false, true), (true, true)] {
         let mut vr = VirtualRig::new(
-            chain_for(&profile, |_| 2048),
+            chain_for(profile.bus_section(), |_| 2048),
             profile.bus.baud,
             Duration::from_millis(2),
         );
-        let present = start_up(&mut vr, &profile).unwrap();
+        let present = start_up(&mut vr, profile.bus_section()).unwrap();
         let (tx, port) = input_channel(4);
         let solve = if follow {
             Solve::Follow(Box::new(Follower::new(&skel, &names).unwrap()))

@@ -39,11 +39,11 @@ fn setup() -> Setup {
     // Servos resting at their zero angle, clamped into their limits.
     let zero: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     let mut vr = VirtualRig::new(
-        chain_for(&profile, |k| zero[k]),
+        chain_for(profile.bus_section(), |k| zero[k]),
         profile.bus.baud,
         Duration::from_millis(2),
     );
-    let present = start_up(&mut vr, &profile).unwrap();
+    let present = start_up(&mut vr, profile.bus_section()).unwrap();
     Setup {
         skel: Arc::new(skel),
         motion: Arc::new(motion),

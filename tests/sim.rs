@@ -111,7 +111,7 @@ fn walk_in_lockstep() -> (TrackingReport, Vec<f64>, u64, RunEnd) {
     let rig = profile.rig(Some(&skel)).unwrap();
     let xml = puppet(&skel, &profile, &rig, &PuppetOptions::default()).unwrap();
     let mut bus = sim_bus(World::from_xml_str(&xml).unwrap(), &profile, &rig).unwrap();
-    let present = start_up(&mut bus, &profile).unwrap();
+    let present = start_up(&mut bus, profile.bus_section()).unwrap();
     bus.with(|t| t.plant_mut().record(true));
     let (tx, port) = input_channel(16);
     let config = LoopConfig {
@@ -178,7 +178,7 @@ fn op3_run(seconds: f64, script: impl Fn(f64, &str) -> f64) -> (SimBus, Profile,
     let rig = profile.rig(None).unwrap();
     let world = World::from_file(&repo("sim/models/robotis_op3/scene.xml")).unwrap();
     let mut bus = sim_bus(world, &profile, &rig).unwrap();
-    start_up(&mut bus, &profile).unwrap();
+    start_up(&mut bus, profile.bus_section()).unwrap();
     bus.with(|t| t.plant_mut().record(true));
     let ids = profile.ids();
     let torso = bus.with(|t| t.plant().world().site("torso").unwrap());

@@ -34,7 +34,7 @@ fn serve_puppet() -> (PtyChain, Profile) {
     let skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
     let rig = profile.rig(Some(&skeleton)).unwrap();
     let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
-    let chain = PtyChain::serve(chain_for(&profile, |k| rest[k]), None).unwrap();
+    let chain = PtyChain::serve(chain_for(profile.bus_section(), |k| rest[k]), None).unwrap();
     (chain, profile)
 }
 

@@ -15,7 +15,7 @@ pub mod virtual_chain;
 
 use std::fmt;
 
-use crate::profile::Profile;
+use crate::profile::BusSection;
 use crate::servo::{self, addr, ServoModel};
 
 /// The kind of a bus error, for counting.
@@ -382,19 +382,19 @@ pub enum StartupError {
 ///
 /// # Errors
 /// [`StartupError`]; torque stays off on every servo.
-pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, StartupError> {
+pub fn start_up(bus: &mut dyn ServoBus, profile: BusSection<'_>) -> Result<Vec<i32>, StartupError> {
     let mut found = bus.scan()?;
     // A broadcast ping's replies come back to back; one that arrives after the scan's window
     // (a loaded host, a USB adapter's latency timer) is not a missing servo: a profiled id the
     // scan did not see is pinged on its own, twice, before it counts as missing.
-    for s in &profile.servos {
+    for s in profile.servos {
         if !found.iter().any(|p| p.id == s.id) {
             if let Some(p) = (0..2).find_map(|_| bus.ping(s.id).ok()) {
                 found.push(p);
             }
         }
     }
-    for s in &profile.servos {
+    for s in profile.servos {
         match found.iter().find(|p| p.id == s.id) {
             None => {
                 return Err(StartupError::Missing {
@@ -428,7 +428,7 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
                 status,
             });
         }
-        let delay = [(profile.bus.return_delay_us / 2) as u8];
+        let delay = [(profile.config.return_delay_us / 2) as u8];
         retried(|| bus.write(s.id, addr::RETURN_DELAY_TIME, &delay))?;
         retried(|| bus.write(s.id, addr::STATUS_RETURN_LEVEL, &[2]))?;
         retried(|| bus.write(s.id, addr::MAX_POSITION_LIMIT, &hi.to_le_bytes()))?;
@@ -474,15 +474,19 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Vec<i32>, S
 }
 
 /// Torque on every servo, then the Bus Watchdog armed on all of them at once and read back.
-fn torque_on_and_arm(bus: &mut dyn ServoBus, profile: &Profile, ids: &[u8]) -> Result<(), StartupError> {
-    for s in &profile.servos {
+fn torque_on_and_arm(
+    bus: &mut dyn ServoBus,
+    profile: BusSection<'_>,
+    ids: &[u8],
+) -> Result<(), StartupError> {
+    for s in profile.servos {
         retried(|| bus.set_torque(s.id, true))?;
     }
     // The watchdog armed on every servo at once, last: armed one by one, the first servos'
     // would run out while the others are still being set up (28 acknowledged writes take
     // longer than 100 ms on a bus with a 1 ms adapter latency). Read back, as a Sync Write is
     // not acknowledged.
-    let wd = (profile.bus.watchdog_ms / 20).min(127) as u8;
+    let wd = (profile.config.watchdog_ms / 20).min(127) as u8;
     if wd > 0 {
         let n = ids.len();
         bus.sync_write(addr::BUS_WATCHDOG, 1, ids, &vec![wd; n])?;
@@ -523,9 +527,9 @@ fn retried<T>(mut transaction: impl FnMut() -> Result<T, BusError>) -> Result<T,
 ///
 /// # Errors
 /// [`BusError`].
-pub fn shut_down(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(), BusError> {
+pub fn shut_down(bus: &mut dyn ServoBus, profile: BusSection<'_>) -> Result<(), BusError> {
     let mut first = None;
-    for s in &profile.servos {
+    for s in profile.servos {
         if let Err(e) = retried(|| bus.set_torque(s.id, false)) {
             first.get_or_insert(e);
         }

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use super::faults::FaultInjector;
 use super::packet::{wire_time, Transport};
 use crate::device::{Chain, Received, Receiver, Replies, VirtualServo, MAX_PACKET};
-use crate::profile::Profile;
+use crate::profile::BusSection;
 use crate::servo::MAX_SERVOS;
 
 /// A chain with one servo per profiled id, each at `position` (or 2048).
@@ -19,12 +19,12 @@ use crate::servo::MAX_SERVOS;
 /// # Panics
 /// Never: profiles hold at most [`crate::servo::MAX_SERVOS`] servos.
 #[must_use]
-pub fn chain_for(profile: &Profile, position: impl Fn(usize) -> i32) -> Chain {
+pub fn chain_for(profile: BusSection<'_>, position: impl Fn(usize) -> i32) -> Chain {
     let mut chain = Chain::new();
     for (k, s) in profile.servos.iter().enumerate() {
         let mut servo = VirtualServo::new(s.id, s.model, position(k));
         // Set to the bus's baud, as the rig's servos are.
-        servo.set_baud(profile.bus.baud);
+        servo.set_baud(profile.config.baud);
         let _ = chain.add(servo);
     }
     chain

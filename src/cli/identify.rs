@@ -115,11 +115,11 @@ pub fn identify_cmd(
         BusArg::Virtual => {
             let rest: Vec<i32> = rig.servos.iter().map(crate::rig::ServoMap::rest_tick).collect();
             let mut bus = VirtualRig::keeping_time_of(
-                chain_for(&profile, |k| rest[k]),
+                chain_for(profile.bus_section(), |k| rest[k]),
                 crate::bus::virtual_chain::ServoMotion,
                 &profile.bus,
             );
-            let present = start_up(&mut bus, &profile)?;
+            let present = start_up(&mut bus, profile.bus_section())?;
             let mut clock = bus.clone();
             let r = identify(
                 &mut bus,
@@ -139,7 +139,7 @@ pub fn identify_cmd(
         BusArg::Port(port) => {
             let mut bus = crate::bus::open(Wire::Port(port.clone()), &profile.bus, profile.servos.len())
                 .map_err(CliError::at_port(port))?;
-            let present = start_up(bus.as_mut(), &profile)?;
+            let present = start_up(bus.as_mut(), profile.bus_section())?;
             writeln!(out, "{port}: {} servos up, torque on", present.len())?;
             let mut clock = SystemClock::new(200_000);
             let r = identify(
@@ -241,7 +241,7 @@ fn run_sim(
     };
     let world = plant::load_world(args.model.as_deref(), skeleton, profile, rig, &options)?;
     let mut bus = plant::sim_bus(world, profile, rig)?;
-    let present = start_up(&mut bus, profile)?;
+    let present = start_up(&mut bus, profile.bus_section())?;
     let mut clock = bus.clone();
     let r = identify(
         &mut bus,

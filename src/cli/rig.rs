@@ -115,10 +115,14 @@ fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Wr
         return Err(CliError::Usage("--measure needs at least one cycle".into()));
     }
     let planned = plan(&profile.bus, profile.servos.len(), None);
-    let mut in_process = crate::bus::line_timed_chain(chain_for(profile, |_| 2048), &profile.bus);
+    let mut in_process =
+        crate::bus::line_timed_chain(chain_for(profile.bus_section(), |_| 2048), &profile.bus);
     let in_process = time_cycles(&mut in_process, profile, cycles, "in process")?;
-    let pty = PtyChain::serve_timed(chain_for(profile, |_| 2048), LineTiming::of(&profile.bus))
-        .map_err(CliError::Output)?;
+    let pty = PtyChain::serve_timed(
+        chain_for(profile.bus_section(), |_| 2048),
+        LineTiming::of(&profile.bus),
+    )
+    .map_err(CliError::Output)?;
     let path = pty.path().to_string();
     let mut bus = crate::bus::open(
         crate::bus::Wire::Port(path.clone()),
@@ -209,8 +213,8 @@ fn time_cycles(
     use std::time::Instant;
 
     let ids = profile.ids();
-    let mut present =
-        crate::bus::start_up(bus, profile).map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
+    let mut present = crate::bus::start_up(bus, profile.bus_section())
+        .map_err(|e| CliError::Usage(format!("{name}: {e}")))?;
     let mut took = Vec::with_capacity(cycles);
     let mut failed = 0usize;
     for _ in 0..cycles {
@@ -247,7 +251,7 @@ pub fn serve_cmd(
     }
     let profile = Profile::load(path)?;
     // Each horn at its joint's zero.
-    let chain = chain_for(&profile, |k| {
+    let chain = chain_for(profile.bus_section(), |k| {
         profile.servos[k].zero.round().clamp(0.0, 4095.0) as i32
     });
     let pty = if let Some(priority) = line_time {
@@ -373,7 +377,8 @@ pub fn scan_cmd(
         (Some(p), None) => (None, p.to_string(), baud),
         (None, Some(prof)) => {
             let profile = Profile::load(prof)?;
-            let pty = PtyChain::serve(chain_for(&profile, |_| 2048), None).map_err(CliError::Output)?;
+            let pty = PtyChain::serve(chain_for(profile.bus_section(), |_| 2048), None)
+                .map_err(CliError::Output)?;
             let path = pty.path().to_string();
             (Some(pty), path, profile.bus.baud)
         }

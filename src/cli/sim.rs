@@ -272,7 +272,7 @@ fn serve(
     plant.set_angles(&rest_angles(&rig));
     let present = plant.present_ticks();
     let timestep = plant.world().timestep();
-    let chain = chain_for(&profile, |k| present[k]);
+    let chain = chain_for(profile.bus_section(), |k| present[k]);
     let chain = if line_time {
         PtyChain::serve_timed_with(chain, plant, LineTiming::of(&profile.bus))
     } else {

@@ -532,7 +532,7 @@ fn open_bus(
     match &spec.bus {
         BusChoice::Virtual { line_time } => {
             let rest: Vec<i32> = rig.servos.iter().map(crate::rig::ServoMap::rest_tick).collect();
-            let chain = chain_for(profile, |k| rest[k]);
+            let chain = chain_for(profile.bus_section(), |k| rest[k]);
             if !line_time {
                 // On a pty, answering as soon as the serving thread can.
                 let chain = PtyChain::serve(chain, None)?;
@@ -616,7 +616,7 @@ impl Run<'_> {
             _chain,
             label,
         } = open_bus(spec, profile, &drive.rig, log)?;
-        let present = start_up(bus.as_mut(), profile)?;
+        let present = start_up(bus.as_mut(), profile.bus_section())?;
         writeln!(log, "{label}: {} servos up, torque on", present.len())?;
         let rig = drive.rig.clone();
         let mut controller = controller(spec, profile, drive, &present, port, solve, true);
@@ -717,7 +717,7 @@ impl Run<'_> {
             &options,
         )?;
         let mut bus = plant::sim_bus(world, profile, &drive.rig)?;
-        let present = start_up(&mut bus, profile)?;
+        let present = start_up(&mut bus, profile.bus_section())?;
         writeln!(
             log,
             "MuJoCo: {} ({}), {} servos up, torque on; lockstep on simulated time",

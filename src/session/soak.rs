@@ -149,7 +149,7 @@ pub fn soak(
     // The adapter's latency comes on top of every reply, and so of the host's margin.
     let latency = Duration::from_micros(u64::from(profile.bus.usb_latency_us));
     let mut vr = VirtualRig::new(
-        chain_for(profile, |k| rest[k]),
+        chain_for(profile.bus_section(), |k| rest[k]),
         profile.bus.baud,
         config.margin + latency,
     )
@@ -182,7 +182,7 @@ pub fn soak(
     'sessions: while applied(&vr) < config.faults {
         // Start-up on a quiet line (it refuses to run on a faulty one, by design).
         let injector = vr.with(|t| t.injector.take());
-        let present = start_up(&mut vr, profile);
+        let present = start_up(&mut vr, profile.bus_section());
         vr.with(|t| t.injector = injector);
         let present = present?;
         let (tx, port) = input_channel(4);

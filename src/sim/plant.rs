@@ -359,7 +359,7 @@ pub fn sim_bus(world: World, profile: &Profile, rig: &Rig) -> Result<SimBus, Sim
     let mut plant = SimPlant::new(world, profile, rig)?;
     plant.set_angles(&rest_angles(rig));
     let present = plant.present_ticks();
-    let chain = chain_for(profile, |k| present[k]);
+    let chain = chain_for(profile.bus_section(), |k| present[k]);
     Ok(VirtualRig::keeping_time_of(chain, plant, &profile.bus))
 }
 
