@@ -10,14 +10,15 @@ use clap::Args;
 
 use super::error::CliError;
 use super::play::BusArg;
+use crate::bus::start_up;
 use crate::bus::virtual_chain::{chain_for, VirtualRig};
-use crate::bus::{start_up, Wire};
 use crate::clock::SystemClock;
 use crate::control::identify::{identify, Excitation, ServoResponse};
 use crate::control::torque_off;
 use crate::formats::{asf, FileError};
 use crate::profile::{set_servo_lags, Profile};
 use crate::rig::Rig;
+use crate::session::{self, BusChoice, SessionSpec};
 use crate::skeleton::Skeleton;
 
 /// Options of `identify`.
@@ -137,8 +138,13 @@ pub fn identify_cmd(
         }
         BusArg::Sim => run_sim(args, &profile, skeleton.as_deref(), &rig, &names, &which, &e)?,
         BusArg::Port(port) => {
-            let mut bus = crate::bus::open(Wire::Port(port.clone()), &profile.bus, profile.servos.len())
-                .map_err(CliError::at_port(port))?;
+            // The bus as a session opens it (the project's host, the profile's read mode).
+            let spec = SessionSpec {
+                rate_hz: args.rate,
+                bus: BusChoice::Port(port.clone()),
+                ..SessionSpec::default()
+            };
+            let mut bus = session::open_bus(&spec, &profile, &rig, out)?.bus;
             let present = start_up(bus.as_mut(), profile.bus_section())?;
             writeln!(out, "{port}: {} servos up, torque on", present.len())?;
             let mut clock = SystemClock::new(200_000);

@@ -502,16 +502,30 @@ struct Run<'a> {
     stop: StopRequests,
 }
 
-/// The opened bus: the virtual chain (kept alive while the bus is used) or a port.
-struct OpenBus {
-    bus: Box<dyn ServoBus + Send>,
+/// An opened bus: the virtual chain (kept alive while the bus is used) or a port.
+pub struct OpenBus {
+    /// The project's host on it.
+    pub bus: Box<dyn ServoBus + Send>,
     _chain: Option<PtyChain>,
-    label: String,
+    /// How the run names it.
+    pub label: String,
 }
 
-/// Opens the bus `spec` names for `profile`, the servos of a virtual chain at their zero angle
-/// (`rig`'s rest).
-fn open_bus(
+impl std::fmt::Debug for OpenBus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OpenBus")
+            .field("label", &self.label)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Opens the bus `spec` names for `profile` (a real-time bus: not `--bus sim`), the servos of a
+/// virtual chain at their zero angle (`rig`'s rest); warns on `log` when a bus cycle does not
+/// fit the period.
+///
+/// # Errors
+/// The port cannot be opened; [`BusChoice::Sim`].
+pub fn open_bus(
     spec: &SessionSpec,
     profile: &Profile,
     rig: &Rig,
