@@ -478,7 +478,7 @@ impl Session {
             stop,
         };
         if spec.bus == BusChoice::Sim {
-            if spec.sinks.ros2.is_some() || source.name() == "ros2-targets" {
+            if spec.sinks.ros2.is_some() {
                 return Err(SessionError::Invalid(
                     "--ros2 runs in real time and --bus sim in simulated time: serve the simulator on a pseudo-terminal (`marionette sim serve`) and give its path to --bus".into(),
                 ));
