@@ -36,8 +36,8 @@ const _: () = assert!(
 );
 
 pub use marionette_core::{
-    asf, command, control_table, device, fk, ik, ik_numeric, interp, math, plan, protocol, rig, robot,
-    schedule, servo, skeleton, swivel,
+    asf, command, control_table, device, fk, footstep, ik, ik_numeric, interp, math, plan, preview, protocol,
+    rig, robot, schedule, servo, skeleton, swivel,
 };
 
 pub mod alloc_count;

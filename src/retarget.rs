@@ -17,6 +17,7 @@ use crate::profile::{ChainSpec, Drive, Named, PointSpec, Profile, RetargetSpec};
 pub use marionette_core::retarget::*;
 
 pub mod plot;
+pub mod walk;
 use crate::rig::{JointSource, Rig};
 use crate::robot::Robot;
 use crate::skeleton::Skeleton;
@@ -480,6 +481,9 @@ pub struct RetargetReport {
     /// retargeted whole; empty in a live run).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub standing_s: Vec<[f64; 2]>,
+    /// The walking plan the legs followed (whole-body clips on the floor).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub walk: Option<walk::WalkReport>,
 }
 
 /// The largest value, mm.
@@ -612,6 +616,7 @@ impl ReportBuilder {
             arm_scale: retargeter.arm_scale(),
             frames_per_second: fps,
             standing_s: Vec::new(),
+            walk: None,
         }
     }
 }
@@ -633,6 +638,19 @@ pub struct ClipRetarget {
 #[must_use]
 pub fn retarget_clip(setup: &Setup, skeleton: &Skeleton, motion: &Motion, options: Options) -> ClipRetarget {
     let floor = floor_of_clip(skeleton, motion, &setup.map.human);
+    retarget_clip_with(setup, skeleton, motion, options, floor, |_| None)
+}
+
+/// Retargets every frame of `motion` over the human floor `floor`, frame `k` with the legs and
+/// pelvis on `plan(k)` when it gives a stance ([`Retargeter::step_on_plan`]).
+pub fn retarget_clip_with(
+    setup: &Setup,
+    skeleton: &Skeleton,
+    motion: &Motion,
+    options: Options,
+    floor: Floor,
+    plan: impl Fn(usize) -> Option<PlannedStance>,
+) -> ClipRetarget {
     let mut r = setup.retargeter(skeleton, floor, options);
     let n = setup.robot.joints().len();
     let dt = 1.0 / motion.frame_rate;
@@ -641,9 +659,12 @@ pub fn retarget_clip(setup: &Setup, skeleton: &Skeleton, motion: &Motion, option
     let mut out = RetargetFrame::default();
     let mut frames = Vec::with_capacity(motion.len());
     let started = Instant::now();
-    for ch in &frames_in {
+    for (k, ch) in frames_in.iter().enumerate() {
         fk64(skeleton, ch, &mut pose);
-        r.step(&setup.robot, &pose, dt, &mut out);
+        match plan(k) {
+            Some(stance) => r.step_on_plan(&setup.robot, &pose, dt, &stance, &mut out),
+            None => r.step(&setup.robot, &pose, dt, &mut out),
+        }
         frames.push(out.clone());
     }
     let elapsed = started.elapsed().as_secs_f64();

@@ -509,6 +509,14 @@ fn op3_upper_body_on_the_floor_does_not_fall() {
         );
         assert_eq!(sim["fell"].as_bool(), Some(false), "{m}: {sim}");
         assert!(sim["torso_max_tilt_deg"].as_f64().unwrap() <= 15.0, "{m}");
+        assert!(sim["fell_at_s"].is_null(), "{m}: {sim}");
+        // Standing in place: the torso stays where it stood, the floor's centre of pressure
+        // inside the feet's contacts.
+        assert!(sim["torso_travel_m"].as_f64().unwrap() < 0.02, "{m}: {sim}");
+        assert!(
+            sim["zmp_margin_mm"]["measured_min"].as_f64().unwrap() >= -1e-6,
+            "{m}: {sim}"
+        );
         assert_eq!(stats["commands_refused"].as_u64(), Some(0));
         assert_eq!(stats["retarget"]["foot_slide_mm"]["max"].as_f64(), Some(0.0));
         if m == "16_15.amc" {

@@ -13,6 +13,11 @@
 //!   [`fk::Pose64`].
 //! * [`interp`] — per-frame editing maths in f64: facing (eq. 6–7), SLERP (eq. 12), ease
 //!   weights (eq. 13), frame interpolation.
+//! * [`preview`] — the centre of mass from Kajita's ZMP preview control on the cart-table
+//!   model: the gains designed once, a step without allocation.
+//! * [`footstep`] — the robot's footsteps from a retargeted clip (the clip's steps relative to
+//!   the stance foot, flights and steps beyond reach or speed substituted) and the ZMP
+//!   reference they give.
 //! * [`robot`] — a robot's own kinematic tree (bodies, hinges, masses, as its MJCF model
 //!   says), its forward kinematics and centre of mass.
 //! * [`swivel`] — the swivel circle in closed form: legal arcs from the Euler limits, eq. 30's
@@ -52,6 +57,10 @@ pub mod asf;
 pub mod fk;
 
 pub mod interp;
+
+pub mod preview;
+
+pub mod footstep;
 
 pub mod robot;
 

@@ -35,6 +35,7 @@
 use crate::math::{real, Real, RealMat3, RealQuat, RealVec2, RealVec3};
 
 use crate::fk::{fk64, Pose64};
+use crate::footstep::{Footprint, StepLimits};
 use crate::robot::{Robot, RobotPose, MAX_ROBOT_JOINTS};
 use crate::skeleton::Skeleton;
 
@@ -75,6 +76,45 @@ pub const BALANCE_MARGIN_M: Real = 0.01;
 
 /// Fastest the balance shift of the pelvis may change, m/s (robot scale).
 pub const BALANCE_SPEED_M_S: Real = 0.25;
+
+/// The stance's hips sit this share of the leg lower than straight.
+pub const STANCE_DROP: Real = 0.08;
+
+/// Share of the legs' geometric reach a planned step may use.
+pub const STEP_REACH_SHARE: Real = 0.8;
+
+/// Gap between the soles' edges at the narrowest step, metres.
+pub const SOLE_GAP_M: Real = 0.01;
+
+/// Largest turn of one step against the stance foot (radians, 30°).
+pub const STEP_TURN: Real = crate::math::consts::FRAC_PI_6;
+
+/// Peak over mean speed of a minimum-jerk motion.
+pub const MIN_JERK_PEAK: Real = 1.875;
+
+/// Shortest double support of a plan, s (ROBOTIS's walking module: 20 % of a 600 ms step).
+pub const MIN_DOUBLE_SUPPORT_S: Real = 0.12;
+
+/// Time the ZMP takes from one foot to the middle in a long double support, s.
+pub const ZMP_SHIFT_S: Real = 0.3;
+
+/// A swing foot's lift, as a share of the leg's length.
+pub const CLEARANCE_SHARE: Real = 0.12;
+
+/// Most corrections of the pelvis that bring the centre of mass over a plan's.
+pub const PLAN_COM_ITERATIONS: usize = 8;
+
+/// Where a walking plan puts the feet and the centre of mass at one instant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlannedStance {
+    /// Each sole: where on the floor (its centre and heading, as [`RetargetFrame::sole`] and
+    /// [`RetargetFrame::sole_yaw`] measure them) and how high above it, metres.
+    pub soles: [(Footprint, Real); 2],
+    /// Which feet bear weight.
+    pub contact: [bool; 2],
+    /// The centre of mass on the floor, metres.
+    pub com: RealVec2,
+}
 
 /// Limbs in reports: left arm, right arm, left leg, right leg, head.
 pub const LIMBS: [&str; 5] = ["left_arm", "right_arm", "left_leg", "right_leg", "head"];
@@ -216,6 +256,8 @@ pub struct RetargetFrame {
     pub planted: [bool; 2],
     /// Each sole's centre in the robot's world (metres).
     pub sole: [RealVec3; 2],
+    /// Each sole's heading: its long axis about the vertical, radians.
+    pub sole_yaw: [Real; 2],
     /// The robot's centre of mass in its world.
     pub com: RealVec3,
     /// Signed distance of the centre of mass (on the floor) inside the support polygon of the
@@ -242,6 +284,7 @@ impl Default for RetargetFrame {
             limb_error_sq: [(0.0, 0); 5],
             planted: [false; 2],
             sole: [RealVec3::ZERO; 2],
+            sole_yaw: [0.0; 2],
             com: RealVec3::ZERO,
             com_margin: Real::NAN,
             clamps: 0,
@@ -772,6 +815,64 @@ impl Retargeter {
         out
     }
 
+    /// What the robot's feet can do ([`StepLimits`]), from the legs' geometry and `speed`,
+    /// the slowest leg servo's velocity limit (rad/s): a step reaches at most
+    /// [`STEP_REACH_SHARE`] of twice the horizontal reach of a leg at the stance's height
+    /// forward and once backward; the soles keep [`SOLE_GAP_M`] apart and at most a leg's
+    /// horizontal reach wider than the hips; a turn of at most [`STEP_TURN`]; the foot moves at
+    /// `speed` × leg length over 1.875 on average (a minimum-jerk swing's peak-to-mean ratio),
+    /// and lifting it [`Retargeter::swing_clearance`] and putting it down takes that distance at
+    /// that speed.
+    #[must_use]
+    pub fn step_limits(&self, speed: Real) -> StepLimits {
+        let reach = self.legs[0].reach.min(self.legs[1].reach);
+        let drop = STANCE_DROP * reach;
+        let height = reach - drop;
+        let longest = REACH_SHARE * reach;
+        let horizontal = real::sqrt((longest * longest - height * height).max(0.0));
+        let hips = (self.legs[0].hip - self.legs[1].hip).length();
+        let sole_width = 2.0 * self.map.legs[0].sole_half[1].max(self.map.legs[1].sole_half[1]);
+        let foot_speed = speed.max(1e-3) * reach / MIN_JERK_PEAK;
+        StepLimits {
+            forward: STEP_REACH_SHARE * 2.0 * horizontal,
+            backward: STEP_REACH_SHARE * horizontal,
+            width_min: sole_width + SOLE_GAP_M,
+            width_max: hips + horizontal,
+            turn: STEP_TURN,
+            swing_min_s: 2.0 * self.swing_clearance() / foot_speed,
+            foot_speed,
+            double_support_s: MIN_DOUBLE_SUPPORT_S,
+            zmp_shift_s: ZMP_SHIFT_S,
+        }
+    }
+
+    /// The soles of the standing stance ([`Options::upper_body`]'s), the base at the world's
+    /// origin facing as at rest: where a walking plan starts the robot's feet.
+    #[must_use]
+    pub fn stance_soles(&self, robot: &Robot) -> [Footprint; 2] {
+        let (mp, mr) = self.model_placement(RealVec3::new(0.0, 0.0, self.stance_base.z), self.base_rest);
+        let mut pose = RobotPose::default();
+        robot.forward(mp, mr, &self.stance, &mut pose);
+        core::array::from_fn(|side| {
+            let g = &self.legs[side];
+            let fb = robot.joints()[self.map.legs[side].joints[5]].body;
+            let local = self.rest.rot[fb].inverse()
+                * (self.base_rest_pos + self.base_rest * (g.ankle + g.foot_rot * g.sole_from_ankle)
+                    - self.rest.pos[fb]);
+            let sole = pose.pos[fb] + pose.rot[fb] * local;
+            Footprint {
+                centre: RealVec2::new(sole.x, sole.y),
+                yaw: heading(pose.rot[fb]),
+            }
+        })
+    }
+
+    /// How high a swing foot lifts on a plan: [`CLEARANCE_SHARE`] of the leg, metres.
+    #[must_use]
+    pub fn swing_clearance(&self) -> Real {
+        CLEARANCE_SHARE * self.legs[0].reach.min(self.legs[1].reach)
+    }
+
     /// Forgets the stream's state (planted feet, branches, balance shift): the next frame is
     /// treated as a first one.
     pub fn reset(&mut self) {
@@ -786,7 +887,7 @@ impl Retargeter {
     fn make_stance(&mut self) {
         let mut clamps = 0;
         let mut q = [0.0; MAX_ROBOT_JOINTS];
-        let drop = 0.08 * self.legs[0].reach;
+        let drop = STANCE_DROP * self.legs[0].reach;
         for side in 0..2 {
             let g = self.legs[side];
             let ankle = g.ankle + self.robot_frame.col(2) * drop;
@@ -819,6 +920,31 @@ impl Retargeter {
     /// Retargets one human pose (`pose` from [`fk64`] of the frame) taken `dt` seconds after the
     /// previous one, into `out`.
     pub fn step(&mut self, robot: &Robot, pose: &Pose64, dt: Real, out: &mut RetargetFrame) {
+        self.step_with(robot, pose, dt, None, out);
+    }
+
+    /// Retargets one human pose with the legs and the pelvis on a walking plan: each sole where
+    /// `plan` puts it (flat), the robot's centre of mass over the plan's; arms and head as
+    /// [`Retargeter::step`] does.
+    pub fn step_on_plan(
+        &mut self,
+        robot: &Robot,
+        pose: &Pose64,
+        dt: Real,
+        plan: &PlannedStance,
+        out: &mut RetargetFrame,
+    ) {
+        self.step_with(robot, pose, dt, Some(plan), out);
+    }
+
+    fn step_with(
+        &mut self,
+        robot: &Robot,
+        pose: &Pose64,
+        dt: Real,
+        plan: Option<&PlannedStance>,
+        out: &mut RetargetFrame,
+    ) {
         let h = self.map.human;
         out.clamps = 0;
         out.out_of_reach = 0;
@@ -862,6 +988,8 @@ impl Retargeter {
         let (base_pos, base_rot) = if self.options.upper_body {
             out.planted = [true; 2];
             (self.stance_base, self.base_rest)
+        } else if let Some(plan) = plan {
+            self.planned_body(robot, pose, pelvis, plan, &mut q, out)
         } else {
             self.whole_body(robot, pose, pelvis, dt, &mut q, out)
         };
@@ -1024,6 +1152,62 @@ impl Retargeter {
         base_pos += RealVec3::new(self.shift.x, self.shift.y, 0.0);
         // The shift may have taken a foot out of reach again.
         self.lower_to_reach(&mut base_pos, base_rot, &ankle);
+        self.solve_legs(base_rot, base_pos, &ankle, &foot_rot, q, &mut out.clamps);
+        (base_pos, base_rot)
+    }
+
+    /// The legs and the pelvis on a plan: the soles flat where it says, the pelvis at the
+    /// human's height (lowered to reach) and moved sideways until the robot's centre of mass
+    /// is over the plan's.
+    fn planned_body(
+        &mut self,
+        robot: &Robot,
+        pose: &Pose64,
+        pelvis: RealMat3,
+        plan: &PlannedStance,
+        q: &mut [Real; MAX_ROBOT_JOINTS],
+        out: &mut RetargetFrame,
+    ) -> (RealVec3, RealQuat) {
+        let h = self.map.human;
+        // The torso upright, turned as the human pelvis turns about the vertical.
+        let forward = self.world * pelvis.col(0);
+        let rest = self.world * self.human_frame.col(0);
+        let turn = real::atan2(forward.y, forward.x) - real::atan2(rest.y, rest.x);
+        let base_rot = RealQuat::from_rotation_z(turn) * self.base_rest;
+        let hips_h = 0.5 * (pose.start[h.legs[0][0]] + pose.start[h.legs[1][0]]);
+        let mut base_pos = self.to_world(hips_h) - base_rot * self.hip_mid;
+        let mut ankle = [RealVec3::ZERO; 2];
+        let mut foot_rot = [RealQuat::IDENTITY; 2];
+        for side in 0..2 {
+            let g = self.legs[side];
+            let rest_foot = self.base_rest * g.foot_rot;
+            let (print, height) = plan.soles[side];
+            let rot = RealQuat::from_rotation_z(print.yaw - heading(rest_foot)) * rest_foot;
+            let sole = RealVec3::new(print.centre.x, print.centre.y, height.max(0.0));
+            ankle[side] = sole - rot * g.sole_from_ankle;
+            foot_rot[side] = rot;
+        }
+        out.planted = plan.contact;
+        // The pelvis starts over the planned centre of mass (the human's may be far from the
+        // plan's feet); each correction starts again from the human's height, lowered to reach.
+        let height = base_pos.z;
+        base_pos.x = plan.com.x;
+        base_pos.y = plan.com.y;
+        for _ in 0..PLAN_COM_ITERATIONS {
+            base_pos.z = height;
+            self.lower_to_reach(&mut base_pos, base_rot, &ankle);
+            self.solve_legs(base_rot, base_pos, &ankle, &foot_rot, q, &mut 0);
+            let (mp, mr) = self.model_placement(base_pos, base_rot);
+            robot.forward(mp, mr, q, &mut self.pose);
+            let com = robot.centre_of_mass(&self.pose);
+            let miss = plan.com - RealVec2::new(com.x, com.y);
+            base_pos += RealVec3::new(miss.x, miss.y, 0.0);
+            if miss.length() < 1e-5 {
+                break;
+            }
+        }
+        base_pos.z = height;
+        out.out_of_reach += self.lower_to_reach(&mut base_pos, base_rot, &ankle);
         self.solve_legs(base_rot, base_pos, &ankle, &foot_rot, q, &mut out.clamps);
         (base_pos, base_rot)
     }
@@ -1390,6 +1574,7 @@ impl Retargeter {
             let g = &self.legs[side];
             ankles[side] = self.pose.pos[fb] + self.pose.rot[fb] * self.body_local(fb, g.ankle);
             rots[side] = self.pose.rot[fb];
+            out.sole_yaw[side] = heading(rots[side]);
         }
         out.lowest_sole = (0..2)
             .flat_map(|side| self.legs[side].corners.map(|c| (ankles[side] + rots[side] * c).z))
@@ -1529,6 +1714,12 @@ fn refine_arm(g: &ArmGeometry, start: [Real; 3], upper: RealVec3, fore: RealVec3
     (q, cost)
 }
 
+/// The heading of a body's x axis about the vertical.
+fn heading(rot: RealQuat) -> Real {
+    let x = rot * RealVec3::X;
+    real::atan2(x.y, x.x)
+}
+
 fn smoothstep(t: Real) -> Real {
     let t = t.clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
@@ -1585,7 +1776,8 @@ fn check_chain(
 }
 
 /// Convex hull (counter-clockwise) of up to eight points.
-fn convex_hull(points: &[RealVec2]) -> heapless::Vec<RealVec2, 8> {
+#[must_use]
+pub fn convex_hull(points: &[RealVec2]) -> heapless::Vec<RealVec2, 8> {
     let mut pts: heapless::Vec<RealVec2, 8> = points.iter().copied().collect();
     pts.sort_unstable_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
     let mut hull = heapless::Vec::<RealVec2, 16>::new();
@@ -1610,7 +1802,8 @@ fn convex_hull(points: &[RealVec2]) -> heapless::Vec<RealVec2, 8> {
 /// Signed distance of `p` inside a convex counter-clockwise polygon (negative outside), and
 /// the point nearest `p` that lies at least `margin` inside (the centroid when the polygon is
 /// thinner than that).
-fn polygon_margin(poly: &[RealVec2], p: RealVec2, margin: Real) -> (Real, RealVec2) {
+#[must_use]
+pub fn polygon_margin(poly: &[RealVec2], p: RealVec2, margin: Real) -> (Real, RealVec2) {
     let n = poly.len();
     if n < 3 {
         return (Real::NAN, p);

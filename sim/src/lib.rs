@@ -382,6 +382,24 @@ impl World {
     pub fn contact_count(&self) -> usize {
         usize::try_from(self.data.ncon()).unwrap_or(0)
     }
+
+    /// The contacts lower than `below` (world z, metres): each one's position and the vertical
+    /// component of its force on the body above it, newtons (after a step or `forward`).
+    #[must_use]
+    pub fn floor_contacts(&self, below: f64) -> Vec<([f64; 3], f64)> {
+        let n = self.contact_count();
+        let contacts = self.data.contact();
+        (0..n.min(contacts.len()))
+            .filter(|&i| contacts[i].pos[2] < below)
+            .filter_map(|i| {
+                let c = &contacts[i];
+                let f = self.data.try_contact_force(i).ok()?;
+                // The force in the contact frame (rows: normal, two tangents) to world z.
+                let fz = f[0] * c.frame[2] + f[1] * c.frame[5] + f[2] * c.frame[8];
+                Some((c.pos, fz.abs()))
+            })
+            .collect()
+    }
 }
 
 #[cfg(test)]

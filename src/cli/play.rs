@@ -122,6 +122,10 @@ pub struct LoopArgs {
     /// effector error) as JSON here.
     #[arg(long)]
     pub sim_report: Option<PathBuf>,
+    /// With --bus sim and a robot on the floor: write the torso's path, the centre of mass and
+    /// the centre of pressure of the floor's forces (the measured ZMP) per sample as CSV.
+    #[arg(long)]
+    pub sim_trace: Option<PathBuf>,
     /// With --bus sim: draw commanded vs simulated angles and the per-servo RMS (.png or .svg).
     #[arg(long)]
     pub sim_plot: Option<PathBuf>,
@@ -140,6 +144,11 @@ pub struct LoopArgs {
     /// planted feet.
     #[arg(long)]
     pub no_balance: bool,
+    /// Profiles of robot joints, a whole-body clip: walk on the robot's own feet (footsteps
+    /// from the clip within its reach and speed, the centre of mass from a ZMP preview
+    /// controller, the legs on that plan).
+    #[arg(long)]
+    pub walk: bool,
     /// Command each tick's target through the greedy limiter instead of planning the goal
     /// path over a preview of the input (the look-ahead).
     #[arg(long)]
@@ -225,6 +234,7 @@ impl LoopArgs {
                 upper_body: self.upper_body,
                 balance: !self.no_balance,
             },
+            walk: self.walk,
             scale: self.scale,
             real_time: RealTime {
                 priority: self.rt_priority,
@@ -236,6 +246,7 @@ impl LoopArgs {
                 report: self.sim_report.clone(),
                 plot: self.sim_plot.clone(),
                 plot_servos: self.plot_servos.clone(),
+                trace: self.sim_trace.clone(),
             },
             sinks: Sinks {
                 status_line: !self.quiet,

@@ -10,6 +10,7 @@ use crate::formats::{amc, asf, bvh, FileError};
 use crate::motion::Motion;
 use crate::motion::CMU_FRAME_RATE;
 use crate::profile::Profile;
+use crate::retarget::walk::{retarget_walking, write_plan_csv, WalkPlan};
 use crate::retarget::{retarget_clip, write_csv, Options, RetargetReport, Setup};
 use crate::skeleton::Skeleton;
 use clap::Args;
@@ -24,6 +25,8 @@ pub struct RetargetArgs<'a> {
     pub plot: Option<PathBuf>,
     pub upper_body: bool,
     pub balance: bool,
+    pub walk: bool,
+    pub plan: Option<PathBuf>,
     pub fps: f64,
     pub bvh_unit: BvhUnit,
 }
@@ -76,7 +79,24 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
         upper_body: args.upper_body,
         balance: args.balance,
     };
-    let run = retarget_clip(&setup, &skeleton, &motion, options);
+    if args.walk && args.upper_body {
+        return Err(CliError::Usage(
+            "--walk plans the legs; --upper-body keeps them in a stance: give one".into(),
+        ));
+    }
+    if args.plan.is_some() && !args.walk {
+        return Err(CliError::Usage(
+            "--plan writes the walking plan: give --walk too".into(),
+        ));
+    }
+    let (mut run, plan) = if args.walk {
+        let (run, plan) = retarget_walking(&setup, &skeleton, &motion, options)
+            .map_err(|e| CliError::Usage(format!("cannot plan the walk: {e}")))?;
+        (run, Some(plan))
+    } else {
+        (retarget_clip(&setup, &skeleton, &motion, options), None)
+    };
+    run.report.walk = plan.as_ref().map(WalkPlan::report);
     let names = setup.joint_names();
     let file = std::fs::File::create(args.output).map_err(|source| FileError::Io {
         path: args.output.to_path_buf(),
@@ -96,8 +116,22 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
             source,
         })?;
     }
+    if let (Some(path), Some(plan)) = (&args.plan, &plan) {
+        let file = std::fs::File::create(path).map_err(|source| FileError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        let mut w = BufWriter::new(file);
+        write_plan_csv(&mut w, plan)
+            .and_then(|()| w.flush())
+            .map_err(|source| FileError::Io {
+                path: path.clone(),
+                source,
+            })?;
+    }
     if let Some(path) = &args.plot {
         let picture = crate::retarget::plot::RetargetPicture {
+            plan: plan.as_ref(),
             title: format!(
                 "{} → {}",
                 args.amc.unwrap_or(args.skeleton).display(),
@@ -125,6 +159,9 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
     )?;
     print_report(&run.report, out)?;
     writeln!(out, "wrote {}", args.output.display())?;
+    if let Some(p) = &args.plan {
+        writeln!(out, "wrote {}", p.display())?;
+    }
     if let Some(p) = &args.report {
         writeln!(out, "wrote {}", p.display())?;
     }
@@ -199,6 +236,24 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
             .collect();
         writeln!(out, "  standing (both feet planted ≥ 1 s): {} s", list.join(", "))?;
     }
+    if let Some(w) = &r.walk {
+        writeln!(
+            out,
+            "  walk: {} footsteps ({} substituted, {} of the clip's left out), travel {:.3} m planned against {:.3} m in the clip",
+            w.footsteps, w.substituted_steps, w.dropped_steps, w.planned_travel_m, w.clip_travel_m
+        )?;
+        writeln!(
+            out,
+            "  planned ZMP: {:.1} mm inside the support polygon at least, {:.1} mm from its reference at most (preview {:.1} s, centre of mass at {:.3} m)",
+            w.zmp_margin_mm.planned_min, w.zmp_tracking_max_mm, w.preview_s, w.com_height_m
+        )?;
+        let l = &w.limits;
+        writeln!(
+            out,
+            "  step limits: forward {:.3} m, backward {:.3} m, width {:.3}–{:.3} m, turn {:.0}°, swing ≥ {:.2} s, foot ≤ {:.2} m/s, double support ≥ {:.2} s",
+            l.forward_m, l.backward_m, l.width_min_m, l.width_max_m, l.turn_deg, l.swing_min_s, l.foot_speed_m_s, l.double_support_s
+        )?;
+    }
     if let Some(fps) = r.frames_per_second {
         writeln!(out, "  speed: {fps:.0} frames per second")?;
     }
@@ -229,6 +284,14 @@ pub(super) struct RetargetCmd {
     /// Do not move the pelvis to keep the centre of mass over the planted feet.
     #[arg(long)]
     pub(super) no_balance: bool,
+    /// Walk on the robot's own feet: footsteps from the clip (within the robot's reach and
+    /// speed), the centre of mass from a ZMP preview controller, the legs on that plan.
+    #[arg(long)]
+    pub(super) walk: bool,
+    /// Write the walking plan per frame (feet down, ZMP reference, planned ZMP and margin,
+    /// centre of mass) as CSV; with --walk.
+    #[arg(long)]
+    pub(super) plan: Option<PathBuf>,
     /// Frame rate of the AMC file.
     #[arg(long, default_value_t = CMU_FRAME_RATE)]
     pub(super) fps: f64,
@@ -252,6 +315,8 @@ impl RetargetCmd {
             plot,
             upper_body,
             no_balance,
+            walk,
+            plan,
             fps,
             bvh_unit,
         } = self;
@@ -265,6 +330,8 @@ impl RetargetCmd {
                 plot,
                 upper_body,
                 balance: !no_balance,
+                walk,
+                plan,
                 fps,
                 bvh_unit,
             },

@@ -23,6 +23,11 @@ pub struct RetargetStage {
     /// Frames retargeted ahead (the look-ahead's preview) and their due times, reported when
     /// they are played: a frame taken ahead but never played is not the run's.
     pending: std::collections::VecDeque<(u64, RetargetFrame)>,
+    /// A whole clip retargeted on a walking plan, one frame per clip frame, and the clip's
+    /// frame rate: a pose of the clip is the planned frame at its clip time.
+    planned: Option<(Vec<RetargetFrame>, f64)>,
+    /// The plan's figures, for the run's report.
+    walk: Option<crate::retarget::walk::WalkReport>,
 }
 
 impl RetargetStage {
@@ -39,7 +44,22 @@ impl RetargetStage {
             pose: Box::default(),
             present_q: [0.0; MAX_ROBOT_JOINTS],
             pending: std::collections::VecDeque::new(),
+            planned: None,
+            walk: None,
         }
+    }
+
+    /// Plays `frames` (a clip retargeted on a walking plan at `rate` frames a second) in place
+    /// of retargeting each pose: a pose at clip time `t` becomes frame `round(t × rate)`.
+    /// `walk`: the plan's figures, reported with the run's.
+    pub fn set_plan(
+        &mut self,
+        frames: Vec<RetargetFrame>,
+        rate: f64,
+        walk: crate::retarget::walk::WalkReport,
+    ) {
+        self.planned = (!frames.is_empty() && rate > 0.0).then_some((frames, rate));
+        self.walk = Some(walk);
     }
 
     /// Room for `frames` frames retargeted ahead (before the first tick).
@@ -80,7 +100,9 @@ impl RetargetStage {
     /// What the run's retargeting measured.
     #[must_use]
     pub fn report(&self) -> RetargetReport {
-        self.report.finish(&self.retargeter, &self.names, None)
+        let mut r = self.report.finish(&self.retargeter, &self.names, None);
+        r.walk.clone_from(&self.walk);
+        r
     }
 
     /// One human pose, `dt` seconds after the previous one (clip time when the input has
@@ -93,7 +115,13 @@ impl RetargetStage {
                 tick_dt
             };
         self.last_clip_time = clip_time;
-        self.retargeter.step(&self.robot, pose, dt, &mut self.frame);
+        match &self.planned {
+            Some((frames, rate)) if clip_time.is_finite() => {
+                let k = (clip_time * rate).round().clamp(0.0, (frames.len() - 1) as f64) as usize;
+                self.frame.clone_from(&frames[k]);
+            }
+            _ => self.retargeter.step(&self.robot, pose, dt, &mut self.frame),
+        }
         if self.pending.len() == self.pending.capacity() {
             // Never grown in a tick: the oldest goes to the report now.
             self.report_until(self.pending.front().map_or(0, |(d, _)| *d));

@@ -24,6 +24,8 @@ pub struct RetargetPicture<'a> {
     pub setup: &'a Setup,
     /// The run.
     pub run: &'a ClipRetarget,
+    /// The walking plan the legs followed, drawn from above.
+    pub plan: Option<&'a super::walk::WalkPlan>,
 }
 
 impl Picture for RetargetPicture<'_> {
@@ -105,13 +107,14 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
     let panels = top.split_evenly((1, shown.len()));
     for (panel, &i) in panels.iter().zip(&shown) {
         let (human, robot) = figures(pic, &r, i);
-        // Side by side: the human to the left of the robot, both centred on the robot's base.
-        let base = pic.run.frames[i].base_pos;
-        let centre = view(base).0;
+        // Side by side: the human to the left of the robot, each centred on its own pelvis
+        // (a robot walking on a plan takes steps of its own size).
+        let centre = view(pic.run.frames[i].base_pos).0;
+        let human_centre = human.first().map_or(centre, |(a, _)| view(*a).0);
         let width = 0.31;
         let shift = |p: DVec3, dx: f64| {
             let (x, y) = view(p);
-            (x - centre + dx, y)
+            (x - if dx < 0.0 { human_centre } else { centre } + dx, y)
         };
         let mut chart = ChartBuilder::on(panel)
             .caption(
@@ -211,6 +214,9 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
         .border_style(BLACK)
         .draw()?;
 
+    if let Some(plan) = pic.plan {
+        return draw_plan(plan, &right);
+    }
     let margins: Vec<(f64, f64)> = pic
         .run
         .frames
@@ -241,5 +247,94 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
             .iter()
             .map(|p| Circle::new(*p, 1, RGBColor(60, 60, 60).filled())),
     )?;
+    Ok(())
+}
+
+/// The walking plan from above: the clip's footprints (grey), the plan's (orange; red when
+/// substituted), the ZMP reference, the planned ZMP and the planned centre of mass.
+fn draw_plan<DB: DrawingBackend<ErrorType: 'static>>(
+    plan: &super::walk::WalkPlan,
+    area: &Area<DB>,
+) -> Rendered {
+    let prints = |f: &marionette_core::footstep::Footstep, clip: bool| {
+        let p = if clip { f.clip } else { f.at };
+        p.corners(plan.sole_half[f.side]).map(|c| (c.x, c.y)).to_vec()
+    };
+    let mut pts: Vec<(f64, f64)> = plan
+        .footsteps
+        .iter()
+        .flat_map(|f| prints(f, true).into_iter().chain(prints(f, false)))
+        .collect();
+    pts.extend(plan.samples.iter().map(|s| (s.stance.com.x, s.stance.com.y)));
+    let (x0, x1, y0, y1) = pts.iter().fold(
+        (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY),
+        |(a, b, c, d), p| (a.min(p.0), b.max(p.0), c.min(p.1), d.max(p.1)),
+    );
+    if !(x0.is_finite() && y0.is_finite()) {
+        return Ok(());
+    }
+    // Equal scales on both axes: the span that fills the panel's shape.
+    let (w, h) = area.dim_in_pixel();
+    let aspect = f64::from(w.saturating_sub(70).max(1)) / f64::from(h.saturating_sub(80).max(1));
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let half_y = (0.5 * (y1 - y0) + 0.02).max(0.5 * (x1 - x0 + 0.04) / aspect);
+    let half_x = half_y * aspect;
+    let mut chart = ChartBuilder::on(area)
+        .caption(
+            "the plan from above: footprints, ZMP and centre of mass (m)",
+            ("sans-serif", 16),
+        )
+        .margin(12)
+        .x_label_area_size(36)
+        .y_label_area_size(52)
+        .build_cartesian_2d((cx - half_x)..(cx + half_x), (cy - half_y)..(cy + half_y))?;
+    chart.configure_mesh().x_desc("x (m)").y_desc("y (m)").draw()?;
+    let grey = RGBColor(170, 170, 170);
+    for f in &plan.footsteps {
+        let mut clip = prints(f, true);
+        clip.push(clip[0]);
+        chart.draw_series(std::iter::once(PathElement::new(clip, grey.stroke_width(1))))?;
+    }
+    for f in &plan.footsteps {
+        let colour = if f.changed.any() {
+            RGBColor(200, 30, 30)
+        } else {
+            RGBColor(230, 130, 40)
+        };
+        let mut at = prints(f, false);
+        at.push(at[0]);
+        chart.draw_series(std::iter::once(PathElement::new(at, colour.stroke_width(2))))?;
+    }
+    let path =
+        |get: fn(&super::walk::PlanSample) -> (f64, f64)| plan.samples.iter().map(get).collect::<Vec<_>>();
+    chart
+        .draw_series(LineSeries::new(
+            path(|s| (s.zmp_ref.x, s.zmp_ref.y)),
+            RGBColor(120, 120, 220).stroke_width(1),
+        ))?
+        .label("ZMP reference")
+        .legend(|(x, y)| {
+            PathElement::new(vec![(x, y), (x + 18, y)], RGBColor(120, 120, 220).stroke_width(3))
+        });
+    chart
+        .draw_series(LineSeries::new(
+            path(|s| (s.zmp.x, s.zmp.y)),
+            RGBColor(200, 0, 0).stroke_width(2),
+        ))?
+        .label("planned ZMP")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RGBColor(200, 0, 0).stroke_width(3)));
+    chart
+        .draw_series(LineSeries::new(
+            path(|s| (s.stance.com.x, s.stance.com.y)),
+            BLACK.stroke_width(2),
+        ))?
+        .label("planned centre of mass")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(3)));
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
     Ok(())
 }

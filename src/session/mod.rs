@@ -137,6 +137,8 @@ pub struct SimSpec {
     pub plot: Option<PathBuf>,
     /// Servos drawn (default: the four with the largest RMS).
     pub plot_servos: Vec<String>,
+    /// Write a floating base's path as CSV here (torso, centre of mass, centre of pressure).
+    pub trace: Option<PathBuf>,
 }
 
 /// Where the loop's telemetry goes while it runs.
@@ -173,6 +175,8 @@ pub struct SessionSpec {
     pub lead: Lead,
     /// Retargeting onto a robot's joints (profiles of robot joints).
     pub retarget: RetargetOptions,
+    /// A whole-body clip walks on a plan (footsteps, ZMP preview) rather than frame by frame.
+    pub walk: bool,
     /// Model metres per subject metre (the generated puppet; effector errors in metres).
     pub scale: f64,
     /// Scheduling of the loop's thread.
@@ -204,6 +208,7 @@ impl Default for SessionSpec {
                 upper_body: false,
                 balance: true,
             },
+            walk: false,
             scale: 0.3,
             real_time: RealTime::default(),
             sim: SimSpec::default(),
@@ -347,7 +352,18 @@ impl RigDrive {
             Some(m) => floor_of_clip(&skeleton, m, &setup.map.human),
             None => floor_of_rest(&skeleton, &setup.map.human),
         };
-        let stage = RetargetStage::new(&setup, &skeleton, floor, spec.retarget);
+        let mut stage = RetargetStage::new(&setup, &skeleton, floor, spec.retarget);
+        if let (true, false, Some(m)) = (spec.walk, spec.retarget.upper_body, clip) {
+            let (walked, plan) = crate::retarget::walk::retarget_walking(&setup, &skeleton, m, spec.retarget)
+                .map_err(|e| SessionError::Invalid(format!("cannot plan the walk: {e}")))?;
+            let w = plan.report();
+            writeln!(
+                log,
+                "walking on a plan: {} footsteps ({} substituted, {} of the clip's left out), {:.3} m planned against {:.3} m in the clip, planned ZMP ≥ {:.1} mm inside the feet",
+                w.footsteps, w.substituted_steps, w.dropped_steps, w.planned_travel_m, w.clip_travel_m, w.zmp_margin_mm.planned_min
+            )?;
+            stage.set_plan(walked.frames, m.frame_rate, w);
+        }
         writeln!(
             log,
             "retargeting onto {} ({} joints){}",
@@ -783,6 +799,12 @@ impl Run<'_> {
             let text = serde_json::to_string_pretty(&tracking)?;
             std::fs::write(path, text + "\n").map_err(|e| FileError::io(path, e))?;
             writeln!(log, "tracking report written to {}", path.display())?;
+        }
+        if let Some(path) = &spec.sim.trace {
+            let mut text = Vec::new();
+            bus.with(|t| report::write_trace(&mut text, t.plant().samples()))?;
+            std::fs::write(path, text).map_err(|e| FileError::io(path, e))?;
+            writeln!(log, "torso trace written to {}", path.display())?;
         }
         if let Some(path) = &spec.sim.plot {
             let chosen = plot_choice(&spec.sim.plot_servos, &tracking)?;

@@ -82,9 +82,87 @@ pub struct Sample {
     /// Per effector site: distance between the simulated site and the site at the commanded
     /// angles, metres.
     pub effector_error: Vec<f64>,
-    /// A floating base's height (metres) and tilt from upright (degrees), when the model has
-    /// one.
-    pub torso: Option<(f64, f64)>,
+    /// A floating base's position and tilt, when the model has one.
+    pub torso: Option<Torso>,
+}
+
+/// Where a floating base is, and what holds it up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Torso {
+    /// Position in the world, metres (z up).
+    pub pos: [f64; 3],
+    /// Tilt from upright, degrees.
+    pub tilt_deg: f64,
+    /// The whole model's centre of mass, metres.
+    pub com: [f64; 3],
+    /// The centre of pressure of the floor's contact forces (the measured ZMP on flat
+    /// ground), metres; `None` in the air.
+    pub pressure_centre: Option<[f64; 2]>,
+    /// Signed distance of that centre inside the convex hull of the floor contacts, metres
+    /// (0 on its edge: about to tip; `None` with fewer than three contacts in a line or none).
+    pub pressure_margin: Option<f64>,
+    /// Vertical floor force, newtons.
+    pub floor_force: f64,
+}
+
+/// Contacts lower than this are the floor's (metres).
+pub const FLOOR_CONTACT_M: f64 = 0.01;
+
+/// The centre of pressure of `contacts` (position, vertical force) and its signed distance
+/// inside their convex hull.
+#[must_use]
+pub fn pressure(contacts: &[([f64; 3], f64)]) -> (Option<[f64; 2]>, Option<f64>, f64) {
+    let force: f64 = contacts.iter().map(|c| c.1).sum();
+    if force <= 1e-9 {
+        return (None, None, force);
+    }
+    let centre = contacts
+        .iter()
+        .fold([0.0, 0.0], |a, (p, f)| [a[0] + p[0] * f, a[1] + p[1] * f]);
+    let centre = [centre[0] / force, centre[1] / force];
+    let points: Vec<[f64; 2]> = contacts.iter().map(|(p, _)| [p[0], p[1]]).collect();
+    let hull = hull(&points);
+    let margin = (hull.len() >= 3).then(|| {
+        (0..hull.len())
+            .map(|i| {
+                let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
+                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+                let len = ex.hypot(ey).max(1e-12);
+                // Counter-clockwise: inside is to the left of each edge.
+                (ex * (centre[1] - a[1]) - ey * (centre[0] - a[0])) / len
+            })
+            .fold(f64::INFINITY, f64::min)
+    });
+    (Some(centre), margin, force)
+}
+
+/// Convex hull, counter-clockwise (Andrew's monotone chain).
+fn hull(points: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let mut p = points.to_vec();
+    p.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    p.dedup_by(|a, b| (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9);
+    if p.len() < 3 {
+        return p;
+    }
+    let cross =
+        |o: [f64; 2], a: [f64; 2], b: [f64; 2]| (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+    let mut h: Vec<[f64; 2]> = Vec::with_capacity(2 * p.len());
+    for pass in [true, false] {
+        let start = h.len();
+        let it: Box<dyn Iterator<Item = &[f64; 2]>> = if pass {
+            Box::new(p.iter())
+        } else {
+            Box::new(p.iter().rev())
+        };
+        for &q in it {
+            while h.len() >= start + 2 && cross(h[h.len() - 2], h[h.len() - 1], q) <= 0.0 {
+                h.pop();
+            }
+            h.push(q);
+        }
+        h.pop();
+    }
+    h
 }
 
 /// The MuJoCo plant of a chain.
@@ -303,7 +381,16 @@ impl SimPlant {
             let p = self.world.body_position(b);
             let r = self.world.body_rotation(b);
             // Row-major: the body's z axis in the world is the third column; its z component r[8].
-            s.torso = Some((p[2], r[8].clamp(-1.0, 1.0).acos().to_degrees()));
+            let (pressure_centre, pressure_margin, floor_force) =
+                pressure(&self.world.floor_contacts(FLOOR_CONTACT_M));
+            s.torso = Some(Torso {
+                pos: p,
+                tilt_deg: r[8].clamp(-1.0, 1.0).acos().to_degrees(),
+                com: self.world.subtree_com(0),
+                pressure_centre,
+                pressure_margin,
+                floor_force,
+            });
         }
         self.samples.push(s);
     }
@@ -381,5 +468,29 @@ pub fn load_world(
             World::from_xml_str(&xml).map_err(SimError::Generated)
         }
         (None, None) => Err(SimError::NoModel),
+    }
+}
+
+#[cfg(test)]
+mod pressure_tests {
+    use super::pressure;
+
+    #[test]
+    fn the_centre_of_pressure_is_the_force_weighted_mean_and_its_margin_the_distance_to_the_hull() {
+        // A 0.1 × 0.06 sole, more weight on its front corners.
+        let c = [
+            ([0.05, 0.03, 0.0], 30.0),
+            ([0.05, -0.03, 0.0], 30.0),
+            ([-0.05, 0.03, 0.0], 10.0),
+            ([-0.05, -0.03, 0.0], 10.0),
+        ];
+        let (centre, margin, force) = pressure(&c);
+        let centre = centre.unwrap();
+        assert!((centre[0] - 0.025).abs() < 1e-12 && centre[1].abs() < 1e-12);
+        assert!((margin.unwrap() - 0.025).abs() < 1e-12, "{margin:?}");
+        assert_eq!(force, 80.0);
+        assert_eq!(pressure(&[]), (None, None, 0.0));
+        // Two contacts: a line, no hull.
+        assert!(pressure(&c[..2]).1.is_none());
     }
 }

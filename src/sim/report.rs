@@ -4,7 +4,7 @@
 use plotters::prelude::*;
 use serde::Serialize;
 
-use super::plant::Sample;
+use super::plant::{Sample, Torso};
 use crate::plot::{Area, Picture, Rendered};
 
 /// Longest lag searched, seconds.
@@ -76,6 +76,56 @@ pub struct TrackingReport {
     /// tilted past [`FELL_TILT_DEG`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fell: Option<bool>,
+    /// When it first counted as fallen, seconds from the first sample.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fell_at_s: Option<f64>,
+    /// Horizontal distance of a floating base from where it started to where it ended, metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub torso_travel_m: Option<f64>,
+    /// The measured ZMP (the floor forces' centre of pressure) inside the hull of the floor
+    /// contacts: the smallest margin before the fall, mm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub zmp_margin_mm: Option<MeasuredMargin>,
+}
+
+/// The smallest measured margin.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct MeasuredMargin {
+    /// Over the samples with at least three floor contacts, up to a fall, mm.
+    pub measured_min: f64,
+}
+
+/// Writes a floating base's samples as CSV: time, torso position and tilt, centre of mass,
+/// centre of pressure and its margin, floor force.
+///
+/// # Errors
+/// Writing failed.
+pub fn write_trace(mut w: impl std::io::Write, samples: &[Sample]) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "time,torso_x,torso_y,torso_z,tilt_deg,com_x,com_y,com_z,cop_x,cop_y,cop_margin,floor_force"
+    )?;
+    for s in samples {
+        let Some(t) = s.torso else { continue };
+        let [cx, cy] = t.pressure_centre.unwrap_or([f64::NAN; 2]);
+        writeln!(
+            w,
+            "{:.4},{:.5},{:.5},{:.5},{:.2},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{:.2}",
+            s.time,
+            t.pos[0],
+            t.pos[1],
+            t.pos[2],
+            t.tilt_deg,
+            t.com[0],
+            t.com[1],
+            t.com[2],
+            cx,
+            cy,
+            t.pressure_margin.unwrap_or(f64::NAN),
+            t.floor_force
+        )?;
+    }
+    Ok(())
 }
 
 /// A floating base lower than this share of its starting height has fallen.
@@ -150,23 +200,36 @@ impl TrackingReport {
                 }
             })
             .collect();
-        let torso: Vec<(f64, f64)> = samples.iter().filter_map(|s| s.torso).collect();
-        let (torso_min_height_m, torso_max_tilt_deg, fell) = match torso.first() {
-            Some(&(start, _)) => {
-                let low = torso.iter().map(|t| t.0).fold(f64::INFINITY, f64::min);
-                let tilt = torso.iter().map(|t| t.1).fold(0.0, f64::max);
-                (
-                    Some(low),
-                    Some(tilt),
-                    Some(low < FELL_HEIGHT * start || tilt > FELL_TILT_DEG),
-                )
-            }
-            None => (None, None, None),
-        };
+        let torso: Vec<(f64, Torso)> = samples
+            .iter()
+            .filter_map(|s| s.torso.map(|t| (s.time, t)))
+            .collect();
+        let (mut torso_min_height_m, mut torso_max_tilt_deg, mut fell) = (None, None, None);
+        let (mut fell_at_s, mut torso_travel_m, mut zmp_margin_mm) = (None, None, None);
+        if let (Some((t0, first)), Some((_, last))) = (torso.first(), torso.last()) {
+            let start = first.pos[2];
+            let fallen = |t: &Torso| t.pos[2] < FELL_HEIGHT * start || t.tilt_deg > FELL_TILT_DEG;
+            torso_min_height_m = Some(torso.iter().map(|t| t.1.pos[2]).fold(f64::INFINITY, f64::min));
+            torso_max_tilt_deg = Some(torso.iter().map(|t| t.1.tilt_deg).fold(0.0, f64::max));
+            fell_at_s = torso.iter().find(|t| fallen(&t.1)).map(|t| t.0 - t0);
+            fell = Some(fell_at_s.is_some());
+            let until = fell_at_s.map_or(f64::INFINITY, |f| t0 + f);
+            zmp_margin_mm = torso
+                .iter()
+                .filter(|t| t.0 < until)
+                .filter_map(|t| t.1.pressure_margin)
+                .map(|m| m * 1e3)
+                .reduce(f64::min)
+                .map(|measured_min| MeasuredMargin { measured_min });
+            torso_travel_m = Some((last.pos[0] - first.pos[0]).hypot(last.pos[1] - first.pos[1]));
+        }
         TrackingReport {
             torso_min_height_m,
             torso_max_tilt_deg,
             fell,
+            fell_at_s,
+            torso_travel_m,
+            zmp_margin_mm,
             samples: samples.len(),
             duration_s: samples.last().map_or(0.0, |s| s.time) - samples.first().map_or(0.0, |s| s.time),
             physics_steps: steps,
@@ -232,9 +295,14 @@ impl std::fmt::Display for TrackingReport {
         {
             writeln!(
                 f,
-                "  torso: lowest {:.3} m, largest tilt {t:.1}°{}",
+                "  torso: lowest {:.3} m, largest tilt {t:.1}°, travelled {:.3} m{}",
                 h,
-                if fell { " — FELL" } else { ", did not fall" }
+                self.torso_travel_m.unwrap_or(0.0),
+                match (fell, self.fell_at_s) {
+                    (true, Some(at)) => format!(" — FELL at {at:.2} s"),
+                    (true, None) => " — FELL".to_string(),
+                    _ => ", did not fall".to_string(),
+                }
             )?;
         }
         Ok(())

@@ -1,0 +1,455 @@
+//! Walking on the robot's own feet, planned for a whole clip.
+//!
+//! 1. The clip is retargeted kinematically ([`retarget_clip`]): its planted feet and soles.
+//! 2. Those become the robot's footsteps ([`FootstepPlanner`]): the clip's steps relative to
+//!    the stance foot, within the robot's reach and speed ([`Retargeter::step_limits`]),
+//!    flights and short double supports substituted.
+//! 3. The footsteps give a ZMP reference ([`zmp_reference`]); Kajita's preview controller on
+//!    the cart-table model ([`PreviewGains`]) gives the centre of mass that keeps the ZMP on
+//!    it, at the clip's frame period, previewing [`PREVIEW_S`].
+//! 4. A second retargeting pass ([`Retargeter::step_on_plan`]) puts the soles on the plan
+//!    (a swing foot lifts [`Retargeter::swing_clearance`] and lands flat, minimum jerk along
+//!    the floor) and the robot's centre of mass, all its links' masses counted, over the
+//!    planned one; arms and head follow the human as before.
+//!
+//! The plan's own measures: where the cart-table's ZMP is against the support polygon of the
+//! feet on the floor (its margin), how far the plan travels, which steps were substituted.
+
+use glam::DVec2;
+use serde::Serialize;
+
+use super::{retarget_clip, ClipRetarget, Options, PlannedStance, RetargetFrame, Setup};
+use crate::footstep::{contact, zmp_reference, Footprint, Footstep, FootstepPlanner, StepLimits};
+use crate::motion::Motion;
+use crate::preview::{AxisState, PreviewError, PreviewGains, MAX_PREVIEW};
+use crate::skeleton::Skeleton;
+use marionette_core::retarget::Retargeter;
+use marionette_core::rig::JointSource;
+
+/// How far ahead the preview controller sees, s (ROBOTIS's online walking module: 1.6 s).
+pub const PREVIEW_S: f64 = 1.6;
+
+/// A leg's speed when no servo of the profile drives a leg joint with a velocity limit, rad/s
+/// (an XM430-W350's no-load speed at 12 V, 46 rpm).
+pub const DEFAULT_LEG_SPEED: f64 = 4.8;
+
+/// Standing before the clip's first frame, s: the centre of mass settles over the feet and
+/// the preview sees the first step coming.
+pub const LEAD_IN_S: f64 = 1.0;
+
+/// One sample of the plan, at a clip frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlanSample {
+    /// Seconds from the clip's start.
+    pub t: f64,
+    /// The ZMP reference from the footsteps.
+    pub zmp_ref: DVec2,
+    /// The cart-table's ZMP of the planned centre of mass.
+    pub zmp: DVec2,
+    /// Signed distance of that ZMP inside the support polygon, m (negative: outside).
+    pub zmp_margin: f64,
+    /// Where the soles go and where the centre of mass is.
+    pub stance: PlannedStance,
+}
+
+/// A clip's walking plan.
+#[derive(Clone, Debug)]
+pub struct WalkPlan {
+    /// The footsteps (the first two: the feet where they start).
+    pub footsteps: Vec<Footstep>,
+    /// The limits they were planned within.
+    pub limits: StepLimits,
+    /// Half length and half width of each sole, m.
+    pub sole_half: [[f64; 2]; 2],
+    /// Height of the centre of mass the cart-table model assumes, m.
+    pub com_height: f64,
+    /// Frame period, s.
+    pub dt: f64,
+    /// One per clip frame.
+    pub samples: Vec<PlanSample>,
+    /// Steps changed from the clip's, and the clip's steps left out.
+    pub substituted: (u32, u32),
+    /// The slowest leg servo's velocity limit the plan used, rad/s.
+    pub leg_speed: f64,
+    /// The clip's own travel: its pelvis (scaled to the robot), start to end, m.
+    pub clip_travel_m: f64,
+}
+
+/// The plan's figures (the `walk` block of a retarget report).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct WalkReport {
+    /// Steps the robot takes (the starting feet not counted).
+    pub footsteps: usize,
+    /// Steps changed from the clip's (flight, short double support, reach, speed).
+    pub substituted_steps: u32,
+    /// The clip's steps the robot leaves out (the foot stays down).
+    pub dropped_steps: u32,
+    /// Horizontal distance of the planned centre of mass, start to end, m.
+    pub planned_travel_m: f64,
+    /// The clip's own travel (its pelvis, scaled to the robot), m.
+    pub clip_travel_m: f64,
+    /// The planned ZMP inside the support polygon: the smallest margin over the clip, mm.
+    pub zmp_margin_mm: PlannedMargin,
+    /// Largest distance of the planned ZMP from its reference, mm.
+    pub zmp_tracking_max_mm: f64,
+    /// Height of the centre of mass the cart-table model assumes, m.
+    pub com_height_m: f64,
+    /// Preview, s.
+    pub preview_s: f64,
+    /// The limits steps were planned within.
+    pub limits: LimitsReport,
+    /// Every footstep: the plan's and the clip's.
+    #[serde(rename = "footstep_plan")]
+    pub footstep_list: Vec<FootstepReport>,
+}
+
+/// One footstep in a report.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct FootstepReport {
+    /// `left` or `right`.
+    pub side: &'static str,
+    /// Lands, s.
+    pub land_s: f64,
+    /// Lifts, s (null: stays to the end).
+    pub lift_s: Option<f64>,
+    /// Where the robot puts it: sole centre x, y (m) and heading (deg).
+    pub at: [f64; 3],
+    /// Where the clip put it.
+    pub clip: [f64; 3],
+    /// What was changed: `flight`, `short_double_support`, `too_long`, `too_fast`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub changed: Vec<&'static str>,
+}
+
+impl From<&Footstep> for FootstepReport {
+    fn from(s: &Footstep) -> FootstepReport {
+        let print = |p: &Footprint| [p.centre.x, p.centre.y, p.yaw.to_degrees()];
+        let c = s.changed;
+        FootstepReport {
+            side: marionette_core::retarget::SIDES[s.side],
+            land_s: s.land_s,
+            lift_s: s.lift_s.is_finite().then_some(s.lift_s),
+            at: print(&s.at),
+            clip: print(&s.clip),
+            changed: [
+                (c.flight, "flight"),
+                (c.short_double_support, "short_double_support"),
+                (c.too_long, "too_long"),
+                (c.too_fast, "too_fast"),
+            ]
+            .iter()
+            .filter(|(on, _)| *on)
+            .map(|(_, name)| *name)
+            .collect(),
+        }
+    }
+}
+
+/// The smallest planned margin.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct PlannedMargin {
+    /// Planned (the cart-table's ZMP), mm.
+    pub planned_min: f64,
+}
+
+/// [`StepLimits`] for a report, metres, degrees, seconds.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct LimitsReport {
+    /// Farthest forward.
+    pub forward_m: f64,
+    /// Farthest backward.
+    pub backward_m: f64,
+    /// Narrowest between soles' centres.
+    pub width_min_m: f64,
+    /// Widest.
+    pub width_max_m: f64,
+    /// Largest turn.
+    pub turn_deg: f64,
+    /// Shortest swing.
+    pub swing_min_s: f64,
+    /// The swing foot's mean speed at most.
+    pub foot_speed_m_s: f64,
+    /// Shortest double support.
+    pub double_support_s: f64,
+}
+
+impl From<StepLimits> for LimitsReport {
+    fn from(l: StepLimits) -> LimitsReport {
+        LimitsReport {
+            forward_m: l.forward,
+            backward_m: l.backward,
+            width_min_m: l.width_min,
+            width_max_m: l.width_max,
+            turn_deg: l.turn.to_degrees(),
+            swing_min_s: l.swing_min_s,
+            foot_speed_m_s: l.foot_speed,
+            double_support_s: l.double_support_s,
+        }
+    }
+}
+
+/// The slowest velocity limit (rad/s) of the servos that drive a leg joint.
+#[must_use]
+pub fn leg_speed(setup: &Setup) -> f64 {
+    let legs: Vec<usize> = setup.map.legs.iter().flat_map(|l| l.joints).collect();
+    setup
+        .rig
+        .servos
+        .iter()
+        .filter(|s| matches!(s.source, JointSource::Joint(j) if legs.contains(&j)))
+        .map(|s| s.max_velocity / s.ticks_per_radian().abs())
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// A walking plan for `run`, a clip retargeted kinematically by `retargeter`'s setup.
+///
+/// # Errors
+/// The preview controller cannot be designed for this clip's frame period (a rate outside
+/// what [`MAX_PREVIEW`] samples over [`PREVIEW_S`] allow) or the robot's centre-of-mass height.
+pub fn plan_walk(
+    setup: &Setup,
+    retargeter: &Retargeter,
+    run: &ClipRetarget,
+) -> Result<WalkPlan, PreviewError> {
+    let speed = leg_speed(setup);
+    let limits = retargeter.step_limits(if speed.is_finite() {
+        speed
+    } else {
+        DEFAULT_LEG_SPEED
+    });
+    let dt = run.times.get(1).map_or(1.0 / 120.0, |t| t - run.times[0]);
+    let mut planner = FootstepPlanner::new(limits);
+    let mut footsteps: Vec<Footstep> = Vec::new();
+    let keep = |planner: &FootstepPlanner, all: &mut Vec<Footstep>| {
+        for s in planner.steps() {
+            let n = s.number as usize;
+            if n < all.len() {
+                all[n] = *s;
+            } else {
+                all.push(*s);
+            }
+        }
+    };
+    // The robot starts in its stance, centred where the clip's feet are and facing their way.
+    if let Some(first) = run.frames.first() {
+        let clip = footprints(first);
+        let centre = (clip[0].centre + clip[1].centre) * 0.5;
+        let heading = 0.5 * (clip[0].yaw + marionette_core::math::wrap_near(clip[1].yaw, clip[0].yaw));
+        let stance = retargeter.stance_soles(&setup.robot);
+        let stance_centre = (stance[0].centre + stance[1].centre) * 0.5;
+        let stance_heading =
+            0.5 * (stance[0].yaw + marionette_core::math::wrap_near(stance[1].yaw, stance[0].yaw));
+        let at = Footprint { centre, yaw: heading };
+        let robot = stance.map(|s| {
+            let from = Footprint {
+                centre: stance_centre,
+                yaw: stance_heading,
+            };
+            let (offset, turn) = from.relative(&s);
+            at.moved(offset, turn)
+        });
+        planner.start(run.times[0], robot, clip);
+    }
+    for (t, f) in run.times.iter().zip(&run.frames) {
+        planner.observe(*t, f.planted, footprints(f));
+        keep(&planner, &mut footsteps);
+    }
+    let com_height = run.frames.iter().map(|f| f.com.z).sum::<f64>() / run.frames.len().max(1) as f64;
+    let samples_ahead = ((PREVIEW_S / dt).round() as usize).clamp(1, MAX_PREVIEW);
+    let gains = PreviewGains::design(dt, com_height, samples_ahead)?;
+    let shift = limits.zmp_shift_s;
+    let end = run.times.last().copied().unwrap_or(0.0);
+    let reference = |t: f64| {
+        let t = t.clamp(0.0, end.max(0.0) + 10.0);
+        zmp_reference(&footsteps, t, shift).unwrap_or(DVec2::ZERO)
+    };
+    // Stand still for the lead-in, then follow the clip's frames.
+    let start = reference(0.0);
+    let mut axes = [AxisState::at(start.x), AxisState::at(start.y)];
+    let lead = (LEAD_IN_S / dt).round() as usize;
+    let sole_half = setup.map.legs.map(|l| l.sole_half);
+    let clearance = retargeter.swing_clearance();
+    let mut samples = Vec::with_capacity(run.frames.len());
+    for k in 0..lead + run.frames.len() {
+        let t = (k as f64 - lead as f64) * dt;
+        let now = reference(t);
+        if k >= lead {
+            let com = DVec2::new(axes[0].x[0], axes[1].x[0]);
+            let zmp = DVec2::new(axes[0].zmp(com_height), axes[1].zmp(com_height));
+            samples.push(PlanSample {
+                t,
+                zmp_ref: now,
+                zmp,
+                zmp_margin: support_margin(&footsteps, t, sole_half, zmp),
+                stance: stance_at(&footsteps, t, com, clearance),
+            });
+        }
+        for (axis, state) in axes.iter_mut().enumerate() {
+            state.step(&gains, now[axis], |j| reference(t + j as f64 * dt)[axis]);
+        }
+    }
+    let pelvis = |f: &RetargetFrame| DVec2::new(f.base_pos.x, f.base_pos.y);
+    let clip_travel_m = match (run.frames.first(), run.frames.last()) {
+        (Some(a), Some(b)) => (pelvis(b) - pelvis(a)).length(),
+        _ => 0.0,
+    };
+    Ok(WalkPlan {
+        clip_travel_m,
+        footsteps,
+        limits,
+        sole_half,
+        com_height,
+        dt,
+        samples,
+        substituted: planner.substituted(),
+        leg_speed: speed,
+    })
+}
+
+/// The soles of a retargeted frame as footprints.
+#[must_use]
+pub fn footprints(f: &RetargetFrame) -> [Footprint; 2] {
+    [0, 1].map(|side| Footprint {
+        centre: DVec2::new(f.sole[side].x, f.sole[side].y),
+        yaw: f.sole_yaw[side],
+    })
+}
+
+/// Where the plan has each sole at `t`: on its footprint when in contact; in a swing,
+/// minimum jerk along the floor from the footprint it left to the one it lands on and
+/// lifted `clearance` at the middle (zero slope and curvature at both ends: it lands flat
+/// and soft).
+#[must_use]
+pub fn stance_at(steps: &[Footstep], t: f64, com: DVec2, clearance: f64) -> PlannedStance {
+    let mut soles = [(Footprint::default(), 0.0); 2];
+    let mut on = [false; 2];
+    for side in 0..2 {
+        if let Some(s) = contact(steps, side, t) {
+            soles[side] = (s.at, 0.0);
+            on[side] = true;
+            continue;
+        }
+        let left = steps.iter().rev().find(|s| s.side == side && s.lift_s <= t);
+        let next = steps.iter().find(|s| s.side == side && s.land_s > t);
+        soles[side] = match (left, next) {
+            (Some(a), Some(b)) => {
+                let s = ((t - a.lift_s) / (b.land_s - a.lift_s)).clamp(0.0, 1.0);
+                let m = s * s * s * (10.0 - 15.0 * s + 6.0 * s * s);
+                let turn = marionette_core::math::wrap_near(b.at.yaw - a.at.yaw, 0.0);
+                let bump = 64.0 * (s * (1.0 - s)).powi(3);
+                (
+                    Footprint {
+                        centre: a.at.centre + (b.at.centre - a.at.centre) * m,
+                        yaw: a.at.yaw + turn * m,
+                    },
+                    clearance * bump,
+                )
+            }
+            (Some(a), None) => (a.at, 0.0),
+            (None, Some(b)) => (b.at, 0.0),
+            (None, None) => (Footprint::default(), 0.0),
+        };
+    }
+    PlannedStance {
+        soles,
+        contact: on,
+        com,
+    }
+}
+
+/// Signed distance of `p` inside the support polygon of the feet on the floor at `t`, m.
+#[must_use]
+pub fn support_margin(steps: &[Footstep], t: f64, sole_half: [[f64; 2]; 2], p: DVec2) -> f64 {
+    let mut corners = Vec::with_capacity(8);
+    for (side, half) in sole_half.into_iter().enumerate() {
+        if let Some(s) = contact(steps, side, t) {
+            corners.extend(s.at.corners(half));
+        }
+    }
+    marionette_core::retarget::polygon_margin(&marionette_core::retarget::convex_hull(&corners), p, 0.0).0
+}
+
+/// Writes the plan per frame as CSV: time, which feet bear weight, the ZMP reference, the
+/// planned ZMP and its margin, the planned centre of mass (metres).
+///
+/// # Errors
+/// Writing failed.
+pub fn write_plan_csv(mut w: impl std::io::Write, plan: &WalkPlan) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "time,left_down,right_down,zmp_ref_x,zmp_ref_y,zmp_x,zmp_y,zmp_margin,com_x,com_y,com_z"
+    )?;
+    for s in &plan.samples {
+        writeln!(
+            w,
+            "{:.6},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+            s.t,
+            u8::from(s.stance.contact[0]),
+            u8::from(s.stance.contact[1]),
+            s.zmp_ref.x,
+            s.zmp_ref.y,
+            s.zmp.x,
+            s.zmp.y,
+            s.zmp_margin,
+            s.stance.com.x,
+            s.stance.com.y,
+            plan.com_height
+        )?;
+    }
+    Ok(())
+}
+
+/// Retargets `motion` walking on the plan: the kinematic pass, the plan, and the pass on it.
+///
+/// # Errors
+/// [`plan_walk`]'s.
+pub fn retarget_walking(
+    setup: &Setup,
+    skeleton: &Skeleton,
+    motion: &Motion,
+    options: Options,
+) -> Result<(ClipRetarget, WalkPlan), PreviewError> {
+    let kinematic = retarget_clip(setup, skeleton, motion, options);
+    let retargeter = setup.retargeter(skeleton, kinematic.floor, options);
+    let plan = plan_walk(setup, &retargeter, &kinematic)?;
+    let walked = super::retarget_clip_with(setup, skeleton, motion, options, kinematic.floor, |k| {
+        plan.samples.get(k).map(|s| s.stance)
+    });
+    Ok((walked, plan))
+}
+
+impl WalkPlan {
+    /// The plan's figures.
+    #[must_use]
+    pub fn report(&self) -> WalkReport {
+        let travel = |a: Option<DVec2>, b: Option<DVec2>| match (a, b) {
+            (Some(a), Some(b)) => (b - a).length(),
+            _ => 0.0,
+        };
+        let com = |s: &PlanSample| s.stance.com;
+        WalkReport {
+            footstep_list: self.footsteps.iter().map(FootstepReport::from).collect(),
+            footsteps: self.footsteps.len().saturating_sub(2),
+            substituted_steps: self.substituted.0,
+            dropped_steps: self.substituted.1,
+            planned_travel_m: travel(self.samples.first().map(com), self.samples.last().map(com)),
+            clip_travel_m: self.clip_travel_m,
+            zmp_margin_mm: PlannedMargin {
+                planned_min: self
+                    .samples
+                    .iter()
+                    .map(|s| s.zmp_margin * 1000.0)
+                    .fold(f64::INFINITY, f64::min),
+            },
+            zmp_tracking_max_mm: self
+                .samples
+                .iter()
+                .map(|s| (s.zmp - s.zmp_ref).length() * 1000.0)
+                .fold(0.0, f64::max),
+            com_height_m: self.com_height,
+            preview_s: PREVIEW_S,
+            limits: self.limits.into(),
+        }
+    }
+}
