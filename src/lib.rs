@@ -37,7 +37,7 @@ const _: () = assert!(
 
 pub use marionette_core::{
     asf, command, control_table, device, fk, footstep, ik, ik_numeric, interp, math, plan, preview, protocol,
-    rig, robot, schedule, servo, skeleton, swivel,
+    rig, robot, schedule, sensor_board, servo, skeleton, swivel,
 };
 
 pub mod alloc_count;

@@ -13,6 +13,7 @@
 //! usb_latency_us = 1000     # the adapter's latency timer
 //! pipeline = true           # request the read after the write, take it next tick
 //! watchdog_ms = 100         # Bus Watchdog armed at start-up (20…2540, 0 = off)
+//! imu_board_id = 200        # optional: a sensor board on this bus (the OP3's OpenCR, its IMU)
 //!
 //! [[bone]]                  # optional: the rig's own axis order for a bone
 //! name = "lhumerus"
@@ -157,6 +158,9 @@ pub struct BusConfig {
     /// Pipelined reads: the read is requested after each tick's Sync Write and its replies
     /// taken at the start of the next tick (default on).
     pub pipeline: bool,
+    /// The id of a sensor board on the same bus (the OP3's OpenCR and its IMU, 200 from the
+    /// factory), when the robot has one (`imu_board_id`).
+    pub imu_board: Option<u8>,
 }
 
 impl BusConfig {
@@ -173,6 +177,7 @@ impl BusConfig {
             usb_latency_us: 16_000,
             watchdog_ms: 0,
             pipeline: false,
+            imu_board: None,
         }
     }
 }
@@ -448,6 +453,8 @@ struct RawBus {
     watchdog_ms: Option<Spanned<i64>>,
     #[serde(default)]
     pipeline: Option<bool>,
+    #[serde(default)]
+    imu_board_id: Option<Spanned<i64>>,
 }
 
 #[derive(Deserialize)]
@@ -731,6 +738,12 @@ impl Profile {
                     ),
                 ));
             }
+            if bus.imu_board == Some(spec.id) {
+                return Err(ck.at(
+                    &s.get_ref().id,
+                    format!("id {} is the IMU board's (imu_board_id in [bus])", spec.id),
+                ));
+            }
             if let Some(first) = ids.insert(spec.id, spec.line) {
                 return Err(ck.at(
                     &s.get_ref().id,
@@ -966,6 +979,20 @@ fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextE
             x as u32
         }
     };
+    let imu_board = match &b.imu_board_id {
+        None => None,
+        Some(v) => Some(
+            u8::try_from(*v.get_ref())
+                .ok()
+                .filter(|i| *i <= 252)
+                .ok_or_else(|| {
+                    ck.at(
+                        v,
+                        format!("expected the IMU board's id in 0…252, found {}", v.get_ref()),
+                    )
+                })?,
+        ),
+    };
     Ok(BusConfig {
         baud,
         return_delay_us,
@@ -974,6 +1001,7 @@ fn check_bus(ck: &Checker<'_>, raw: &Spanned<RawBus>) -> Result<BusConfig, TextE
         usb_latency_us,
         watchdog_ms,
         pipeline: b.pipeline.unwrap_or(true),
+        imu_board,
     })
 }
 

@@ -55,10 +55,18 @@ fn dynamixel2_start_up_on_a_pty() {
     let pty = PtyChain::serve(chain_for(p.bus_section(), |k| start[k]), None).unwrap();
     let mut bus = Dynamixel2Bus::open(pty.path(), p.bus.baud).unwrap();
     let found = bus.scan().unwrap();
-    assert_eq!(found.iter().map(|f| f.id).collect::<Vec<_>>(), p.ids());
-    assert!(found
+    // The servos, then the OpenCR board with its IMU at 200.
+    let mut ids = p.ids();
+    ids.push(200);
+    assert_eq!(found.iter().map(|f| f.id).collect::<Vec<_>>(), ids);
+    let (board, servos) = found.split_last().unwrap();
+    assert!(servos
         .iter()
         .all(|f| f.model().map(|m| m.name) == Some("XM430-W350") && f.firmware == 48));
+    assert_eq!(
+        board.model_number,
+        marionette::sensor_board::OPENCR_OP3_MODEL_NUMBER
+    );
     for round in 0..3u64 {
         let present = start_up(&mut bus, p.bus_section()).unwrap();
         {

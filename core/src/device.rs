@@ -10,6 +10,7 @@
 use crate::control_table::{self, indirect_blocks, Access, Item};
 use crate::math::{real, Real};
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
+use crate::sensor_board::SensorBoard;
 use crate::servo::{addr, status_error, step_towards, ServoModel, MAX_SERVOS, RPM2_PER_ACCELERATION_UNIT};
 use crate::servo::{RPM_PER_VELOCITY_UNIT, TICKS_PER_TURN};
 
@@ -664,6 +665,8 @@ pub type Replies = heapless::Vec<Reply, MAX_SERVOS>;
 #[derive(Clone, Debug, Default)]
 pub struct Chain {
     servos: heapless::Vec<VirtualServo, MAX_SERVOS>,
+    /// A sensor board on the same bus (the OP3's OpenCR), answered after the servos.
+    board: Option<SensorBoard>,
     instructions: u64,
 }
 
@@ -698,6 +701,22 @@ impl Chain {
     #[must_use]
     pub fn servos(&self) -> &[VirtualServo] {
         &self.servos
+    }
+
+    /// Puts a sensor board on the bus (one at most: a second replaces the first).
+    pub fn set_board(&mut self, board: SensorBoard) {
+        self.board = Some(board);
+    }
+
+    /// The sensor board, if the bus has one.
+    #[must_use]
+    pub fn board(&self) -> Option<&SensorBoard> {
+        self.board.as_ref()
+    }
+
+    /// The sensor board, mutable (for a simulator that feeds its IMU).
+    pub fn board_mut(&mut self) -> Option<&mut SensorBoard> {
+        self.board.as_mut()
     }
 
     /// The servos, mutable (for a simulator that moves their horns).
@@ -751,6 +770,17 @@ impl Chain {
         Ok(())
     }
 
+    /// The board's answer to an instruction it does not carry out (Reg Write, Action).
+    fn board_refuses(&self, id: u8, w: &mut Writer<'_, '_>) {
+        if let Some(b) = self
+            .board
+            .as_ref()
+            .filter(|b| b.id() == id && b.status_return_level() >= 2)
+        {
+            w.board_status(b, status_error::INSTRUCTION, &[]);
+        }
+    }
+
     fn execute(&mut self, id: u8, inst: u8, params: &[u8], w: &mut Writer<'_, '_>) {
         // Any instruction meant for a servo resets its watchdog timer.
         for s in &mut self.servos {
@@ -769,9 +799,16 @@ impl Chain {
                     let m = s.model.model_number.to_le_bytes();
                     w.status(s, 0, &[m[0], m[1], FIRMWARE_VERSION]);
                 }
+                if let Some(b) = self.board.as_ref().filter(|b| b.hears(id)) {
+                    let m = b.model_number().to_le_bytes();
+                    w.board_status(b, 0, &[m[0], m[1], crate::sensor_board::OPENCR_OP3_FIRMWARE]);
+                }
             }
             instruction::READ if !broadcast => {
                 let Some(s) = self.servos.iter_mut().find(|s| s.answers(id)) else {
+                    if let Some(b) = self.board.as_ref().filter(|b| b.id() == id) {
+                        board_read(b, params, w);
+                    }
                     return;
                 };
                 if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
@@ -805,6 +842,12 @@ impl Chain {
                         w.status(s, e, &[]);
                     }
                 }
+                if let Some(b) = self.board.as_mut().filter(|b| b.hears(id)) {
+                    let e = b.write(a, &params[2..]);
+                    if b.id() == id && b.status_return_level() >= 2 {
+                        w.board_status(b, e, &[]);
+                    }
+                }
             }
             instruction::REG_WRITE => {
                 // Held, not applied, until Action; the Registered Instruction flag says so.
@@ -824,6 +867,7 @@ impl Chain {
                         w.status(s, 0, &[]);
                     }
                 }
+                self.board_refuses(id, w);
             }
             instruction::ACTION => {
                 for s in self.servos.iter_mut().filter(|s| s.hears(id)) {
@@ -836,6 +880,7 @@ impl Chain {
                         w.status(s, e, &[]);
                     }
                 }
+                self.board_refuses(id, w);
             }
             instruction::REBOOT => {
                 for s in self.servos.iter_mut().filter(|s| s.hears(id)) {
@@ -845,6 +890,12 @@ impl Chain {
                     }
                     s.table[usize::from(addr::HARDWARE_ERROR_STATUS)] = 0;
                     s.clear_ram();
+                }
+                if let Some(b) = self.board.as_mut().filter(|b| b.hears(id)) {
+                    if b.id() == id && b.status_return_level() >= 2 {
+                        w.board_status(b, 0, &[]);
+                    }
+                    b.reboot();
                 }
             }
             instruction::FACTORY_RESET => {
@@ -864,6 +915,12 @@ impl Chain {
                         s.table[usize::from(addr::BAUD_RATE)] = baud;
                     }
                 }
+                if let Some(b) = self.board.as_mut().filter(|b| b.hears(id)) {
+                    if b.id() == id && b.status_return_level() >= 2 {
+                        w.board_status(b, 0, &[]);
+                    }
+                    b.reset(option != 0xFF);
+                }
             }
             instruction::SYNC_WRITE if broadcast && params.len() >= 4 => {
                 let (a, n) = (le16(params), usize::from(le16(&params[2..])));
@@ -874,11 +931,17 @@ impl Chain {
                     for s in self.servos.iter_mut().filter(|s| s.answers(chunk[0])) {
                         let _ = s.write(a, &chunk[1..]);
                     }
+                    if let Some(b) = self.board.as_mut().filter(|b| b.id() == chunk[0]) {
+                        let _ = b.write(a, &chunk[1..]);
+                    }
                 }
             }
             instruction::SYNC_READ if broadcast && params.len() >= 4 => {
                 let (a, n) = (le16(params), usize::from(le16(&params[2..])));
                 for &sid in &params[4..] {
+                    if let Some(b) = self.board.as_ref().filter(|b| b.id() == sid) {
+                        board_read_at(b, a, n, w);
+                    }
                     for s in self.servos.iter_mut().filter(|s| s.answers(sid)) {
                         if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
                             continue;
@@ -906,6 +969,9 @@ impl Chain {
             instruction::BULK_READ if broadcast => {
                 for item in params.chunks_exact(5) {
                     let (sid, a, n) = (item[0], le16(&item[1..]), usize::from(le16(&item[3..])));
+                    if let Some(b) = self.board.as_ref().filter(|b| b.id() == sid) {
+                        board_read_at(b, a, n, w);
+                    }
                     for s in self.servos.iter_mut().filter(|s| s.answers(sid)) {
                         if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
                             continue;
@@ -928,6 +994,9 @@ impl Chain {
                     for s in self.servos.iter_mut().filter(|s| s.answers(sid)) {
                         let _ = s.write(a, &rest[5..5 + n]);
                     }
+                    if let Some(b) = self.board.as_mut().filter(|b| b.id() == sid) {
+                        let _ = b.write(a, &rest[5..5 + n]);
+                    }
                     rest = &rest[5 + n..];
                 }
             }
@@ -935,10 +1004,32 @@ impl Chain {
                 if !broadcast {
                     if let Some(s) = self.servos.iter().find(|s| s.answers(id)) {
                         w.status(s, status_error::INSTRUCTION, &[]);
+                    } else if let Some(b) = self.board.as_ref().filter(|b| b.id() == id) {
+                        w.board_status(b, status_error::INSTRUCTION, &[]);
                     }
                 }
             }
         }
+    }
+}
+
+/// A Read to the board: its answer, as a servo's (Data Length Error for a malformed one).
+fn board_read(b: &SensorBoard, params: &[u8], w: &mut Writer<'_, '_>) {
+    if params.len() == 4 {
+        board_read_at(b, le16(params), usize::from(le16(&params[2..])), w);
+    } else if b.status_return_level() > 0 {
+        w.board_status(b, status_error::DATA_LENGTH, &[]);
+    }
+}
+
+/// The board's answer to a read of `n` bytes at `a` (Data Range Error past its table).
+fn board_read_at(b: &SensorBoard, a: u16, n: usize, w: &mut Writer<'_, '_>) {
+    if b.status_return_level() == 0 {
+        return;
+    }
+    match b.read(a, n) {
+        Some(data) => w.board_status(b, 0, data),
+        None => w.board_status(b, status_error::DATA_RANGE, &[]),
     }
 }
 
@@ -1029,23 +1120,32 @@ impl Writer<'_, '_> {
     /// Appends a status packet from `s` (dropped silently when the buffer is full: the host
     /// then sees a timeout, as with a real collision).
     fn status(&mut self, s: &VirtualServo, error: u8, data: &[u8]) {
+        self.status_from(s.id(), error | s.alert(), s.return_delay_us(), data);
+    }
+
+    /// Appends a status packet from the sensor board.
+    fn board_status(&mut self, b: &SensorBoard, error: u8, data: &[u8]) {
+        self.status_from(b.id(), error, b.return_delay_us(), data);
+    }
+
+    fn status_from(&mut self, id: u8, error: u8, delay_us: u32, data: &[u8]) {
         let mut params = [0u8; MAX_PACKET];
         if data.len() + 1 > params.len() {
             return;
         }
-        params[0] = error | s.alert();
+        params[0] = error;
         params[1..=data.len()].copy_from_slice(data);
         if let Ok(n) = protocol::encode(
-            s.id(),
+            id,
             instruction::STATUS,
             &params[..=data.len()],
             &mut self.out[self.used..],
         ) {
             let reply = Reply {
-                id: s.id(),
+                id,
                 start: self.used,
                 len: n,
-                delay_us: s.return_delay_us(),
+                delay_us,
             };
             if self.replies.push(reply).is_ok() {
                 self.used += n;

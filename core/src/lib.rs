@@ -34,7 +34,10 @@
 //! * [`rig`] — joint sources and angle ↔ tick mapping, Euler re-decomposition.
 //! * [`command`] — the command stage: finite check, position, velocity and acceleration limits.
 //! * [`protocol`] — Dynamixel Protocol 2.0 packets: CRC-16, byte stuffing, encode/decode.
-//! * [`device`] — the device side of Protocol 2.0: a chain of virtual servos.
+//! * [`sensor_board`] — a humanoid's sensor board on the servos' bus (the OP3's OpenCR: IMU,
+//!   buttons, voltage), its control table and the IMU's scales.
+//! * [`device`] — the device side of Protocol 2.0: a chain of virtual servos (and a sensor
+//!   board).
 //! * [`schedule`] — the absolute-deadline fixed-rate schedule over a [`schedule::Clock`] that
 //!   the caller supplies (time is an argument; the std edge has the system clock).
 //!
@@ -83,6 +86,8 @@ pub mod rig;
 pub mod command;
 
 pub mod protocol;
+
+pub mod sensor_board;
 
 pub mod device;
 

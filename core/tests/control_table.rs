@@ -246,3 +246,73 @@ fn indirect_layouts_follow_the_model() {
         );
     }
 }
+
+/// The OP3's sensor board on the servos' bus: it answers pings, reads, writes, Sync and Bulk
+/// Read in the listed order with the servos, and instructions it does not know with an
+/// Instruction Error.
+#[test]
+fn the_sensor_board_answers_on_the_servos_bus() {
+    use marionette_core::sensor_board::{board_addr, ImuReading, SensorBoard, IMU_BYTES};
+    let mut chain = chain_of(&MODELS[0]);
+    chain.add(VirtualServo::new(2, &MODELS[0], 1000)).unwrap();
+    let mut board = SensorBoard::default();
+    let tilt = ImuReading {
+        gyro_dps: [10.0, -20.0, 30.0],
+        acc_g: [0.0, 0.17, 0.98],
+        rpy_deg: [10.0, 0.0, 90.0],
+    };
+    board.set_imu(&tilt);
+    chain.set_board(board);
+    // A broadcast ping finds the servos and the board (model 0x7400).
+    let pings = send(&mut chain, BROADCAST_ID, instruction::PING, &[]);
+    assert_eq!(pings.iter().map(|p| p.0).collect::<Vec<_>>(), vec![1, 2, 200]);
+    assert_eq!(pings[2].2[..2], [0x00, 0x74]);
+    // Its IMU in one read.
+    let imu = read_bytes(&mut chain, 200, board_addr::GYRO, IMU_BYTES as u16);
+    let got = ImuReading::decode(&imu).unwrap();
+    assert!(
+        (got.rpy_deg[0] - 10.0).abs() < 1e-9 && (got.acc_g[1] - 0.17).abs() < 1e-4,
+        "{got:?}"
+    );
+    // Bulk Read: servo 2's position, the board's IMU, servo 1's position — in that order.
+    let mut params = vec![2];
+    params.extend_from_slice(&addr::PRESENT_POSITION.to_le_bytes());
+    params.extend_from_slice(&4u16.to_le_bytes());
+    params.push(200);
+    params.extend_from_slice(&board_addr::GYRO.to_le_bytes());
+    params.extend_from_slice(&(IMU_BYTES as u16).to_le_bytes());
+    params.push(1);
+    params.extend_from_slice(&addr::PRESENT_POSITION.to_le_bytes());
+    params.extend_from_slice(&4u16.to_le_bytes());
+    let replies = send(&mut chain, BROADCAST_ID, instruction::BULK_READ, &params);
+    assert_eq!(replies.iter().map(|r| r.0).collect::<Vec<_>>(), vec![2, 200, 1]);
+    assert_eq!(replies[1].2, imu);
+    // Writes: its LEDs yes, its gyro no, past its table a range error.
+    assert_eq!(write(&mut chain, 200, board_addr::LED, &[3]), Some(0));
+    assert_eq!(
+        write(&mut chain, 200, board_addr::GYRO, &[0, 0]),
+        Some(status_error::ACCESS)
+    );
+    assert_eq!(
+        read(&mut chain, 200, 50, 2).map(|r| r.0),
+        Some(status_error::DATA_RANGE)
+    );
+    // Sync Read at the board's address works for the board alone.
+    let mut params = board_addr::PRESENT_VOLTAGE.to_le_bytes().to_vec();
+    params.extend_from_slice(&1u16.to_le_bytes());
+    params.push(200);
+    let replies = send(&mut chain, BROADCAST_ID, instruction::SYNC_READ, &params);
+    assert_eq!(replies, vec![(200, 0, vec![120])]);
+    // An instruction it does not carry out.
+    let replies = send(&mut chain, 200, instruction::REG_WRITE, &[25, 0, 1]);
+    assert_eq!(replies, vec![(200, status_error::INSTRUCTION, vec![])]);
+    // Reboot clears its LEDs.
+    send(&mut chain, 200, instruction::REBOOT, &[]);
+    assert_eq!(read(&mut chain, 200, board_addr::LED, 1), Some((0, 0)));
+}
+
+fn read_bytes(chain: &mut Chain, id: u8, address: u16, n: u16) -> Vec<u8> {
+    let mut params = address.to_le_bytes().to_vec();
+    params.extend_from_slice(&n.to_le_bytes());
+    send(chain, id, instruction::READ, &params).remove(0).2
+}

@@ -377,6 +377,29 @@ impl World {
         self.model().totalmass()
     }
 
+    /// A sensor's id by name.
+    #[must_use]
+    pub fn sensor(&self, name: &str) -> Option<usize> {
+        self.model().name_to_id(MjtObjBase::mjOBJ_SENSOR, name)
+    }
+
+    /// A sensor's present values (after a step or `forward`): a gyro's angular velocity
+    /// (rad/s) or an accelerometer's specific force (m/s²), in its site's frame.
+    #[must_use]
+    pub fn sensor_values(&self, sensor: usize) -> &[f64] {
+        let (Some(&adr), Some(&dim)) = (
+            self.model().sensor_adr().get(sensor),
+            self.model().sensor_dim().get(sensor),
+        ) else {
+            return &[];
+        };
+        let (adr, dim) = (
+            usize::try_from(adr).unwrap_or(0),
+            usize::try_from(dim).unwrap_or(0),
+        );
+        self.data.sensordata().get(adr..adr + dim).unwrap_or(&[])
+    }
+
     /// Number of contacts in the present state.
     #[must_use]
     pub fn contact_count(&self) -> usize {

@@ -181,7 +181,13 @@ impl PingInfo {
 
 impl fmt::Display for PingInfo {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let model = self.model().map_or("unknown model", |m| m.name);
+        let model = match self.model() {
+            Some(m) => m.name,
+            None if self.model_number == crate::sensor_board::OPENCR_OP3_MODEL_NUMBER => {
+                "OpenCR, OP3 firmware: IMU board"
+            }
+            None => "unknown model",
+        };
         write!(
             f,
             "id {:>3}  model {:>5} ({model})  firmware {}",

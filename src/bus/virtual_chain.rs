@@ -14,7 +14,8 @@ use crate::device::{Chain, Received, Receiver, Replies, VirtualServo, MAX_PACKET
 use crate::profile::BusSection;
 use crate::servo::MAX_SERVOS;
 
-/// A chain with one servo per profiled id, each at `position` (or 2048).
+/// A chain with one servo per profiled id, each at `position` (or 2048), and the profile's
+/// IMU board when it has one.
 ///
 /// # Panics
 /// Never: profiles hold at most [`crate::servo::MAX_SERVOS`] servos.
@@ -26,6 +27,9 @@ pub fn chain_for(profile: BusSection<'_>, position: impl Fn(usize) -> i32) -> Ch
         // Set to the bus's baud, as the rig's servos are.
         servo.set_baud(profile.config.baud);
         let _ = chain.add(servo);
+    }
+    if let Some(id) = profile.config.imu_board {
+        chain.set_board(crate::sensor_board::SensorBoard::new(id));
     }
     chain
 }

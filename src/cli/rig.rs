@@ -394,9 +394,14 @@ pub fn scan_cmd(
         port: path.clone(),
         source,
     })?;
-    writeln!(out, "{path} at {baud} bit/s: {} servo(s)", found.len())?;
+    writeln!(out, "{path} at {baud} bit/s: {} device(s)", found.len())?;
     for p in &found {
         write!(out, "{p}")?;
+        if p.model_number == crate::sensor_board::OPENCR_OP3_MODEL_NUMBER {
+            // A sensor board: no Hardware Error Status (its table ends at 51).
+            writeln!(out)?;
+            continue;
+        }
         match bus.hardware_error(p.id) {
             Ok(0) => writeln!(out, "  ok")?,
             Ok(e) => writeln!(out, "  hardware error status {e:#04x}")?,

@@ -15,6 +15,7 @@ use crate::bus::virtual_chain::{chain_for, Plant, VirtualRig};
 use crate::device::Chain;
 use crate::profile::Profile;
 use crate::rig::{Rig, ServoMap};
+use crate::sensor_board::ImuReading;
 use crate::servo::TICKS_PER_TURN;
 
 /// Most physics samples kept by a recorder (an hour at 1 kHz would be too many to plot).
@@ -179,6 +180,9 @@ pub struct SimPlant {
     record_every: u64,
     recording: bool,
     samples: Vec<Sample>,
+    /// The model's IMU (`imu_gyro`, `imu_acc`) and the body it rides on, for a chain's sensor
+    /// board.
+    imu: Option<(usize, usize, usize)>,
 }
 
 impl std::fmt::Debug for SimPlant {
@@ -250,6 +254,14 @@ impl SimPlant {
         let sites = (0..world.site_count()).collect();
         let record_every = ((0.001 / world.timestep()).round() as u64).max(1);
         let n = servos.len();
+        let imu = match (
+            world.sensor("imu_gyro"),
+            world.sensor("imu_acc"),
+            world.free_body(),
+        ) {
+            (Some(g), Some(a), Some(b)) => Some((g, a, b)),
+            _ => None,
+        };
         Ok(SimPlant {
             twin: world.clone(),
             world,
@@ -261,6 +273,7 @@ impl SimPlant {
             record_every,
             recording: false,
             samples: Vec::new(),
+            imu,
         })
     }
 
@@ -417,8 +430,35 @@ impl Plant for SimPlant {
             servo.set_load(horn_nm);
             servo.step_driven(dt, s.map.angle_to_ticks_exact(q), v * per_tick);
         }
+        if let (Some(board), Some(imu)) = (chain.board_mut(), self.imu) {
+            board.set_imu(&self.imu_reading(imu));
+        }
     }
 }
+
+impl SimPlant {
+    /// What the model's IMU reads, in the OpenCR board's axes (the robot's body axes with x
+    /// and y negated, as the OP3 framework undoes): °/s, g, and roll, pitch, yaw (Z-Y-X, °).
+    fn imu_reading(&self, (gyro, acc, body): (usize, usize, usize)) -> ImuReading {
+        let g = self.world.sensor_values(gyro);
+        let a = self.world.sensor_values(acc);
+        let at = |v: &[f64], k: usize| v.get(k).copied().unwrap_or(0.0);
+        let r = self.world.body_rotation(body);
+        let rpy = [
+            r[7].atan2(r[8]),
+            (-r[6]).clamp(-1.0, 1.0).asin(),
+            r[3].atan2(r[0]),
+        ];
+        ImuReading {
+            gyro_dps: [-at(g, 0), -at(g, 1), at(g, 2)].map(f64::to_degrees),
+            acc_g: [-at(a, 0), -at(a, 1), at(a, 2)].map(|x| x / STANDARD_GRAVITY),
+            rpy_deg: rpy.map(f64::to_degrees),
+        }
+    }
+}
+
+/// Standard gravity, m/s² (an accelerometer's g).
+pub const STANDARD_GRAVITY: f64 = 9.806_65;
 
 /// Where simulated servos power up: joint angle 0, clamped into each servo's limits.
 #[must_use]

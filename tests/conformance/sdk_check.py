@@ -36,6 +36,10 @@ with open(PROFILE, "rb") as f:
 servos = [(s["id"], s["model"]) for s in profile["servo"]]
 ids = [i for i, _ in servos]
 baud = profile["bus"]["baud"]
+# A sensor board on the bus (the OP3's OpenCR): its id, model number 0x7400 (ROBOTIS's OP3
+# firmware for the OpenCR) and IMU items (gyro, accelerometer, roll/pitch/yaw from 32).
+board = profile["bus"].get("imu_board_id")
+OPENCR_OP3 = 0x7400
 
 port = PortHandler(PORT)
 port.openPort()
@@ -64,7 +68,39 @@ for i, model in servos:
     check(f"ping {i}: model number of {model}", r == COMM_SUCCESS and number == MODEL_NUMBERS.get(model),
           f"got {number}")
 found, r = ph.broadcastPing(port)
-check("broadcast ping finds every servo", r == COMM_SUCCESS and sorted(found) == sorted(ids), f"{sorted(found)}")
+expected = sorted(ids + ([board] if board is not None else []))
+check("broadcast ping finds every servo" + (" and the IMU board" if board is not None else ""),
+      r == COMM_SUCCESS and sorted(found) == expected, f"{sorted(found)}")
+
+if board is not None:
+    number, r, e = ph.ping(port, board)
+    check(f"ping {board}: the OpenCR board's model number (0x7400)", r == COMM_SUCCESS and number == OPENCR_OP3,
+          f"got {number}")
+    data, r, e = ph.readTxRx(port, board, 32, 18)
+
+    def signed(lo, hi):
+        v = lo | hi << 8
+        return v - 65536 if v >= 32768 else v
+
+    imu = [signed(data[2 * k], data[2 * k + 1]) for k in range(9)] if r == COMM_SUCCESS else []
+    if "--sim" in sys.argv:
+        # MuJoCo's torso (free, without a floor: falling): whatever it reads, one read of 18
+        # bytes gives all nine items, within the sensors' ranges.
+        check("the IMU board's gyro, accelerometer and angles in one read", len(imu) == 9 and e == 0, f"{imu} {r} {e}")
+    else:
+        # At rest and level: 1 g up (16384 raw at ±2 g), nothing turning.
+        check("the IMU board at rest reads 1 g up and no rotation", imu == [0, 0, 0, 0, 0, 16384, 0, 0, 0],
+              f"{imu} {r} {e}")
+    r, e = ph.write2ByteTxRx(port, board, 32, 0)
+    check("a write to the IMU board's gyro answers Access Error", error_of(r, e) == ACCESS, f"{r} {e}")
+    r, e = ph.write1ByteTxRx(port, board, 25, 1)
+    check("the IMU board's LED is written", r == COMM_SUCCESS and e == 0, f"{r} {e}")
+    b = GroupBulkRead(port, ph)
+    b.addParam(first, 132, 4)
+    b.addParam(board, 32, 18)
+    r = b.txRxPacket()
+    check("Bulk Read of a servo's position and the IMU board's IMU (the OP3 framework's read)",
+          r == COMM_SUCCESS and b.isAvailable(first, 132, 4) and b.isAvailable(board, 32, 18), f"{r}")
 
 v, r, e = ph.read4ByteTxRx(port, first, 132)
 check("read Present Position", r == COMM_SUCCESS and e == 0 and 0 <= v < 4096, f"{v} {r} {e}")
