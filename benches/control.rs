@@ -119,6 +119,7 @@ fn bench(c: &mut Criterion) {
             skeleton: Arc::clone(&skel),
             rig: rig.clone(),
             retarget: None,
+            balance: None,
         };
         let mut ctl = session::controller(&spec, &profile, drive, &present, port, solve, true);
         let mut bus = EncodeBus {

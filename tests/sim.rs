@@ -795,3 +795,34 @@ fn sizing_the_walk_names_the_servos_that_saturate() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The OP3's IMU read over the bus from its OpenCR board in MuJoCo: the torso's tilt it reports
+/// is MuJoCo's own (the first second of the walk on its plan, before any step goes wrong).
+#[test]
+fn the_op3_imu_read_over_the_bus_gives_mujocos_torso_tilt() {
+    let (sim, stats) = op3_on_the_floor(
+        "16.asf",
+        &common::data("16_15.amc"),
+        &[
+            "--walk",
+            "--ease-in",
+            "1",
+            "--pre-roll",
+            "1",
+            "--duration",
+            "1.5",
+            "--on-stop",
+            "hold",
+        ],
+    );
+    let imu = &stats["imu"];
+    println!("IMU {imu}; MuJoCo's torso tilt {}", sim["torso_max_tilt_deg"]);
+    assert_eq!(imu["reads_failed"].as_u64(), Some(0), "{imu}");
+    assert!(imu["reads_ok"].as_u64().unwrap() > 100, "{imu}");
+    let read = imu["max_tilt_deg"].as_f64().unwrap();
+    let simulated = sim["torso_max_tilt_deg"].as_f64().unwrap();
+    assert!(
+        read > 0.5 && (read - simulated).abs() < 0.5,
+        "{read} against {simulated}"
+    );
+}

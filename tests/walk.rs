@@ -262,3 +262,43 @@ fn play_walks_the_op3_on_its_plan_on_the_virtual_chain_without_allocating() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn walking_reads_the_op3s_imu_board_every_tick_without_allocating() {
+    let dir = common::tempdir("walk-imu");
+    let stats = dir.join("stats.json");
+    for feedback in [false, true] {
+        let out = common::bin()
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .args(["play", "firmware-profile/robotis-op3.toml"])
+            .arg(common::data("16.asf"))
+            .arg(common::data("16_15.amc"))
+            .args(["--walk", "--rate", "125", "--stats-json"])
+            .arg(&stats)
+            .args(feedback.then_some("--imu-feedback"))
+            .stdin(Stdio::null())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{text}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(text.contains("IMU board at id 200: read every tick"), "{text}");
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+        assert_eq!(v["allocations_in_tick"].as_u64(), Some(0), "{v}");
+        let imu = &v["imu"];
+        assert_eq!(imu["board_id"].as_u64(), Some(200), "{imu}");
+        assert_eq!(imu["feedback"].as_bool(), Some(feedback), "{imu}");
+        // One good read a tick (the virtual board: level and still).
+        assert_eq!(imu["reads_failed"].as_u64(), Some(0), "{imu}");
+        assert!(
+            imu["reads_ok"].as_u64().unwrap() + 1 >= v["ticks"].as_u64().unwrap(),
+            "{imu} {}",
+            v["ticks"]
+        );
+        assert!(imu["max_tilt_deg"].as_f64().unwrap() < 0.1, "{imu}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

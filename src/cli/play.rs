@@ -149,6 +149,11 @@ pub struct LoopArgs {
     /// controller, the legs on that plan).
     #[arg(long)]
     pub walk: bool,
+    /// With --walk and an IMU board in the profile (which the tick then reads every tick): feed
+    /// its gyro back to the legs as ROBOTIS's walking module does (hip roll, knee, ankle pitch
+    /// and roll).
+    #[arg(long)]
+    pub imu_feedback: bool,
     /// Command each tick's target through the greedy limiter instead of planning the goal
     /// path over a preview of the input (the look-ahead).
     #[arg(long)]
@@ -235,6 +240,7 @@ impl LoopArgs {
                 balance: !self.no_balance,
             },
             walk: self.walk,
+            imu_feedback: self.imu_feedback,
             scale: self.scale,
             real_time: RealTime {
                 priority: self.rt_priority,

@@ -16,6 +16,7 @@
 //! Stopping: [`StopRequests`] are counted. The first ends the loop with the ramp to rest (or the
 //! hold); a second during the ramp cuts it short and turns torque off at once.
 
+pub mod balance;
 pub mod fidelity;
 mod follow;
 pub mod identify;
@@ -272,6 +273,8 @@ pub struct Controller {
     /// kinematics needs when nothing else reads the pose.
     watched_chains: heapless::Vec<usize, MAX_BONES>,
     retarget: Option<Box<RetargetStage>>,
+    /// The IMU board's reading and the legs' gyro feedback.
+    balance: Option<Box<balance::Balance>>,
     have_input: bool,
     clip_time: f64,
     /// Source samples taken ahead (the look-ahead's preview; without it, the current one).
@@ -386,6 +389,7 @@ impl Controller {
             watch,
             watched_chains,
             retarget: None,
+            balance: None,
             have_input: false,
             clip_time: f64::NAN,
             preview: Preview::new(8),
@@ -491,6 +495,11 @@ impl Controller {
         self.retarget = Some(Box::new(stage));
     }
 
+    /// Reads the IMU board every tick (and, as `balance` says, feeds its gyro back to the legs).
+    pub fn set_balance(&mut self, balance: balance::Balance) {
+        self.balance = Some(Box::new(balance));
+    }
+
     /// Publishes each tick's goals, present angles and timing in `view` (for the studio).
     pub fn set_live_view(&mut self, view: Arc<LiveView>) {
         self.sinks.live = Some(view);
@@ -553,6 +562,10 @@ impl Controller {
             Ok(replies) => replies,
             Err(end) => return Some(end),
         };
+        if let Some(b) = &mut self.balance {
+            // The bus is idle here: the pipelined replies are in, the write is yet to go.
+            b.read(bus);
+        }
         let t_solve = clock.now_ns();
         let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;
         let current = self.take_current(tick, start, dt);

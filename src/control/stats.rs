@@ -105,6 +105,8 @@ pub struct LoopStats {
     pub torque_off_acknowledged: Option<usize>,
     /// What retargeting onto a robot measured (profiles whose servos follow robot joints).
     pub retarget: Option<crate::retarget::RetargetReport>,
+    /// What the IMU board read (profiles with one).
+    pub imu: Option<super::balance::ImuReport>,
     /// Source against present, end to end (set when a run ends).
     pub fidelity: Option<super::fidelity::FidelityReport>,
     tracking_sq: f64,
@@ -207,6 +209,7 @@ impl LoopStats {
             allocations_in_tick: self.allocations_in_tick,
             torque_off_acknowledged: self.torque_off_acknowledged,
             retarget: self.retarget.clone(),
+            imu: self.imu.clone(),
             fidelity: self.fidelity.clone(),
             tracking_rms_deg: self.tracking_rms_deg(),
             tracking_max_deg: self.tracking_max_deg,
@@ -265,6 +268,9 @@ pub struct Report {
     /// What retargeting onto a robot measured (profiles whose servos follow robot joints).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub retarget: Option<crate::retarget::RetargetReport>,
+    /// What the IMU board read: reads, failures, the torso's largest tilt, the feedback given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub imu: Option<super::balance::ImuReport>,
     /// Source against present, end to end: the input mapped through the rig (what a perfect
     /// rig would do) against the present positions read back.
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -36,6 +36,9 @@ impl Controller {
         if let Some(r) = &self.retarget {
             self.stats.retarget = Some(r.report());
         }
+        if let Some(b) = &self.balance {
+            self.stats.imu = Some(b.report());
+        }
         self.stats.fidelity = Some(self.fidelity_report());
         if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {
             self.record_final_present();

@@ -167,7 +167,15 @@ impl Controller {
             });
             self.preview.live = !self.input.finished();
             let targets = la.targets(&self.rig, &self.stage, &self.preview, tick.deadline_ns, dt, ease);
-            self.stage.command_planned(&self.rig, targets, dt)
+            match &mut self.balance {
+                Some(b) => {
+                    // The gyro feedback on the planned goals (ticks), this tick only.
+                    self.angles.copy_from_slice(&targets[..len]);
+                    b.offset_ticks(&self.rig, &mut self.angles);
+                    self.stage.command_planned(&self.rig, &self.angles, dt)
+                }
+                None => self.stage.command_planned(&self.rig, targets, dt),
+            }
         } else {
             self.angles.copy_from_slice(&self.measure.source_angles);
             if self.ease.done <= self.ease.ticks && self.ease.ticks > 0 {
@@ -177,6 +185,9 @@ impl Controller {
                 for (a, from) in self.angles.iter_mut().zip(&self.ease.from) {
                     *a = from + w * (*a - from);
                 }
+            }
+            if let Some(b) = &mut self.balance {
+                b.offset_angles(&mut self.angles);
             }
             self.stage.command(&self.rig, &self.angles, dt)
         };

@@ -175,8 +175,11 @@ pub struct SessionSpec {
     pub lead: Lead,
     /// Retargeting onto a robot's joints (profiles of robot joints).
     pub retarget: RetargetOptions,
-    /// A whole-body clip walks on a plan (footsteps, ZMP preview) rather than frame by frame.
+    /// A whole-body clip walks on a plan (footsteps, ZMP preview) rather than frame by frame;
+    /// with an IMU board in the profile the tick reads it.
     pub walk: bool,
+    /// Walking: feed the IMU's gyro back to the legs (off: read and report it only).
+    pub imu_feedback: bool,
     /// Model metres per subject metre (the generated puppet; effector errors in metres).
     pub scale: f64,
     /// Scheduling of the loop's thread.
@@ -209,6 +212,7 @@ impl Default for SessionSpec {
                 balance: true,
             },
             walk: false,
+            imu_feedback: false,
             scale: 0.3,
             real_time: RealTime::default(),
             sim: SimSpec::default(),
@@ -249,6 +253,12 @@ impl SessionSpec {
         }
         if self.hold_after == 0 {
             return invalid("--hold-after must be at least 1".into());
+        }
+        if self.imu_feedback && !self.walk {
+            return invalid("--imu-feedback is the walk's: give --walk too".into());
+        }
+        if self.walk && self.retarget.upper_body {
+            return invalid("--walk plans the legs; --upper-body keeps them in a stance: give one".into());
         }
         if let Lead::Fixed(l) = self.lead {
             if !(l.is_finite() && (0.0..=1000.0).contains(&l)) {
@@ -324,6 +334,8 @@ pub struct RigDrive {
     pub rig: Rig,
     /// Retargeting onto a robot (profiles of robot joints).
     pub retarget: Option<RetargetStage>,
+    /// The IMU board's reading and the legs' feedback (walking, with a board in the profile).
+    pub balance: Option<crate::control::balance::Balance>,
 }
 
 impl RigDrive {
@@ -345,6 +357,7 @@ impl RigDrive {
                 rig: profile.rig(Some(&skeleton))?,
                 skeleton,
                 retarget: None,
+                balance: None,
             });
         }
         let setup = Setup::new(profile, &skeleton)?;
@@ -364,6 +377,33 @@ impl RigDrive {
             )?;
             stage.set_plan(walked.frames, m.frame_rate, w);
         }
+        let balance = match (spec.walk, profile.bus.imu_board) {
+            (false, _) => None,
+            (true, None) => {
+                writeln!(
+                    log,
+                    "no IMU board in the profile ([bus] imu_board_id): the walk plays open loop"
+                )?;
+                None
+            }
+            (true, Some(id)) => {
+                writeln!(
+                    log,
+                    "IMU board at id {id}: read every tick{}",
+                    if spec.imu_feedback {
+                        ", its gyro fed back to the legs"
+                    } else {
+                        " (no feedback: --imu-feedback)"
+                    }
+                )?;
+                Some(crate::control::balance::Balance::new(
+                    id,
+                    Some(&setup),
+                    &setup.rig,
+                    spec.imu_feedback,
+                ))
+            }
+        };
         writeln!(
             log,
             "retargeting onto {} ({} joints){}",
@@ -379,6 +419,7 @@ impl RigDrive {
             skeleton,
             rig: setup.rig,
             retarget: Some(stage),
+            balance,
         })
     }
 }
@@ -410,6 +451,9 @@ pub fn controller(
     c.set_servo_names(profile.servos.iter().map(|s| s.name.clone()).collect());
     if let Some(r) = drive.retarget {
         c.set_retarget(r);
+    }
+    if let Some(b) = drive.balance {
+        c.set_balance(b);
     }
     if let Some(p) = planner {
         c.set_lookahead(p);

@@ -190,6 +190,7 @@ pub fn soak(
             skeleton: Arc::clone(skeleton),
             rig: rig.clone(),
             retarget: None,
+            balance: None,
         };
         let mut c = controller(&spec, profile, drive, &present, port, Solve::Frames, false);
         let ahead = c.preview_ns();
