@@ -797,7 +797,7 @@ fn sizing_the_walk_names_the_servos_that_saturate() {
 }
 
 /// The OP3's IMU read over the bus from its OpenCR board in MuJoCo: the torso's tilt it reports
-/// is MuJoCo's own (the first second of the walk on its plan, before any step goes wrong).
+/// is MuJoCo's own (standing through the ease-in and the pre-roll of the walk on its plan).
 #[test]
 fn the_op3_imu_read_over_the_bus_gives_mujocos_torso_tilt() {
     let (sim, stats) = op3_on_the_floor(
@@ -805,6 +805,8 @@ fn the_op3_imu_read_over_the_bus_gives_mujocos_torso_tilt() {
         &common::data("16_15.amc"),
         &[
             "--walk",
+            "--imu",
+            "read",
             "--ease-in",
             "1",
             "--pre-roll",

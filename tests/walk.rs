@@ -264,7 +264,7 @@ fn play_walks_the_op3_on_its_plan_on_the_virtual_chain_without_allocating() {
 }
 
 #[test]
-fn walking_reads_the_op3s_imu_board_every_tick_without_allocating() {
+fn walking_with_feedback_reads_the_op3s_imu_board_every_tick_without_allocating() {
     let dir = common::tempdir("walk-imu");
     let stats = dir.join("stats.json");
     for feedback in [false, true] {
@@ -275,7 +275,7 @@ fn walking_reads_the_op3s_imu_board_every_tick_without_allocating() {
             .arg(common::data("16_15.amc"))
             .args(["--walk", "--rate", "125", "--stats-json"])
             .arg(&stats)
-            .args(feedback.then_some("--imu-feedback"))
+            .args(["--imu", if feedback { "feedback" } else { "off" }])
             .stdin(Stdio::null())
             .output()
             .unwrap();
@@ -285,10 +285,16 @@ fn walking_reads_the_op3s_imu_board_every_tick_without_allocating() {
             "{text}{}",
             String::from_utf8_lossy(&out.stderr)
         );
-        assert!(text.contains("IMU board at id 200: read every tick"), "{text}");
         let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
         assert_eq!(v["allocations_in_tick"].as_u64(), Some(0), "{v}");
         let imu = &v["imu"];
+        if !feedback {
+            // Open loop: the board is not read (a transaction a tick saved).
+            assert!(text.contains("IMU board at id 200: not read"), "{text}");
+            assert!(imu.is_null(), "{imu}");
+            continue;
+        }
+        assert!(text.contains("IMU board at id 200: read every tick"), "{text}");
         assert_eq!(imu["board_id"].as_u64(), Some(200), "{imu}");
         assert_eq!(imu["feedback"].as_bool(), Some(feedback), "{imu}");
         // One good read a tick (the virtual board: level and still).

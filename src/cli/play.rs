@@ -27,7 +27,7 @@ use crate::plot::{draw, Format};
 use crate::profile::Profile;
 use crate::retarget::Options as RetargetOptions;
 use crate::rt::RealTime;
-use crate::session::{self, BusChoice, Lead, Outcome, Session, SessionSpec, SimSpec, Sinks};
+use crate::session::{self, BusChoice, ImuUse, Lead, Outcome, Session, SessionSpec, SimSpec, Sinks};
 
 /// What to do when a run ends (end of input, `--duration`, Ctrl-C).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -36,6 +36,17 @@ pub enum OnStop {
     Rest,
     /// Hold the last command for --ramp seconds, then torque off.
     Hold,
+}
+
+/// What `--imu` asks of the robot's IMU board on a walk.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ImuArg {
+    /// Not read: the walk plays open loop.
+    Off,
+    /// Read every tick, reported in the statistics.
+    Read,
+    /// Read, and its gyro fed back to the legs.
+    Feedback,
 }
 
 /// What `--bus` names.
@@ -149,11 +160,11 @@ pub struct LoopArgs {
     /// controller, the legs on that plan).
     #[arg(long)]
     pub walk: bool,
-    /// With --walk and an IMU board in the profile (which the tick then reads every tick): feed
-    /// its gyro back to the legs as ROBOTIS's walking module does (hip roll, knee, ankle pitch
-    /// and roll).
-    #[arg(long)]
-    pub imu_feedback: bool,
+    /// With --walk and an IMU board in the profile: `read` reads it every tick (one more
+    /// transaction on the bus) and reports what it read; `feedback` also feeds its gyro back to
+    /// the legs as ROBOTIS's walking module does (hip roll, knee, ankle pitch and roll).
+    #[arg(long, value_enum, default_value_t = ImuArg::Off)]
+    pub imu: ImuArg,
     /// Command each tick's target through the greedy limiter instead of planning the goal
     /// path over a preview of the input (the look-ahead).
     #[arg(long)]
@@ -240,7 +251,11 @@ impl LoopArgs {
                 balance: !self.no_balance,
             },
             walk: self.walk,
-            imu_feedback: self.imu_feedback,
+            imu: match self.imu {
+                ImuArg::Off => ImuUse::Off,
+                ImuArg::Read => ImuUse::Read,
+                ImuArg::Feedback => ImuUse::Feedback,
+            },
             scale: self.scale,
             real_time: RealTime {
                 priority: self.rt_priority,

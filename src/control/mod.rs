@@ -558,13 +558,16 @@ impl Controller {
     pub fn tick(&mut self, tick: &Tick, bus: &mut dyn ServoBus, clock: &mut dyn Clock) -> Option<RunEnd> {
         let allocs = self.config.allocations.map(|f| f());
         let start = self.begin(tick, clock);
-        let replies = match self.collect_replies(bus, clock) {
+        let mut replies = match self.collect_replies(bus, clock) {
             Ok(replies) => replies,
             Err(end) => return Some(end),
         };
         if let Some(b) = &mut self.balance {
-            // The bus is idle here: the pipelined replies are in, the write is yet to go.
+            // The bus is idle here: the pipelined replies are in, the write is yet to go. Its
+            // time is the bus's (the read stage's), not the tick's compute.
+            let t0 = clock.now_ns();
             b.read(bus);
+            replies.1 += clock.now_ns() - t0;
         }
         let t_solve = clock.now_ns();
         let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;

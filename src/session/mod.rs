@@ -141,6 +141,18 @@ pub struct SimSpec {
     pub trace: Option<PathBuf>,
 }
 
+/// What a walk does with the robot's IMU board.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ImuUse {
+    /// Not read: open loop.
+    #[default]
+    Off,
+    /// Read every tick and reported (the stats JSON's `imu` block).
+    Read,
+    /// Read, and its gyro fed back to the legs.
+    Feedback,
+}
+
 /// Where the loop's telemetry goes while it runs.
 #[derive(Clone, Debug, Default)]
 pub struct Sinks {
@@ -175,11 +187,11 @@ pub struct SessionSpec {
     pub lead: Lead,
     /// Retargeting onto a robot's joints (profiles of robot joints).
     pub retarget: RetargetOptions,
-    /// A whole-body clip walks on a plan (footsteps, ZMP preview) rather than frame by frame;
-    /// with an IMU board in the profile the tick reads it.
+    /// A whole-body clip walks on a plan (footsteps, ZMP preview) rather than frame by frame.
     pub walk: bool,
-    /// Walking: feed the IMU's gyro back to the legs (off: read and report it only).
-    pub imu_feedback: bool,
+    /// Walking, with an IMU board in the profile: whether the tick reads it, and feeds its gyro
+    /// back to the legs.
+    pub imu: ImuUse,
     /// Model metres per subject metre (the generated puppet; effector errors in metres).
     pub scale: f64,
     /// Scheduling of the loop's thread.
@@ -212,7 +224,7 @@ impl Default for SessionSpec {
                 balance: true,
             },
             walk: false,
-            imu_feedback: false,
+            imu: ImuUse::Off,
             scale: 0.3,
             real_time: RealTime::default(),
             sim: SimSpec::default(),
@@ -254,8 +266,8 @@ impl SessionSpec {
         if self.hold_after == 0 {
             return invalid("--hold-after must be at least 1".into());
         }
-        if self.imu_feedback && !self.walk {
-            return invalid("--imu-feedback is the walk's: give --walk too".into());
+        if self.imu != ImuUse::Off && !self.walk {
+            return invalid("--imu is the walk's: give --walk too".into());
         }
         if self.walk && self.retarget.upper_body {
             return invalid("--walk plans the legs; --upper-body keeps them in a stance: give one".into());
@@ -377,30 +389,38 @@ impl RigDrive {
             )?;
             stage.set_plan(walked.frames, m.frame_rate, w);
         }
-        let balance = match (spec.walk, profile.bus.imu_board) {
-            (false, _) => None,
-            (true, None) => {
+        let balance = match (spec.walk, spec.imu, profile.bus.imu_board) {
+            (false, _, _) => None,
+            (true, _, None) => {
                 writeln!(
                     log,
                     "no IMU board in the profile ([bus] imu_board_id): the walk plays open loop"
                 )?;
                 None
             }
-            (true, Some(id)) => {
+            (true, ImuUse::Off, Some(id)) => {
                 writeln!(
                     log,
-                    "IMU board at id {id}: read every tick{}",
-                    if spec.imu_feedback {
+                    "IMU board at id {id}: not read, the walk plays open loop (--imu read|feedback)"
+                )?;
+                None
+            }
+            (true, use_, Some(id)) => {
+                let feedback = use_ == ImuUse::Feedback;
+                writeln!(
+                    log,
+                    "IMU board at id {id}: read every tick (one more transaction on the bus){}",
+                    if feedback {
                         ", its gyro fed back to the legs"
                     } else {
-                        " (no feedback: --imu-feedback)"
+                        ""
                     }
                 )?;
                 Some(crate::control::balance::Balance::new(
                     id,
                     Some(&setup),
                     &setup.rig,
-                    spec.imu_feedback,
+                    feedback,
                 ))
             }
         };
