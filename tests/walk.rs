@@ -229,8 +229,8 @@ fn retarget_walk_writes_the_plan_in_its_report_csv_and_picture() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-#[test]
-fn play_walks_the_op3_on_its_plan_on_the_virtual_chain_without_allocating() {
+/// `play --walk` of the OP3 on the bundled walk with `extra`: its output and stats JSON.
+fn play_walk(extra: &[&str]) -> (String, serde_json::Value) {
     let dir = common::tempdir("walk-play");
     let stats = dir.join("stats.json");
     let out = common::bin()
@@ -238,19 +238,27 @@ fn play_walks_the_op3_on_its_plan_on_the_virtual_chain_without_allocating() {
         .args(["play", "firmware-profile/robotis-op3.toml"])
         .arg(common::data("16.asf"))
         .arg(common::data("16_15.amc"))
-        .args(["--walk", "--rate", "250", "--stats-json"])
+        .args(["--walk", "--stats-json"])
         .arg(&stats)
+        .args(extra)
         .stdin(Stdio::null())
         .output()
         .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
         out.status.success(),
         "{text}{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    let v = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    (text, v)
+}
+
+#[test]
+fn play_walks_the_op3_on_its_plan_on_the_virtual_chain_without_allocating() {
+    let (text, v) = play_walk(&["--rate", "250"]);
     assert!(text.contains("walking on a plan: "), "{text}");
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
     assert_eq!(v["allocations_in_tick"].as_u64(), Some(0), "{v}");
     assert_eq!(v["commands_refused"].as_u64(), Some(0));
     let r = &v["retarget"];
@@ -260,35 +268,16 @@ fn play_walks_the_op3_on_its_plan_on_the_virtual_chain_without_allocating() {
         r["walk"]["zmp_margin_mm"]["planned_min"].as_f64().unwrap() > 25.0,
         "{r}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
-fn walking_with_feedback_reads_the_op3s_imu_board_every_tick_without_allocating() {
-    let dir = common::tempdir("walk-imu");
-    let stats = dir.join("stats.json");
-    for feedback in [false, true] {
-        let out = common::bin()
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .args(["play", "firmware-profile/robotis-op3.toml"])
-            .arg(common::data("16.asf"))
-            .arg(common::data("16_15.amc"))
-            .args(["--walk", "--rate", "125", "--stats-json"])
-            .arg(&stats)
-            .args(["--imu", if feedback { "feedback" } else { "off" }])
-            .stdin(Stdio::null())
-            .output()
-            .unwrap();
-        let text = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            out.status.success(),
-            "{text}{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+fn walking_reads_the_op3s_imu_board_every_tick_when_asked_without_allocating() {
+    for mode in ["off", "read", "feedback"] {
+        let feedback = mode == "feedback";
+        let (text, v) = play_walk(&["--rate", "125", "--imu", mode]);
         assert_eq!(v["allocations_in_tick"].as_u64(), Some(0), "{v}");
         let imu = &v["imu"];
-        if !feedback {
+        if mode == "off" {
             // Open loop: the board is not read (a transaction a tick saved).
             assert!(text.contains("IMU board at id 200: not read"), "{text}");
             assert!(imu.is_null(), "{imu}");
@@ -306,5 +295,4 @@ fn walking_with_feedback_reads_the_op3s_imu_board_every_tick_without_allocating(
         );
         assert!(imu["max_tilt_deg"].as_f64().unwrap() < 0.1, "{imu}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -102,6 +102,8 @@ pub struct PreviewGains {
     pub state: [f64; 3],
     /// Preview gains `G_d(1..=N)`.
     pub preview: heapless::Vec<f64, MAX_PREVIEW>,
+    /// The cart-table's `A` and `B` at this period.
+    model: ([[f64; 3]; 3], [f64; 3]),
 }
 
 impl PreviewGains {
@@ -193,6 +195,7 @@ impl PreviewGains {
             x = mul_v(&ac_t, &x);
         }
         Ok(PreviewGains {
+            model: (a, b),
             dt,
             height,
             integral: k[0],
@@ -253,7 +256,7 @@ impl AxisState {
         for (j, g) in gains.preview.iter().enumerate() {
             u -= g * ahead(j + 1);
         }
-        let (a, b, _) = model(gains.dt, gains.height);
+        let (a, b) = &gains.model;
         let x = self.x;
         for i in 0..3 {
             self.x[i] = a[i][0] * x[0] + a[i][1] * x[1] + a[i][2] * x[2] + b[i] * u;

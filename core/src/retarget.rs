@@ -1266,7 +1266,7 @@ impl Retargeter {
                 let _ = pts.push(RealVec2::new(w.x, w.y));
             }
         }
-        convex_hull(&pts)
+        convex_hull::<8>(&pts)
     }
 
     fn solve_legs(
@@ -1775,12 +1775,14 @@ fn check_chain(
     Ok(())
 }
 
-/// Convex hull (counter-clockwise) of up to eight points.
+/// Convex hull (counter-clockwise, Andrew's monotone chain) of up to `N` points (further
+/// ones are left out).
 #[must_use]
-pub fn convex_hull(points: &[RealVec2]) -> heapless::Vec<RealVec2, 8> {
-    let mut pts: heapless::Vec<RealVec2, 8> = points.iter().copied().collect();
+pub fn convex_hull<const N: usize>(points: &[RealVec2]) -> heapless::Vec<RealVec2, N> {
+    let mut pts: heapless::Vec<RealVec2, N> = points.iter().copied().take(N).collect();
     pts.sort_unstable_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
-    let mut hull = heapless::Vec::<RealVec2, 16>::new();
+    let n = pts.len();
+    let mut hull = heapless::Vec::<RealVec2, N>::new();
     let cross = |o: RealVec2, a: RealVec2, b: RealVec2| (a - o).perp_dot(b - o);
     for p in pts.iter() {
         while hull.len() >= 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], *p) <= 0.0 {
@@ -1789,14 +1791,16 @@ pub fn convex_hull(points: &[RealVec2]) -> heapless::Vec<RealVec2, 8> {
         let _ = hull.push(*p);
     }
     let lower = hull.len() + 1;
-    for p in pts.iter().rev().skip(1) {
+    for (k, p) in pts.iter().rev().skip(1).enumerate() {
         while hull.len() >= lower && cross(hull[hull.len() - 2], hull[hull.len() - 1], *p) <= 0.0 {
             hull.pop();
         }
-        let _ = hull.push(*p);
+        // The last point is the first: it closes the hull, it is not added again.
+        if k + 2 < n {
+            let _ = hull.push(*p);
+        }
     }
-    hull.pop();
-    hull.iter().copied().take(8).collect()
+    hull
 }
 
 /// Signed distance of `p` inside a convex counter-clockwise polygon (negative outside), and
@@ -1916,7 +1920,7 @@ mod tests {
             RealVec2::new(0.0, 1.0),
             RealVec2::new(0.5, 0.5),
         ];
-        let hull = convex_hull(&pts);
+        let hull = convex_hull::<8>(&pts);
         assert_eq!(hull.len(), 4);
         let (m, p) = polygon_margin(&hull, RealVec2::new(0.5, 0.2), 0.0);
         assert!((m - 0.2).abs() < 1e-12 && p == RealVec2::new(0.5, 0.2));

@@ -66,10 +66,10 @@ impl Balance {
     /// Reads the board `board`; with `feedback`, the legs of `setup`'s map get the gyro
     /// feedback through `rig`'s servos.
     #[must_use]
-    pub fn new(board: u8, setup: Option<&Setup>, rig: &Rig, feedback: bool) -> Balance {
+    pub fn new(board: u8, setup: &Setup, rig: &Rig, feedback: bool) -> Balance {
         let mut weights = [[0.0; 3]; MAX_SERVOS];
         let mut any = false;
-        if let (true, Some(setup)) = (feedback, setup) {
+        if feedback {
             // Joint axes in the torso's frame at the zero pose.
             let robot = &setup.robot;
             let mut pose = RobotPose::default();
@@ -103,10 +103,9 @@ impl Balance {
             buf: [0; IMU_BYTES],
             reading: None,
             weights,
-            feedback: feedback && any,
+            feedback: any,
             report: ImuReport {
                 board_id: board,
-                feedback: feedback && any,
                 ..ImuReport::default()
             },
         }
@@ -192,7 +191,10 @@ impl Balance {
     /// What it measured.
     #[must_use]
     pub fn report(&self) -> ImuReport {
-        self.report.clone()
+        ImuReport {
+            feedback: self.feedback,
+            ..self.report.clone()
+        }
     }
 }
 
@@ -215,7 +217,7 @@ mod tests {
     #[test]
     fn a_pitch_rate_moves_the_pitch_joints_and_a_roll_rate_the_roll_joints() {
         let (setup, rig) = op3();
-        let mut b = Balance::new(200, Some(&setup), &rig, true);
+        let mut b = Balance::new(200, &setup, &rig, true);
         let name = |k: usize| match rig.servos[k].source {
             JointSource::Joint(j) => setup.robot.joints()[j].name.to_string(),
             _ => String::new(),
@@ -237,7 +239,7 @@ mod tests {
             }
         }
         // Without feedback, or before a read, nothing moves.
-        let mut off = Balance::new(200, Some(&setup), &rig, false);
+        let mut off = Balance::new(200, &setup, &rig, false);
         off.reading = b.reading;
         let mut angles = vec![0.0; rig.servos.len()];
         off.offset_angles(&mut angles);
@@ -261,7 +263,7 @@ mod tests {
             crate::bus::virtual_chain::InProcess::new(chain, profile.bus.baud),
             std::time::Duration::from_millis(2),
         );
-        let mut b = Balance::new(200, Some(&setup), &rig, true);
+        let mut b = Balance::new(200, &setup, &rig, true);
         b.read(&mut bus);
         let r = *b.reading().unwrap();
         // Body axes: the board's x and y negated.
@@ -271,7 +273,7 @@ mod tests {
         // acos(cos 3° · cos 4°) = 4.999°.
         assert!((report.max_tilt_deg - 4.999).abs() < 0.01, "{report:?}");
         // A board that is not there: the read fails, the reading stays.
-        let mut missing = Balance::new(201, Some(&setup), &rig, true);
+        let mut missing = Balance::new(201, &setup, &rig, true);
         missing.reading = Some(r);
         missing.read(&mut bus);
         assert_eq!(missing.report().reads_failed, 1);

@@ -305,31 +305,25 @@ fn draw_plan<DB: DrawingBackend<ErrorType: 'static>>(
         at.push(at[0]);
         chart.draw_series(std::iter::once(PathElement::new(at, colour.stroke_width(2))))?;
     }
-    let path =
-        |get: fn(&super::walk::PlanSample) -> (f64, f64)| plan.samples.iter().map(get).collect::<Vec<_>>();
-    chart
-        .draw_series(LineSeries::new(
-            path(|s| (s.zmp_ref.x, s.zmp_ref.y)),
-            RGBColor(120, 120, 220).stroke_width(1),
-        ))?
-        .label("ZMP reference")
-        .legend(|(x, y)| {
-            PathElement::new(vec![(x, y), (x + 18, y)], RGBColor(120, 120, 220).stroke_width(3))
-        });
-    chart
-        .draw_series(LineSeries::new(
-            path(|s| (s.zmp.x, s.zmp.y)),
-            RGBColor(200, 0, 0).stroke_width(2),
-        ))?
-        .label("planned ZMP")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RGBColor(200, 0, 0).stroke_width(3)));
-    chart
-        .draw_series(LineSeries::new(
-            path(|s| (s.stance.com.x, s.stance.com.y)),
-            BLACK.stroke_width(2),
-        ))?
-        .label("planned centre of mass")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(3)));
+    type Path = fn(&super::walk::PlanSample) -> (f64, f64);
+    let paths: [(&str, RGBColor, u32, Path); 3] = [
+        ("ZMP reference", RGBColor(120, 120, 220), 1, |s| {
+            (s.zmp_ref.x, s.zmp_ref.y)
+        }),
+        ("planned ZMP", RGBColor(200, 0, 0), 2, |s| (s.zmp.x, s.zmp.y)),
+        ("planned centre of mass", BLACK, 2, |s| {
+            (s.stance.com.x, s.stance.com.y)
+        }),
+    ];
+    for (label, colour, width, get) in paths {
+        chart
+            .draw_series(LineSeries::new(
+                plan.samples.iter().map(get),
+                colour.stroke_width(width),
+            ))?
+            .label(label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(3)));
+    }
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)

@@ -23,7 +23,7 @@ use crate::footstep::{contact, zmp_reference, Footprint, Footstep, FootstepPlann
 use crate::motion::Motion;
 use crate::preview::{AxisState, PreviewError, PreviewGains, MAX_PREVIEW};
 use crate::skeleton::Skeleton;
-use marionette_core::retarget::Retargeter;
+use marionette_core::retarget::{convex_hull, polygon_margin, Retargeter};
 use marionette_core::rig::JointSource;
 
 /// How far ahead the preview controller sees, s (ROBOTIS's online walking module: 1.6 s).
@@ -234,20 +234,11 @@ pub fn plan_walk(
     // The robot starts in its stance, centred where the clip's feet are and facing their way.
     if let Some(first) = run.frames.first() {
         let clip = footprints(first);
-        let centre = (clip[0].centre + clip[1].centre) * 0.5;
-        let heading = 0.5 * (clip[0].yaw + marionette_core::math::wrap_near(clip[1].yaw, clip[0].yaw));
         let stance = retargeter.stance_soles(&setup.robot);
-        let stance_centre = (stance[0].centre + stance[1].centre) * 0.5;
-        let stance_heading =
-            0.5 * (stance[0].yaw + marionette_core::math::wrap_near(stance[1].yaw, stance[0].yaw));
-        let at = Footprint { centre, yaw: heading };
+        let (from, to) = (midway(&stance), midway(&clip));
         let robot = stance.map(|s| {
-            let from = Footprint {
-                centre: stance_centre,
-                yaw: stance_heading,
-            };
             let (offset, turn) = from.relative(&s);
-            at.moved(offset, turn)
+            to.moved(offset, turn)
         });
         planner.start(run.times[0], robot, clip);
     }
@@ -305,6 +296,14 @@ pub fn plan_walk(
         substituted: planner.substituted(),
         leg_speed: speed,
     })
+}
+
+/// Half way between two footprints, facing between their headings.
+fn midway(feet: &[Footprint; 2]) -> Footprint {
+    Footprint {
+        centre: (feet[0].centre + feet[1].centre) * 0.5,
+        yaw: 0.5 * (feet[0].yaw + marionette_core::math::wrap_near(feet[1].yaw, feet[0].yaw)),
+    }
 }
 
 /// The soles of a retargeted frame as footprints.
@@ -367,7 +366,7 @@ pub fn support_margin(steps: &[Footstep], t: f64, sole_half: [[f64; 2]; 2], p: D
             corners.extend(s.at.corners(half));
         }
     }
-    marionette_core::retarget::polygon_margin(&marionette_core::retarget::convex_hull(&corners), p, 0.0).0
+    polygon_margin(&convex_hull::<8>(&corners), p, 0.0).0
 }
 
 /// Writes the plan per frame as CSV: time, which feet bear weight, the ZMP reference, the

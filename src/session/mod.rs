@@ -417,10 +417,7 @@ impl RigDrive {
                     }
                 )?;
                 Some(crate::control::balance::Balance::new(
-                    id,
-                    Some(&setup),
-                    &setup.rig,
-                    feedback,
+                    id, &setup, &setup.rig, feedback,
                 ))
             }
         };

@@ -14,9 +14,11 @@ use marionette_sim::World;
 use crate::bus::virtual_chain::{chain_for, Plant, VirtualRig};
 use crate::device::Chain;
 use crate::profile::Profile;
+use crate::retarget::{convex_hull, polygon_margin};
 use crate::rig::{Rig, ServoMap};
 use crate::sensor_board::ImuReading;
 use crate::servo::TICKS_PER_TURN;
+use glam::DVec2;
 
 /// Most physics samples kept by a recorder (an hour at 1 kHz would be too many to plot).
 const MAX_SAMPLES: usize = 2_000_000;
@@ -109,8 +111,11 @@ pub struct Torso {
 /// Contacts lower than this are the floor's (metres).
 pub const FLOOR_CONTACT_M: f64 = 0.01;
 
+/// Most floor contacts a centre of pressure's margin is taken over.
+const MAX_FLOOR_CONTACTS: usize = 64;
+
 /// The centre of pressure of `contacts` (position, vertical force) and its signed distance
-/// inside their convex hull.
+/// inside their convex hull (`None` with fewer than three contacts off one line).
 #[must_use]
 pub fn pressure(contacts: &[([f64; 3], f64)]) -> (Option<[f64; 2]>, Option<f64>, f64) {
     let force: f64 = contacts.iter().map(|c| c.1).sum();
@@ -119,51 +124,16 @@ pub fn pressure(contacts: &[([f64; 3], f64)]) -> (Option<[f64; 2]>, Option<f64>,
     }
     let centre = contacts
         .iter()
-        .fold([0.0, 0.0], |a, (p, f)| [a[0] + p[0] * f, a[1] + p[1] * f]);
-    let centre = [centre[0] / force, centre[1] / force];
-    let points: Vec<[f64; 2]> = contacts.iter().map(|(p, _)| [p[0], p[1]]).collect();
-    let hull = hull(&points);
-    let margin = (hull.len() >= 3).then(|| {
-        (0..hull.len())
-            .map(|i| {
-                let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
-                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
-                let len = ex.hypot(ey).max(1e-12);
-                // Counter-clockwise: inside is to the left of each edge.
-                (ex * (centre[1] - a[1]) - ey * (centre[0] - a[0])) / len
-            })
-            .fold(f64::INFINITY, f64::min)
-    });
-    (Some(centre), margin, force)
-}
-
-/// Convex hull, counter-clockwise (Andrew's monotone chain).
-fn hull(points: &[[f64; 2]]) -> Vec<[f64; 2]> {
-    let mut p = points.to_vec();
-    p.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
-    p.dedup_by(|a, b| (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9);
-    if p.len() < 3 {
-        return p;
-    }
-    let cross =
-        |o: [f64; 2], a: [f64; 2], b: [f64; 2]| (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
-    let mut h: Vec<[f64; 2]> = Vec::with_capacity(2 * p.len());
-    for pass in [true, false] {
-        let start = h.len();
-        let it: Box<dyn Iterator<Item = &[f64; 2]>> = if pass {
-            Box::new(p.iter())
-        } else {
-            Box::new(p.iter().rev())
-        };
-        for &q in it {
-            while h.len() >= start + 2 && cross(h[h.len() - 2], h[h.len() - 1], q) <= 0.0 {
-                h.pop();
-            }
-            h.push(q);
-        }
-        h.pop();
-    }
-    h
+        .fold(DVec2::ZERO, |a, (p, f)| a + DVec2::new(p[0], p[1]) * *f)
+        / force;
+    let points: Vec<DVec2> = contacts.iter().map(|(p, _)| DVec2::new(p[0], p[1])).collect();
+    let hull = convex_hull::<MAX_FLOOR_CONTACTS>(&points);
+    let margin = polygon_margin(&hull, centre, 0.0).0;
+    (
+        Some(centre.to_array()),
+        margin.is_finite().then_some(margin),
+        force,
+    )
 }
 
 /// The MuJoCo plant of a chain.
