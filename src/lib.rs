@@ -52,6 +52,8 @@ pub mod formats;
 
 pub mod profile;
 
+pub mod servo_dynamics;
+
 pub mod budget;
 
 pub mod retarget;

@@ -70,6 +70,9 @@ pub struct Setup {
     pub model: PathBuf,
     /// The rig: servo `k` reads robot joint `JointSource::Joint(j)`.
     pub rig: Rig,
+    /// Per rig servo: how stiffly it holds its joint, N·m/rad at the joint
+    /// ([`crate::servo_dynamics::joint_stiffness`]).
+    pub stiffness: Vec<f64>,
 }
 
 fn at(profile: &Path, n: &Named, message: String) -> FileError {
@@ -248,6 +251,7 @@ impl Setup {
             map,
             model: spec.model.clone(),
             rig,
+            stiffness: profile.servos.iter().map(crate::servo_dynamics::joint_stiffness).collect(),
         })
     }
 
@@ -484,6 +488,10 @@ pub struct RetargetReport {
     /// The walking plan the legs followed (whole-body clips on the floor).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub walk: Option<walk::WalkReport>,
+    /// The largest angle a servo was commanded past its joint's to hold it under the static
+    /// load (the load compensation; absent when it is off), degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub load_offset_max_deg: Option<f64>,
 }
 
 /// The largest value, mm.
@@ -617,6 +625,7 @@ impl ReportBuilder {
             frames_per_second: fps,
             standing_s: Vec::new(),
             walk: None,
+            load_offset_max_deg: None,
         }
     }
 }

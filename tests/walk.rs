@@ -262,7 +262,9 @@ fn play_walks_the_op3_on_its_plan_on_the_virtual_chain_without_allocating() {
     assert_eq!(v["allocations_in_tick"].as_u64(), Some(0), "{v}");
     assert_eq!(v["commands_refused"].as_u64(), Some(0));
     let r = &v["retarget"];
-    assert!(r["foot_slide_mm"]["max"].as_f64().unwrap() < 1e-3, "{r}");
+    // The plan's frames played between each other (joints interpolated): a planted sole
+    // moves by micrometres at most.
+    assert!(r["foot_slide_mm"]["max"].as_f64().unwrap() < 0.05, "{r}");
     assert!(r["walk"]["footsteps"].as_u64().unwrap() >= 6, "{r}");
     assert!(
         r["walk"]["zmp_margin_mm"]["planned_min"].as_f64().unwrap() > 25.0,

@@ -114,6 +114,11 @@ pub struct PlannedStance {
     pub contact: [bool; 2],
     /// The centre of mass on the floor, metres.
     pub com: RealVec2,
+    /// The base's height above the floor, metres: one height for a whole walk, as the
+    /// cart-table model's constant height asks (NaN: the human's, lowered to reach).
+    pub base_height: Real,
+    /// The planned ZMP, metres.
+    pub zmp: RealVec2,
 }
 
 /// Limbs in reports: left arm, right arm, left leg, right leg, head.
@@ -260,6 +265,9 @@ pub struct RetargetFrame {
     pub sole_yaw: [Real; 2],
     /// The robot's centre of mass in its world.
     pub com: RealVec3,
+    /// Where on the floor the robot's weight bears (metres, its world): a walking plan's ZMP,
+    /// otherwise the centre of mass below (standing still).
+    pub zmp: RealVec2,
     /// Signed distance of the centre of mass (on the floor) inside the support polygon of the
     /// planted feet, metres (negative: outside); NaN when no foot is planted.
     pub com_margin: Real,
@@ -286,6 +294,7 @@ impl Default for RetargetFrame {
             sole: [RealVec3::ZERO; 2],
             sole_yaw: [0.0; 2],
             com: RealVec3::ZERO,
+            zmp: RealVec2::ZERO,
             com_margin: Real::NAN,
             clamps: 0,
             out_of_reach: 0,
@@ -867,6 +876,39 @@ impl Retargeter {
         })
     }
 
+    /// The standing stance's base height above the floor and its centre of mass's, metres.
+    #[must_use]
+    pub fn stance_heights(&self, robot: &Robot) -> (Real, Real) {
+        let (mp, mr) = self.model_placement(RealVec3::new(0.0, 0.0, self.stance_base.z), self.base_rest);
+        let mut pose = RobotPose::default();
+        robot.forward(mp, mr, &self.stance, &mut pose);
+        (self.stance_base.z, robot.centre_of_mass(&pose).z)
+    }
+
+    /// The highest base above the floor from which both legs reach `plan`'s soles (flat) with
+    /// at most `share` of their length, the base upright over the planned centre of mass and
+    /// turned half way between the soles' headings, metres.
+    #[must_use]
+    pub fn reach_height(&self, plan: &PlannedStance, share: Real) -> Real {
+        let [(a, _), (b, _)] = plan.soles;
+        let yaw = 0.5 * (a.yaw + crate::math::wrap_near(b.yaw, a.yaw));
+        let rest_yaw = heading(self.base_rest * self.legs[0].foot_rot);
+        let base_rot = RealQuat::from_rotation_z(yaw - rest_yaw) * self.base_rest;
+        let mut height = Real::INFINITY;
+        for (side, g) in self.legs.iter().enumerate() {
+            let (print, lift) = plan.soles[side];
+            let rest_foot = self.base_rest * g.foot_rot;
+            let rot = RealQuat::from_rotation_z(print.yaw - heading(rest_foot)) * rest_foot;
+            let ankle = RealVec3::new(print.centre.x, print.centre.y, lift.max(0.0)) - rot * g.sole_from_ankle;
+            let hip = base_rot * g.hip;
+            let horizontal = RealVec2::new(plan.com.x + hip.x - ankle.x, plan.com.y + hip.y - ankle.y).length();
+            let longest = share * g.reach;
+            let up = real::sqrt((longest * longest - horizontal * horizontal).max(0.0));
+            height = height.min(ankle.z + up - hip.z);
+        }
+        height
+    }
+
     /// How high a swing foot lifts on a plan: [`CLEARANCE_SHARE`] of the leg, metres.
     #[must_use]
     pub fn swing_clearance(&self) -> Real {
@@ -1000,6 +1042,46 @@ impl Retargeter {
             self.leg_prev[side] = g.joints.map(|j| out.q[j.index]);
         }
         self.measure(robot, pose, to_base, out);
+        if let (Some(plan), false) = (plan, self.options.upper_body) {
+            out.zmp = plan.zmp;
+        }
+    }
+
+    /// The torque the static load of `frame`'s pose puts on each joint (N·m, joint order,
+    /// into `torque`; [`Robot::static_torques`]): the links' weights, and the robot's weight
+    /// borne by its planted feet at [`RetargetFrame::zmp`] — one foot down: all of it there;
+    /// both: shared by where the ZMP lies between the soles, each foot's share at its sole
+    /// moved as the ZMP is off the line between them; none (on a stand): the links' weights
+    /// only. A servo of stiffness k sags by −τ/k under it.
+    pub fn load_torques(&mut self, robot: &Robot, frame: &RetargetFrame, g: Real, torque: &mut [Real]) {
+        let (pos, rot) = self.model_placement(frame.base_pos, frame.base_rot);
+        robot.forward(pos, rot, &frame.q, &mut self.pose);
+        let weight = robot.mass() * g;
+        let zmp = RealVec3::new(frame.zmp.x, frame.zmp.y, 0.0);
+        let foot = |side: usize| robot.joints()[self.map.legs[side].joints[5]].body;
+        let sole = |side: usize| RealVec3::new(frame.sole[side].x, frame.sole[side].y, 0.0);
+        let up = |share: Real| RealVec3::new(0.0, 0.0, share * weight);
+        let mut forces = [(0, RealVec3::ZERO, RealVec3::ZERO); 2];
+        let count = match frame.planted {
+            [true, true] => {
+                let (a, b) = (sole(0), sole(1));
+                let ab = b - a;
+                let share = ((zmp - a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
+                let off = zmp - (a + ab * share);
+                forces = [(foot(0), a + off, up(1.0 - share)), (foot(1), b + off, up(share))];
+                2
+            }
+            [true, false] => {
+                forces[0] = (foot(0), zmp, up(1.0));
+                1
+            }
+            [false, true] => {
+                forces[0] = (foot(1), zmp, up(1.0));
+                1
+            }
+            [false, false] => 0,
+        };
+        robot.static_torques(&self.pose, g, &forces[..count], torque);
     }
 
     /// A human point (file units, the capture's world) in the robot's world: turned, scaled by
@@ -1190,7 +1272,11 @@ impl Retargeter {
         out.planted = plan.contact;
         // The pelvis starts over the planned centre of mass (the human's may be far from the
         // plan's feet); each correction starts again from the human's height, lowered to reach.
-        let height = base_pos.z;
+        let height = if plan.base_height.is_finite() {
+            plan.base_height
+        } else {
+            base_pos.z
+        };
         base_pos.x = plan.com.x;
         base_pos.y = plan.com.y;
         for _ in 0..PLAN_COM_ITERATIONS {
@@ -1566,6 +1652,7 @@ impl Retargeter {
             out.limb_error_sq[k] = (*sq, *n);
         }
         out.com = robot.centre_of_mass(&self.pose);
+        out.zmp = RealVec2::new(out.com.x, out.com.y);
         out.effectors = self.effector_points(robot, &self.pose);
         let mut ankles = [RealVec3::ZERO; 2];
         let mut rots = [RealQuat::IDENTITY; 2];

@@ -305,6 +305,46 @@ impl Robot {
             RealVec3::ZERO
         }
     }
+
+    /// The torque about each joint's axis (N·m, in joint order, into `torque`) that gravity
+    /// (`g` m/s² along −z) and the external `forces` (each: the body it acts on, the point, the
+    /// force, world frame) exert on the bodies the joint turns, in `pose`. A servo holds the
+    /// pose still by exerting the opposite: τⱼ = aⱼ · Σ_{b turned by j} (pᵢ − oⱼ) × fᵢ over the
+    /// bodies' weights and the forces on them, oⱼ and aⱼ the joint's anchor and axis.
+    pub fn static_torques(&self, pose: &RobotPose, g: Real, forces: &[(usize, RealVec3, RealVec3)], torque: &mut [Real]) {
+        let n = self.bodies.len();
+        // Per body, the sum over its subtree: force and moment about the world's origin.
+        let mut force = [RealVec3::ZERO; MAX_ROBOT_BODIES];
+        let mut moment = [RealVec3::ZERO; MAX_ROBOT_BODIES];
+        for (i, b) in self.bodies.iter().enumerate() {
+            let weight = RealVec3::new(0.0, 0.0, -g * b.mass);
+            force[i] = weight;
+            moment[i] = (pose.pos[i] + pose.rot[i] * b.com).cross(weight);
+        }
+        for &(body, point, f) in forces {
+            if body < n {
+                force[body] += f;
+                moment[body] += point.cross(f);
+            }
+        }
+        for i in (0..n).rev() {
+            if let Some(p) = self.bodies[i].parent {
+                let (f, m) = (force[i], moment[i]);
+                force[p] += f;
+                moment[p] += m;
+            }
+        }
+        for t in torque.iter_mut() {
+            *t = 0.0;
+        }
+        for (j, joint) in self.joints.iter().enumerate() {
+            let Some(t) = torque.get_mut(j) else { break };
+            let b = joint.body;
+            let anchor = pose.pos[b] + pose.rot[b] * joint.anchor;
+            let axis = pose.rot[b] * joint.axis;
+            *t = axis.dot(moment[b] - anchor.cross(force[b]));
+        }
+    }
 }
 
 #[cfg(test)]

@@ -165,6 +165,11 @@ pub struct LoopArgs {
     /// the legs as ROBOTIS's walking module does (hip roll, knee, ankle pitch and roll).
     #[arg(long, value_enum, default_value_t = ImuArg::Off)]
     pub imu: ImuArg,
+    /// Profiles of robot joints: command each servo at its joint's angle, not past it by what
+    /// the servo sags under the pose's static load (for a robot on a stand: its feet bear
+    /// nothing).
+    #[arg(long)]
+    pub no_load_compensation: bool,
     /// Command each tick's target through the greedy limiter instead of planning the goal
     /// path over a preview of the input (the look-ahead).
     #[arg(long)]
@@ -251,6 +256,7 @@ impl LoopArgs {
                 balance: !self.no_balance,
             },
             walk: self.walk,
+            load_compensation: !self.no_load_compensation,
             imu: match self.imu {
                 ImuArg::Off => ImuUse::Off,
                 ImuArg::Read => ImuUse::Read,

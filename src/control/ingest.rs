@@ -211,6 +211,9 @@ impl Controller {
             }
             let len = self.angles.len();
             sample.angles[..len].copy_from_slice(&self.angles);
+            if let Some(r) = &mut self.retarget {
+                r.load_offsets(&self.rig, &mut sample.load_offset[..len]);
+            }
             self.preview.push(sample);
         }
     }

@@ -27,6 +27,9 @@ pub struct SourceSample {
     pub made_ns: u64,
     /// Joint angle per servo, radians (rig order).
     pub angles: [f64; MAX_SERVOS],
+    /// Per servo, what its command adds to the angle so that the horn, sagging under the
+    /// pose's static load, ends on it (radians; 0 without load compensation).
+    pub load_offset: [f64; MAX_SERVOS],
     /// The pose's channels (rotations in radians): what the servos do not drive comes from
     /// here when the present angles are put back into a pose.
     pub channels: [f64; MAX_CHANNELS],
@@ -45,6 +48,7 @@ impl Default for SourceSample {
             clip_time: f64::NAN,
             made_ns: 0,
             angles: [f64::NAN; MAX_SERVOS],
+            load_offset: [0.0; MAX_SERVOS],
             channels: [0.0; MAX_CHANNELS],
             tips: [DVec3::NAN; 4],
             effectors: [DVec3::NAN; 4],
@@ -180,22 +184,24 @@ impl Preview {
         )
     }
 
-    /// Servo `k`'s angle at `place` ([`Preview::angle_at`]).
+    /// Servo `k`'s commanded angle (its angle and its load offset) at `place`
+    /// ([`Preview::angle_at`]).
     fn angle(&self, k: usize, place: Place, extrapolate_ns: u64, max_rate: f64) -> f64 {
         let n = self.samples.len();
+        let command = |s: &SourceSample| s.angles[k] + s.load_offset[k];
         match place {
             Place::Empty => f64::NAN,
             Place::Between(i, f) => {
-                let a = self.samples[i].angles[k];
+                let a = command(&self.samples[i]);
                 if f == 0.0 {
                     a
                 } else {
-                    a + f * (self.samples[i + 1].angles[k] - a)
+                    a + f * (command(&self.samples[i + 1]) - a)
                 }
             }
             Place::Past(beyond) => {
                 let last = &self.samples[n - 1];
-                let a = last.angles[k];
+                let a = command(last);
                 if extrapolate_ns == 0 || n < 2 {
                     return a;
                 }
@@ -204,7 +210,7 @@ impl Preview {
                 if span == 0 {
                     return a;
                 }
-                let rate = ((a - before.angles[k]) / (span as f64 * 1e-9)).clamp(-max_rate, max_rate);
+                let rate = ((a - command(before)) / (span as f64 * 1e-9)).clamp(-max_rate, max_rate);
                 a + rate * beyond.min(extrapolate_ns) as f64 * 1e-9
             }
         }

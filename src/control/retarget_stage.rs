@@ -8,6 +8,9 @@ use crate::rig::Rig;
 use crate::robot::{Robot, RobotPose, MAX_ROBOT_JOINTS};
 use crate::skeleton::Skeleton;
 
+/// Standard gravity, m/s².
+const GRAVITY: f64 = 9.81;
+
 /// Retargeting inside the tick, for profiles whose servos follow a robot's joints: each new
 /// human pose becomes the robot's joint vector, which the rig's servos read.
 #[derive(Debug)]
@@ -28,6 +31,12 @@ pub struct RetargetStage {
     planned: Option<(Vec<RetargetFrame>, f64)>,
     /// The plan's figures, for the run's report.
     walk: Option<crate::retarget::walk::WalkReport>,
+    /// Per rig servo, its stiffness at the joint (N·m/rad); empty: no load compensation.
+    stiffness: Vec<f64>,
+    /// Per robot joint, the static load's torque (scratch).
+    torque: Vec<f64>,
+    /// The largest load offset commanded, radians.
+    largest_offset: f64,
 }
 
 impl RetargetStage {
@@ -46,6 +55,38 @@ impl RetargetStage {
             pending: std::collections::VecDeque::new(),
             planned: None,
             walk: None,
+            stiffness: setup.stiffness.clone(),
+            torque: vec![0.0; setup.robot.joints().len()],
+            largest_offset: 0.0,
+        }
+    }
+
+    /// Turns the load compensation off (a robot on a stand, whose feet bear nothing) or on
+    /// (the default).
+    pub fn set_load_compensation(&mut self, on: bool, setup: &Setup) {
+        self.stiffness = if on { setup.stiffness.clone() } else { Vec::new() };
+    }
+
+    /// Per servo of `rig`, what its command adds to the current frame's angle so that the
+    /// horn ends on it under the pose's static load ([`Retargeter::load_torques`]): the
+    /// torque over the servo's stiffness, through the rig's direction of the joint. Zero for
+    /// servos that do not drive a joint or whose stiffness is unknown. Allocates nothing.
+    pub(super) fn load_offsets(&mut self, rig: &Rig, out: &mut [f64]) {
+        out.fill(0.0);
+        if self.stiffness.is_empty() {
+            return;
+        }
+        self.retargeter
+            .load_torques(&self.robot, &self.frame, GRAVITY, &mut self.torque);
+        for ((o, servo), k) in out.iter_mut().zip(&rig.servos).zip(&self.stiffness) {
+            if let crate::rig::JointSource::Joint(j) = servo.source {
+                if let Some(t) = self.torque.get(j) {
+                    if *k > 0.0 && k.is_finite() && t.is_finite() {
+                        *o = -t / k;
+                        self.largest_offset = self.largest_offset.max(o.abs());
+                    }
+                }
+            }
         }
     }
 
@@ -102,6 +143,7 @@ impl RetargetStage {
     pub fn report(&self) -> RetargetReport {
         let mut r = self.report.finish(&self.retargeter, &self.names, None);
         r.walk.clone_from(&self.walk);
+        r.load_offset_max_deg = (!self.stiffness.is_empty()).then_some(self.largest_offset.to_degrees());
         r
     }
 
@@ -117,8 +159,14 @@ impl RetargetStage {
         self.last_clip_time = clip_time;
         match &self.planned {
             Some((frames, rate)) if clip_time.is_finite() => {
-                let k = (clip_time * rate).round().clamp(0.0, (frames.len() - 1) as f64) as usize;
-                self.frame.clone_from(&frames[k]);
+                // Between the two frames either side of the clip time, linearly (the feet's
+                // contacts and the limb figures from the nearer one).
+                let at = (clip_time * rate).clamp(0.0, (frames.len() - 1) as f64);
+                let k = at.floor() as usize;
+                let next = (k + 1).min(frames.len() - 1);
+                let w = at - k as f64;
+                self.frame.clone_from(&frames[if w < 0.5 { k } else { next }]);
+                blend(&mut self.frame, &frames[k], &frames[next], w);
             }
             _ => self.retargeter.step(&self.robot, pose, dt, &mut self.frame),
         }
@@ -127,5 +175,23 @@ impl RetargetStage {
             self.report_until(self.pending.front().map_or(0, |(d, _)| *d));
         }
         self.pending.push_back((due_ns, self.frame.clone()));
+    }
+}
+
+/// Puts the continuous quantities of `out` (joints, base, centre of mass, ZMP, soles,
+/// effectors) at `w` of the way from `a` to `b`.
+fn blend(out: &mut RetargetFrame, a: &RetargetFrame, b: &RetargetFrame, w: f64) {
+    for ((q, qa), qb) in out.q.iter_mut().zip(&a.q).zip(&b.q) {
+        *q = qa + w * (qb - qa);
+    }
+    out.base_pos = a.base_pos.lerp(b.base_pos, w);
+    out.base_rot = a.base_rot.slerp(b.base_rot, w);
+    out.com = a.com.lerp(b.com, w);
+    out.zmp = a.zmp.lerp(b.zmp, w);
+    for side in 0..2 {
+        out.sole[side] = a.sole[side].lerp(b.sole[side], w);
+    }
+    for ((e, ea), eb) in out.effectors.iter_mut().zip(&a.effectors).zip(&b.effectors) {
+        *e = ea.lerp(*eb, w);
     }
 }

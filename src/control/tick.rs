@@ -178,6 +178,11 @@ impl Controller {
             }
         } else {
             self.angles.copy_from_slice(&self.measure.source_angles);
+            if let Some(c) = self.preview.current() {
+                for (a, o) in self.angles.iter_mut().zip(&c.load_offset) {
+                    *a += o;
+                }
+            }
             if self.ease.done <= self.ease.ticks && self.ease.ticks > 0 {
                 // Ease in: blend from where the servos stood (smoothstep weight).
                 let t = self.ease.done as f64 / self.ease.ticks as f64;

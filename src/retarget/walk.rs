@@ -37,6 +37,11 @@ pub const DEFAULT_LEG_SPEED: f64 = 4.8;
 /// the preview sees the first step coming.
 pub const LEAD_IN_S: f64 = 1.0;
 
+/// The most of its length a leg stretches to on a plan: the base walks at one height, low
+/// enough that the longest step keeps the knees bent (about 28°), away from the straight
+/// leg where the knee's speed grows without bound.
+pub const WALK_REACH_SHARE: f64 = 0.97;
+
 /// One sample of the plan, at a clip frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlanSample {
@@ -246,40 +251,46 @@ pub fn plan_walk(
         planner.observe(*t, f.planted, footprints(f));
         keep(&planner, &mut footsteps);
     }
-    let com_height = run.frames.iter().map(|f| f.com.z).sum::<f64>() / run.frames.len().max(1) as f64;
-    let samples_ahead = ((PREVIEW_S / dt).round() as usize).clamp(1, MAX_PREVIEW);
-    let gains = PreviewGains::design(dt, com_height, samples_ahead)?;
-    let shift = limits.zmp_shift_s;
     let end = run.times.last().copied().unwrap_or(0.0);
+    let shift = limits.zmp_shift_s;
     let reference = |t: f64| {
         let t = t.clamp(0.0, end.max(0.0) + 10.0);
         zmp_reference(&footsteps, t, shift).unwrap_or(DVec2::ZERO)
     };
-    // Stand still for the lead-in, then follow the clip's frames.
-    let start = reference(0.0);
-    let mut axes = [AxisState::at(start.x), AxisState::at(start.y)];
-    let lead = (LEAD_IN_S / dt).round() as usize;
-    let sole_half = setup.map.legs.map(|l| l.sole_half);
+    let frames = run.frames.len();
+    // The stance's height first; then as high as every planned step lets the legs reach
+    // within WALK_REACH_SHARE (no lower than the stance), the cart-table at that height.
+    let (stance_base, stance_com) = retargeter.stance_heights(&setup.robot);
     let clearance = retargeter.swing_clearance();
-    let mut samples = Vec::with_capacity(run.frames.len());
-    for k in 0..lead + run.frames.len() {
-        let t = (k as f64 - lead as f64) * dt;
-        let now = reference(t);
-        if k >= lead {
-            let com = DVec2::new(axes[0].x[0], axes[1].x[0]);
-            let zmp = DVec2::new(axes[0].zmp(com_height), axes[1].zmp(com_height));
-            samples.push(PlanSample {
+    let first = preview_com(dt, stance_com, frames, &reference)?;
+    let base_height = first
+        .iter()
+        .enumerate()
+        .map(|(k, (c, _))| {
+            let stance = stance_at(&footsteps, k as f64 * dt, (*c, *c), clearance, f64::NAN);
+            retargeter.reach_height(&stance, WALK_REACH_SHARE)
+        })
+        .fold(stance_base, f64::min);
+    let com_height = stance_com - (stance_base - base_height);
+    let com = if base_height < stance_base {
+        preview_com(dt, com_height, frames, &reference)?
+    } else {
+        first
+    };
+    let sole_half = setup.map.legs.map(|l| l.sole_half);
+    let samples = (0..frames)
+        .map(|k| {
+            let t = k as f64 * dt;
+            let (c, zmp) = com[k];
+            PlanSample {
                 t,
-                zmp_ref: now,
+                zmp_ref: reference(t),
                 zmp,
                 zmp_margin: support_margin(&footsteps, t, sole_half, zmp),
-                stance: stance_at(&footsteps, t, com, clearance),
-            });
-        }
-        for (axis, state) in axes.iter_mut().enumerate() {
-            state.step(&gains, now[axis], |j| reference(t + j as f64 * dt)[axis]);
-        }
-    }
+                stance: stance_at(&footsteps, t, (c, zmp), clearance, base_height),
+            }
+        })
+        .collect();
     let pelvis = |f: &RetargetFrame| DVec2::new(f.base_pos.x, f.base_pos.y);
     let clip_travel_m = match (run.frames.first(), run.frames.last()) {
         (Some(a), Some(b)) => (pelvis(b) - pelvis(a)).length(),
@@ -296,6 +307,37 @@ pub fn plan_walk(
         substituted: planner.substituted(),
         leg_speed: speed,
     })
+}
+
+/// The preview controller's centre of mass and the cart-table's ZMP at each of `frames`
+/// frames `dt` apart, for the ZMP reference `reference(t)` with the cart-table at
+/// `com_height`: standing still for [`LEAD_IN_S`] first, previewing [`PREVIEW_S`].
+fn preview_com(
+    dt: f64,
+    com_height: f64,
+    frames: usize,
+    reference: &impl Fn(f64) -> DVec2,
+) -> Result<Vec<(DVec2, DVec2)>, PreviewError> {
+    let samples_ahead = ((PREVIEW_S / dt).round() as usize).clamp(1, MAX_PREVIEW);
+    let gains = PreviewGains::design(dt, com_height, samples_ahead)?;
+    let start = reference(0.0);
+    let mut axes = [AxisState::at(start.x), AxisState::at(start.y)];
+    let lead = (LEAD_IN_S / dt).round() as usize;
+    let mut com = Vec::with_capacity(frames);
+    for k in 0..lead + frames {
+        let t = (k as f64 - lead as f64) * dt;
+        if k >= lead {
+            com.push((
+                DVec2::new(axes[0].x[0], axes[1].x[0]),
+                DVec2::new(axes[0].zmp(com_height), axes[1].zmp(com_height)),
+            ));
+        }
+        let now = reference(t);
+        for (axis, state) in axes.iter_mut().enumerate() {
+            state.step(&gains, now[axis], |j| reference(t + j as f64 * dt)[axis]);
+        }
+    }
+    Ok(com)
 }
 
 /// Half way between two footprints, facing between their headings.
@@ -318,9 +360,9 @@ pub fn footprints(f: &RetargetFrame) -> [Footprint; 2] {
 /// Where the plan has each sole at `t`: on its footprint when in contact; in a swing,
 /// minimum jerk along the floor from the footprint it left to the one it lands on and
 /// lifted `clearance` at the middle (zero slope and curvature at both ends: it lands flat
-/// and soft).
+/// and soft); the centre of mass and the ZMP as given, the base at `base_height`.
 #[must_use]
-pub fn stance_at(steps: &[Footstep], t: f64, com: DVec2, clearance: f64) -> PlannedStance {
+pub fn stance_at(steps: &[Footstep], t: f64, (com, zmp): (DVec2, DVec2), clearance: f64, base_height: f64) -> PlannedStance {
     let mut soles = [(Footprint::default(), 0.0); 2];
     let mut on = [false; 2];
     for side in 0..2 {
@@ -354,6 +396,8 @@ pub fn stance_at(steps: &[Footstep], t: f64, com: DVec2, clearance: f64) -> Plan
         soles,
         contact: on,
         com,
+        base_height,
+        zmp,
     }
 }
 
@@ -415,7 +459,56 @@ pub fn retarget_walking(
     let walked = super::retarget_clip_with(setup, skeleton, motion, options, kinematic.floor, |k| {
         plan.samples.get(k).map(|s| s.stance)
     });
+    if std::env::var_os("MARIONETTE_DEBUG_ZMP").is_some() {
+        let zmp = multibody_zmp(setup, &retargeter, &walked.frames, plan.dt);
+        for (s, z) in plan.samples.iter().zip(&zmp) {
+            let m = support_margin(&plan.footsteps, s.t, plan.sole_half, *z);
+            eprintln!("{:.3} cart {:+.4} {:+.4} mb {:+.4} {:+.4} margin {:+.4} cartmargin {:+.4}", s.t, s.zmp.x, s.zmp.y, z.x, z.y, m, s.zmp_margin);
+        }
+    }
     Ok((walked, plan))
+}
+
+/// The ZMP of the whole robot moving through `frames` (one per `dt`), every link's mass
+/// counted, each link a point mass (its rotational inertia left out):
+/// p = Σ mᵢ((z̈ᵢ + g) pᵢ − p̈ᵢ zᵢ) / Σ mᵢ(z̈ᵢ + g), the floor at z = 0, accelerations by central
+/// differences (the ends take their neighbour's).
+#[must_use]
+pub fn multibody_zmp(setup: &Setup, retargeter: &Retargeter, frames: &[RetargetFrame], dt: f64) -> Vec<DVec2> {
+    const G: f64 = 9.81;
+    let robot = &setup.robot;
+    let bodies = robot.bodies();
+    let mut pose = marionette_core::robot::RobotPose::default();
+    let points: Vec<Vec<glam::DVec3>> = frames
+        .iter()
+        .map(|f| {
+            let (pos, rot) = retargeter.model_placement(f.base_pos, f.base_rot);
+            robot.forward(pos, rot, &f.q, &mut pose);
+            bodies
+                .iter()
+                .enumerate()
+                .map(|(i, b)| pose.pos[i] + pose.rot[i] * b.com)
+                .collect()
+        })
+        .collect();
+    let n = points.len();
+    (0..n)
+        .map(|k| {
+            let k = k.clamp(1, n.saturating_sub(2).max(1));
+            if n < 3 {
+                let c = frames.get(k.min(n - 1)).map_or(glam::DVec3::ZERO, |f| f.com);
+                return DVec2::new(c.x, c.y);
+            }
+            let (mut num, mut den) = (DVec2::ZERO, 0.0);
+            for (i, b) in bodies.iter().enumerate() {
+                let p = points[k][i];
+                let a = (points[k + 1][i] - 2.0 * p + points[k - 1][i]) / (dt * dt);
+                num += b.mass * ((a.z + G) * DVec2::new(p.x, p.y) - DVec2::new(a.x, a.y) * p.z);
+                den += b.mass * (a.z + G);
+            }
+            num / den
+        })
+        .collect()
 }
 
 impl WalkPlan {

@@ -192,6 +192,10 @@ pub struct SessionSpec {
     /// Walking, with an IMU board in the profile: whether the tick reads it, and feeds its gyro
     /// back to the legs.
     pub imu: ImuUse,
+    /// Robot joints: each servo commanded past its joint's angle by what it sags under the
+    /// pose's static load (its stiffness from its model and Position P Gain), so that the
+    /// horn ends on the angle. Off for a robot on a stand.
+    pub load_compensation: bool,
     /// Model metres per subject metre (the generated puppet; effector errors in metres).
     pub scale: f64,
     /// Scheduling of the loop's thread.
@@ -225,6 +229,7 @@ impl Default for SessionSpec {
             },
             walk: false,
             imu: ImuUse::Off,
+            load_compensation: true,
             scale: 0.3,
             real_time: RealTime::default(),
             sim: SimSpec::default(),
@@ -378,6 +383,7 @@ impl RigDrive {
             None => floor_of_rest(&skeleton, &setup.map.human),
         };
         let mut stage = RetargetStage::new(&setup, &skeleton, floor, spec.retarget);
+        stage.set_load_compensation(spec.load_compensation, &setup);
         if let (true, false, Some(m)) = (spec.walk, spec.retarget.upper_body, clip) {
             let (walked, plan) = crate::retarget::walk::retarget_walking(&setup, &skeleton, m, spec.retarget)
                 .map_err(|e| SessionError::Invalid(format!("cannot plan the walk: {e}")))?;
