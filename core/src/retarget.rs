@@ -887,13 +887,21 @@ impl Retargeter {
 
     /// The highest base above the floor from which both legs reach `plan`'s soles (flat) with
     /// at most `share` of their length, the base upright over the planned centre of mass and
-    /// turned half way between the soles' headings, metres.
+    /// turned half way between the soles' headings, off the centre of mass as in the stance,
+    /// metres.
     #[must_use]
-    pub fn reach_height(&self, plan: &PlannedStance, share: Real) -> Real {
+    pub fn reach_height(&self, robot: &Robot, plan: &PlannedStance, share: Real) -> Real {
         let [(a, _), (b, _)] = plan.soles;
         let yaw = 0.5 * (a.yaw + crate::math::wrap_near(b.yaw, a.yaw));
         let rest_yaw = heading(self.base_rest * self.legs[0].foot_rot);
-        let base_rot = RealQuat::from_rotation_z(yaw - rest_yaw) * self.base_rest;
+        let turn = RealQuat::from_rotation_z(yaw - rest_yaw);
+        let base_rot = turn * self.base_rest;
+        // The base sits off the centre of mass as it does in the stance.
+        let (mp, mr) = self.model_placement(RealVec3::ZERO, self.base_rest);
+        let mut pose = RobotPose::default();
+        robot.forward(mp, mr, &self.stance, &mut pose);
+        let off = turn * -robot.centre_of_mass(&pose);
+        let base = RealVec2::new(plan.com.x + off.x, plan.com.y + off.y);
         let mut height = Real::INFINITY;
         for (side, g) in self.legs.iter().enumerate() {
             let (print, lift) = plan.soles[side];
@@ -901,7 +909,7 @@ impl Retargeter {
             let rot = RealQuat::from_rotation_z(print.yaw - heading(rest_foot)) * rest_foot;
             let ankle = RealVec3::new(print.centre.x, print.centre.y, lift.max(0.0)) - rot * g.sole_from_ankle;
             let hip = base_rot * g.hip;
-            let horizontal = RealVec2::new(plan.com.x + hip.x - ankle.x, plan.com.y + hip.y - ankle.y).length();
+            let horizontal = RealVec2::new(base.x + hip.x - ankle.x, base.y + hip.y - ankle.y).length();
             let longest = share * g.reach;
             let up = real::sqrt((longest * longest - horizontal * horizontal).max(0.0));
             height = height.min(ankle.z + up - hip.z);

@@ -404,6 +404,14 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
             }
         )?;
     }
+    if args.walk && !args.upper_body {
+        motion = crate::retarget::walk::settled(&motion);
+        writeln!(
+            out,
+            "walking: the last frame held {} s after the clip while the robot comes to rest",
+            crate::retarget::walk::SETTLE_S
+        )?;
+    }
     let motion = Arc::new(motion);
     if !(start_at.is_finite() && (0.0..=motion.duration()).contains(&start_at)) {
         return Err(CliError::Usage(format!(

@@ -90,6 +90,7 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
         ));
     }
     let (mut run, plan) = if args.walk {
+        let motion = crate::retarget::walk::settled(&motion);
         let (run, plan) = retarget_walking(&setup, &skeleton, &motion, options)
             .map_err(|e| CliError::Usage(format!("cannot plan the walk: {e}")))?;
         (run, Some(plan))

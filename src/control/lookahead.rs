@@ -235,6 +235,9 @@ pub struct LookaheadSettings {
     pub knots: usize,
     /// Shortest spacing of knots, seconds (a fast loop plans on a coarser grid than its ticks).
     pub min_spacing_s: f64,
+    /// Shortest window, seconds: a move the servos' acceleration limits stretch is seen
+    /// coming this far ahead, whatever the loop's rate.
+    pub min_window_s: f64,
 }
 
 impl Default for LookaheadSettings {
@@ -242,6 +245,7 @@ impl Default for LookaheadSettings {
         LookaheadSettings {
             knots: 24,
             min_spacing_s: 0.004,
+            min_window_s: 0.19,
         }
     }
 }
@@ -298,8 +302,12 @@ impl Lookahead {
     #[must_use]
     pub fn new(rig: &Rig, rate_hz: f64, leads_s: &[f64], settings: LookaheadSettings) -> Lookahead {
         let period = 1.0 / rate_hz;
-        // Knots a whole number of ticks apart, at least the shortest spacing.
-        let ticks_per_knot = (settings.min_spacing_s / period).ceil().max(1.0);
+        // Knots a whole number of ticks apart, at least the shortest spacing and together at
+        // least the shortest window (a hair's tolerance: 4 ms at 250 Hz is one tick).
+        let ticks = |span: f64| (span / period - 1e-9).ceil();
+        let ticks_per_knot = ticks(settings.min_spacing_s)
+            .max(ticks(settings.min_window_s / settings.knots.max(1) as f64))
+            .max(1.0);
         let window = Window::new(settings.knots, ticks_per_knot * period);
         let n = rig.len();
         Lookahead {

@@ -26,6 +26,23 @@ use crate::skeleton::Skeleton;
 use marionette_core::retarget::{convex_hull, polygon_margin, Retargeter};
 use marionette_core::rig::JointSource;
 
+/// How long a walk holds the clip's last frame after it, s: the centre of mass, still moving
+/// when a walking clip ends, comes to rest between the feet (the preview's time constant is a
+/// few tenths of a second).
+pub const SETTLE_S: f64 = 1.0;
+
+/// `motion` with its last frame held [`SETTLE_S`] longer: what a walk plans and plays.
+#[must_use]
+pub fn settled(motion: &Motion) -> Motion {
+    let mut out = motion.clone();
+    if let Some(last) = motion.frames().last().map(<[f64]>::to_vec) {
+        for _ in 0..(SETTLE_S * motion.frame_rate).round() as usize {
+            out.push_frame(&last);
+        }
+    }
+    out
+}
+
 /// How far ahead the preview controller sees, s (ROBOTIS's online walking module: 1.6 s).
 pub const PREVIEW_S: f64 = 1.6;
 
@@ -42,6 +59,13 @@ pub const LEAD_IN_S: f64 = 1.0;
 /// leg where the knee's speed grows without bound.
 pub const WALK_REACH_SHARE: f64 = 0.97;
 
+/// How much lower than the lowest the whole-body pass had to put it the base walks when the
+/// plan's first estimate left a foot out of reach, m.
+pub const REACH_MARGIN_M: f64 = 0.002;
+
+/// Most plans made for one clip while lowering the base to reach.
+const REACH_ATTEMPTS: usize = 4;
+
 /// One sample of the plan, at a clip frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlanSample {
@@ -53,6 +77,10 @@ pub struct PlanSample {
     pub zmp: DVec2,
     /// Signed distance of that ZMP inside the support polygon, m (negative: outside).
     pub zmp_margin: f64,
+    /// The ZMP of the whole robot moving as planned, every link counted ([`multibody_zmp`]).
+    pub zmp_multibody: DVec2,
+    /// Its signed distance inside the support polygon, m.
+    pub zmp_multibody_margin: f64,
     /// Where the soles go and where the centre of mass is.
     pub stance: PlannedStance,
 }
@@ -155,6 +183,8 @@ impl From<&Footstep> for FootstepReport {
 pub struct PlannedMargin {
     /// Planned (the cart-table's ZMP), mm.
     pub planned_min: f64,
+    /// The whole robot's ZMP moving as planned, every link counted, mm.
+    pub multibody_min: f64,
 }
 
 /// [`StepLimits`] for a report, metres, degrees, seconds.
@@ -216,6 +246,7 @@ pub fn plan_walk(
     setup: &Setup,
     retargeter: &Retargeter,
     run: &ClipRetarget,
+    highest_base: f64,
 ) -> Result<WalkPlan, PreviewError> {
     let speed = leg_speed(setup);
     let limits = retargeter.step_limits(if speed.is_finite() {
@@ -251,6 +282,13 @@ pub fn plan_walk(
         planner.observe(*t, f.planted, footprints(f));
         keep(&planner, &mut footsteps);
     }
+    // A foot the clip lifts and does not put down again before it ends stays down: the robot
+    // ends standing on both feet.
+    for side in 0..2 {
+        if let Some(last) = footsteps.iter_mut().rev().find(|s| s.side == side) {
+            last.lift_s = f64::INFINITY;
+        }
+    }
     let end = run.times.last().copied().unwrap_or(0.0);
     let shift = limits.zmp_shift_s;
     let reference = |t: f64| {
@@ -268,9 +306,9 @@ pub fn plan_walk(
         .enumerate()
         .map(|(k, (c, _))| {
             let stance = stance_at(&footsteps, k as f64 * dt, (*c, *c), clearance, f64::NAN);
-            retargeter.reach_height(&stance, WALK_REACH_SHARE)
+            retargeter.reach_height(&setup.robot, &stance, WALK_REACH_SHARE)
         })
-        .fold(stance_base, f64::min);
+        .fold(stance_base.min(highest_base), f64::min);
     let com_height = stance_com - (stance_base - base_height);
     let com = if base_height < stance_base {
         preview_com(dt, com_height, frames, &reference)?
@@ -287,6 +325,8 @@ pub fn plan_walk(
                 zmp_ref: reference(t),
                 zmp,
                 zmp_margin: support_margin(&footsteps, t, sole_half, zmp),
+                zmp_multibody: zmp,
+                zmp_multibody_margin: f64::NAN,
                 stance: stance_at(&footsteps, t, (c, zmp), clearance, base_height),
             }
         })
@@ -421,12 +461,12 @@ pub fn support_margin(steps: &[Footstep], t: f64, sole_half: [[f64; 2]; 2], p: D
 pub fn write_plan_csv(mut w: impl std::io::Write, plan: &WalkPlan) -> std::io::Result<()> {
     writeln!(
         w,
-        "time,left_down,right_down,zmp_ref_x,zmp_ref_y,zmp_x,zmp_y,zmp_margin,com_x,com_y,com_z"
+        "time,left_down,right_down,zmp_ref_x,zmp_ref_y,zmp_x,zmp_y,zmp_margin,com_x,com_y,com_z,zmp_multibody_x,zmp_multibody_y,zmp_multibody_margin"
     )?;
     for s in &plan.samples {
         writeln!(
             w,
-            "{:.6},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+            "{:.6},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
             s.t,
             u8::from(s.stance.contact[0]),
             u8::from(s.stance.contact[1]),
@@ -437,7 +477,10 @@ pub fn write_plan_csv(mut w: impl std::io::Write, plan: &WalkPlan) -> std::io::R
             s.zmp_margin,
             s.stance.com.x,
             s.stance.com.y,
-            plan.com_height
+            plan.com_height,
+            s.zmp_multibody.x,
+            s.zmp_multibody.y,
+            s.zmp_multibody_margin
         )?;
     }
     Ok(())
@@ -455,16 +498,28 @@ pub fn retarget_walking(
 ) -> Result<(ClipRetarget, WalkPlan), PreviewError> {
     let kinematic = retarget_clip(setup, skeleton, motion, options);
     let retargeter = setup.retargeter(skeleton, kinematic.floor, options);
-    let plan = plan_walk(setup, &retargeter, &kinematic)?;
-    let walked = super::retarget_clip_with(setup, skeleton, motion, options, kinematic.floor, |k| {
-        plan.samples.get(k).map(|s| s.stance)
-    });
-    if std::env::var_os("MARIONETTE_DEBUG_ZMP").is_some() {
-        let zmp = multibody_zmp(setup, &retargeter, &walked.frames, plan.dt);
-        for (s, z) in plan.samples.iter().zip(&zmp) {
-            let m = support_margin(&plan.footsteps, s.t, plan.sole_half, *z);
-            eprintln!("{:.3} cart {:+.4} {:+.4} mb {:+.4} {:+.4} margin {:+.4} cartmargin {:+.4}", s.t, s.zmp.x, s.zmp.y, z.x, z.y, m, s.zmp_margin);
+    // The base's height from the plan's footsteps and centre of mass; lowered again where the
+    // whole body's pass still found a foot out of the legs' reach.
+    let mut highest = f64::INFINITY;
+    let mut attempt = 0;
+    let (plan, walked) = loop {
+        let plan = plan_walk(setup, &retargeter, &kinematic, highest)?;
+        let walked = super::retarget_clip_with(setup, skeleton, motion, options, kinematic.floor, |k| {
+            plan.samples.get(k).map(|s| s.stance)
+        });
+        let planned = plan.samples.first().map_or(0.0, |s| s.stance.base_height);
+        let lowest = walked.frames.iter().map(|f| f.base_pos.z).fold(planned, f64::min);
+        attempt += 1;
+        if lowest >= planned - 1e-6 || attempt == REACH_ATTEMPTS {
+            break (plan, walked);
         }
+        highest = lowest - REACH_MARGIN_M;
+    };
+    let zmp = multibody_zmp(setup, &retargeter, &walked.frames, plan.dt);
+    let mut plan = plan;
+    for (sample, z) in plan.samples.iter_mut().zip(zmp) {
+        sample.zmp_multibody = z;
+        sample.zmp_multibody_margin = support_margin(&plan.footsteps, sample.t, plan.sole_half, z);
     }
     Ok((walked, plan))
 }
@@ -532,6 +587,12 @@ impl WalkPlan {
                     .samples
                     .iter()
                     .map(|s| s.zmp_margin * 1000.0)
+                    .fold(f64::INFINITY, f64::min),
+                multibody_min: self
+                    .samples
+                    .iter()
+                    .map(|s| s.zmp_multibody_margin * 1000.0)
+                    .filter(|m| m.is_finite())
                     .fold(f64::INFINITY, f64::min),
             },
             zmp_tracking_max_mm: self
