@@ -907,7 +907,8 @@ impl Retargeter {
             let (print, lift) = plan.soles[side];
             let rest_foot = self.base_rest * g.foot_rot;
             let rot = RealQuat::from_rotation_z(print.yaw - heading(rest_foot)) * rest_foot;
-            let ankle = RealVec3::new(print.centre.x, print.centre.y, lift.max(0.0)) - rot * g.sole_from_ankle;
+            let ankle =
+                RealVec3::new(print.centre.x, print.centre.y, lift.max(0.0)) - rot * g.sole_from_ankle;
             let hip = base_rot * g.hip;
             let horizontal = RealVec2::new(base.x + hip.x - ankle.x, base.y + hip.y - ankle.y).length();
             let longest = share * g.reach;

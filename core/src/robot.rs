@@ -311,7 +311,13 @@ impl Robot {
     /// force, world frame) exert on the bodies the joint turns, in `pose`. A servo holds the
     /// pose still by exerting the opposite: τⱼ = aⱼ · Σ_{b turned by j} (pᵢ − oⱼ) × fᵢ over the
     /// bodies' weights and the forces on them, oⱼ and aⱼ the joint's anchor and axis.
-    pub fn static_torques(&self, pose: &RobotPose, g: Real, forces: &[(usize, RealVec3, RealVec3)], torque: &mut [Real]) {
+    pub fn static_torques(
+        &self,
+        pose: &RobotPose,
+        g: Real,
+        forces: &[(usize, RealVec3, RealVec3)],
+        torque: &mut [Real],
+    ) {
         let n = self.bodies.len();
         // Per body, the sum over its subtree: force and moment about the world's origin.
         let mut force = [RealVec3::ZERO; MAX_ROBOT_BODIES];

@@ -109,6 +109,9 @@ pub struct LoopStats {
     pub imu: Option<super::balance::ImuReport>,
     /// Source against present, end to end (set when a run ends).
     pub fidelity: Option<super::fidelity::FidelityReport>,
+    /// With the simulator: its report (tracking, the torso, a walk's footsteps), set when the
+    /// run ends.
+    pub sim: Option<serde_json::Value>,
     tracking_sq: f64,
     tracking_n: u64,
     tracking_max_deg: f64,
@@ -211,6 +214,7 @@ impl LoopStats {
             retarget: self.retarget.clone(),
             imu: self.imu.clone(),
             fidelity: self.fidelity.clone(),
+            sim: self.sim.clone(),
             tracking_rms_deg: self.tracking_rms_deg(),
             tracking_max_deg: self.tracking_max_deg,
             commands_sent: self.commands_sent,
@@ -271,6 +275,11 @@ pub struct Report {
     /// What the IMU board read: reads, failures, the torso's largest tilt, the feedback given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub imu: Option<super::balance::ImuReport>,
+    /// With the simulator (`--bus sim`): its report, as `--sim-report` writes it (`fell`,
+    /// `torso_max_tilt_deg`, `torso_travel_m`, a walk's `footsteps`, `footstep_error_mm`,
+    /// `zmp_margin_mm` …).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sim: Option<serde_json::Value>,
     /// Source against present, end to end: the input mapped through the rig (what a perfect
     /// rig would do) against the present positions read back.
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -402,7 +402,13 @@ pub fn footprints(f: &RetargetFrame) -> [Footprint; 2] {
 /// lifted `clearance` at the middle (zero slope and curvature at both ends: it lands flat
 /// and soft); the centre of mass and the ZMP as given, the base at `base_height`.
 #[must_use]
-pub fn stance_at(steps: &[Footstep], t: f64, (com, zmp): (DVec2, DVec2), clearance: f64, base_height: f64) -> PlannedStance {
+pub fn stance_at(
+    steps: &[Footstep],
+    t: f64,
+    (com, zmp): (DVec2, DVec2),
+    clearance: f64,
+    base_height: f64,
+) -> PlannedStance {
     let mut soles = [(Footprint::default(), 0.0); 2];
     let mut on = [false; 2];
     for side in 0..2 {
@@ -529,7 +535,12 @@ pub fn retarget_walking(
 /// p = Σ mᵢ((z̈ᵢ + g) pᵢ − p̈ᵢ zᵢ) / Σ mᵢ(z̈ᵢ + g), the floor at z = 0, accelerations by central
 /// differences (the ends take their neighbour's).
 #[must_use]
-pub fn multibody_zmp(setup: &Setup, retargeter: &Retargeter, frames: &[RetargetFrame], dt: f64) -> Vec<DVec2> {
+pub fn multibody_zmp(
+    setup: &Setup,
+    retargeter: &Retargeter,
+    frames: &[RetargetFrame],
+    dt: f64,
+) -> Vec<DVec2> {
     const G: f64 = 9.81;
     let robot = &setup.robot;
     let bodies = robot.bodies();

@@ -861,7 +861,19 @@ impl Run<'_> {
         if let Some(f) = &controller.stats.fidelity {
             tracking.add_fidelity(f);
         }
+        if let Some(walk) = controller.stats.retarget.as_ref().and_then(|r| r.walk.as_ref()) {
+            bus.with(|t| {
+                let p = t.plant();
+                let sites = p.site_names();
+                let soles = sole_sites(profile).and_then(|[l, r]| {
+                    let at = |n: &str| sites.iter().position(|s| s == n);
+                    Some([at(&l)?, at(&r)?])
+                });
+                tracking.add_walk(walk, p.samples(), soles);
+            });
+        }
         write!(log, "{tracking}")?;
+        controller.stats.sim = serde_json::to_value(&tracking).ok();
         if let Some(path) = &spec.sim.report {
             let text = serde_json::to_string_pretty(&tracking)?;
             std::fs::write(path, text + "\n").map_err(|e| FileError::io(path, e))?;
@@ -1004,4 +1016,16 @@ fn status_line<T>(
         window.clear();
     }
     printed
+}
+
+/// The names of the left and right sole sites of a profile's retarget map (`None` when a
+/// sole is given as a point instead).
+#[cfg(feature = "sim")]
+fn sole_sites(profile: &Profile) -> Option<[String; 2]> {
+    let spec = profile.retarget.as_ref()?;
+    let name = |side: usize| match &spec.legs[side].sole_centre {
+        crate::profile::PointSpec::Site(n) => Some(n.name.clone()),
+        crate::profile::PointSpec::At(_) => None,
+    };
+    Some([name(0)?, name(1)?])
 }

@@ -20,7 +20,6 @@ use crate::skeleton::Skeleton;
 
 pub use crate::servo_dynamics::{dynamics, dynamics_at, ServoDynamics, XM430_W350};
 
-
 /// Choices of the generated model.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PuppetOptions {

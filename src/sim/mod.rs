@@ -7,6 +7,8 @@ pub mod mjcf;
 /// What a build without the `sim` feature says when asked for the simulator.
 pub const NOT_BUILT: &str = "needs the MuJoCo simulator, which this build does not have: eval \"$(sim/fetch-mujoco.sh)\" && cargo build --release --features sim";
 #[cfg(feature = "sim")]
+pub mod footsteps;
+#[cfg(feature = "sim")]
 pub mod plant;
 #[cfg(feature = "sim")]
 pub mod report;

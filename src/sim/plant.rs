@@ -85,6 +85,8 @@ pub struct Sample {
     /// Per effector site: distance between the simulated site and the site at the commanded
     /// angles, metres.
     pub effector_error: Vec<f64>,
+    /// Per site: where it is in the simulated world, metres.
+    pub site_pos: Vec<[f64; 3]>,
     /// A floating base's position and tilt, when the model has one.
     pub torso: Option<Torso>,
 }
@@ -359,6 +361,7 @@ impl SimPlant {
             let b = self.twin.site_position(site);
             let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
             s.effector_error.push(d);
+            s.site_pos.push(a);
         }
         if let Some(b) = self.world.free_body() {
             let p = self.world.body_position(b);

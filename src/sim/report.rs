@@ -4,8 +4,10 @@
 use plotters::prelude::*;
 use serde::Serialize;
 
+use super::footsteps::{footstep_error, FootstepError};
 use super::plant::{Sample, Torso};
 use crate::plot::{Area, Picture, Rendered};
+use crate::retarget::walk::WalkReport;
 
 /// Longest lag searched, seconds.
 const MAX_LAG_S: f64 = 0.3;
@@ -86,13 +88,29 @@ pub struct TrackingReport {
     /// contacts: the smallest margin before the fall, mm.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub zmp_margin_mm: Option<MeasuredMargin>,
+    /// A walk: the plan's footsteps (the starting feet not counted).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub footsteps: Option<usize>,
+    /// A walk: the plan's steps changed from the clip's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub substituted_steps: Option<u32>,
+    /// A walk: how far the plan moves the centre of mass, metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub planned_travel_m: Option<f64>,
+    /// A walk: where each foot landed against its planned footprint
+    /// ([`super::footsteps::footstep_error`]), up to a fall.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub footstep_error_mm: Option<FootstepError>,
 }
 
-/// The smallest measured margin.
+/// The smallest margins of the ZMP inside the support polygon.
 #[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
 pub struct MeasuredMargin {
-    /// Over the samples with at least three floor contacts, up to a fall, mm.
+    /// Measured: over the samples with at least three floor contacts, up to a fall, mm.
     pub measured_min: f64,
+    /// A walk: the plan's (the cart-table's ZMP in the planned feet), mm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub planned_min: Option<f64>,
 }
 
 /// Writes a floating base's samples as CSV: time, torso position and tilt, centre of mass,
@@ -135,6 +153,34 @@ pub const FELL_HEIGHT: f64 = 0.6;
 pub const FELL_TILT_DEG: f64 = 45.0;
 
 impl TrackingReport {
+    /// Adds a walk's figures: its plan's, and where the feet landed — `soles` the left and
+    /// right sole sites' indices in `samples`' site positions.
+    pub fn add_walk(&mut self, walk: &WalkReport, samples: &[Sample], soles: Option<[usize; 2]>) {
+        self.footsteps = Some(walk.footsteps);
+        self.substituted_steps = Some(walk.substituted_steps);
+        self.planned_travel_m = Some(walk.planned_travel_m);
+        let planned_min = Some(walk.zmp_margin_mm.planned_min);
+        match &mut self.zmp_margin_mm {
+            Some(m) => m.planned_min = planned_min,
+            None => {
+                self.zmp_margin_mm = Some(MeasuredMargin {
+                    measured_min: f64::NAN,
+                    planned_min,
+                });
+            }
+        }
+        let Some(soles) = soles else { return };
+        let t0 = samples.iter().find(|s| s.torso.is_some()).map_or(0.0, |s| s.time);
+        let until = self.fell_at_s.map_or(f64::INFINITY, |f| t0 + f);
+        let tracks = soles.map(|site| {
+            samples
+                .iter()
+                .filter_map(|s| s.site_pos.get(site).map(|p| (s.time, *p)))
+                .collect::<Vec<_>>()
+        });
+        self.footstep_error_mm = footstep_error([&tracks[0], &tracks[1]], &walk.footstep_list, until);
+    }
+
     /// Analyses recorded samples. `names` and `saturated` are per servo, `sites` per effector.
     #[must_use]
     pub fn new(
@@ -220,7 +266,10 @@ impl TrackingReport {
                 .filter_map(|t| t.1.pressure_margin)
                 .map(|m| m * 1e3)
                 .reduce(f64::min)
-                .map(|measured_min| MeasuredMargin { measured_min });
+                .map(|measured_min| MeasuredMargin {
+                    measured_min,
+                    planned_min: None,
+                });
             torso_travel_m = Some((last.pos[0] - first.pos[0]).hypot(last.pos[1] - first.pos[1]));
         }
         TrackingReport {
@@ -230,6 +279,10 @@ impl TrackingReport {
             fell_at_s,
             torso_travel_m,
             zmp_margin_mm,
+            footsteps: None,
+            substituted_steps: None,
+            planned_travel_m: None,
+            footstep_error_mm: None,
             samples: samples.len(),
             duration_s: samples.last().map_or(0.0, |s| s.time) - samples.first().map_or(0.0, |s| s.time),
             physics_steps: steps,
@@ -304,6 +357,25 @@ impl std::fmt::Display for TrackingReport {
                     _ => ", did not fall".to_string(),
                 }
             )?;
+        }
+        if let (Some(n), Some(planned)) = (self.footsteps, self.planned_travel_m) {
+            let landed = self.footstep_error_mm.as_ref().map_or_else(
+                || "the soles are not sites: where they landed is not measured".to_string(),
+                |e| {
+                    format!(
+                        "{} landed {:.1} mm rms, {:.1} mm at most from their footprints{}",
+                        e.matched,
+                        e.rms,
+                        e.max,
+                        if e.extra_stances > 0 {
+                            format!(", {} stances off the plan", e.extra_stances)
+                        } else {
+                            String::new()
+                        }
+                    )
+                },
+            );
+            writeln!(f, "  walk: {n} footsteps planned over {planned:.3} m; {landed}")?;
         }
         Ok(())
     }
