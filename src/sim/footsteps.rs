@@ -4,9 +4,12 @@
 //! [`STILL_M_S`] along it, for at least [`STANCE_S`]; each such stance is a footprint. The
 //! first of each foot is where it started: the plan's first two footprints and these two set
 //! how the plan's floor lies on the simulator's (the midpoint of the feet and their heading).
-//! Stances of a foot within [`SAME_PRINT_M`] of each other are one footprint (it rocked).
-//! Then each foot's next stances are its next footsteps of the plan, in order, and the error
-//! is the distance between the footprint's centre and the stance's mean position.
+//! Stances of a foot within [`SAME_PRINT_M`] and [`ROCK_S`] of each other are one footprint
+//! (it rocked).
+//! Then each foot's stances are matched to its footsteps of the plan in order, least distance
+//! overall ([`align`]: an edit distance, a stance or footstep left out costing
+//! [`UNMATCHED_M`]), and the error is the distance between the footprint's centre and the
+//! stance's mean position.
 
 use glam::DVec2;
 use serde::Serialize;
@@ -22,9 +25,16 @@ pub const STILL_M_S: f64 = 0.05;
 /// The shortest stance counted, s.
 pub const STANCE_S: f64 = 0.05;
 
-/// Two stances of a foot this close (metres) are one footprint: the foot rocked on it, it
-/// did not step.
+/// Two stances of a foot this close (metres) and this little apart in time (s) are one
+/// footprint: the foot rocked on it, it did not step.
 pub const SAME_PRINT_M: f64 = 0.02;
+
+/// See [`SAME_PRINT_M`].
+pub const ROCK_S: f64 = 0.1;
+
+/// What leaving a stance or a footstep unmatched costs when stances are matched to footsteps,
+/// metres: a stance this far from every footprint is no footstep of the plan.
+pub const UNMATCHED_M: f64 = 0.05;
 
 /// The footsteps' figures.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
@@ -35,8 +45,11 @@ pub struct FootstepError {
     pub max: f64,
     /// Footsteps of the plan the robot took (a stance matched to them).
     pub matched: usize,
-    /// Stances of the robot beyond the plan's footsteps (extra steps, stumbles).
+    /// Stances of the robot matched to no footstep (extra steps, stumbles).
     pub extra_stances: usize,
+    /// Footsteps of the plan no stance was matched to (steps not taken, or landed more than
+    /// twice [`UNMATCHED_M`] away).
+    pub missed: usize,
 }
 
 /// One stance of a foot: its mean position on the floor over its samples.
@@ -44,6 +57,7 @@ pub struct FootstepError {
 struct Stance {
     at: DVec2,
     samples: usize,
+    to_s: f64,
 }
 
 /// The stances of one sole from its positions `(time, [x, y, z])`, up to `until` s.
@@ -56,12 +70,16 @@ fn stances(track: &[(f64, [f64; 3])], until: f64) -> Vec<Stance> {
             let stance = Stance {
                 at: run.iter().copied().sum::<DVec2>() / run.len() as f64,
                 samples: run.len(),
+                to_s: to,
             };
             match out.last_mut() {
-                Some(last) if (last.at - stance.at).length() <= SAME_PRINT_M => {
+                Some(last)
+                    if (last.at - stance.at).length() <= SAME_PRINT_M && from - last.to_s <= ROCK_S =>
+                {
                     let n = (last.samples + stance.samples) as f64;
                     last.at = (last.at * last.samples as f64 + stance.at * stance.samples as f64) / n;
                     last.samples += stance.samples;
+                    last.to_s = to;
                 }
                 _ => out.push(stance),
             }
@@ -127,11 +145,16 @@ pub fn footstep_error(
     let start_plan = [*planned[0].first()?, *planned[1].first()?];
     let to_sim = placement(start_plan, start_sim);
     let (mut sum_sq, mut max, mut matched, mut extra) = (0.0, 0.0f64, 0, 0);
+    let steps = planned[0].len() + planned[1].len() - 2;
     for side in 0..2 {
-        for (k, stance) in sim[side].iter().enumerate().skip(1) {
-            match planned[side].get(k) {
-                Some(p) => {
-                    let e = (to_sim(*p) - stance.at).length() * 1e3;
+        let prints: Vec<DVec2> = planned[side].iter().map(|p| to_sim(*p)).collect();
+        let stances: Vec<DVec2> = sim[side].iter().map(|s| s.at).collect();
+        for (i, j) in align(&stances, &prints) {
+            match j {
+                // The starting feet placed the floors: not a footstep.
+                Some(0) => {}
+                Some(j) => {
+                    let e = (prints[j] - stances[i]).length() * 1e3;
                     sum_sq += e * e;
                     max = max.max(e);
                     matched += 1;
@@ -149,7 +172,51 @@ pub fn footstep_error(
         max,
         matched,
         extra_stances: extra,
+        missed: steps - matched,
     })
+}
+
+/// Matches `stances` to `prints` in order (both in time order), each stance to at most one
+/// footprint, so that the distances matched plus [`UNMATCHED_M`] for each left out are least
+/// (an edit distance): per stance, the footprint it is matched to, if any.
+fn align(stances: &[DVec2], prints: &[DVec2]) -> Vec<(usize, Option<usize>)> {
+    let (n, m) = (stances.len(), prints.len());
+    // cost[i][j]: the least cost of the first i stances against the first j footprints.
+    let mut cost = vec![vec![0.0; m + 1]; n + 1];
+    for i in 0..=n {
+        for j in 0..=m {
+            cost[i][j] = match (i, j) {
+                (0, 0) => 0.0,
+                (0, _) => cost[0][j - 1] + UNMATCHED_M,
+                (_, 0) => cost[i - 1][0] + UNMATCHED_M,
+                _ => (cost[i - 1][j - 1] + (stances[i - 1] - prints[j - 1]).length())
+                    .min(cost[i - 1][j] + UNMATCHED_M)
+                    .min(cost[i][j - 1] + UNMATCHED_M),
+            };
+        }
+    }
+    let mut out = Vec::with_capacity(n);
+    let (mut i, mut j) = (n, m);
+    while i > 0 {
+        if j > 0 {
+            let here = cost[i][j];
+            let matched = cost[i - 1][j - 1] + (stances[i - 1] - prints[j - 1]).length();
+            if (here - matched).abs() < 1e-12 {
+                out.push((i - 1, Some(j - 1)));
+                i -= 1;
+                j -= 1;
+                continue;
+            }
+            if (here - (cost[i][j - 1] + UNMATCHED_M)).abs() < 1e-12 {
+                j -= 1;
+                continue;
+            }
+        }
+        out.push((i - 1, None));
+        i -= 1;
+    }
+    out.reverse();
+    out
 }
 
 #[cfg(test)]
@@ -192,8 +259,7 @@ mod tests {
         let left = track(&[(0.0, 0.5, -0.05, 0.0), (1.0, 3.0, -0.053, 0.1)]);
         let right = track(&[(0.0, 3.0, 0.05, 0.0)]);
         let e = footstep_error([&left, &right], &plan, f64::INFINITY).unwrap();
-        assert_eq!(e.matched, 1);
-        assert_eq!(e.extra_stances, 0);
+        assert_eq!((e.matched, e.extra_stances, e.missed), (1, 0, 0));
         assert!((e.rms - 3.0).abs() < 0.1, "{e:?}");
     }
 
@@ -203,9 +269,30 @@ mod tests {
         let left = track(&[(0.0, 0.5, 0.0, 0.05), (1.0, 1.5, 0.1, 0.05)]);
         let right = track(&[(0.0, 3.0, 0.0, -0.05)]);
         let e = footstep_error([&left, &right], &plan, f64::INFINITY).unwrap();
-        assert_eq!((e.matched, e.extra_stances), (0, 1));
+        assert_eq!((e.matched, e.extra_stances, e.missed), (0, 1, 0));
         let e = footstep_error([&left, &right], &plan, 0.8).unwrap();
-        assert_eq!((e.matched, e.extra_stances), (0, 0));
+        assert_eq!((e.matched, e.extra_stances, e.missed), (0, 0, 0));
+    }
+
+    #[test]
+    fn a_step_in_place_and_a_rock_are_told_apart() {
+        // The left foot steps in place (lifted 0.4 s), then rocks (off 20 ms), then steps on.
+        let plan = [
+            step("left", 0.0, 0.05),
+            step("right", 0.0, -0.05),
+            step("left", 0.0, 0.05),
+            step("left", 0.1, 0.05),
+        ];
+        let left = track(&[
+            (0.0, 0.5, 0.0, 0.05),
+            (0.9, 1.2, 0.0, 0.05),
+            (1.22, 1.5, 0.001, 0.05),
+            (2.0, 3.0, 0.104, 0.05),
+        ]);
+        let right = track(&[(0.0, 3.0, 0.0, -0.05)]);
+        let e = footstep_error([&left, &right], &plan, f64::INFINITY).unwrap();
+        assert_eq!((e.matched, e.extra_stances, e.missed), (2, 0, 0), "{e:?}");
+        assert!((e.max - 4.0).abs() < 0.2, "{e:?}");
     }
 
     #[test]

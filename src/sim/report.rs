@@ -363,12 +363,17 @@ impl std::fmt::Display for TrackingReport {
                 || "the soles are not sites: where they landed is not measured".to_string(),
                 |e| {
                     format!(
-                        "{} landed {:.1} mm rms, {:.1} mm at most from their footprints{}",
+                        "{} landed {:.1} mm rms, {:.1} mm at most from their footprints{}{}",
                         e.matched,
                         e.rms,
                         e.max,
                         if e.extra_stances > 0 {
-                            format!(", {} stances off the plan", e.extra_stances)
+                            format!(", stances off the plan: {}", e.extra_stances)
+                        } else {
+                            String::new()
+                        },
+                        if e.missed > 0 {
+                            format!(", footsteps not taken: {}", e.missed)
                         } else {
                             String::new()
                         }
