@@ -12,6 +12,7 @@ use std::sync::Arc;
 use clap::{Args, ValueEnum};
 
 use super::error::CliError;
+use super::args::BvhUnit;
 use super::FrameArg;
 use crate::control::live::LiveView;
 use crate::control::plot::Histograms;
@@ -367,7 +368,9 @@ pub(super) fn finish(
 /// # Errors
 /// [`CliError`].
 fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write) -> Result<(), CliError> {
-    let (profile_path, asf_path, amc_path, args) = (&a.profile, &a.asf, &a.amc, &a.loop_args);
+    let (profile_path, asf_path, args) = (&a.profile, &a.asf, &a.loop_args);
+    // The clip's file: the AMC, or the BVH that holds skeleton and motion.
+    let amc_path = a.amc.as_ref().unwrap_or(asf_path);
     let (looping, speed, start_at, pre_roll, keep_dropouts) =
         (a.looping, a.speed, a.start, a.pre_roll, a.keep_dropouts);
     if !(speed.is_finite() && speed > 0.0) {
@@ -384,9 +387,15 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
         .iter()
         .any(|s| matches!(s.drive, crate::profile::Drive::Joint(_)));
     let pre_roll = pre_roll.unwrap_or(if joint_driven { 0.0 } else { DEFAULT_PRE_ROLL_S });
-    let skeleton = Arc::new(asf::load(asf_path)?.skeleton);
     // A loaded motion has at least one frame.
-    let mut motion = amc::load(&skeleton, amc_path)?;
+    let (skeleton, mut motion) = if a.amc.is_none() {
+        super::retarget::load_clip(asf_path, None, 0.0, a.bvh_unit)?
+    } else {
+        let skeleton = asf::load(asf_path)?.skeleton;
+        let motion = amc::load(&skeleton, amc_path)?;
+        (skeleton, motion)
+    };
+    let skeleton = Arc::new(skeleton);
     let dropouts = if keep_dropouts {
         crate::motion::dropouts::find(&skeleton, &motion)
     } else {
@@ -696,10 +705,13 @@ fn targets_cmd(a: &TargetsArgs, out: &mut dyn Write) -> Result<(), CliError> {
 pub(super) struct PlayArgs {
     /// The rig profile, e.g. firmware-profile/cmu-puppet.toml.
     pub(super) profile: PathBuf,
-    /// Skeleton (.asf).
+    /// Skeleton (.asf), or a .bvh file (skeleton and motion).
     pub(super) asf: PathBuf,
-    /// Clip (.amc).
-    pub(super) amc: PathBuf,
+    /// Clip (.amc); none with a .bvh file.
+    pub(super) amc: Option<PathBuf>,
+    /// Length unit of a .bvh file.
+    #[arg(long, value_enum, default_value_t = BvhUnit::Cm)]
+    pub(super) bvh_unit: BvhUnit,
     /// Start over at the end of the clip (stop with Ctrl-C or --duration).
     #[arg(long = "loop")]
     pub(super) looping: bool,

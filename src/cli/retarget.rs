@@ -89,8 +89,13 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
             "--plan writes the walking plan: give --walk too".into(),
         ));
     }
+    // A walk comes to rest after the clip: its last frame held.
+    let motion = if args.walk {
+        crate::retarget::walk::settled(&motion)
+    } else {
+        motion
+    };
     let (mut run, plan) = if args.walk {
-        let motion = crate::retarget::walk::settled(&motion);
         let (run, plan) = retarget_walking(&setup, &skeleton, &motion, options)
             .map_err(|e| CliError::Usage(format!("cannot plan the walk: {e}")))?;
         (run, Some(plan))
