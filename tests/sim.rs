@@ -590,6 +590,148 @@ fn op3_whole_body_stands_through_the_standing_stretches() {
     }
 }
 
+/// Plays `amc` walking on its plan on the OP3 in MuJoCo at `rate` Hz, eased in and held at the
+/// end; returns the simulator's report and the stats JSON.
+fn op3_walks(asf_name: &str, amc: &std::path::Path, rate: &str) -> (serde_json::Value, serde_json::Value) {
+    op3_on_the_floor(
+        asf_name,
+        amc,
+        &[
+            "--walk",
+            "--rate",
+            rate,
+            "--ease-in",
+            "1",
+            "--pre-roll",
+            "1",
+            "--on-stop",
+            "hold",
+        ],
+    )
+}
+
+/// The bundled walk on its plan, whole body on the floor, at the OP3 framework's 125 Hz and at
+/// 250 Hz: no fall, the torso within 15° of upright, every foot within 20 mm (RMS) of its
+/// planned footprint, the torso travelling at least 80 % of the plan's travel, the arms as
+/// close to the human's as the kinematic retargeting's (within 2°); two runs identical.
+#[test]
+fn op3_walks_the_bundled_walk_on_its_plan_in_mujoco() {
+    let kinematic = {
+        use marionette::retarget::{retarget_clip, Options, Setup};
+        let profile = Profile::load(&repo("firmware-profile/robotis-op3.toml")).unwrap();
+        let skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
+        let motion = amc::load(&skeleton, &common::data("16_15.amc")).unwrap();
+        let setup = Setup::new(&profile, &skeleton).unwrap();
+        let r = retarget_clip(&setup, &skeleton, &motion, Options::default()).report;
+        [
+            r.limb_direction_error_deg.left_arm,
+            r.limb_direction_error_deg.right_arm,
+        ]
+        .map(|e| e.map_or(f64::NAN, |e| e.rms))
+    };
+    for rate in ["125", "250"] {
+        let (sim, stats) = op3_walks("16.asf", &common::data("16_15.amc"), rate);
+        println!(
+            "16_15 at {rate} Hz: tilt {}°, travel {} of {} m, footsteps {}, zmp {}",
+            sim["torso_max_tilt_deg"],
+            sim["torso_travel_m"],
+            sim["planned_travel_m"],
+            sim["footstep_error_mm"],
+            sim["zmp_margin_mm"]
+        );
+        assert_eq!(sim["fell"].as_bool(), Some(false), "{rate} Hz: {sim}");
+        assert!(sim["torso_max_tilt_deg"].as_f64().unwrap() <= 15.0, "{rate} Hz");
+        let steps = &sim["footstep_error_mm"];
+        assert!(steps["rms"].as_f64().unwrap() <= 20.0, "{rate} Hz: {steps}");
+        assert_eq!(
+            steps["matched"].as_u64(),
+            sim["footsteps"].as_u64(),
+            "{rate} Hz: {steps}"
+        );
+        let (travel, planned) = (
+            sim["torso_travel_m"].as_f64().unwrap(),
+            sim["planned_travel_m"].as_f64().unwrap(),
+        );
+        assert!(
+            planned > 0.4 && travel >= 0.8 * planned,
+            "{rate} Hz: {travel} of {planned}"
+        );
+        assert!(sim["zmp_margin_mm"]["planned_min"].as_f64().unwrap() > 25.0);
+        assert_eq!(stats["sim"], sim, "the stats JSON carries the simulator's report");
+        let arms = &stats["retarget"]["limb_direction_error_deg"];
+        for (side, k) in ["left_arm", "right_arm"].iter().zip(kinematic) {
+            let walked = arms[side]["rms"].as_f64().unwrap();
+            assert!(
+                (walked - k).abs() <= 2.0,
+                "{side}: {walked}° walking, {k}° kinematic"
+            );
+        }
+        if rate == "125" {
+            let (again, _) = op3_walks("16.asf", &common::data("16_15.amc"), rate);
+            assert_eq!(sim, again, "two runs differ");
+        }
+    }
+}
+
+/// A jumping clip (01_01: its flights replaced, a foot kept down through each) and the walk
+/// bent into a 45° turn to either side (`transform --turn`), on their plans in MuJoCo at
+/// 125 Hz: no fall, the torso within 15° of upright.
+#[test]
+fn op3_walks_a_turn_and_plays_a_jumping_clip_without_falling() {
+    let dir = common::tempdir("op3-turns");
+    let mut clips = vec![("01.asf", common::data("01_01.amc"))];
+    for turn in ["45", "-45"] {
+        let path = dir.join(format!("turn{turn}.amc"));
+        let out = common::bin()
+            .arg("transform")
+            .arg(common::data("16.asf"))
+            .arg(common::data("16_15.amc"))
+            .args(["--turn", turn, "-o"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        clips.push(("16.asf", path));
+    }
+    for (asf_name, amc) in &clips {
+        let (sim, stats) = op3_walks(asf_name, amc, "125");
+        let walk = &stats["retarget"]["walk"];
+        println!(
+            "{}: tilt {}°, footsteps {} ({} substituted), {}",
+            amc.display(),
+            sim["torso_max_tilt_deg"],
+            walk["footsteps"],
+            walk["substituted_steps"],
+            sim["footstep_error_mm"]
+        );
+        assert_eq!(sim["fell"].as_bool(), Some(false), "{}: {sim}", amc.display());
+        assert!(
+            sim["torso_max_tilt_deg"].as_f64().unwrap() <= 15.0,
+            "{}",
+            amc.display()
+        );
+        if asf_name == &"01.asf" {
+            let flights = walk["footstep_plan"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|s| {
+                    s["changed"]
+                        .as_array()
+                        .is_some_and(|c| c.iter().any(|c| c == "flight"))
+                })
+                .count();
+            // A jump's flight: the foot that would lift into it stays down, its landing left
+            // out (dropped) or the other foot's next step marked.
+            assert!(
+                flights > 0 || walk["dropped_steps"].as_u64().unwrap() > 0,
+                "{walk}"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Plays the walk on the simulated puppet through the command line (`--bus sim --rate 120
 /// --pre-roll 0.5`, plus `extra`); returns the statistics' `fidelity` block.
 fn walk_fidelity_in_mujoco(extra: &[&str]) -> serde_json::Value {

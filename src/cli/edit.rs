@@ -10,7 +10,7 @@ use super::MethodArg;
 use super::MetricArg;
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf};
-use crate::motion::clip::{heading, transform};
+use crate::motion::clip::{bend, heading, transform};
 use crate::motion::connect::{blend, connect, loop_clip, ConnectParams, Direction, Method};
 use crate::motion::matching::MatchParams;
 use crate::motion::plot::{ConnectionPicture, ConnectionPlot};
@@ -222,12 +222,16 @@ pub(super) fn loop_cmd(
 pub(super) fn transform_cmd(
     asf_path: &Path,
     input: &Path,
-    facing: f64,
+    facing: Option<f64>,
+    turn: f64,
     start: Option<&str>,
     output: &Path,
 ) -> Result<(), CliError> {
-    if !facing.is_finite() {
+    if !facing.is_none_or(f64::is_finite) {
         return Err(CliError::Usage("--facing must be a number of degrees".into()));
+    }
+    if !turn.is_finite() {
+        return Err(CliError::Usage("--turn must be a number of degrees".into()));
     }
     let start = match start {
         None => None,
@@ -244,7 +248,8 @@ pub(super) fn transform_cmd(
     };
     let (file, clips) = load_clip(asf_path, &[input])?;
     let s = &file.skeleton;
-    let out = transform(s, &clips[0], facing.to_radians(), start);
+    let facing = facing.map_or_else(|| heading(s, &clips[0], 0).0, f64::to_radians);
+    let out = transform(s, &bend(s, &clips[0], turn.to_radians()), facing, start);
     save_clip(&file, &out, output)?;
     let (f0, p0) = heading(s, &clips[0], 0);
     let (f1, p1) = heading(s, &out, 0);
@@ -421,9 +426,14 @@ pub(super) struct TransformArgs {
     pub(super) asf: PathBuf,
     /// Clip (.amc).
     pub(super) input: PathBuf,
-    /// Facing of the first frame, degrees (0: +z, 90: +x).
+    /// Facing of the first frame, degrees (0: +z, 90: +x); default: as captured.
     #[arg(long, allow_hyphen_values = true)]
-    pub(super) facing: f64,
+    pub(super) facing: Option<f64>,
+    /// Bend the path: turn the clip progressively by this many degrees over its length
+    /// (positive: to the left, about the vertical), each frame's step over the ground turned
+    /// with it — a straight walk becomes a walk with a turn.
+    #[arg(long, allow_hyphen_values = true, default_value_t = 0.0)]
+    pub(super) turn: f64,
     /// New start position of the root on the ground, `X,Z` (file units).
     #[arg(long, allow_hyphen_values = true)]
     pub(super) start: Option<String>,
@@ -442,10 +452,11 @@ impl TransformArgs {
             asf,
             input,
             facing,
+            turn,
             start,
             output,
         } = self;
-        transform_cmd(&asf, &input, facing, start.as_deref(), &output)
+        transform_cmd(&asf, &input, facing, turn, start.as_deref(), &output)
     }
 }
 

@@ -11,8 +11,8 @@ use std::sync::Arc;
 
 use clap::{Args, ValueEnum};
 
-use super::error::CliError;
 use super::args::BvhUnit;
+use super::error::CliError;
 use super::FrameArg;
 use crate::control::live::LiveView;
 use crate::control::plot::Histograms;

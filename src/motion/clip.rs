@@ -97,6 +97,37 @@ pub fn transform(skeleton: &Skeleton, motion: &Motion, facing: f64, start: Optio
     move_to(skeleton, motion, 0, facing, target).apply_to(skeleton, motion)
 }
 
+/// The clip's path bent by `turn` radians (about +y, the vertical): frame `i` of `n` turned
+/// by `turn × i / (n − 1)` about its root, and each frame's move of the root over the ground
+/// turned as its frame is, so that the path curves as the body turns (a walk becomes a walk
+/// with a turn). The first frame stays where it is; heights are left as captured.
+#[must_use]
+pub fn bend(skeleton: &Skeleton, motion: &Motion, turn: f64) -> Motion {
+    let mut out = motion.clone();
+    let n = motion.len();
+    if n < 2 {
+        return out;
+    }
+    let mut place = root_position(skeleton, motion.frame(0));
+    for i in 0..n {
+        let f = motion.frame(i);
+        let yaw = turn * i as f64 / (n - 1) as f64;
+        let turned = DMat3::from_rotation_y(yaw);
+        let p = root_position(skeleton, f);
+        if i > 0 {
+            let step = p - root_position(skeleton, motion.frame(i - 1));
+            place += turned * DVec3::new(step.x, 0.0, step.z);
+        }
+        set_root(
+            skeleton,
+            out.frame_mut(i),
+            &(turned * root_rotation(skeleton, f)),
+            DVec3::new(place.x, p.y, place.z),
+        );
+    }
+    out
+}
+
 impl Motion {
     /// The frames in reverse order.
     #[must_use]
