@@ -357,6 +357,56 @@ impl Robot {
 mod tests {
     use super::*;
 
+    /// A two-link arm in a vertical plane (hinges about y, links along x, 1 kg and 2 kg at their
+    /// middles): gravity's torque about each joint, and with a force at the tip.
+    #[test]
+    fn static_torques_of_a_two_link_arm() {
+        let mut r = Robot::new();
+        let a = r
+            .add_body(
+                "upper",
+                None,
+                RealVec3::ZERO,
+                RealQuat::IDENTITY,
+                1.0,
+                RealVec3::new(0.5, 0.0, 0.0),
+            )
+            .unwrap();
+        let b = r
+            .add_body(
+                "lower",
+                Some(a),
+                RealVec3::new(1.0, 0.0, 0.0),
+                RealQuat::IDENTITY,
+                2.0,
+                RealVec3::new(0.5, 0.0, 0.0),
+            )
+            .unwrap();
+        r.add_hinge("shoulder", a, RealVec3::Y, RealVec3::ZERO, None)
+            .unwrap();
+        r.add_hinge("elbow", b, RealVec3::Y, RealVec3::ZERO, None)
+            .unwrap();
+        let g = 9.81;
+        let mut pose = RobotPose::default();
+        let mut tau = [0.0; 2];
+        // Level: the weights' lever arms are their x (about +y, a weight at +x turns +y-wise).
+        r.forward(RealVec3::ZERO, RealQuat::IDENTITY, &[0.0, 0.0], &mut pose);
+        r.static_torques(&pose, g, &[], &mut tau);
+        assert!((tau[0] - g * (0.5 + 2.0 * 1.5)).abs() < 1e-9, "{tau:?}");
+        assert!((tau[1] - g * 2.0 * 0.5).abs() < 1e-9, "{tau:?}");
+        // Held up at the tip by half the weight: the shoulder carries nothing, the elbow less.
+        let tip = (b, RealVec3::new(2.0, 0.0, 0.0), RealVec3::new(0.0, 0.0, 1.75 * g));
+        r.static_torques(&pose, g, &[tip], &mut tau);
+        assert!(tau[0].abs() < 1e-9, "{tau:?}");
+        assert!((tau[1] - (g - 1.75 * g)).abs() < 1e-9, "{tau:?}");
+        // Turned 60° down at the shoulder: every lever arm by cos 60°.
+        let q = core::f64::consts::FRAC_PI_3;
+        r.forward(RealVec3::ZERO, RealQuat::IDENTITY, &[q, 0.0], &mut pose);
+        r.static_torques(&pose, g, &[], &mut tau);
+        assert!((tau[0] - 0.5 * g * 3.5).abs() < 1e-9, "{tau:?}");
+        assert!((tau[1] - 0.5 * g).abs() < 1e-9, "{tau:?}");
+    }
+
     /// A two-link arm in a plane: FK against the closed form, and the centre of mass.
     #[test]
     fn planar_two_link_arm() {
