@@ -7,7 +7,7 @@
 //! Stances of a foot within [`SAME_PRINT_M`] and [`ROCK_S`] of each other are one footprint
 //! (it rocked).
 //! Then each foot's stances are matched to its footsteps of the plan in order, least distance
-//! overall ([`align`]: an edit distance, a stance or footstep left out costing
+//! overall (an edit distance, a stance or footstep left out costing
 //! [`UNMATCHED_M`]), and the error is the distance between the footprint's centre and the
 //! stance's mean position.
 
