@@ -673,6 +673,44 @@ fn op3_walks_the_bundled_walk_on_its_plan_in_mujoco() {
     }
 }
 
+/// Pushed (`--sim-push`): the walking OP3 survives 0.3 N·s sideways in single support and
+/// 1 N·s forward standing after the walk; a 3 N·s shove topples it, and the report says when.
+#[test]
+fn op3_walking_survives_a_push_and_a_shove_topples_it() {
+    for (push, falls) in [
+        ("2.17,0.3,-90", false),
+        ("5.6,1.0,0", false),
+        ("2.5,3.0,90", true),
+    ] {
+        let (sim, _) = op3_on_the_floor(
+            "16.asf",
+            &common::data("16_15.amc"),
+            &[
+                "--walk",
+                "--rate",
+                "125",
+                "--ease-in",
+                "1",
+                "--pre-roll",
+                "1",
+                "--on-stop",
+                "hold",
+                "--sim-push",
+                push,
+            ],
+        );
+        println!(
+            "push {push}: tilt {}°, fell {}",
+            sim["torso_max_tilt_deg"], sim["fell_at_s"]
+        );
+        assert_eq!(sim["fell"].as_bool(), Some(falls), "{push}: {sim}");
+        if falls {
+            // Counted from the first sample (0.26 s of settling before it).
+            assert!(sim["fell_at_s"].as_f64().unwrap() > 2.0, "{push}: {sim}");
+        }
+    }
+}
+
 /// A jumping clip (01_01: its flights replaced, a foot kept down through each) and the walk
 /// bent into a 45° turn to either side (`transform --turn`), on their plans in MuJoCo at
 /// 125 Hz: no fall, the torso within 15° of upright.

@@ -337,6 +337,14 @@ impl World {
         self.data.xmat().get(body).copied().unwrap_or([f64::NAN; 9])
     }
 
+    /// Pushes a body with `force` (N, world frame) at its centre of mass from now until it is
+    /// set again (zero: no push).
+    pub fn set_body_force(&mut self, body: usize, force: [f64; 3]) {
+        if let Some(f) = self.data.xfrc_applied_mut().get_mut(body) {
+            *f = [force[0], force[1], force[2], 0.0, 0.0, 0.0];
+        }
+    }
+
     /// The centre of mass of a body and all bodies below it, in the world, metres.
     #[must_use]
     pub fn subtree_com(&self, body: usize) -> [f64; 3] {

@@ -138,6 +138,11 @@ pub struct LoopArgs {
     /// the centre of pressure of the floor's forces (the measured ZMP) per sample as CSV.
     #[arg(long)]
     pub sim_trace: Option<PathBuf>,
+    /// With --bus sim and a robot on the floor: push its torso, `AT,IMPULSE,DIRECTION` —
+    /// at AT simulated seconds, IMPULSE N·s over 0.1 s, towards DIRECTION degrees on the floor
+    /// from +x (forward on the OP3) towards +y (its left).
+    #[arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)]
+    pub sim_push: Option<Vec<f64>>,
     /// With --bus sim: draw commanded vs simulated angles and the per-servo RMS (.png or .svg).
     #[arg(long)]
     pub sim_plot: Option<PathBuf>,
@@ -229,6 +234,18 @@ impl LoopArgs {
                 "--lead-ms needs the look-ahead: leave out --no-lookahead".into(),
             ));
         }
+        if let Some(p) = &self.sim_push {
+            if self.bus != BusArg::Sim {
+                return Err(CliError::Usage(
+                    "--sim-push pushes the simulated robot: give --bus sim".into(),
+                ));
+            }
+            if !(p.len() == 3 && p.iter().all(|v| v.is_finite()) && p[0] >= 0.0 && p[1] >= 0.0) {
+                return Err(CliError::Usage(
+                    "--sim-push takes AT,IMPULSE,DIRECTION: seconds ≥ 0, N·s ≥ 0, degrees".into(),
+                ));
+            }
+        }
         let mut spec = SessionSpec {
             rate_hz: self.rate,
             duration_s: self.duration,
@@ -275,6 +292,7 @@ impl LoopArgs {
                 plot: self.sim_plot.clone(),
                 plot_servos: self.plot_servos.clone(),
                 trace: self.sim_trace.clone(),
+                push: self.sim_push.as_deref().map(|p| [p[0], p[1], p[2]]),
             },
             sinks: Sinks {
                 status_line: !self.quiet,

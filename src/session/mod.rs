@@ -139,6 +139,9 @@ pub struct SimSpec {
     pub plot_servos: Vec<String>,
     /// Write a floating base's path as CSV here (torso, centre of mass, centre of pressure).
     pub trace: Option<PathBuf>,
+    /// Push the floating base's torso: when (simulated s), the impulse (N·s) and its direction
+    /// on the floor (degrees from +x towards +y).
+    pub push: Option<[f64; 3]>,
 }
 
 /// What a walk does with the robot's IMU board.
@@ -828,6 +831,20 @@ impl Run<'_> {
         // The simulated bus keeps line time: a rate it cannot carry runs late (in simulated time).
         warn_if_over_budget(spec.rate_hz, &profile.bus, present.len(), log)?;
         bus.with(|t| t.plant_mut().record(true));
+        if let Some([at_s, impulse_ns, direction_deg]) = spec.sim.push {
+            bus.with(|t| {
+                t.plant_mut().set_push(Some(plant::Push {
+                    at_s,
+                    impulse_ns,
+                    direction_deg,
+                }));
+            });
+            writeln!(
+                log,
+                "push: {impulse_ns} N·s towards {direction_deg}° at {at_s} s (over {} s)",
+                plant::PUSH_S
+            )?;
+        }
         // In lockstep the physics (and its recorder) runs inside the bus calls of each tick, so
         // an allocation count would be the simulator's: the loop's own ticks are counted on the
         // other buses.

@@ -91,6 +91,30 @@ pub struct Sample {
     pub torso: Option<Torso>,
 }
 
+/// A push of the torso: a horizontal impulse spread over [`PUSH_S`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Push {
+    /// When it starts, simulated seconds.
+    pub at_s: f64,
+    /// The impulse, N·s.
+    pub impulse_ns: f64,
+    /// Its direction on the floor, degrees from +x towards +y (0: forward on the OP3).
+    pub direction_deg: f64,
+}
+
+/// How long a push lasts, s: a shove, short against the robot's own motion.
+pub const PUSH_S: f64 = 0.1;
+
+impl Push {
+    /// Its force while it lasts, N (world frame).
+    #[must_use]
+    pub fn force(&self) -> [f64; 3] {
+        let (s, c) = self.direction_deg.to_radians().sin_cos();
+        let f = self.impulse_ns / PUSH_S;
+        [f * c, f * s, 0.0]
+    }
+}
+
 /// Where a floating base is, and what holds it up.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Torso {
@@ -151,6 +175,8 @@ pub struct SimPlant {
     saturated: Vec<u64>,
     record_every: u64,
     recording: bool,
+    /// A push of the torso, if one is given.
+    push: Option<Push>,
     samples: Vec<Sample>,
     /// The model's IMU (`imu_gyro`, `imu_acc`) and the body it rides on, for a chain's sensor
     /// board.
@@ -246,6 +272,7 @@ impl SimPlant {
             recording: false,
             samples: Vec::new(),
             imu,
+            push: None,
         })
     }
 
@@ -305,6 +332,12 @@ impl SimPlant {
         &self.world
     }
 
+    /// Pushes the floating base (its torso) with `push` (none when the model has no floating
+    /// base).
+    pub fn set_push(&mut self, push: Option<Push>) {
+        self.push = push;
+    }
+
     /// One physics step with the chain's present goals. A written Position P Gain scales the
     /// actuator's gain (the firmware's `K_P = gain / 128` is linear in it).
     fn step_physics(&mut self, chain: &mut Chain) {
@@ -325,6 +358,12 @@ impl SimPlant {
                 None => self.world.joint_position(s.joint),
             };
             self.world.set_ctrl(s.actuator, ctrl);
+        }
+        if let (Some(p), Some(body)) = (self.push, self.world.free_body()) {
+            let t = self.world.time();
+            let on = t >= p.at_s && t < p.at_s + PUSH_S;
+            self.world
+                .set_body_force(body, if on { p.force() } else { [0.0; 3] });
         }
         self.world.step();
         self.steps += 1;
