@@ -8,7 +8,7 @@ use marionette::fk::{forward_kinematics, Pose};
 use marionette::formats::{amc, asf};
 use marionette::interp::{facing_angle, interpolate_frames, root_position, root_rotation};
 use marionette::math::wrap_near;
-use marionette::motion::clip::transform;
+use marionette::motion::clip::{bend, transform};
 use marionette::motion::connect::{connect, loop_clip, ConnectParams, Direction, Method};
 use marionette::motion::matching::{backward_match, forward_match, MatchParams, Metric};
 use marionette::motion::seam::seam_report;
@@ -255,6 +255,56 @@ fn transformation_sets_facing_and_keeps_relative_headings() {
             }
         }
         assert!(worst < 1e-9, "360° turn: {worst}");
+    }
+}
+
+/// `bend` (`transform --turn`): each frame turned by its share of the turn — the facing goes
+/// from the clip's own to it plus the turn, evenly — each step over the ground turned with its
+/// frame (the same length, heights kept), the first frame where it was; a straight walk bent
+/// 90° ends walking at right angles to how it started.
+#[test]
+fn bending_a_walk_turns_its_facing_and_its_path() {
+    let c = clips();
+    let s = &c.skeleton;
+    let walk = &c.walk;
+    let n = walk.len();
+    for turn_deg in [45.0f64, -90.0] {
+        let turn = turn_deg.to_radians();
+        let out = bend(s, walk, turn);
+        let (before, after) = (facings(s, walk), facings(s, &out));
+        for i in 0..n {
+            let want = before[i] + turn * i as f64 / (n - 1) as f64;
+            let err = (wrap_near(after[i], want) - want).abs();
+            assert!(err < 1e-6, "{turn_deg}°, frame {i}: facing off by {err}");
+            let (p, q) = (root_position(s, walk.frame(i)), root_position(s, out.frame(i)));
+            assert!((p.y - q.y).abs() < 1e-9, "height kept");
+            if i > 0 {
+                let ground = |m: &Motion| {
+                    let d = root_position(s, m.frame(i)) - root_position(s, m.frame(i - 1));
+                    DVec3::new(d.x, 0.0, d.z).length()
+                };
+                assert!((ground(walk) - ground(&out)).abs() < 1e-9, "step length kept");
+            }
+        }
+        let start = root_position(s, out.frame(0)) - root_position(s, walk.frame(0));
+        assert!(start.length() < 1e-12, "the first frame stays");
+        // The path's last stretch (half a second) against its first, in the ground plane.
+        let heading = |m: &Motion, a: usize, b: usize| {
+            let d = root_position(s, m.frame(b)) - root_position(s, m.frame(a));
+            d.x.atan2(d.z)
+        };
+        let k = 60;
+        let straight = heading(walk, n - 1 - k, n - 1) - heading(walk, 0, k);
+        let bent = heading(&out, n - 1 - k, n - 1) - heading(&out, 0, k);
+        // The two stretches' middles are (n − 1 − k) frames apart: that share of the turn.
+        let want = turn * (n - 1 - k) as f64 / (n - 1) as f64;
+        let got = wrap_near(bent - straight, want);
+        assert!(
+            (got - want).abs() < 3f64.to_radians(),
+            "{turn_deg}°: path turned {}°, {}° wanted",
+            got.to_degrees(),
+            want.to_degrees()
+        );
     }
 }
 

@@ -47,11 +47,15 @@ impl Studio {
     }
 
     fn start_with(extra: &[&str], env: &[(&str, &str)]) -> Studio {
+        Studio::start_profile(PROFILE, extra, env)
+    }
+
+    fn start_profile(profile: &str, extra: &[&str], env: &[(&str, &str)]) -> Studio {
         let mut child = common::bin()
             .env_remove("MARIONETTE_STUDIO_TOKEN")
             .envs(env.iter().copied())
             .arg("studio")
-            .arg(PROFILE)
+            .arg(profile)
             .arg(common::data("16.asf"))
             .args(["--port", "0", "-q", "--rate", "120"])
             .args(extra)
@@ -171,6 +175,67 @@ impl Studio {
         assert!(status.success(), "{status:?}\n{out}");
         out
     }
+}
+
+/// A profile of robot joints (the OP3): the pose carries the robot beside the human — its
+/// links at the servos' present angles once the loop has read them, both soles planted with the
+/// support polygon around them, the centre of mass and the ZMP inside it, all in the page's
+/// frame, the robot to the human's side; a profile of bones has none.
+#[test]
+fn the_studio_draws_the_robot_of_a_robot_profile_beside_the_human() {
+    let mut studio = Studio::start_profile("firmware-profile/robotis-op3.toml", &[], &[]);
+    let mut robot = Value::Null;
+    for _ in 0..100 {
+        robot = studio.get("/api/pose").1["robot"].clone();
+        if robot["present"] == json!(true) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(robot["present"], json!(true), "{robot}");
+    let point = |v: &Value| {
+        DVec3::new(
+            v[0].as_f64().unwrap(),
+            v[1].as_f64().unwrap(),
+            v[2].as_f64().unwrap(),
+        )
+    };
+    let links = robot["links"].as_array().unwrap();
+    assert!(links.len() >= 20, "{} links", links.len());
+    for side in 0..2 {
+        assert_eq!(robot["soles"][side]["planted"], json!(true), "{robot}");
+    }
+    let support: Vec<DVec3> = robot["support"].as_array().unwrap().iter().map(point).collect();
+    assert!(support.len() >= 4, "{support:?}");
+    // On the floor plane (the page's y up): the centre of mass and the ZMP inside the support
+    // polygon (a convex hull: on the inner side of every edge, either turning).
+    let floor = |p: DVec3| (p.x, p.z);
+    let inside = |p: DVec3| {
+        let (x, z) = floor(p);
+        let sides: Vec<f64> = (0..support.len())
+            .map(|i| {
+                let (ax, az) = floor(support[i]);
+                let (bx, bz) = floor(support[(i + 1) % support.len()]);
+                (bx - ax) * (z - az) - (bz - az) * (x - ax)
+            })
+            .collect();
+        sides.iter().all(|s| *s >= 0.0) || sides.iter().all(|s| *s <= 0.0)
+    };
+    assert!(inside(point(&robot["com"])), "{robot}");
+    assert!(inside(point(&robot["zmp"])), "{robot}");
+    // Beside the human: the robot's links clear of the human's bones' middle.
+    let pose = studio.get("/api/pose").1;
+    let pelvis = tip(&pose, "root");
+    let nearest = links
+        .iter()
+        .flat_map(|l| [point(&l[0]), point(&l[1])])
+        .map(|p| ((p.x - pelvis.x).powi(2) + (p.z - pelvis.z).powi(2)).sqrt())
+        .fold(f64::INFINITY, f64::min);
+    assert!(nearest > 3.0, "the robot stands {nearest} units from the pelvis");
+    studio.stop();
+    let mut puppet = Studio::start(&[]);
+    assert!(puppet.get("/api/pose").1["robot"].is_null());
+    puppet.stop();
 }
 
 fn tip(pose: &Value, bone: &str) -> DVec3 {
@@ -424,6 +489,24 @@ fn the_page_drags_the_left_hand_in_a_real_browser() {
     let summary = studio.stop();
     println!("{summary}");
     assert!(summary.contains("drag → Sync Write:"), "{summary}");
+}
+
+/// The OP3's profile in a real browser: the page draws the robot beside the human, and a drag
+/// of the human's left hand moves the robot's left arm (its present angles).
+#[test]
+fn the_page_draws_the_robot_and_a_drag_moves_its_arm_in_a_real_browser() {
+    let mut studio = Studio::start_profile("firmware-profile/robotis-op3.toml", &[], &[]);
+    let (measured, dir) = browser(
+        "robot_page.py",
+        &format!("http://{}/", studio.addr),
+        "studio-robot",
+    );
+    assert_eq!(measured["planted"], json!([true, true]), "{measured}");
+    assert!(measured["support"].as_u64().unwrap() >= 4, "{measured}");
+    for shot in ["robot.png", "robot_dragged.png"] {
+        assert!(dir.join(shot).metadata().unwrap().len() > 10_000, "{shot}");
+    }
+    studio.stop();
 }
 
 type Ws = tungstenite::WebSocket<TcpStream>;

@@ -1100,6 +1100,22 @@ impl Retargeter {
         self.to_world(p)
     }
 
+    /// A robot world point (metres) in the human's world (file units): the inverse of
+    /// [`Retargeter::human_point_in_world`], to draw the robot beside the human.
+    #[must_use]
+    pub fn robot_point_in_human(&self, p: RealVec3) -> RealVec3 {
+        let up_h = self.human_frame.col(2);
+        let floor = 0.5 * (self.floor.ankle[0] + self.floor.ankle[1]);
+        let v = self.world.transpose() * (p - RealVec3::new(0.0, 0.0, self.flat_ankle_height(0)));
+        v / (self.units * self.leg_scale) + up_h * floor
+    }
+
+    /// Half length and half width of each sole (the map's), metres.
+    #[must_use]
+    pub fn sole_half(&self) -> [[Real; 2]; 2] {
+        self.map.legs.map(|l| l.sole_half)
+    }
+
     /// Human world point → robot world point (metres; the human floor onto z = 0 at the ankle).
     fn to_world(&self, p: RealVec3) -> RealVec3 {
         let up_h = self.human_frame.col(2);

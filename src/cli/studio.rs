@@ -87,7 +87,17 @@ pub fn studio_cmd(
             None,
         )
     };
-    let studio = Arc::new(Studio::new(scene, feed, servos, args.rate, bus).with_live_view(live));
+    let mut studio = Studio::new(scene, feed, servos, args.rate, bus).with_live_view(live);
+    // A profile of robot joints: the robot is drawn beside the human.
+    if profile.servos.iter().any(|s| matches!(s.drive, Drive::Joint(_))) {
+        let setup = crate::retarget::Setup::new(&profile, &skeleton)?;
+        let floor = match &clip {
+            Some(m) => crate::retarget::floor_of_clip(&skeleton, m, &setup.map.human),
+            None => crate::retarget::floor_of_rest(&skeleton, &setup.map.human),
+        };
+        studio = studio.with_robot(crate::studio::robot::RobotView::new(&setup, &skeleton, floor));
+    }
+    let studio = Arc::new(studio);
     let source = Box::new(StudioSource::new(Arc::clone(&studio), lockstep));
     let web = Arc::new(Server::new(Arc::clone(&studio), Arc::clone(&access)));
     let s = Arc::clone(&web);

@@ -8,6 +8,7 @@
 #[cfg(feature = "studio")]
 pub mod access;
 pub mod request;
+pub mod robot;
 pub mod scene;
 #[cfg(feature = "studio")]
 pub mod server;
@@ -125,6 +126,8 @@ pub struct Studio {
     pub stop: AtomicBool,
     /// Ticks per second the loop made over the last second.
     measured_rate: Mutex<(Instant, u64, f64)>,
+    /// A profile of robot joints: the robot drawn beside the human.
+    robot: Option<Mutex<robot::RobotView>>,
 }
 
 impl Studio {
@@ -146,7 +149,15 @@ impl Studio {
             sent: AtomicU64::new(0),
             stop: AtomicBool::new(false),
             measured_rate: Mutex::new((Instant::now(), 0, 0.0)),
+            robot: None,
         }
+    }
+
+    /// The studio drawing `view`'s robot beside the human.
+    #[must_use]
+    pub fn with_robot(mut self, view: robot::RobotView) -> Studio {
+        self.robot = Some(Mutex::new(view));
+        self
     }
 
     /// The studio showing `live` (the view the loop publishes into) instead of its own.
@@ -357,6 +368,7 @@ impl Studio {
         let report = scene.primary.report.clone();
         drop(scene);
         json!({
+            "robot": self.robot_json(true),
             "tips": map,
             "residual": report.residual,
             "solver": report.solver,
@@ -364,6 +376,31 @@ impl Studio {
             "micros": report.micros,
             "servos": self.servos_json(),
         })
+    }
+
+    /// A profile of robot joints: the robot beside the human ([`robot::RobotView::view`]) at
+    /// the servos' present angles, in the human's world (as the page draws the bones) or, with
+    /// `root_frame`, in the root's frame (as the API gives the tips); null otherwise.
+    #[must_use]
+    pub fn robot_json(&self, root_frame: bool) -> Value {
+        let Some(view) = &self.robot else {
+            return Value::Null;
+        };
+        let present: Vec<f64> = {
+            let live = self.live.read();
+            live.present_rad[..live.len].to_vec()
+        };
+        let scene = self.scene();
+        let human = scene.pose64();
+        view.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .view(&human, FRAME.as_secs_f64(), &present, |p| {
+                if root_frame {
+                    scene.world_to_root(p)
+                } else {
+                    p
+                }
+            })
     }
 
     /// `POST /api/target`: `effector` to `position` (root frame), or released with `None`.

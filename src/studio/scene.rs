@@ -394,6 +394,14 @@ impl Scene {
         pose.tip[..self.skel.bones().len()].to_vec()
     }
 
+    /// The primary pose's forward kinematics (the human's world).
+    #[must_use]
+    pub fn pose64(&self) -> Pose64 {
+        let mut pose = Pose64::default();
+        fk64(&self.skel, &self.primary.channels, &mut pose);
+        pose
+    }
+
     /// Joint (start) and tip of every bone for `channels`.
     #[must_use]
     pub fn segments(&self, channels: &[f64]) -> Vec<(DVec3, DVec3)> {

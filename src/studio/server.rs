@@ -326,6 +326,7 @@ fn state(studio: &Studio, selected: Option<&str>) -> Value {
     drop(scene);
     let mut v = v;
     v["servos"] = studio.servos_json();
+    v["robot"] = studio.robot_json(false);
     v["loop"] = studio.loop_json();
     v["latency"] = json!(studio.latency().0);
     v

@@ -180,6 +180,10 @@ function update(state) {
 function frame(state) {
   const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
   for (const s of state.bones) for (let i = 0; i < 6; i++) { lo[i % 3] = Math.min(lo[i % 3], s[i]); hi[i % 3] = Math.max(hi[i % 3], s[i]); }
+  // The robot beside the human is framed too (its floor is the human's).
+  if (state.robot) for (const [p, q] of state.robot.links) for (const v of [p, q]) for (let i = 0; i < 3; i++) {
+    if (i !== 1) { lo[i] = Math.min(lo[i], v[i]); hi[i] = Math.max(hi[i], v[i]); }
+  }
   if (!Number.isFinite(lo[0])) return;
   camera.target = mul(add(lo, hi), 0.5);
   camera.distance = 1.6 * Math.max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) / Math.tan(camera.fov / 2) / 2 + 1;
@@ -259,6 +263,28 @@ function skeleton(b, bones, color, width, joints) {
   });
 }
 
+// The robot beside the human: the support polygon of its planted soles (filled), its soles
+// (solid when planted), its links at the servos' present angles, the centre of mass (red) and
+// the ZMP (blue) on the floor.
+function robot(b, r) {
+  const poly = r.support.map((p) => project(b, p)).filter(Boolean);
+  if (poly.length >= 3) {
+    ctx.beginPath(); ctx.moveTo(poly[0].x, poly[0].y);
+    for (const a of poly.slice(1)) ctx.lineTo(a.x, a.y);
+    ctx.closePath(); ctx.fillStyle = "rgba(96,208,128,0.25)"; ctx.fill();
+  }
+  for (const sole of r.soles) {
+    ctx.setLineDash(sole.planted ? [] : [4, 4]);
+    const c = sole.corners;
+    for (let i = 0; i < 4; i++) line(b, c[i], c[(i + 1) % 4], "#f0a040", 1.5);
+  }
+  ctx.setLineDash([]);
+  for (const [p, q] of r.links) line(b, p, q, r.present ? "#f08030" : "rgba(240,128,48,0.55)", 3);
+  dotAt(b, r.com, 0.3, "#e05050");
+  dotAt(b, r.zmp, 0.3, "#5080f0");
+  studio.robotDrawn = r.links.length;
+}
+
 // Where each handle is drawn: the target when it has one (or is being dragged), else the tip.
 function handles() {
   const st = studio.state;
@@ -285,6 +311,7 @@ function draw() {
   }
   if (st.ghost) skeleton(b, st.ghost.bones, "rgba(120,200,255,0.55)", 3, false);
   skeleton(b, st.bones, "#e8ecf0", 3, true);
+  if (st.robot) robot(b, st.robot);
   for (const h of handles()) {
     const selected = h.name === studio.selected;
     if (h.target) line(b, h.tip, h.target, "rgba(255,208,96,0.6)", 1);
