@@ -678,9 +678,6 @@ pub fn retarget_clip_with(
             Some(stance) => r.step_on_plan(&setup.robot, &pose, dt, &stance, &mut out),
             None => r.step(&setup.robot, &pose, dt, &mut out),
         }
-        if plan(k).is_some() && out.out_of_reach > 0 && std::env::var_os("DBG_OOR").is_some() {
-            eprintln!("oor k {k} z {:.4} planted {:?}", out.base_pos.z, out.planted);
-        }
         frames.push(out.clone());
     }
     let elapsed = started.elapsed().as_secs_f64();
