@@ -591,23 +591,26 @@ fn op3_whole_body_stands_through_the_standing_stretches() {
 }
 
 /// Plays `amc` walking on its plan on the OP3 in MuJoCo at `rate` Hz, eased in and held at the
-/// end; returns the simulator's report and the stats JSON.
-fn op3_walks(asf_name: &str, amc: &std::path::Path, rate: &str) -> (serde_json::Value, serde_json::Value) {
-    op3_on_the_floor(
-        asf_name,
-        amc,
-        &[
-            "--walk",
-            "--rate",
-            rate,
-            "--ease-in",
-            "1",
-            "--pre-roll",
-            "1",
-            "--on-stop",
-            "hold",
-        ],
-    )
+/// end, with `extra` options; returns the simulator's report and the stats JSON.
+fn op3_walks(
+    asf_name: &str,
+    amc: &std::path::Path,
+    rate: &str,
+    extra: &[&str],
+) -> (serde_json::Value, serde_json::Value) {
+    let mut args = vec![
+        "--walk",
+        "--rate",
+        rate,
+        "--ease-in",
+        "1",
+        "--pre-roll",
+        "1",
+        "--on-stop",
+        "hold",
+    ];
+    args.extend_from_slice(extra);
+    op3_on_the_floor(asf_name, amc, &args)
 }
 
 /// The bundled walk on its plan, whole body on the floor, at the OP3 framework's 125 Hz and at
@@ -630,7 +633,7 @@ fn op3_walks_the_bundled_walk_on_its_plan_in_mujoco() {
         .map(|e| e.map_or(f64::NAN, |e| e.rms))
     };
     for rate in ["125", "250"] {
-        let (sim, stats) = op3_walks("16.asf", &common::data("16_15.amc"), rate);
+        let (sim, stats) = op3_walks("16.asf", &common::data("16_15.amc"), rate, &[]);
         println!(
             "16_15 at {rate} Hz: tilt {}°, travel {} of {} m, footsteps {}, zmp {}",
             sim["torso_max_tilt_deg"],
@@ -667,7 +670,7 @@ fn op3_walks_the_bundled_walk_on_its_plan_in_mujoco() {
             );
         }
         if rate == "125" {
-            let (again, _) = op3_walks("16.asf", &common::data("16_15.amc"), rate);
+            let (again, _) = op3_walks("16.asf", &common::data("16_15.amc"), rate, &[]);
             assert_eq!(sim, again, "two runs differ");
         }
     }
@@ -682,23 +685,7 @@ fn op3_walking_survives_a_push_and_a_shove_topples_it() {
         ("5.6,1.0,0", false),
         ("2.5,3.0,90", true),
     ] {
-        let (sim, _) = op3_on_the_floor(
-            "16.asf",
-            &common::data("16_15.amc"),
-            &[
-                "--walk",
-                "--rate",
-                "125",
-                "--ease-in",
-                "1",
-                "--pre-roll",
-                "1",
-                "--on-stop",
-                "hold",
-                "--sim-push",
-                push,
-            ],
-        );
+        let (sim, _) = op3_walks("16.asf", &common::data("16_15.amc"), "125", &["--sim-push", push]);
         println!(
             "push {push}: tilt {}°, fell {}",
             sim["torso_max_tilt_deg"], sim["fell_at_s"]
@@ -732,7 +719,7 @@ fn op3_walks_a_turn_and_plays_a_jumping_clip_without_falling() {
         clips.push(("16.asf", path));
     }
     for (asf_name, amc) in &clips {
-        let (sim, stats) = op3_walks(asf_name, amc, "125");
+        let (sim, stats) = op3_walks(asf_name, amc, "125", &[]);
         let walk = &stats["retarget"]["walk"];
         println!(
             "{}: tilt {}°, footsteps {} ({} substituted), {}",

@@ -357,35 +357,27 @@ impl Robot {
 mod tests {
     use super::*;
 
+    /// Two 1 m links along x, 1 kg and 2 kg at their middles, hinged about `axis` at the origin
+    /// and at the first link's end; the robot and the second link's body.
+    fn two_link_arm(axis: RealVec3) -> (Robot, usize) {
+        let mut r = Robot::new();
+        let half = RealVec3::new(0.5, 0.0, 0.0);
+        let a = r
+            .add_body("upper", None, RealVec3::ZERO, RealQuat::IDENTITY, 1.0, half)
+            .unwrap();
+        let b = r
+            .add_body("lower", Some(a), RealVec3::X, RealQuat::IDENTITY, 2.0, half)
+            .unwrap();
+        r.add_hinge("shoulder", a, axis, RealVec3::ZERO, None).unwrap();
+        r.add_hinge("elbow", b, axis, RealVec3::ZERO, None).unwrap();
+        (r, b)
+    }
+
     /// A two-link arm in a vertical plane (hinges about y, links along x, 1 kg and 2 kg at their
     /// middles): gravity's torque about each joint, and with a force at the tip.
     #[test]
     fn static_torques_of_a_two_link_arm() {
-        let mut r = Robot::new();
-        let a = r
-            .add_body(
-                "upper",
-                None,
-                RealVec3::ZERO,
-                RealQuat::IDENTITY,
-                1.0,
-                RealVec3::new(0.5, 0.0, 0.0),
-            )
-            .unwrap();
-        let b = r
-            .add_body(
-                "lower",
-                Some(a),
-                RealVec3::new(1.0, 0.0, 0.0),
-                RealQuat::IDENTITY,
-                2.0,
-                RealVec3::new(0.5, 0.0, 0.0),
-            )
-            .unwrap();
-        r.add_hinge("shoulder", a, RealVec3::Y, RealVec3::ZERO, None)
-            .unwrap();
-        r.add_hinge("elbow", b, RealVec3::Y, RealVec3::ZERO, None)
-            .unwrap();
+        let (r, b) = two_link_arm(RealVec3::Y);
         let g = 9.81;
         let mut pose = RobotPose::default();
         let mut tau = [0.0; 2];
@@ -410,31 +402,7 @@ mod tests {
     /// A two-link arm in a plane: FK against the closed form, and the centre of mass.
     #[test]
     fn planar_two_link_arm() {
-        let mut r = Robot::new();
-        let a = r
-            .add_body(
-                "upper",
-                None,
-                RealVec3::ZERO,
-                RealQuat::IDENTITY,
-                1.0,
-                RealVec3::new(0.5, 0.0, 0.0),
-            )
-            .unwrap();
-        let b = r
-            .add_body(
-                "lower",
-                Some(a),
-                RealVec3::new(1.0, 0.0, 0.0),
-                RealQuat::IDENTITY,
-                2.0,
-                RealVec3::new(0.5, 0.0, 0.0),
-            )
-            .unwrap();
-        r.add_hinge("shoulder", a, RealVec3::Z, RealVec3::ZERO, None)
-            .unwrap();
-        r.add_hinge("elbow", b, RealVec3::Z, RealVec3::ZERO, None)
-            .unwrap();
+        let (mut r, b) = two_link_arm(RealVec3::Z);
         let (t1, t2) = (0.3_f64, -0.7_f64);
         let mut pose = RobotPose::default();
         r.forward(RealVec3::ZERO, RealQuat::IDENTITY, &[t1, t2], &mut pose);
