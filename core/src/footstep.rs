@@ -13,7 +13,10 @@
 //!   has stood [`StepLimits::double_support_s`];
 //! * a step **beyond reach** — clamped in the stance foot's frame (forward, backward, width,
 //!   turn);
-//! * a step **faster than the servos allow** — shortened to what the swing's time allows at
+//! * a step **faster than the servos allow** — first given more time: the foot lifts earlier,
+//!   taking up to half of the double support before its swing (never leaving less than
+//!   [`StepLimits::double_support_s`], and never before the foot itself has stood that long);
+//!   then, if that is not enough, shortened to what the swing's time allows at
 //!   [`StepLimits::foot_speed`], or dropped (the foot stays) when the swing is shorter than
 //!   [`StepLimits::swing_min_s`].
 //!
@@ -84,13 +87,16 @@ pub struct Substitution {
     pub too_long: bool,
     /// Shortened: the swing was too short for the distance at the servos' speed.
     pub too_fast: bool,
+    /// Lifted earlier than the clip's foot, out of the double support before the swing, to
+    /// give the swing the time its distance needs at the servos' speed.
+    pub early_lift: bool,
 }
 
 impl Substitution {
     /// Whether anything was changed.
     #[must_use]
     pub fn any(&self) -> bool {
-        self.flight || self.short_double_support || self.too_long || self.too_fast
+        self.flight || self.short_double_support || self.too_long || self.too_fast || self.early_lift
     }
 }
 
@@ -341,11 +347,23 @@ impl FootstepPlanner {
         let fallback = self.clip_last[other];
         let stance = self.current(other).map_or(fallback, |s| s.at);
         let mut at = stance.moved(RealVec2::new(x, y * sign), turn_clamped);
-        // The swing's time against the distance.
-        let (lifted, from) = self.swing[side];
+        // The swing's time against the distance; a swing too short for it lifts earlier.
+        let (mut lifted, from) = self.swing[side];
+        let distance = (at.centre - from.centre).length();
+        let needed = l.swing_min_s + distance / l.foot_speed;
+        if t - lifted < needed - 1e-9 {
+            let earlier = self.earliest_lift(side, lifted).max(t - needed);
+            if earlier < lifted - 1e-9 {
+                lifted = earlier;
+                self.swing[side].0 = lifted;
+                if let Some(step) = self.current(side) {
+                    step.lift_s = lifted;
+                }
+                changed.early_lift = true;
+            }
+        }
         let time = t - lifted;
         let allowed = (time - l.swing_min_s) * l.foot_speed;
-        let distance = (at.centre - from.centre).length();
         self.clip_last[side] = clip;
         if allowed <= 0.0 {
             // Too short a swing to lift the foot at all: it stays where it was.
@@ -357,7 +375,7 @@ impl FootstepPlanner {
             self.release_other(other, t);
             return;
         }
-        if distance > allowed {
+        if distance > allowed + 1e-9 {
             changed.too_fast = true;
             // The nearest step inside both the swing's reach (a disc round where the foot
             // lifted) and the stance foot's limits (a box in its frame): alternating projections,
@@ -406,6 +424,23 @@ impl FootstepPlanner {
         });
         self.planted[side] = true;
         self.release_other(other, t);
+    }
+
+    /// The earliest the foot of `side`, which lifted at `lifted`, could have lifted instead:
+    /// no sooner than half way through the double support before it, leaving at least
+    /// [`StepLimits::double_support_s`] of it, and after the foot itself stood that long.
+    /// `lifted` itself when the other foot was not standing throughout.
+    fn earliest_lift(&mut self, side: usize, lifted: Real) -> Real {
+        let ds = self.limits.double_support_s;
+        let stood_other = match self.current(1 - side) {
+            Some(s) if s.land_s <= lifted && s.lift_s > lifted => s.land_s,
+            _ => return lifted,
+        };
+        let Some(own) = self.current(side).map(|s| s.land_s) else {
+            return lifted;
+        };
+        let start = stood_other.max(own);
+        (lifted - 0.5 * (lifted - start)).max(start + ds).min(lifted)
     }
 
     /// The other foot's lift that waited for this landing happens after the double support.
@@ -497,6 +532,17 @@ mod tests {
     /// A clip standing 0.3 s, then walking straight along x: steps of `stride` every
     /// `period` s, single supports of 60 % of the period; frames at 100 Hz.
     fn walk(planner: &mut FootstepPlanner, stride: Real, period: Real, steps: usize) -> Real {
+        walk_with_swing(planner, stride, period, 0.6, steps)
+    }
+
+    /// [`walk`] with single supports of `swing_share` of the period.
+    fn walk_with_swing(
+        planner: &mut FootstepPlanner,
+        stride: Real,
+        period: Real,
+        swing_share: Real,
+        steps: usize,
+    ) -> Real {
         let mut feet = [at(0.0, 0.05), at(0.0, -0.05)];
         let dt = 0.01;
         let mut t = 0.0;
@@ -507,7 +553,7 @@ mod tests {
         for k in 0..steps {
             let side = k % 2;
             let reach = if k == 0 { stride / 2.0 } else { stride };
-            let swing = 0.6 * period;
+            let swing = swing_share * period;
             let end = t + period;
             while t < end - 1e-9 {
                 t += dt;
@@ -562,12 +608,43 @@ mod tests {
         assert!(s.changed.too_fast, "{s:?}");
         let (rel, _) = p.steps()[2].at.relative(&s.at);
         assert!(rel.x < 0.1, "{rel}");
-        // A 0.06 s swing cannot lift the foot: no step, the foot stays.
+        // A 0.06 s swing cannot lift the foot: no step, the foot stays — but for the first,
+        // which lifts earlier out of the standing before it.
         let mut p = FootstepPlanner::new(limits());
         walk(&mut p, 0.05, 0.1, 2);
-        assert_eq!(p.steps().len(), 2, "{:#?}", p.steps());
-        assert!(p.steps().iter().all(|s| s.lift_s.is_infinite()));
-        assert_eq!(p.substituted().1, 2);
+        assert_eq!(p.steps().len(), 3, "{:#?}", p.steps());
+        assert!(p.steps()[2].changed.early_lift);
+        assert!(p.steps()[1].lift_s.is_infinite() && p.steps()[2].lift_s.is_infinite());
+        assert_eq!(p.substituted().1, 1);
+    }
+
+    #[test]
+    fn a_swing_too_short_for_its_step_lifts_earlier_out_of_a_long_double_support() {
+        // 0.1 m in a 0.2 s swing needs 0.12 + 0.1 / 0.5 = 0.32 s; 0.6 s of double support
+        // before it gives the 0.12 s missing, so the step keeps its length.
+        let mut p = FootstepPlanner::new(limits());
+        walk_with_swing(&mut p, 0.1, 0.8, 0.25, 4);
+        let steps = p.steps();
+        for w in steps[2..].windows(2) {
+            let (previous, s) = (w[0], w[1]);
+            assert!(s.changed.early_lift && !s.changed.too_fast, "{s:?}");
+            assert!((s.at.centre - s.clip.centre).length() < 1e-9, "{s:?}");
+            // The foot it stepped from lifted 0.12 s before the clip's (0.2 s swing).
+            let own_last = steps.iter().rev().find(|x| x.side == s.side && x.land_s < s.land_s).unwrap();
+            let swing = s.land_s - own_last.lift_s;
+            assert!((swing - 0.32).abs() < 0.011, "{swing}");
+            // The other foot stood at least the shortest double support before the lift.
+            assert!(own_last.lift_s - previous.land_s.max(own_last.land_s) >= 0.1 - 1e-9);
+        }
+        // Double supports too short to lend time (after the standing start's): shortened.
+        let mut p = FootstepPlanner::new(limits());
+        walk_with_swing(&mut p, 0.1, 0.25, 0.8, 4);
+        let later = &p.steps()[3..];
+        assert!(
+            later.iter().all(|s| !s.changed.early_lift) && later.iter().any(|s| s.changed.too_fast),
+            "{:#?}",
+            p.steps()
+        );
     }
 
     #[test]

@@ -182,6 +182,40 @@ impl World {
         }
     }
 
+    /// Sets an actuator's force limits (N·m for a hinge) and turns its force limiting on.
+    /// Ignored for an unknown actuator or limits that are not finite with `lo ≤ 0 ≤ hi`.
+    pub fn set_force_range(&mut self, actuator: usize, lo: f64, hi: f64) {
+        if actuator >= self.actuator_count() || !(lo.is_finite() && hi.is_finite() && lo <= 0.0 && 0.0 <= hi) {
+            return;
+        }
+        // SAFETY: two numbers and a flag of an existing actuator change (checked above);
+        // MuJoCo reads them at every step when it clamps the actuator's force.
+        unsafe {
+            let m = self.data.model_mut();
+            m.actuator_forcerange_mut()[actuator] = [lo, hi];
+            m.actuator_forcelimited_mut()[actuator] = true;
+        }
+    }
+
+    /// A degree of freedom's linear damping (N·m·s/rad for a hinge).
+    #[must_use]
+    pub fn dof_damping(&self, dof: usize) -> f64 {
+        self.model().dof_damping().get(dof).copied().unwrap_or(f64::NAN)
+    }
+
+    /// Sets a degree of freedom's linear damping. Ignored for an unknown degree of freedom or a
+    /// damping that is not finite and non-negative.
+    pub fn set_dof_damping(&mut self, dof: usize, damping: f64) {
+        if dof >= self.dof_count() || !(damping.is_finite() && damping >= 0.0) {
+            return;
+        }
+        // SAFETY: one number of an existing degree of freedom changes (checked above); MuJoCo
+        // reads it at every step for the passive force.
+        unsafe {
+            self.data.model_mut().dof_damping_mut()[dof] = damping;
+        }
+    }
+
     /// An actuator's control.
     #[must_use]
     pub fn ctrl(&self, actuator: usize) -> f64 {

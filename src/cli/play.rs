@@ -143,6 +143,13 @@ pub struct LoopArgs {
     /// from +x (forward on the OP3) towards +y (its left).
     #[arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)]
     pub sim_push: Option<Vec<f64>>,
+    /// With --bus sim: every simulated servo's joint damping times this, so it follows its goal
+    /// more slowly than the profile's model (1.5: 50 % slower).
+    #[arg(long, default_value_t = 1.0)]
+    pub sim_lag_scale: f64,
+    /// With --bus sim: every simulated servo's torque limit times this (0.8: 20 % weaker).
+    #[arg(long, default_value_t = 1.0)]
+    pub sim_torque_scale: f64,
     /// With --bus sim: draw commanded vs simulated angles and the per-servo RMS (.png or .svg).
     #[arg(long)]
     pub sim_plot: Option<PathBuf>,
@@ -246,6 +253,21 @@ impl LoopArgs {
                 ));
             }
         }
+        for (option, value) in [
+            ("--sim-lag-scale", self.sim_lag_scale),
+            ("--sim-torque-scale", self.sim_torque_scale),
+        ] {
+            if value != 1.0 && self.bus != BusArg::Sim {
+                return Err(CliError::Usage(format!(
+                    "{option} changes the simulated servos: give --bus sim"
+                )));
+            }
+            if !(value.is_finite() && value > 0.0 && value <= 10.0) {
+                return Err(CliError::Usage(format!(
+                    "{option} takes a factor above 0 and at most 10, got {value}"
+                )));
+            }
+        }
         let mut spec = SessionSpec {
             rate_hz: self.rate,
             duration_s: self.duration,
@@ -293,6 +315,8 @@ impl LoopArgs {
                 plot_servos: self.plot_servos.clone(),
                 trace: self.sim_trace.clone(),
                 push: self.sim_push.as_deref().map(|p| [p[0], p[1], p[2]]),
+                lag_scale: self.sim_lag_scale,
+                torque_scale: self.sim_torque_scale,
             },
             sinks: Sinks {
                 status_line: !self.quiet,

@@ -50,14 +50,19 @@ pub const PREVIEW_S: f64 = 1.6;
 /// (an XM430-W350's no-load speed at 12 V, 46 rpm).
 pub const DEFAULT_LEG_SPEED: f64 = 4.8;
 
+/// The share of the slowest leg servo's velocity limit that footsteps are planned for: the
+/// rest is left for what the plan does not see (the swing knee's peak beyond the foot's mean
+/// speed, servos slower or weaker than their profile, the feedback's corrections).
+pub const STEP_SPEED_SHARE: f64 = 0.7;
+
 /// Standing before the clip's first frame, s: the centre of mass settles over the feet and
 /// the preview sees the first step coming.
 pub const LEAD_IN_S: f64 = 1.0;
 
 /// The most of its length a leg stretches to on a plan: the base walks at one height, low
-/// enough that the longest step keeps the knees bent (about 28°), away from the straight
-/// leg where the knee's speed grows without bound.
-pub const WALK_REACH_SHARE: f64 = 0.97;
+/// enough that the longest step keeps the knees bent (about 43°), away from the straight
+/// leg where the knee's speed grows without bound and its torque for a given load with it.
+pub const WALK_REACH_SHARE: f64 = 0.93;
 
 /// How much lower than the lowest the whole-body pass had to put it the base walks when the
 /// plan's first estimate left a foot out of reach, m.
@@ -149,7 +154,8 @@ pub struct FootstepReport {
     pub at: [f64; 3],
     /// Where the clip put it.
     pub clip: [f64; 3],
-    /// What was changed: `flight`, `short_double_support`, `too_long`, `too_fast`.
+    /// What was changed: `flight`, `short_double_support`, `too_long`, `too_fast`,
+    /// `early_lift`.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub changed: Vec<&'static str>,
 }
@@ -169,6 +175,7 @@ impl From<&Footstep> for FootstepReport {
                 (c.short_double_support, "short_double_support"),
                 (c.too_long, "too_long"),
                 (c.too_fast, "too_fast"),
+                (c.early_lift, "early_lift"),
             ]
             .iter()
             .filter(|(on, _)| *on)
@@ -249,11 +256,14 @@ pub fn plan_walk(
     highest_base: f64,
 ) -> Result<WalkPlan, PreviewError> {
     let speed = leg_speed(setup);
-    let limits = retargeter.step_limits(if speed.is_finite() {
-        speed
-    } else {
-        DEFAULT_LEG_SPEED
-    });
+    let limits = retargeter.step_limits(
+        STEP_SPEED_SHARE
+            * if speed.is_finite() {
+                speed
+            } else {
+                DEFAULT_LEG_SPEED
+            },
+    );
     let dt = run.times.get(1).map_or(1.0 / 120.0, |t| t - run.times[0]);
     let mut planner = FootstepPlanner::new(limits);
     let mut footsteps: Vec<Footstep> = Vec::new();

@@ -127,7 +127,7 @@ pub enum Lead {
 }
 
 /// The simulator's settings and outputs (`--bus sim`).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct SimSpec {
     /// The MJCF model (default: the puppet generated from the profile and the skeleton).
     pub model: Option<PathBuf>,
@@ -142,6 +142,25 @@ pub struct SimSpec {
     /// Push the floating base's torso: when (simulated s), the impulse (N·s) and its direction
     /// on the floor (degrees from +x towards +y).
     pub push: Option<[f64; 3]>,
+    /// Every simulated servo's joint damping times this (1.5: 50 % slower than the profile's).
+    pub lag_scale: f64,
+    /// Every simulated servo's torque limit times this (0.8: 20 % weaker).
+    pub torque_scale: f64,
+}
+
+impl Default for SimSpec {
+    fn default() -> SimSpec {
+        SimSpec {
+            model: None,
+            report: None,
+            plot: None,
+            plot_servos: Vec::new(),
+            trace: None,
+            push: None,
+            lag_scale: 1.0,
+            torque_scale: 1.0,
+        }
+    }
 }
 
 /// What a walk does with the robot's IMU board.
@@ -831,6 +850,14 @@ impl Run<'_> {
         // The simulated bus keeps line time: a rate it cannot carry runs late (in simulated time).
         warn_if_over_budget(spec.rate_hz, &profile.bus, present.len(), log)?;
         bus.with(|t| t.plant_mut().record(true));
+        let (lag, torque) = (spec.sim.lag_scale, spec.sim.torque_scale);
+        if (lag, torque) != (1.0, 1.0) {
+            bus.with(|t| t.plant_mut().vary_servos(lag, torque));
+            writeln!(
+                log,
+                "simulated servos unlike the profile: joint damping ×{lag}, torque limits ×{torque}"
+            )?;
+        }
         if let Some([at_s, impulse_ns, direction_deg]) = spec.sim.push {
             bus.with(|t| {
                 t.plant_mut().set_push(Some(plant::Push {

@@ -276,6 +276,24 @@ impl SimPlant {
         })
     }
 
+    /// Makes every simulated servo unlike its profile, as a rig's servos may be: `lag_scale`
+    /// times the joint damping (the gear train's viscous loss, which with the position gain
+    /// sets how fast the horn follows: 1.5 is 50 % slower) and `torque_scale` times the
+    /// actuator's force limits (0.8: a servo 20 % weaker). 1 and 1 leave the model as it is.
+    pub fn vary_servos(&mut self, lag_scale: f64, torque_scale: f64) {
+        for s in &mut self.servos {
+            if let Some(dof) = self.world.joint_dof(s.joint) {
+                let damping = self.world.dof_damping(dof);
+                self.world.set_dof_damping(dof, damping * lag_scale);
+            }
+            if let Some((lo, hi)) = self.world.force_range(s.actuator) {
+                self.world
+                    .set_force_range(s.actuator, lo * torque_scale, hi * torque_scale);
+                s.force_limit = lo.abs().min(hi.abs()) * torque_scale;
+            }
+        }
+    }
+
     /// The servos' present ticks in the model's present state (for powering the chain up).
     #[must_use]
     pub fn present_ticks(&self) -> Vec<i32> {
