@@ -323,6 +323,61 @@ fn command_stage_clamps_and_limits_velocity_and_acceleration() {
     assert!(peak <= 2000.0 + 1.0 / dt, "peak velocity {peak}");
 }
 
+/// A correction (IMU feedback) rides on the goals sent: the path the stage keeps, which a
+/// planner continues from, is the same with and without it; what is sent keeps within the
+/// position limits and moves no faster than the velocity limit; taken away, it fades out at
+/// that speed.
+#[test]
+fn a_correction_rides_on_the_goals_sent_within_the_limits_and_stays_out_of_the_path() {
+    // 1000 ticks/s at 100 Hz: 10 ticks per tick.
+    let rig = one_servo_rig(1000.0, 0.0);
+    let (mut plain, mut corrected) = (CommandStage::new(1), CommandStage::new(1));
+    plain.start_from(&rig, &[2000]);
+    corrected.start_from(&rig, &[2000]);
+    let mut previous = 2000;
+    let mut path = 2000.0;
+    for k in 0..230 {
+        // A path climbing 5 ticks a tick towards the upper limit, and a correction that
+        // swings ±40 ticks, faster than the servo.
+        path += 5.0;
+        let correction = if (k / 3) % 2 == 0 { 40.0 } else { -40.0 };
+        corrected.set_correction(&[correction]);
+        let (sent, _) = corrected.command_planned(&rig, &[path], 0.01).unwrap();
+        let sent = sent[0];
+        let (unc, _) = plain.command_planned(&rig, &[path], 0.01).unwrap();
+        let unc = unc[0];
+        assert_eq!(corrected.state(0), plain.state(0), "tick {k}: the path moved");
+        assert!((1024..=3072).contains(&sent), "tick {k}: {sent}");
+        assert!((sent - previous).abs() <= 10, "tick {k}: {previous} → {sent}");
+        assert!((sent - unc).abs() <= 41, "tick {k}: {sent} against {unc}");
+        previous = sent;
+    }
+    // At the upper limit the path stands at 3072 and the correction cannot push past it.
+    assert_eq!(plain.last()[0], 3072);
+    corrected.set_correction(&[40.0]);
+    for _ in 0..10 {
+        let (sent, _) = corrected.command_planned(&rig, &[3072.0], 0.01).unwrap();
+        assert!(sent[0] <= 3072);
+    }
+    assert_eq!(corrected.last()[0], 3072);
+    // Taken away: back on the path within the velocity limit.
+    corrected.set_correction(&[-40.0]);
+    for _ in 0..10 {
+        corrected.command_planned(&rig, &[3072.0], 0.01).unwrap();
+    }
+    assert_eq!(corrected.last()[0], 3032);
+    corrected.set_correction(&[]);
+    let (sent, _) = corrected.command_planned(&rig, &[3072.0], 0.01).unwrap();
+    assert_eq!(sent[0], 3042);
+    for _ in 0..3 {
+        corrected.command_planned(&rig, &[3072.0], 0.01).unwrap();
+    }
+    assert_eq!(
+        (corrected.last()[0], corrected.applied_correction()[0]),
+        (3072, 0.0)
+    );
+}
+
 /// Each kind of profile error is reported with its line and what was expected.
 #[test]
 fn profile_errors_name_the_line() {

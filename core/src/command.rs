@@ -4,6 +4,11 @@
 //! not move half its joints), clamps to the software position limits, limits velocity and
 //! acceleration per servo (braking early enough to stop at the target), and remembers what it
 //! sent. Positions are kept in fractional ticks so slow motions are not lost to rounding.
+//!
+//! A correction ([`CommandStage::set_correction`], e.g. feedback from an IMU) rides on the
+//! goals sent without entering the path the stage keeps: a planner that continues from the
+//! stage's state ([`CommandStage::state`]) does not take it for motion to go on with. What is
+//! sent, path and correction together, still keeps within the position and velocity limits.
 
 use crate::math::{real, Real};
 use crate::rig::Rig;
@@ -56,6 +61,10 @@ pub struct CommandStage {
     position: [Real; MAX_SERVOS],
     velocity: [Real; MAX_SERVOS],
     ticks: [i32; MAX_SERVOS],
+    /// The correction asked for, fractional ticks.
+    correction: [Real; MAX_SERVOS],
+    /// The part of it sent with the last command (within the limits), fractional ticks.
+    applied: [Real; MAX_SERVOS],
     len: usize,
     started: bool,
 }
@@ -68,6 +77,8 @@ impl CommandStage {
             position: [0.0; MAX_SERVOS],
             velocity: [0.0; MAX_SERVOS],
             ticks: [0; MAX_SERVOS],
+            correction: [0.0; MAX_SERVOS],
+            applied: [0.0; MAX_SERVOS],
             len: servos.min(MAX_SERVOS),
             started: false,
         }
@@ -85,8 +96,25 @@ impl CommandStage {
             self.position[k] = p as Real;
             self.velocity[k] = 0.0;
             self.ticks[k] = p;
+            self.applied[k] = 0.0;
         }
         self.started = true;
+    }
+
+    /// Sets the correction added to the goals from the next command on, fractional ticks per
+    /// servo (missing or non-finite values: none). It is not part of the path
+    /// ([`CommandStage::state`]); the goal sent is the path plus as much of it as the position
+    /// limits and the velocity limit (against the goal sent before) allow.
+    pub fn set_correction(&mut self, ticks: &[Real]) {
+        for (k, c) in self.correction.iter_mut().enumerate().take(self.len) {
+            *c = ticks.get(k).copied().filter(|t| t.is_finite()).unwrap_or(0.0);
+        }
+    }
+
+    /// The correction sent with the last command (within the limits), fractional ticks.
+    #[must_use]
+    pub fn applied_correction(&self) -> &[Real] {
+        &self.applied[..self.len]
     }
 
     /// The last command sent, in ticks (empty before the first).
@@ -169,9 +197,11 @@ impl CommandStage {
             if target != wanted {
                 limited.clamped += 1;
             }
+            let sent_before = self.position[k] + self.applied[k];
             if !self.started {
                 self.position[k] = target;
                 self.velocity[k] = 0.0;
+                self.applied[k] = 0.0;
                 continue;
             }
             let (p, v) = match goal {
@@ -202,10 +232,22 @@ impl CommandStage {
                 Goal::PlannedTicks => p,
             };
             self.velocity[k] = v;
+            let wanted = self.correction[k];
+            if wanted != 0.0 || self.applied[k] != 0.0 {
+                // The path plus the correction, no faster than the servo against the goal sent
+                // before, inside the position limits.
+                let mut sent = self.position[k] + wanted;
+                let step = servo.max_velocity * dt;
+                if step.is_finite() && step > 0.0 {
+                    sent = real::clamp(sent, sent_before - step, sent_before + step);
+                }
+                sent = real::clamp(sent, lo, hi);
+                self.applied[k] = sent - self.position[k];
+            }
         }
         self.started = true;
         for k in 0..self.len {
-            self.ticks[k] = real::round(self.position[k]) as i32;
+            self.ticks[k] = real::round(self.position[k] + self.applied[k]) as i32;
         }
         Ok((&self.ticks[..self.len], limited))
     }

@@ -630,7 +630,11 @@ mod tests {
             assert!(s.changed.early_lift && !s.changed.too_fast, "{s:?}");
             assert!((s.at.centre - s.clip.centre).length() < 1e-9, "{s:?}");
             // The foot it stepped from lifted 0.12 s before the clip's (0.2 s swing).
-            let own_last = steps.iter().rev().find(|x| x.side == s.side && x.land_s < s.land_s).unwrap();
+            let own_last = steps
+                .iter()
+                .rev()
+                .find(|x| x.side == s.side && x.land_s < s.land_s)
+                .unwrap();
             let swing = s.land_s - own_last.lift_s;
             assert!((swing - 0.32).abs() < 0.011, "{swing}");
             // The other foot stood at least the shortest double support before the lift.

@@ -185,7 +185,8 @@ impl World {
     /// Sets an actuator's force limits (N·m for a hinge) and turns its force limiting on.
     /// Ignored for an unknown actuator or limits that are not finite with `lo ≤ 0 ≤ hi`.
     pub fn set_force_range(&mut self, actuator: usize, lo: f64, hi: f64) {
-        if actuator >= self.actuator_count() || !(lo.is_finite() && hi.is_finite() && lo <= 0.0 && 0.0 <= hi) {
+        if actuator >= self.actuator_count() || !(lo.is_finite() && hi.is_finite() && lo <= 0.0 && 0.0 <= hi)
+        {
             return;
         }
         // SAFETY: two numbers and a flag of an existing actuator change (checked above);

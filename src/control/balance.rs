@@ -6,6 +6,12 @@
 //! joint by `q` about its axis `a` turns the body above a planted foot by `−q·a`; an offset of
 //! `+k·(a·ω)` turns the body against its rate `ω`.
 //!
+//! The offsets ride on the goals sent ([`crate::command::CommandStage::set_correction`]), not
+//! on the path the look-ahead plans from. A leg in the air gets the opposite offset
+//! ([`SWING_LEG_SHARE`]): what turns the body over a planted foot only swings a lifted one
+//! off its path, and turned back it keeps the swing foot where the plan has it while the
+//! body above turns.
+//!
 //! The reading is low-pass filtered (α = 0.4 on each new sample, as the framework's OpenCR
 //! module does), a read that fails any check is not used (the last good one stands and the
 //! failure is counted), and nothing here allocates.
@@ -13,6 +19,7 @@
 use serde::Serialize;
 
 use crate::bus::ServoBus;
+use crate::command::CommandStage;
 use crate::retarget::Setup;
 use crate::rig::{JointSource, Rig};
 use crate::robot::RobotPose;
@@ -27,6 +34,9 @@ pub const GYRO_FEEDBACK_SCALE: f64 = 0.05;
 
 /// ROBOTIS's gains per leg joint (hip yaw, hip roll, hip pitch, knee, ankle pitch, ankle roll).
 pub const LEG_GYRO_GAINS: [f64; 6] = [0.0, 0.35, 0.0, 0.3, 0.9, 0.7];
+
+/// What a leg's offsets are multiplied by while its foot is in the air (the plan's contact).
+pub const SWING_LEG_SHARE: f64 = -1.0;
 
 /// What the IMU side of a run measured (the `imu` block of the stats JSON).
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
@@ -58,6 +68,8 @@ pub struct Balance {
     /// Per servo: rad of offset per rad/s of body rate about x, y, z (zero for servos without
     /// feedback).
     weights: [[f64; 3]; MAX_SERVOS],
+    /// Per servo, the leg it moves (0 left, 1 right), if any.
+    leg: [Option<usize>; MAX_SERVOS],
     feedback: bool,
     report: ImuReport,
 }
@@ -68,6 +80,7 @@ impl Balance {
     #[must_use]
     pub fn new(board: u8, setup: &Setup, rig: &Rig, feedback: bool) -> Balance {
         let mut weights = [[0.0; 3]; MAX_SERVOS];
+        let mut leg_of = [None; MAX_SERVOS];
         let mut any = false;
         if feedback {
             // Joint axes in the torso's frame at the zero pose.
@@ -81,7 +94,7 @@ impl Balance {
                 .position(|b| b.parent.is_none())
                 .unwrap_or(0);
             let to_torso = pose.rot[torso].inverse();
-            for leg in &setup.map.legs {
+            for (side, leg) in setup.map.legs.iter().enumerate() {
                 for (k, &j) in leg.joints.iter().enumerate() {
                     let gain = LEG_GYRO_GAINS[k];
                     if gain == 0.0 {
@@ -92,6 +105,7 @@ impl Balance {
                     for (servo, m) in rig.servos.iter().enumerate() {
                         if m.source == JointSource::Joint(j) && servo < MAX_SERVOS {
                             weights[servo] = (axis * (GYRO_FEEDBACK_SCALE * gain)).to_array();
+                            leg_of[servo] = Some(side);
                             any = true;
                         }
                     }
@@ -103,6 +117,7 @@ impl Balance {
             buf: [0; IMU_BYTES],
             reading: None,
             weights,
+            leg: leg_of,
             feedback: any,
             report: ImuReport {
                 board_id: board,
@@ -154,38 +169,35 @@ impl Balance {
         self.reading.as_ref()
     }
 
-    /// Adds the gyro feedback to joint angles (radians, rig order).
-    pub fn offset_angles(&mut self, angles: &mut [f64]) {
-        self.each_offset(|servo, rad| {
-            if let Some(a) = angles.get_mut(servo) {
-                *a += rad;
-            }
-        });
-    }
-
-    /// Adds the gyro feedback to goal ticks (rig order).
-    pub fn offset_ticks(&mut self, rig: &Rig, ticks: &mut [f64]) {
-        self.each_offset(|servo, rad| {
-            if let (Some(t), Some(m)) = (ticks.get_mut(servo), rig.servos.get(servo)) {
-                *t += rad * m.ticks_per_radian();
-            }
-        });
-    }
-
-    fn each_offset(&mut self, mut apply: impl FnMut(usize, f64)) {
+    /// The gyro feedback per servo of `rig` as goal ticks, with the feet on the floor as
+    /// `contact` says (left, right), into `out`; zero without feedback or before a read.
+    pub fn offsets(&mut self, rig: &Rig, contact: [bool; 2], out: &mut [f64]) {
+        out.fill(0.0);
         let (true, Some(r)) = (self.feedback, self.reading) else {
             return;
         };
         let rate = r.gyro_dps.map(f64::to_radians);
         let mut largest = self.report.max_offset_deg;
-        for (servo, w) in self.weights.iter().enumerate() {
-            let rad = w[0] * rate[0] + w[1] * rate[1] + w[2] * rate[2];
-            if rad != 0.0 {
-                apply(servo, rad);
+        for (servo, (w, m)) in self.weights.iter().zip(&rig.servos).enumerate() {
+            let mut rad = w[0] * rate[0] + w[1] * rate[1] + w[2] * rate[2];
+            if self.leg[servo].is_some_and(|side| !contact[side]) {
+                rad *= SWING_LEG_SHARE;
+            }
+            if let Some(o) = out.get_mut(servo) {
+                *o = rad * m.ticks_per_radian();
                 largest = largest.max(rad.abs().to_degrees());
             }
         }
         self.report.max_offset_deg = largest;
+    }
+
+    /// Sets [`Balance::offsets`] as `stage`'s correction: riding on the goals sent, not on
+    /// the planned path. Allocates nothing.
+    pub fn correct(&mut self, rig: &Rig, contact: [bool; 2], stage: &mut CommandStage) {
+        let mut ticks = [0.0; MAX_SERVOS];
+        let len = rig.servos.len().min(MAX_SERVOS);
+        self.offsets(rig, contact, &mut ticks[..len]);
+        stage.set_correction(&ticks[..len]);
     }
 
     /// What it measured.
@@ -226,8 +238,13 @@ mod tests {
             let mut r = ImuReading::default();
             r.gyro_dps[axis] = 57.295_779_513_082_32; // 1 rad/s
             b.reading = Some(r);
-            let mut angles = vec![0.0; rig.servos.len()];
-            b.offset_angles(&mut angles);
+            let mut ticks = vec![0.0; rig.servos.len()];
+            b.offsets(&rig, [true; 2], &mut ticks);
+            let angles: Vec<f64> = ticks
+                .iter()
+                .zip(&rig.servos)
+                .map(|(t, m)| t / m.ticks_per_radian())
+                .collect();
             for (k, a) in angles.iter().enumerate() {
                 let n = name(k);
                 let expected = moved.iter().any(|m| n.ends_with(m));
@@ -237,13 +254,21 @@ mod tests {
                     assert!((a.abs() - 0.045).abs() < 1e-3, "{n}: {a}");
                 }
             }
+            // The left foot in the air: its leg's offsets turned round, the right's as before.
+            let mut swinging = vec![0.0; rig.servos.len()];
+            b.offsets(&rig, [false, true], &mut swinging);
+            for (k, (s, t)) in swinging.iter().zip(&ticks).enumerate() {
+                let n = name(k);
+                let expected = if n.starts_with('l') { -t } else { *t };
+                assert!((s - expected).abs() < 1e-12, "{n}: {s} against {t}");
+            }
         }
         // Without feedback, or before a read, nothing moves.
         let mut off = Balance::new(200, &setup, &rig, false);
         off.reading = b.reading;
-        let mut angles = vec![0.0; rig.servos.len()];
-        off.offset_angles(&mut angles);
-        assert!(angles.iter().all(|a| *a == 0.0));
+        let mut ticks = vec![1.0; rig.servos.len()];
+        off.offsets(&rig, [true; 2], &mut ticks);
+        assert!(ticks.iter().all(|a| *a == 0.0));
     }
 
     #[test]

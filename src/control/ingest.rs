@@ -196,6 +196,7 @@ impl Controller {
                 r.step(&self.pose, clip_time, dt, due);
                 sample.effectors = r.frame.effectors;
                 sample.base = (r.frame.base_pos, r.frame.base_rot);
+                sample.contact = r.frame.planted;
             }
             self.last_due = Some(due);
             let joints: &[f64] = match &self.retarget {

@@ -39,6 +39,8 @@ pub struct SourceSample {
     pub effectors: [DVec3; 4],
     /// Where the retargeting placed the robot's base.
     pub base: (DVec3, DQuat),
+    /// Which feet (left, right) bear weight at the source (both without retargeting).
+    pub contact: [bool; 2],
 }
 
 impl Default for SourceSample {
@@ -53,6 +55,7 @@ impl Default for SourceSample {
             tips: [DVec3::NAN; 4],
             effectors: [DVec3::NAN; 4],
             base: (DVec3::ZERO, DQuat::IDENTITY),
+            contact: [true; 2],
         }
     }
 }

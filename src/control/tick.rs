@@ -158,6 +158,11 @@ impl Controller {
         if self.ease.done < self.ease.ticks {
             self.ease.done += 1;
         }
+        if let Some(b) = &mut self.balance {
+            // The gyro feedback rides on the goals sent, not on the path.
+            let contact = self.preview.current().map_or([true; 2], |c| c.contact);
+            b.correct(&self.rig, contact, &mut self.stage);
+        }
         let command = if let Some(la) = &mut self.lookahead {
             // The goal path planned over the preview, each servo led by its lag.
             let ease = (self.ease.ticks > 0).then(|| EaseIn {
@@ -167,15 +172,7 @@ impl Controller {
             });
             self.preview.live = !self.input.finished();
             let targets = la.targets(&self.rig, &self.stage, &self.preview, tick.deadline_ns, dt, ease);
-            match &mut self.balance {
-                Some(b) => {
-                    // The gyro feedback on the planned goals (ticks), this tick only.
-                    self.angles.copy_from_slice(&targets[..len]);
-                    b.offset_ticks(&self.rig, &mut self.angles);
-                    self.stage.command_planned(&self.rig, &self.angles, dt)
-                }
-                None => self.stage.command_planned(&self.rig, targets, dt),
-            }
+            self.stage.command_planned(&self.rig, targets, dt)
         } else {
             self.angles.copy_from_slice(&self.measure.source_angles);
             if let Some(c) = self.preview.current() {
@@ -190,9 +187,6 @@ impl Controller {
                 for (a, from) in self.angles.iter_mut().zip(&self.ease.from) {
                     *a = from + w * (*a - from);
                 }
-            }
-            if let Some(b) = &mut self.balance {
-                b.offset_angles(&mut self.angles);
             }
             self.stage.command(&self.rig, &self.angles, dt)
         };
