@@ -320,6 +320,23 @@ pub trait ServoBus {
     fn collect_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), BusError> {
         self.read_positions(ids, out)
     }
+
+    /// Reads `len` bytes at `address` of device `id` (e.g. the IMU board) in the loop's
+    /// position read from now on, as one more entry of a Bulk Read after the servos' (as
+    /// ROBOTIS's OP3 framework reads its OpenCR). `false` when this bus cannot: read it
+    /// on its own then.
+    fn merge_into_reads(&mut self, id: u8, address: u16, len: u16) -> bool {
+        let _ = (id, address, len);
+        false
+    }
+
+    /// The merged block of the position read collected last: `None` when no read was
+    /// collected since the last call, `Some(false)` when the device's reply failed (`out`
+    /// untouched; the positions may still have been good), `Some(true)` with `out` filled.
+    fn take_merged(&mut self, out: &mut [u8]) -> Option<bool> {
+        let _ = out;
+        None
+    }
 }
 
 /// A servo the profile names that is missing or of the wrong model.

@@ -63,6 +63,23 @@ pub struct PacketBus<T> {
     line_free: Duration,
     /// A read sent by [`ServoBus::request_positions`] whose replies are not collected yet.
     pending: Option<PendingRead>,
+    /// A block of another device read with the positions ([`ServoBus::merge_into_reads`]).
+    merged: Option<MergedBlock>,
+}
+
+/// The largest block [`ServoBus::merge_into_reads`] takes, bytes.
+pub const MAX_MERGED: usize = 64;
+
+/// A device's block read in the positions' Bulk Read, after the servos' entries.
+#[derive(Clone, Copy, Debug)]
+struct MergedBlock {
+    id: u8,
+    address: u16,
+    len: u16,
+    data: [u8; MAX_MERGED],
+    /// What the last collected read gave for it: `None` until one was collected since the
+    /// last [`ServoBus::take_merged`], then whether its reply passed every check.
+    fresh: Option<bool>,
 }
 
 /// A position read on the wire whose replies the host has not taken yet.
@@ -89,6 +106,7 @@ impl<T: Transport> PacketBus<T> {
             single_margin: margin,
             line_free: Duration::ZERO,
             pending: None,
+            merged: None,
         }
     }
 
@@ -411,14 +429,39 @@ impl<T: Transport> PacketBus<T> {
         if let Some(p) = self.pending.take() {
             let mut out = [0i32; crate::servo::MAX_SERVOS];
             let _ = self.take_positions(&p, &mut out);
+            if let Some(m) = &mut self.merged {
+                m.fresh = None;
+            }
         }
     }
 
-    /// The positions of a read on the wire.
+    /// The positions of a read on the wire (and the merged block's reply after them).
     fn take_positions(&mut self, p: &PendingRead, out: &mut [i32]) -> Result<(), BusError> {
         let ids = &p.ids[..p.n];
         let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
-        if matches!(self.read, ReadMode::FastSync | ReadMode::FastBulk) {
+        if let Some(m) = self.merged {
+            // A Bulk Read: the servos' status packets in entry order, then the device's.
+            let positions = self.sync_read_replies(4, ids, &mut data[..4 * p.n], p.sent, self.margin);
+            let mut block = m;
+            block.fresh = Some(false);
+            if positions.is_err() {
+                // The device's reply may still be on its way: the line is drained past it.
+                self.drain();
+            } else {
+                let len = usize::from(m.len);
+                let baud = self.link.baud();
+                let due = p.sent + wire_time(15, baud) * p.n as u32 + wire_time(11 + len, baud);
+                let due = due.max(self.link.now() + wire_time(11 + len, baud)) + self.margin;
+                if self.status_by(m.id, Some(len), due).is_ok() {
+                    block.data[..len].copy_from_slice(&self.params[1..=len]);
+                    block.fresh = Some(true);
+                } else {
+                    self.drain();
+                }
+            }
+            self.merged = Some(block);
+            positions?;
+        } else if matches!(self.read, ReadMode::FastSync | ReadMode::FastBulk) {
             // All or nothing for the loop: a tick uses a read only when every servo's held.
             let mut valid = [false; crate::servo::MAX_SERVOS];
             self.fast_sync_replies(4, ids, &mut data[..4 * p.n], &mut valid, (p.sent, self.margin))?;
@@ -722,12 +765,46 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         self.collect_positions(ids, out)
     }
 
+    fn merge_into_reads(&mut self, id: u8, address: u16, len: u16) -> bool {
+        // A Fast read's one combined reply is not known to be answered by other devices.
+        if matches!(self.read, ReadMode::FastSync | ReadMode::FastBulk) || usize::from(len) > MAX_MERGED {
+            return false;
+        }
+        self.settle();
+        self.merged = Some(MergedBlock {
+            id,
+            address,
+            len,
+            data: [0; MAX_MERGED],
+            fresh: None,
+        });
+        true
+    }
+
+    fn take_merged(&mut self, out: &mut [u8]) -> Option<bool> {
+        let m = self.merged.as_mut()?;
+        let fresh = m.fresh.take()?;
+        let len = usize::from(m.len).min(out.len());
+        if fresh {
+            out[..len].copy_from_slice(&m.data[..len]);
+        }
+        Some(fresh)
+    }
+
     fn request_positions(&mut self, ids: &[u8]) -> Result<(), BusError> {
         let n = ids.len().min(crate::servo::MAX_SERVOS);
-        let sent = match self.read {
-            ReadMode::Sync => self.sync_read_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
-            ReadMode::FastSync => self.fast_sync_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
-            bulk => {
+        let sent = match (self.read, self.merged) {
+            (_, Some(m)) if n < MAX_SERVOS => {
+                let mut entries = [(0u8, addr::PRESENT_POSITION, 4u16); MAX_SERVOS];
+                for (e, &id) in entries.iter_mut().zip(&ids[..n]) {
+                    e.0 = id;
+                }
+                entries[n] = (m.id, m.address, m.len);
+                self.bulk_request(instruction::BULK_READ, &entries[..=n])?
+            }
+            (ReadMode::Sync, _) => self.sync_read_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
+            (ReadMode::FastSync, _) => self.fast_sync_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
+            (bulk, _) => {
                 let mut entries = [(0u8, addr::PRESENT_POSITION, 4u16); MAX_SERVOS];
                 for (e, &id) in entries.iter_mut().zip(&ids[..n]) {
                     e.0 = id;

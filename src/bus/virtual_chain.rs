@@ -728,6 +728,12 @@ impl<P: Plant> super::ServoBus for VirtualRig<P> {
     fn collect_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), super::BusError> {
         self.0.borrow_mut().collect_positions(ids, out)
     }
+    fn merge_into_reads(&mut self, id: u8, address: u16, len: u16) -> bool {
+        self.0.borrow_mut().merge_into_reads(id, address, len)
+    }
+    fn take_merged(&mut self, out: &mut [u8]) -> Option<bool> {
+        self.0.borrow_mut().take_merged(out)
+    }
 }
 
 impl<P: Plant> crate::schedule::Clock for VirtualRig<P> {

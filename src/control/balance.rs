@@ -12,9 +12,13 @@
 //! off its path, and turned back it keeps the swing foot where the plan has it while the
 //! body above turns.
 //!
-//! The reading is low-pass filtered (α = 0.4 on each new sample, as the framework's OpenCR
-//! module does), a read that fails any check is not used (the last good one stands and the
-//! failure is counted), and nothing here allocates.
+//! The board is read in the servos' position read where the bus can merge it
+//! ([`ServoBus::merge_into_reads`]: one Bulk Read, the board's block last, as the OP3
+//! framework reads its OpenCR), else with a Read of its own. The reading is low-pass filtered
+//! (α = 0.4 on each new sample, as the framework's OpenCR module does), a read that fails any
+//! check is not used (the last good one stands and the failure is counted; after
+//! [`STALE_READS`] failures in a row the feedback stops until a read succeeds, so a board
+//! that stopped answering leaves no stale rate in the legs), and nothing here allocates.
 
 use serde::Serialize;
 
@@ -35,6 +39,9 @@ pub const GYRO_FEEDBACK_SCALE: f64 = 0.05;
 /// ROBOTIS's gains per leg joint (hip yaw, hip roll, hip pitch, knee, ankle pitch, ankle roll).
 pub const LEG_GYRO_GAINS: [f64; 6] = [0.0, 0.35, 0.0, 0.3, 0.9, 0.7];
 
+/// Failed reads in a row after which the last good reading is too old to feed back.
+pub const STALE_READS: u32 = 3;
+
 /// What a leg's offsets are multiplied by while its foot is in the air (the plan's contact).
 pub const SWING_LEG_SHARE: f64 = -1.0;
 
@@ -47,6 +54,12 @@ pub struct ImuReport {
     pub reads_ok: u64,
     /// Reads that failed (timeout, CRC, an error status…): not used.
     pub reads_failed: u64,
+    /// Whether the board was read in the servos' position read (a Bulk Read) rather than
+    /// with a Read of its own.
+    pub merged: bool,
+    /// Ticks whose feedback was left out because the last [`STALE_READS`] reads or more had
+    /// failed.
+    pub stale_ticks: u64,
     /// Whether the legs got the gyro feedback.
     pub feedback: bool,
     /// The torso's largest tilt from level (its z axis against the vertical, from roll and
@@ -71,6 +84,10 @@ pub struct Balance {
     /// Per servo, the leg it moves (0 left, 1 right), if any.
     leg: [Option<usize>; MAX_SERVOS],
     feedback: bool,
+    /// Whether the bus reads the board with the positions (asked at the first read).
+    merged: Option<bool>,
+    /// Failed reads since the last good one.
+    failures_in_row: u32,
     report: ImuReport,
 }
 
@@ -119,6 +136,8 @@ impl Balance {
             weights,
             leg: leg_of,
             feedback: any,
+            merged: None,
+            failures_in_row: 0,
             report: ImuReport {
                 board_id: board,
                 ..ImuReport::default()
@@ -126,12 +145,24 @@ impl Balance {
         }
     }
 
-    /// Reads the IMU (one Read of its items); a failed read leaves the last good reading.
+    /// Reads the IMU: what the last position read brought with it, or one Read of its items
+    /// where the bus cannot merge them; a failed read leaves the last good reading.
     pub fn read(&mut self, bus: &mut dyn ServoBus) {
-        let fresh = bus
-            .read(self.board, board_addr::GYRO, &mut self.buf)
-            .ok()
-            .and_then(|()| ImuReading::decode(&self.buf))
+        let merged = *self
+            .merged
+            .get_or_insert_with(|| bus.merge_into_reads(self.board, board_addr::GYRO, IMU_BYTES as u16));
+        let raw = if merged {
+            match bus.take_merged(&mut self.buf) {
+                // No position read came in since (the first tick): nothing to count.
+                None => return,
+                Some(ok) => ok,
+            }
+        } else {
+            bus.read(self.board, board_addr::GYRO, &mut self.buf).is_ok()
+        };
+        let fresh = raw
+            .then(|| ImuReading::decode(&self.buf))
+            .flatten()
             .map(|r| r.to_body())
             .filter(|r| {
                 r.gyro_dps
@@ -142,9 +173,11 @@ impl Balance {
             });
         let Some(new) = fresh else {
             self.report.reads_failed += 1;
+            self.failures_in_row = self.failures_in_row.saturating_add(1);
             return;
         };
         self.report.reads_ok += 1;
+        self.failures_in_row = 0;
         let blend = |old: [f64; 3], new: [f64; 3]| [0, 1, 2].map(|k| old[k] + IMU_FILTER * (new[k] - old[k]));
         let r = match self.reading {
             None => new,
@@ -176,6 +209,10 @@ impl Balance {
         let (true, Some(r)) = (self.feedback, self.reading) else {
             return;
         };
+        if self.failures_in_row >= STALE_READS {
+            self.report.stale_ticks += 1;
+            return;
+        }
         let rate = r.gyro_dps.map(f64::to_radians);
         let mut largest = self.report.max_offset_deg;
         for (servo, (w, m)) in self.weights.iter().zip(&rig.servos).enumerate() {
@@ -205,6 +242,7 @@ impl Balance {
     pub fn report(&self) -> ImuReport {
         ImuReport {
             feedback: self.feedback,
+            merged: self.merged == Some(true),
             ..self.report.clone()
         }
     }
@@ -288,20 +326,49 @@ mod tests {
             crate::bus::virtual_chain::InProcess::new(chain, profile.bus.baud),
             std::time::Duration::from_millis(2),
         );
+        let ids: Vec<u8> = profile.servos.iter().map(|s| s.id).collect();
+        let mut positions = vec![0i32; ids.len()];
         let mut b = Balance::new(200, &setup, &rig, true);
+        // The first read asks the bus to merge the board into the position read; nothing
+        // was read with the positions yet, so nothing is counted.
+        b.read(&mut bus);
+        assert!(b.reading().is_none());
+        assert_eq!((b.report().reads_ok, b.report().reads_failed), (0, 0));
+        bus.read_positions(&ids, &mut positions).unwrap();
+        assert!(positions.iter().all(|p| *p == 2048), "{positions:?}");
         b.read(&mut bus);
         let r = *b.reading().unwrap();
         // Body axes: the board's x and y negated.
         assert!((r.gyro_dps[1] + 30.0).abs() < 0.1, "{r:?}");
         let report = b.report();
-        assert_eq!((report.reads_ok, report.reads_failed), (1, 0));
+        assert_eq!(
+            (report.reads_ok, report.reads_failed, report.merged),
+            (1, 0, true)
+        );
         // acos(cos 3° · cos 4°) = 4.999°.
         assert!((report.max_tilt_deg - 4.999).abs() < 0.01, "{report:?}");
-        // A board that is not there: the read fails, the reading stays.
+        // A board that does not answer: the positions still come, the read fails, the
+        // reading stays — and after STALE_READS failures in a row it is no longer fed back.
         let mut missing = Balance::new(201, &setup, &rig, true);
         missing.reading = Some(r);
         missing.read(&mut bus);
-        assert_eq!(missing.report().reads_failed, 1);
-        assert_eq!(missing.reading(), Some(&r));
+        let mut offsets = vec![0.0; rig.servos.len()];
+        for k in 1..=STALE_READS {
+            bus.read_positions(&ids, &mut positions).unwrap();
+            missing.read(&mut bus);
+            assert_eq!(missing.report().reads_failed, u64::from(k));
+            assert_eq!(missing.reading(), Some(&r));
+            missing.offsets(&rig, [true; 2], &mut offsets);
+            let fed = offsets.iter().any(|o| *o != 0.0);
+            assert_eq!(fed, k < STALE_READS, "after {k} failed reads");
+        }
+        assert_eq!(missing.report().stale_ticks, 1);
+        // The board answers again: fed back again.
+        assert!(bus.merge_into_reads(200, board_addr::GYRO, IMU_BYTES as u16));
+        bus.read_positions(&ids, &mut positions).unwrap();
+        missing.read(&mut bus);
+        missing.offsets(&rig, [true; 2], &mut offsets);
+        assert!(offsets.iter().any(|o| *o != 0.0));
+        assert_eq!(missing.report().reads_ok, 1);
     }
 }
