@@ -8,6 +8,11 @@
 //! byte is 10 bits on the line (start, 8 data, stop). Each replying servo waits its Return
 //! Delay Time (one wait for the fast reads), and the host sees
 //! the reply only when the USB adapter's latency timer flushes it (once per read).
+//!
+//! A sensor board read every cycle ([`plan_with_board`], the OP3's OpenCR and its IMU) joins a
+//! Sync or Bulk Read as one more Bulk Read entry (request `10 + 5·(N + 1)`, its reply `11 + b`,
+//! one more return delay); beside a Fast read it is a Read of its own (request 14, reply
+//! `11 + b`, a return delay and a USB latency more).
 
 use serde::Serialize;
 
@@ -27,6 +32,11 @@ pub struct Budget {
     pub read_mode: ReadMode,
     /// Data bytes read per servo.
     pub read_bytes_per_servo: u32,
+    /// Data bytes read from a sensor board every cycle, if one is read.
+    pub board_bytes: Option<u32>,
+    /// Whether the board's read is merged into the servos' (a Bulk Read) rather than a Read
+    /// of its own.
+    pub board_merged: Option<bool>,
     /// Bytes of the goal-position Sync Write.
     pub write_bytes: u32,
     /// Bytes of the read request.
@@ -56,19 +66,40 @@ pub struct Budget {
 /// Computes the budget of `servos` servos on `bus`, optionally against a loop rate.
 #[must_use]
 pub fn plan(bus: &BusConfig, servos: usize, rate_hz: Option<f64>) -> Budget {
+    plan_with_board(bus, servos, rate_hz, None)
+}
+
+/// [`plan`] with `board_bytes` bytes of a sensor board read every cycle as the loop reads it
+/// (module docs).
+#[must_use]
+pub fn plan_with_board(
+    bus: &BusConfig,
+    servos: usize,
+    rate_hz: Option<f64>,
+    board_bytes: Option<u32>,
+) -> Budget {
     let n = servos as u32;
     let d = u32::from(bus.read_fields.block().1);
     let write_bytes = 14 + 5 * n;
-    let (read_request_bytes, read_reply_bytes, delays) = match bus.read {
-        ReadMode::Sync => (14 + n, n * (11 + d), n),
-        ReadMode::Bulk => (10 + 5 * n, n * (11 + d), n),
-        ReadMode::FastSync => (14 + n, 8 + (4 + d) * n, 1),
-        ReadMode::FastBulk => (10 + 5 * n, 8 + (4 + d) * n, 1),
+    let merged = matches!(bus.read, ReadMode::Sync | ReadMode::Bulk);
+    let (mut read_request_bytes, mut read_reply_bytes, mut delays) = match (bus.read, board_bytes) {
+        (ReadMode::Sync | ReadMode::Bulk, Some(b)) => (10 + 5 * (n + 1), n * (11 + d) + 11 + b, n + 1),
+        (ReadMode::Sync, None) => (14 + n, n * (11 + d), n),
+        (ReadMode::Bulk, None) => (10 + 5 * n, n * (11 + d), n),
+        (ReadMode::FastSync, _) => (14 + n, 8 + (4 + d) * n, 1),
+        (ReadMode::FastBulk, _) => (10 + 5 * n, 8 + (4 + d) * n, 1),
     };
+    let mut latencies = 1;
+    if let (false, Some(b)) = (merged, board_bytes) {
+        read_request_bytes += 14;
+        read_reply_bytes += 11 + b;
+        delays += 1;
+        latencies += 1;
+    }
     let bytes_per_cycle = write_bytes + read_request_bytes + read_reply_bytes;
     let wire_time_us = f64::from(bytes_per_cycle) * f64::from(BITS_PER_BYTE) * 1e6 / f64::from(bus.baud);
     let return_delay_us = f64::from(delays) * f64::from(bus.return_delay_us);
-    let usb_latency_us = f64::from(bus.usb_latency_us);
+    let usb_latency_us = f64::from(latencies) * f64::from(bus.usb_latency_us);
     let cycle_time_us = wire_time_us + return_delay_us + usb_latency_us;
     let max_rate_hz = 1e6 / cycle_time_us;
     let utilisation = rate_hz.map(|r| cycle_time_us * r / 1e6);
@@ -77,6 +108,8 @@ pub fn plan(bus: &BusConfig, servos: usize, rate_hz: Option<f64>) -> Budget {
         baud: bus.baud,
         read_mode: bus.read,
         read_bytes_per_servo: d,
+        board_bytes,
+        board_merged: board_bytes.map(|_| merged),
         write_bytes,
         read_request_bytes,
         read_reply_bytes,
@@ -105,6 +138,14 @@ impl std::fmt::Display for Budget {
             "{} servos at {} bit/s, {mode} of {} bytes each",
             self.servos, self.baud, self.read_bytes_per_servo
         )?;
+        if let (Some(b), Some(merged)) = (self.board_bytes, self.board_merged) {
+            let how = if merged {
+                "one more entry of a Bulk Read"
+            } else {
+                "a Read of its own"
+            };
+            writeln!(f, "  and {b} bytes of the sensor board, {how}")?;
+        }
         writeln!(f, "  sync write      {:>6} B", self.write_bytes)?;
         writeln!(f, "  read request    {:>6} B", self.read_request_bytes)?;
         writeln!(f, "  read replies    {:>6} B", self.read_reply_bytes)?;

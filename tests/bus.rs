@@ -1124,3 +1124,72 @@ fn a_silent_servo_costs_at_most_its_own_tick() {
         );
     }
 }
+
+/// The OP3's IMU board read in the servos' position read (one Bulk Read, its block last): in
+/// virtual time on the line-timed chain a cycle (Sync Write, the read) takes what the
+/// planner says with the board counted; a board that does not answer costs its block, not
+/// the positions; a Fast read is not merged.
+#[test]
+fn the_imu_board_read_with_the_positions_costs_what_the_planner_says() {
+    use marionette::budget::plan_with_board;
+    use marionette::profile::ReadMode;
+    use marionette::sensor_board::{board_addr, ImuReading, IMU_BYTES};
+
+    let p = profile("robotis-op3.toml");
+    let ids = p.ids();
+    let n = ids.len();
+    let mut chain = chain_for(p.bus_section(), |_| 2048);
+    chain.board_mut().unwrap().set_imu(&ImuReading {
+        gyro_dps: [1.0, -2.0, 3.0],
+        acc_g: [0.0, 0.0, 1.0],
+        rpy_deg: [0.5, -0.5, 10.0],
+    });
+    let link = InProcess::new(chain, p.bus.baud)
+        .with_usb_latency(Duration::from_micros(u64::from(p.bus.usb_latency_us)));
+    let margin = marionette::bus::reply_margin(&p.bus, n);
+    let mut bus = PacketBus::new(link, margin);
+    for id in &ids {
+        bus.write(*id, addr::RETURN_DELAY_TIME, &[(p.bus.return_delay_us / 2) as u8])
+            .unwrap();
+    }
+    assert!(bus.merge_into_reads(200, board_addr::GYRO, IMU_BYTES as u16));
+    let mut present = vec![0; n];
+    let mut block = [0u8; IMU_BYTES];
+    assert_eq!(bus.take_merged(&mut block), None, "nothing read yet");
+    let planned = plan_with_board(&p.bus, n, None, Some(IMU_BYTES as u32));
+    let mut cycles = Vec::new();
+    for _ in 0..10 {
+        let t0 = bus.link().now();
+        bus.write_goals(&ids, &present).unwrap();
+        bus.read_positions(&ids, &mut present).unwrap();
+        cycles.push((bus.link().now() - t0).as_secs_f64() * 1e6);
+        assert_eq!(bus.take_merged(&mut block), Some(true));
+        assert_eq!(bus.take_merged(&mut block), None, "taken once");
+    }
+    let r = ImuReading::decode(&block).unwrap();
+    assert!(
+        (r.gyro_dps[1] + 2.0).abs() < 0.1 && (r.rpy_deg[2] - 10.0).abs() < 0.1,
+        "{r:?}"
+    );
+    assert!(present.iter().all(|t| *t == 2048), "{present:?}");
+    let mean = cycles.iter().sum::<f64>() / cycles.len() as f64;
+    println!(
+        "OP3 cycle with the IMU merged: {mean:.0} µs measured, {:.0} µs planned",
+        planned.cycle_time_us
+    );
+    assert!(
+        (mean - planned.cycle_time_us).abs() <= 0.02 * planned.cycle_time_us,
+        "{mean} µs against {} planned",
+        planned.cycle_time_us
+    );
+    // A board that does not answer: the positions come, its block does not.
+    assert!(bus.merge_into_reads(201, board_addr::GYRO, IMU_BYTES as u16));
+    present.fill(0);
+    bus.read_positions(&ids, &mut present).unwrap();
+    assert!(present.iter().all(|t| *t == 2048), "{present:?}");
+    assert_eq!(bus.take_merged(&mut block), Some(false));
+    // Fast reads are not merged: the board gets a Read of its own there.
+    let link = InProcess::new(chain_for(p.bus_section(), |_| 2048), p.bus.baud);
+    let mut fast = PacketBus::new(link, margin).with_read_mode(ReadMode::FastSync);
+    assert!(!fast.merge_into_reads(200, board_addr::GYRO, IMU_BYTES as u16));
+}

@@ -4,7 +4,7 @@ use std::io::Write;
 use std::path::Path;
 
 use super::error::CliError;
-use crate::budget::plan;
+use crate::budget::{plan, plan_with_board};
 use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::bus::ServoBus;
 use crate::formats::asf;
@@ -76,11 +76,17 @@ pub fn profile_cmd(path: &Path, asf_path: Option<&Path>, out: &mut dyn Write) ->
 pub fn budget_cmd(
     path: &Path,
     rate: Option<f64>,
-    json: bool,
+    (json, imu): (bool, bool),
     measure: Option<usize>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
     let profile = Profile::load(path)?;
+    if imu && profile.bus.imu_board.is_none() {
+        return Err(CliError::Usage(format!(
+            "--imu: {} has no sensor board (imu_board_id in [bus])",
+            path.display()
+        )));
+    }
     if let Some(cycles) = measure {
         return measure_cycles(&profile, cycles, json, out);
     }
@@ -91,7 +97,8 @@ pub fn budget_cmd(
             )));
         }
     }
-    let budget = plan(&profile.bus, profile.servos.len(), rate);
+    let board = imu.then_some(crate::sensor_board::IMU_BYTES as u32);
+    let budget = plan_with_board(&profile.bus, profile.servos.len(), rate, board);
     if json {
         let text = serde_json::to_string_pretty(&budget)?;
         writeln!(out, "{text}")?;
@@ -443,6 +450,10 @@ pub(super) struct BudgetArgs {
     /// Print JSON.
     #[arg(long)]
     pub(super) json: bool,
+    /// Count the profile's sensor board (the OP3's IMU) read every cycle, as `play --walk
+    /// --imu read|feedback` reads it.
+    #[arg(long)]
+    pub(super) imu: bool,
     /// Measure this many cycles on the profile's virtual chain served with line time (baud,
     /// return delay, USB latency) through the real client, against the plan.
     #[arg(long)]
@@ -459,9 +470,16 @@ impl BudgetArgs {
             profile,
             rate,
             json,
+            imu,
             measure,
         } = self;
-        budget_cmd(&profile, rate, json, measure, &mut std::io::stdout().lock())
+        budget_cmd(
+            &profile,
+            rate,
+            (json, imu),
+            measure,
+            &mut std::io::stdout().lock(),
+        )
     }
 }
 

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::budget::plan;
+use crate::budget::plan_with_board;
 use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::bus::{start_up, ServoBus, StartupError, Wire};
 use crate::clock::SystemClock;
@@ -665,7 +665,7 @@ pub fn open_bus(
             }
             // In process and in real time, keeping line time exactly: the loop's own host on
             // it, as on a port.
-            warn_if_over_budget(spec.rate_hz, &config, n, log)?;
+            warn_if_over_budget(spec, &config, n, log)?;
             let bus = crate::bus::open(Wire::Chain(Box::new(chain)), &config, n)?;
             Ok(OpenBus {
                 bus,
@@ -678,7 +678,7 @@ pub fn open_bus(
         }
         BusChoice::Sim => Err(SessionError::Invalid(SIM_TAKES_NO_LIVE_INPUT.into())),
         BusChoice::Port(port) => {
-            warn_if_over_budget(spec.rate_hz, &config, n, log)?;
+            warn_if_over_budget(spec, &config, n, log)?;
             let bus = crate::bus::open(Wire::Port(port.clone()), &config, n).map_err(at_port(port))?;
             Ok(OpenBus {
                 bus,
@@ -693,14 +693,18 @@ pub fn open_bus(
     }
 }
 
-/// Warns when a bus cycle does not fit the loop's period.
+/// Warns when a bus cycle (with the IMU board's read when a walk reads it) does not fit the
+/// loop's period.
 fn warn_if_over_budget(
-    rate_hz: f64,
+    spec: &SessionSpec,
     bus: &BusConfig,
     servos: usize,
     log: &mut dyn Write,
 ) -> std::io::Result<()> {
-    let b = plan(bus, servos, Some(rate_hz));
+    let rate_hz = spec.rate_hz;
+    let board = (spec.walk && spec.imu != ImuUse::Off && bus.imu_board.is_some())
+        .then_some(crate::sensor_board::IMU_BYTES as u32);
+    let b = plan_with_board(bus, servos, Some(rate_hz), board);
     if b.feasible == Some(false) {
         writeln!(
             log,
@@ -848,7 +852,7 @@ impl Run<'_> {
             present.len()
         )?;
         // The simulated bus keeps line time: a rate it cannot carry runs late (in simulated time).
-        warn_if_over_budget(spec.rate_hz, &profile.bus, present.len(), log)?;
+        warn_if_over_budget(spec, &profile.bus, present.len(), log)?;
         bus.with(|t| t.plant_mut().record(true));
         let (lag, torque) = (spec.sim.lag_scale, spec.sim.torque_scale);
         if (lag, torque) != (1.0, 1.0) {
