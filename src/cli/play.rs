@@ -150,6 +150,11 @@ pub struct LoopArgs {
     /// With --bus sim: every simulated servo's torque limit times this (0.8: 20 % weaker).
     #[arg(long, default_value_t = 1.0)]
     pub sim_torque_scale: f64,
+    /// With --bus sim and a model with an IMU: `SCALE[,SEED]` — its readings with the
+    /// OpenCR's MPU-9250 errors times SCALE (1: its specification's zero-rate and zero-g
+    /// offsets, 5 °/s and 60 mg, and noise, 0.1 °/s and 3 mg RMS), drawn from SEED (1).
+    #[arg(long, value_delimiter = ',', num_args = 1)]
+    pub sim_imu_errors: Option<Vec<f64>>,
     /// With --bus sim: draw commanded vs simulated angles and the per-servo RMS (.png or .svg).
     #[arg(long)]
     pub sim_plot: Option<PathBuf>,
@@ -268,6 +273,25 @@ impl LoopArgs {
                 )));
             }
         }
+        let imu_errors = match self.sim_imu_errors.as_deref() {
+            None => None,
+            Some(_) if self.bus != BusArg::Sim => {
+                return Err(CliError::Usage(
+                    "--sim-imu-errors changes the simulated IMU: give --bus sim".into(),
+                ))
+            }
+            Some(&[scale]) if scale.is_finite() && scale >= 0.0 => Some((scale, 1)),
+            Some(&[scale, seed])
+                if scale.is_finite() && scale >= 0.0 && seed >= 0.0 && seed.fract() == 0.0 && seed < 1e15 =>
+            {
+                Some((scale, seed as u64))
+            }
+            Some(_) => {
+                return Err(CliError::Usage(
+                    "--sim-imu-errors takes SCALE[,SEED]: a scale ≥ 0 and a whole seed ≥ 0".into(),
+                ))
+            }
+        };
         let mut spec = SessionSpec {
             rate_hz: self.rate,
             duration_s: self.duration,
@@ -317,6 +341,7 @@ impl LoopArgs {
                 push: self.sim_push.as_deref().map(|p| [p[0], p[1], p[2]]),
                 lag_scale: self.sim_lag_scale,
                 torque_scale: self.sim_torque_scale,
+                imu_errors,
             },
             sinks: Sinks {
                 status_line: !self.quiet,

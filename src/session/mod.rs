@@ -146,6 +146,9 @@ pub struct SimSpec {
     pub lag_scale: f64,
     /// Every simulated servo's torque limit times this (0.8: 20 % weaker).
     pub torque_scale: f64,
+    /// The model's IMU with its sensor's errors times this scale (1: the MPU-9250's
+    /// specification) drawn from this seed.
+    pub imu_errors: Option<(f64, u64)>,
 }
 
 impl Default for SimSpec {
@@ -159,6 +162,7 @@ impl Default for SimSpec {
             push: None,
             lag_scale: 1.0,
             torque_scale: 1.0,
+            imu_errors: None,
         }
     }
 }
@@ -860,6 +864,16 @@ impl Run<'_> {
             writeln!(
                 log,
                 "simulated servos unlike the profile: joint damping ×{lag}, torque limits ×{torque}"
+            )?;
+        }
+        if let Some((scale, seed)) = spec.sim.imu_errors {
+            bus.with(|t| {
+                t.plant_mut()
+                    .set_imu_errors(Some(plant::ImuErrors::datasheet(scale, seed)));
+            });
+            writeln!(
+                log,
+                "the IMU's reading with {scale} × the MPU-9250's offsets and noise (seed {seed})"
             )?;
         }
         if let Some([at_s, impulse_ns, direction_deg]) = spec.sim.push {

@@ -181,6 +181,8 @@ pub struct SimPlant {
     /// The model's IMU (`imu_gyro`, `imu_acc`) and the body it rides on, for a chain's sensor
     /// board.
     imu: Option<(usize, usize, usize)>,
+    /// What the IMU's reading is made worse by, if anything.
+    imu_errors: Option<ImuErrors>,
 }
 
 impl std::fmt::Debug for SimPlant {
@@ -272,6 +274,7 @@ impl SimPlant {
             recording: false,
             samples: Vec::new(),
             imu,
+            imu_errors: None,
             push: None,
         })
     }
@@ -292,6 +295,11 @@ impl SimPlant {
                 s.force_limit = lo.abs().min(hi.abs()) * torque_scale;
             }
         }
+    }
+
+    /// Gives the model's IMU `errors` (none: the exact reading).
+    pub fn set_imu_errors(&mut self, errors: Option<ImuErrors>) {
+        self.imu_errors = errors;
     }
 
     /// The servos' present ticks in the model's present state (for powering the chain up).
@@ -461,7 +469,11 @@ impl Plant for SimPlant {
             servo.step_driven(dt, s.map.angle_to_ticks_exact(q), v * per_tick);
         }
         if let (Some(board), Some(imu)) = (chain.board_mut(), self.imu) {
-            board.set_imu(&self.imu_reading(imu));
+            let mut reading = self.imu_reading(imu);
+            if let Some(e) = &mut self.imu_errors {
+                e.apply(&mut reading);
+            }
+            board.set_imu(&reading);
         }
     }
 }
@@ -484,6 +496,66 @@ impl SimPlant {
             acc_g: [-at(a, 0), -at(a, 1), at(a, 2)].map(|x| x / STANDARD_GRAVITY),
             rpy_deg: rpy.map(f64::to_degrees),
         }
+    }
+}
+
+/// The errors of the OpenCR's IMU (an InvenSense MPU-9250) at its product specification's
+/// figures times a scale: a zero-rate offset of 5 °/s and a zero-g offset of 60 mg on each
+/// axis (their initial tolerances, each axis's sign drawn once), white noise of 0.1 °/s and
+/// 3 mg RMS on every reading (its total RMS noise, and 300 µg/√Hz over its ~100 Hz band), and
+/// roll and pitch tilted by what the accelerometer's offset makes gravity look like. Seeded:
+/// the same seed gives the same errors.
+#[derive(Clone, Debug)]
+pub struct ImuErrors {
+    gyro_bias_dps: [f64; 3],
+    acc_bias_g: [f64; 3],
+    gyro_noise_dps: f64,
+    acc_noise_g: f64,
+    rng: crate::bus::faults::Rng,
+}
+
+/// The MPU-9250's gyro zero-rate offset tolerance, °/s.
+pub const GYRO_OFFSET_DPS: f64 = 5.0;
+/// Its accelerometer zero-g offset tolerance (x, y), g.
+pub const ACC_OFFSET_G: f64 = 0.060;
+/// Its gyro's total RMS noise, °/s.
+pub const GYRO_NOISE_DPS: f64 = 0.1;
+/// Its accelerometer's RMS noise over its band, g.
+pub const ACC_NOISE_G: f64 = 0.003;
+
+impl ImuErrors {
+    /// The specification's errors times `scale` (1: at its limits), drawn from `seed`.
+    #[must_use]
+    pub fn datasheet(scale: f64, seed: u64) -> ImuErrors {
+        let mut rng = crate::bus::faults::Rng::new(seed);
+        let mut sign = || if rng.chance(0.5) { 1.0 } else { -1.0 };
+        let gyro_bias_dps = [0; 3].map(|_| sign() * GYRO_OFFSET_DPS * scale);
+        let acc_bias_g = [0; 3].map(|_| sign() * ACC_OFFSET_G * scale);
+        ImuErrors {
+            gyro_bias_dps,
+            acc_bias_g,
+            gyro_noise_dps: GYRO_NOISE_DPS * scale,
+            acc_noise_g: ACC_NOISE_G * scale,
+            rng: crate::bus::faults::Rng::new(seed ^ 0x5EED_1A0E),
+        }
+    }
+
+    /// A standard normal number (Box–Muller).
+    fn normal(&mut self) -> f64 {
+        let u = |r: &mut crate::bus::faults::Rng| ((r.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+        let (a, b) = (u(&mut self.rng), u(&mut self.rng));
+        (-2.0 * a.ln()).sqrt() * (core::f64::consts::TAU * b).cos()
+    }
+
+    /// `reading` as the sensor would give it.
+    pub fn apply(&mut self, reading: &mut ImuReading) {
+        for k in 0..3 {
+            reading.gyro_dps[k] += self.gyro_bias_dps[k] + self.gyro_noise_dps * self.normal();
+            reading.acc_g[k] += self.acc_bias_g[k] + self.acc_noise_g * self.normal();
+        }
+        // Gravity seen through the offset: a level board's roll and pitch tilted.
+        reading.rpy_deg[0] += self.acc_bias_g[1].atan().to_degrees();
+        reading.rpy_deg[1] -= self.acc_bias_g[0].atan().to_degrees();
     }
 }
 
@@ -562,5 +634,68 @@ mod pressure_tests {
         assert_eq!(pressure(&[]), (None, None, 0.0));
         // Two contacts: a line, no hull.
         assert!(pressure(&c[..2]).1.is_none());
+    }
+}
+
+#[cfg(test)]
+mod imu_error_tests {
+    use super::*;
+
+    /// Over many readings of a still, level sensor: the mean error is the offset (the
+    /// specification's on every axis, sign drawn), the spread the noise, roll and pitch tilted
+    /// by the accelerometer's offset (60 mg: 3.43°); the same seed, the same errors.
+    #[test]
+    fn imu_errors_have_the_specifications_offsets_and_noise() {
+        let level = ImuReading {
+            gyro_dps: [0.0; 3],
+            acc_g: [0.0, 0.0, 1.0],
+            rpy_deg: [0.0; 3],
+        };
+        let mut e = ImuErrors::datasheet(1.0, 7);
+        let n = 20_000;
+        let (mut sum, mut sq) = ([0.0f64; 6], [0.0f64; 6]);
+        let mut rp = [0.0; 2];
+        for _ in 0..n {
+            let mut r = level;
+            e.apply(&mut r);
+            let v = [
+                r.gyro_dps[0],
+                r.gyro_dps[1],
+                r.gyro_dps[2],
+                r.acc_g[0],
+                r.acc_g[1],
+                r.acc_g[2] - 1.0,
+            ];
+            for k in 0..6 {
+                sum[k] += v[k];
+                sq[k] += v[k] * v[k];
+            }
+            rp = [r.rpy_deg[0], r.rpy_deg[1]];
+        }
+        for k in 0..6 {
+            let mean = sum[k] / f64::from(n);
+            let sd = (sq[k] / f64::from(n) - mean * mean).sqrt();
+            let (offset, noise) = if k < 3 {
+                (GYRO_OFFSET_DPS, GYRO_NOISE_DPS)
+            } else {
+                (ACC_OFFSET_G, ACC_NOISE_G)
+            };
+            assert!(
+                (mean.abs() - offset).abs() < 0.05 * noise,
+                "axis {k}: mean {mean}"
+            );
+            assert!((sd - noise).abs() < 0.03 * noise, "axis {k}: sd {sd}");
+        }
+        let tilt = ACC_OFFSET_G.atan().to_degrees();
+        assert!(rp.iter().all(|a| (a.abs() - tilt).abs() < 1e-9), "{rp:?}");
+        let (mut a, mut b) = (ImuErrors::datasheet(1.0, 7), ImuErrors::datasheet(1.0, 7));
+        let (mut ra, mut rb) = (level, level);
+        a.apply(&mut ra);
+        b.apply(&mut rb);
+        assert_eq!(ra, rb);
+        let mut off = ImuErrors::datasheet(0.0, 7);
+        let mut r = level;
+        off.apply(&mut r);
+        assert_eq!(r, level);
     }
 }
