@@ -450,4 +450,32 @@ fn capture_dropouts_are_found_and_filled() {
         let (a, b) = (repaired.frame(99)[c], repaired.frame(103)[c]);
         assert!((inner.frame(101)[c] - (a + b) / 2.0).abs() < 1e-12);
     }
+    // The root's rotation reading zero in the first frame (a BVH conversion's T-pose, facing
+    // elsewhere than the captured body) is one too; its position is left as recorded.
+    let root = skel.bones().iter().position(|b| b.parent().is_none()).unwrap();
+    let bone = &skel.bones()[root];
+    let (rotations, positions): (Vec<_>, Vec<_>) = bone
+        .channels()
+        .zip(bone.dofs())
+        .partition(|(_, d)| d.is_rotation());
+    // The capture turned 60° about each axis, so that zero is far from every frame.
+    let mut facing = repaired.clone();
+    for i in 0..facing.len() {
+        for (c, _) in &rotations {
+            facing.frame_mut(i)[*c] += 60.0;
+        }
+    }
+    let mut turned = facing.clone();
+    for (c, _) in &rotations {
+        turned.frame_mut(0)[*c] = 0.0;
+    }
+    let found = repair(&skel, &mut turned);
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert_eq!((found[0].bone.as_str(), found[0].frames), (bone.name(), (0, 0)));
+    for (c, _) in &rotations {
+        assert_eq!(turned.frame(0)[*c], facing.frame(1)[*c]);
+    }
+    for (c, _) in &positions {
+        assert_eq!(turned.frame(0)[*c], facing.frame(0)[*c]);
+    }
 }

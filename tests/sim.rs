@@ -700,7 +700,8 @@ fn op3_walking_survives_a_push_and_a_shove_topples_it() {
 
 /// A jumping clip (01_01: its flights replaced, a foot kept down through each) and the walk
 /// bent into a 45° turn to either side (`transform --turn`), on their plans in MuJoCo at
-/// 125 Hz: no fall, the torso within 15° of upright.
+/// 125 Hz: no fall, the torso within 15° of upright; the turns' feet within 20 mm (RMS) of
+/// their footprints.
 #[test]
 fn op3_walks_a_turn_and_plays_a_jumping_clip_without_falling() {
     let dir = common::tempdir("op3-turns");
@@ -735,6 +736,15 @@ fn op3_walks_a_turn_and_plays_a_jumping_clip_without_falling() {
             "{}",
             amc.display()
         );
+        if asf_name == &"16.asf" {
+            let steps = &sim["footstep_error_mm"];
+            assert!(
+                steps["rms"].as_f64().unwrap() <= 20.0,
+                "{}: {steps}",
+                amc.display()
+            );
+            assert_eq!(steps["matched"], sim["footsteps"], "{}: {steps}", amc.display());
+        }
         if asf_name == &"01.asf" {
             let flights = walk["footstep_plan"]
                 .as_array()
@@ -755,6 +765,47 @@ fn op3_walks_a_turn_and_plays_a_jumping_clip_without_falling() {
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Servos unlike the profile in MuJoCo: the walk on its plan at 125 Hz stands (no fall, the
+/// torso within 15° of upright) with every servo 50 % slower (joint damping × 1.5) or 20 %
+/// weaker (torque limits × 0.8) than the profile says. On the weaker servos the IMU's gyro
+/// feedback, read in the servos' Bulk Read with the MPU-9250's offsets and noise on it, puts
+/// the feet closer to their footprints than open loop does.
+#[test]
+fn op3_walks_on_servos_unlike_its_profile_and_the_imu_feedback_helps() {
+    let clip = common::data("16_15.amc");
+    for extra in [["--sim-lag-scale", "1.5"], ["--sim-torque-scale", "0.8"]] {
+        let (sim, _) = op3_walks("16.asf", &clip, "125", &extra);
+        println!(
+            "{extra:?}: tilt {}°, footsteps {}",
+            sim["torso_max_tilt_deg"], sim["footstep_error_mm"]
+        );
+        assert_eq!(sim["fell"].as_bool(), Some(false), "{extra:?}: {sim}");
+        assert!(sim["torso_max_tilt_deg"].as_f64().unwrap() <= 15.0, "{extra:?}");
+    }
+    let weaker = ["--sim-torque-scale", "0.8"];
+    let (open, _) = op3_walks("16.asf", &clip, "125", &weaker);
+    let mut closed_args = weaker.to_vec();
+    closed_args.extend(["--imu", "feedback", "--sim-imu-errors", "1,3"]);
+    let (closed, stats) = op3_walks("16.asf", &clip, "125", &closed_args);
+    let imu = &stats["imu"];
+    println!(
+        "weaker servos: footsteps open loop {}, with feedback {}; imu {imu}",
+        open["footstep_error_mm"], closed["footstep_error_mm"]
+    );
+    assert_eq!(closed["fell"].as_bool(), Some(false), "{closed}");
+    assert_eq!(imu["merged"].as_bool(), Some(true), "{imu}");
+    assert_eq!(imu["reads_failed"].as_u64(), Some(0), "{imu}");
+    assert_eq!(imu["stale_ticks"].as_u64(), Some(0), "{imu}");
+    assert!(imu["max_offset_deg"].as_f64().unwrap() > 0.1, "{imu}");
+    let rms = |r: &serde_json::Value| r["footstep_error_mm"]["rms"].as_f64().unwrap();
+    assert!(
+        rms(&closed) < rms(&open),
+        "{} against {}",
+        rms(&closed),
+        rms(&open)
+    );
 }
 
 /// Plays the walk on the simulated puppet through the command line (`--bus sim --rate 120

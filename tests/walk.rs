@@ -257,7 +257,7 @@ fn play_walk(extra: &[&str]) -> (String, serde_json::Value) {
 
 #[test]
 fn play_walks_the_op3_on_its_plan_on_the_virtual_chain_without_allocating() {
-    let (text, v) = play_walk(&["--rate", "250"]);
+    let (text, v) = play_walk(&["--rate", "250", "--imu", "feedback"]);
     assert!(text.contains("walking on a plan: "), "{text}");
     assert_eq!(v["allocations_in_tick"].as_u64(), Some(0), "{v}");
     assert_eq!(v["commands_refused"].as_u64(), Some(0));
@@ -288,6 +288,8 @@ fn walking_reads_the_op3s_imu_board_every_tick_when_asked_without_allocating() {
         assert!(text.contains("IMU board at id 200: read every tick"), "{text}");
         assert_eq!(imu["board_id"].as_u64(), Some(200), "{imu}");
         assert_eq!(imu["feedback"].as_bool(), Some(feedback), "{imu}");
+        // In the servos' position read (a Bulk Read, the board's block last).
+        assert_eq!(imu["merged"].as_bool(), Some(true), "{imu}");
         // One good read a tick (the virtual board: level and still).
         assert_eq!(imu["reads_failed"].as_u64(), Some(0), "{imu}");
         assert!(

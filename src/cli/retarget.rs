@@ -29,6 +29,7 @@ pub struct RetargetArgs<'a> {
     pub plan: Option<PathBuf>,
     pub fps: f64,
     pub bvh_unit: BvhUnit,
+    pub keep_dropouts: bool,
 }
 
 /// Reads a skeleton and its clip: `.bvh` alone, or `.asf` with an `.amc` at `fps`.
@@ -73,7 +74,26 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
         crate::plot::Format::of(p)?;
     }
     let profile = Profile::load(args.profile)?;
-    let (skeleton, motion) = load_clip(args.skeleton, args.amc, args.fps, args.bvh_unit)?;
+    let (skeleton, mut motion) = load_clip(args.skeleton, args.amc, args.fps, args.bvh_unit)?;
+    // As `play` plays it: a capture dropout (a bone, or the root, reading exactly zero between
+    // far-away frames) filled from its neighbours.
+    let dropouts = if args.keep_dropouts {
+        crate::motion::dropouts::find(&skeleton, &motion)
+    } else {
+        crate::motion::dropouts::repair(&skeleton, &mut motion)
+    };
+    let clip_name = args.amc.unwrap_or(args.skeleton).display();
+    for d in &dropouts {
+        writeln!(
+            out,
+            "{clip_name}: capture dropout: {d}{}",
+            if args.keep_dropouts {
+                "; retargeted as recorded"
+            } else {
+                "; filled from its neighbours (--keep-dropouts retargets it as recorded)"
+            }
+        )?;
+    }
     let setup = Setup::new(&profile, &skeleton)?;
     let options = Options {
         upper_body: args.upper_body,
@@ -304,6 +324,10 @@ pub(super) struct RetargetCmd {
     /// Length unit of a BVH file.
     #[arg(long, value_enum, default_value_t = BvhUnit::Cm)]
     pub(super) bvh_unit: BvhUnit,
+    /// Retarget capture dropouts (a bone or the root reading exactly zero between far-away
+    /// frames) as recorded instead of filling them from their neighbours.
+    #[arg(long)]
+    pub(super) keep_dropouts: bool,
 }
 
 impl RetargetCmd {
@@ -325,6 +349,7 @@ impl RetargetCmd {
             plan,
             fps,
             bvh_unit,
+            keep_dropouts,
         } = self;
         retarget_cmd(
             &RetargetArgs {
@@ -340,6 +365,7 @@ impl RetargetCmd {
                 plan,
                 fps,
                 bvh_unit,
+                keep_dropouts,
             },
             &mut std::io::stdout().lock(),
         )

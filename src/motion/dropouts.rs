@@ -58,15 +58,14 @@ fn jump(motion: &Motion, a: usize, b: usize, channels: &[usize]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Every dropout of the clip's bones (not the root's).
+/// Every dropout of the clip's bones and of its root's rotation (a BVH conversion's T-pose
+/// first frame reads the root turned to zero while the captured body faces elsewhere; its
+/// position is left as recorded).
 #[must_use]
 pub fn find(skeleton: &Skeleton, motion: &Motion) -> Vec<Dropout> {
     let mut out = Vec::new();
     let n = motion.len();
     for b in 0..skeleton.len() {
-        if skeleton.bones()[b].parent().is_none() {
-            continue;
-        }
         let channels = rotation_channels(skeleton, b);
         if channels.is_empty() {
             continue;

@@ -441,7 +441,7 @@ impl RigDrive {
                 let feedback = use_ == ImuUse::Feedback;
                 writeln!(
                     log,
-                    "IMU board at id {id}: read every tick (one more transaction on the bus){}",
+                    "IMU board at id {id}: read every tick with the servos' positions (one Bulk Read; beside a Fast read, a Read of its own){}",
                     if feedback {
                         ", its gyro fed back to the legs"
                     } else {
