@@ -300,3 +300,36 @@ fn walking_reads_the_op3s_imu_board_every_tick_when_asked_without_allocating() {
         assert!(imu["max_tilt_deg"].as_f64().unwrap() < 0.1, "{imu}");
     }
 }
+
+/// The walk planned as a stream: with a look-ahead window of the preview (1.6 s) and a little
+/// more the centre of mass is the offline plan's; shorter windows drift from it, and the
+/// window a live input needs is the one that keeps it within a millimetre.
+#[test]
+fn a_streamed_plan_with_two_seconds_of_window_is_the_offline_plan() {
+    use marionette::retarget::walk::streamed_com;
+    let profile = Profile::load(&repo("firmware-profile/robotis-op3.toml")).unwrap();
+    let s: Skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
+    let mut m: Motion = amc::load(&s, &common::data("16_15.amc")).unwrap();
+    marionette::motion::dropouts::repair(&s, &mut m);
+    let m = marionette::retarget::walk::settled(&m);
+    let setup = Setup::new(&profile, &s).unwrap();
+    let kinematic = marionette::retarget::retarget_clip(&setup, &s, &m, Options::default());
+    let retargeter = setup.retargeter(&s, kinematic.floor, Options::default());
+    let plan = marionette::retarget::walk::plan_walk(&setup, &retargeter, &kinematic, f64::INFINITY).unwrap();
+    let mut deviation = Vec::new();
+    for window in [3.0, 2.0, 1.6, 1.0, 0.5] {
+        let com = streamed_com(&setup, &retargeter, &kinematic, &plan, window).unwrap();
+        assert_eq!(com.len(), plan.samples.len());
+        let worst = com
+            .iter()
+            .zip(&plan.samples)
+            .map(|(c, p)| (*c - p.stance.com).length() * 1000.0)
+            .fold(0.0, f64::max);
+        println!("window {window} s: the centre of mass at most {worst:.4} mm from the offline plan's");
+        deviation.push(worst);
+    }
+    assert!(deviation[0] < 1e-6, "{deviation:?}");
+    assert!(deviation[1] < 0.01, "{deviation:?}");
+    assert!(deviation[3] < 2.0, "{deviation:?}");
+    assert!(deviation[4] > deviation[3], "{deviation:?}");
+}

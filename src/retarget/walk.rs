@@ -264,41 +264,14 @@ pub fn plan_walk(
                 DEFAULT_LEG_SPEED
             },
     );
-    let dt = run.times.get(1).map_or(1.0 / 120.0, |t| t - run.times[0]);
-    let mut planner = FootstepPlanner::new(limits);
+    let dt = frame_period(run);
+    let mut planner = start_planner(setup, retargeter, run, limits);
     let mut footsteps: Vec<Footstep> = Vec::new();
-    let keep = |planner: &FootstepPlanner, all: &mut Vec<Footstep>| {
-        for s in planner.steps() {
-            let n = s.number as usize;
-            if n < all.len() {
-                all[n] = *s;
-            } else {
-                all.push(*s);
-            }
-        }
-    };
-    // The robot starts in its stance, centred where the clip's feet are and facing their way.
-    if let Some(first) = run.frames.first() {
-        let clip = footprints(first);
-        let stance = retargeter.stance_soles(&setup.robot);
-        let (from, to) = (midway(&stance), midway(&clip));
-        let robot = stance.map(|s| {
-            let (offset, turn) = from.relative(&s);
-            to.moved(offset, turn)
-        });
-        planner.start(run.times[0], robot, clip);
-    }
     for (t, f) in run.times.iter().zip(&run.frames) {
         planner.observe(*t, f.planted, footprints(f));
-        keep(&planner, &mut footsteps);
+        keep_steps(&planner, &mut footsteps);
     }
-    // A foot the clip lifts and does not put down again before it ends stays down: the robot
-    // ends standing on both feet.
-    for side in 0..2 {
-        if let Some(last) = footsteps.iter_mut().rev().find(|s| s.side == side) {
-            last.lift_s = f64::INFINITY;
-        }
-    }
+    stand_at_the_end(&mut footsteps);
     let end = run.times.last().copied().unwrap_or(0.0);
     let shift = limits.zmp_shift_s;
     let reference = |t: f64| {
@@ -357,6 +330,120 @@ pub fn plan_walk(
         substituted: planner.substituted(),
         leg_speed: speed,
     })
+}
+
+/// The frame period of a retargeted clip, s.
+fn frame_period(run: &ClipRetarget) -> f64 {
+    run.times.get(1).map_or(1.0 / 120.0, |t| t - run.times[0])
+}
+
+/// A footstep planner within `limits`, the robot starting in its stance centred where the
+/// clip's first feet are and facing their way.
+fn start_planner(
+    setup: &Setup,
+    retargeter: &Retargeter,
+    run: &ClipRetarget,
+    limits: StepLimits,
+) -> FootstepPlanner {
+    let mut planner = FootstepPlanner::new(limits);
+    if let Some(first) = run.frames.first() {
+        let clip = footprints(first);
+        let stance = retargeter.stance_soles(&setup.robot);
+        let (from, to) = (midway(&stance), midway(&clip));
+        let robot = stance.map(|s| {
+            let (offset, turn) = from.relative(&s);
+            to.moved(offset, turn)
+        });
+        planner.start(run.times[0], robot, clip);
+    }
+    planner
+}
+
+/// The planner's steps into `all` (by number: a step revised since replaces its old self).
+fn keep_steps(planner: &FootstepPlanner, all: &mut Vec<Footstep>) {
+    for s in planner.steps() {
+        let n = s.number as usize;
+        if n < all.len() {
+            all[n] = *s;
+        } else {
+            all.push(*s);
+        }
+    }
+}
+
+/// A foot the clip lifts and does not put down again before it ends stays down: the robot
+/// ends standing on both feet.
+fn stand_at_the_end(footsteps: &mut [Footstep]) {
+    for side in 0..2 {
+        if let Some(last) = footsteps.iter_mut().rev().find(|s| s.side == side) {
+            last.lift_s = f64::INFINITY;
+        }
+    }
+}
+
+/// The centre of mass a stream would plan for `run` with `window_s` of look-ahead: at each
+/// frame the footstep planner has seen the clip only that far ahead, and the preview
+/// controller (at `plan`'s height, frame period and lead-in) sees the ZMP reference of the
+/// steps known so far, held at its last known value beyond them; once the window reaches the
+/// clip's end the stream knows it ended (the feet stay down). One point per clip frame, to
+/// compare with `plan`'s offline one: how long a live input's window must be.
+///
+/// # Errors
+/// As [`plan_walk`].
+pub fn streamed_com(
+    setup: &Setup,
+    retargeter: &Retargeter,
+    run: &ClipRetarget,
+    plan: &WalkPlan,
+    window_s: f64,
+) -> Result<Vec<DVec2>, PreviewError> {
+    let dt = plan.dt;
+    let frames = run.frames.len();
+    let samples_ahead = ((PREVIEW_S / dt).round() as usize).clamp(1, MAX_PREVIEW);
+    let gains = PreviewGains::design(dt, plan.com_height, samples_ahead)?;
+    let mut planner = start_planner(setup, retargeter, run, plan.limits);
+    let mut footsteps: Vec<Footstep> = Vec::new();
+    let window = (window_s / dt).round().max(0.0) as usize;
+    let end = run.times.last().copied().unwrap_or(0.0);
+    let shift = plan.limits.zmp_shift_s;
+    let lead = (LEAD_IN_S / dt).round() as usize;
+    let mut seen = 0;
+    let mut axes: Option<[AxisState; 2]> = None;
+    let mut com = Vec::with_capacity(frames);
+    for k in 0..lead + frames {
+        let t = (k as f64 - lead as f64) * dt;
+        // Frames seen by now: those up to the window ahead of this one.
+        let upto = (k + window + 1).saturating_sub(lead).min(frames);
+        while seen < upto {
+            planner.observe(
+                run.times[seen],
+                run.frames[seen].planted,
+                footprints(&run.frames[seen]),
+            );
+            seen += 1;
+        }
+        keep_steps(&planner, &mut footsteps);
+        let mut steps = footsteps.clone();
+        let known = if seen == frames {
+            stand_at_the_end(&mut steps);
+            end + 10.0
+        } else {
+            run.times[seen.saturating_sub(1)]
+        };
+        let reference = |t: f64| zmp_reference(&steps, t.clamp(0.0, known), shift).unwrap_or(DVec2::ZERO);
+        let state = axes.get_or_insert_with(|| {
+            let start = reference(0.0);
+            [AxisState::at(start.x), AxisState::at(start.y)]
+        });
+        if k >= lead {
+            com.push(DVec2::new(state[0].x[0], state[1].x[0]));
+        }
+        let now = reference(t);
+        for (axis, s) in state.iter_mut().enumerate() {
+            s.step(&gains, now[axis], |j| reference(t + j as f64 * dt)[axis]);
+        }
+    }
+    Ok(com)
 }
 
 /// The preview controller's centre of mass and the cart-table's ZMP at each of `frames`
