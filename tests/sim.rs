@@ -808,6 +808,42 @@ fn op3_walks_on_servos_unlike_its_profile_and_the_imu_feedback_helps() {
     );
 }
 
+/// Stopped in the middle of a step (`--duration`), the walking OP3 ramps to its plan's
+/// standing stance (`--on-stop rest`) and stands there: no fall, the torso within 10° of
+/// upright throughout.
+#[test]
+fn op3_stopped_mid_walk_ramps_to_a_stance_it_stands_in() {
+    let (sim, stats) = op3_on_the_floor(
+        "16.asf",
+        &common::data("16_15.amc"),
+        &[
+            "--walk",
+            "--rate",
+            "125",
+            "--ease-in",
+            "1",
+            "--pre-roll",
+            "1",
+            "--on-stop",
+            "rest",
+            "--duration",
+            "3.2",
+        ],
+    );
+    println!(
+        "stopped mid-walk: tilt {}°, fell {}",
+        sim["torso_max_tilt_deg"], sim["fell"]
+    );
+    assert_eq!(
+        stats["end"].as_str(),
+        Some("duration reached"),
+        "{}",
+        stats["end"]
+    );
+    assert_eq!(sim["fell"].as_bool(), Some(false), "{sim}");
+    assert!(sim["torso_max_tilt_deg"].as_f64().unwrap() <= 10.0, "{sim}");
+}
+
 /// Plays the walk on the simulated puppet through the command line (`--bus sim --rate 120
 /// --pre-roll 0.5`, plus `extra`); returns the statistics' `fidelity` block.
 fn walk_fidelity_in_mujoco(extra: &[&str]) -> serde_json::Value {

@@ -33,7 +33,8 @@ use crate::session::{self, BusChoice, ImuUse, Lead, Outcome, Session, SessionSpe
 /// What to do when a run ends (end of input, `--duration`, Ctrl-C).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum OnStop {
-    /// Ease to the rest pose (all joint angles 0) over --ramp seconds, then torque off.
+    /// Ease to the rest pose (all joint angles 0; with --walk, the plan's standing stance on
+    /// both feet) over --ramp seconds, then torque off.
     Rest,
     /// Hold the last command for --ramp seconds, then torque off.
     Hold,

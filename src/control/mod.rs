@@ -275,6 +275,8 @@ pub struct Controller {
     retarget: Option<Box<RetargetStage>>,
     /// The IMU board's reading and the legs' gyro feedback.
     balance: Option<Box<balance::Balance>>,
+    /// Where the ramp to rest ends, radians per servo (rig order); `None`: every angle 0.
+    rest_pose: Option<Vec<f64>>,
     have_input: bool,
     clip_time: f64,
     /// Source samples taken ahead (the look-ahead's preview; without it, the current one).
@@ -390,6 +392,7 @@ impl Controller {
             watched_chains,
             retarget: None,
             balance: None,
+            rest_pose: None,
             have_input: false,
             clip_time: f64::NAN,
             preview: Preview::new(8),
@@ -493,6 +496,13 @@ impl Controller {
         let ticks = (self.preview_ns / self.period_ns.max(1)) as usize;
         stage.reserve(ticks + MAX_INGEST + 8);
         self.retarget = Some(Box::new(stage));
+    }
+
+    /// Ends the ramp to rest in `angles` (radians per servo, rig order) instead of every angle
+    /// at 0: a robot on the floor ramps to a stance it stands in.
+    pub fn set_rest_pose(&mut self, angles: Vec<f64>) {
+        self.rest_pose =
+            (angles.len() == self.rig.servos.len() && angles.iter().all(|a| a.is_finite())).then_some(angles);
     }
 
     /// Reads the IMU board every tick (and, as `balance` says, feeds its gyro back to the legs).

@@ -53,7 +53,8 @@ impl Controller {
         why
     }
 
-    /// The end of a run: ramp to the rest pose (or hold), then torque off. A stop request
+    /// The end of a run: ramp to the rest pose (every angle 0, or the one set: a walk's
+    /// stance) or hold, then torque off. A stop request
     /// made during the ramp (the second, when a request ended the loop) cuts it short; so does
     /// the port failing.
     fn finish(
@@ -96,7 +97,10 @@ impl Controller {
             let mut arrived = false;
             let goals: Vec<i32> = if to_rest && self.have_input {
                 let w = crate::interp::ease_weight(k.min(ticks), ticks + 1);
-                let angles: Vec<f64> = from.iter().map(|a| a * (1.0 - w)).collect();
+                let angles: Vec<f64> = match &self.rest_pose {
+                    Some(rest) => from.iter().zip(rest).map(|(a, r)| a + w * (r - a)).collect(),
+                    None => from.iter().map(|a| a * (1.0 - w)).collect(),
+                };
                 match self.stage.command(&self.rig, &angles, dt) {
                     Ok((g, limited)) => {
                         arrived = k >= ticks && limited.rate_limited == 0;

@@ -379,6 +379,9 @@ pub struct RigDrive {
     pub retarget: Option<RetargetStage>,
     /// The IMU board's reading and the legs' feedback (walking, with a board in the profile).
     pub balance: Option<crate::control::balance::Balance>,
+    /// Where the ramp to rest ends (radians per servo) when not at every angle 0: a walk's
+    /// standing stance on both feet (its plan's last frame).
+    pub rest_pose: Option<Vec<f64>>,
 }
 
 impl RigDrive {
@@ -401,6 +404,7 @@ impl RigDrive {
                 skeleton,
                 retarget: None,
                 balance: None,
+                rest_pose: None,
             });
         }
         let setup = Setup::new(profile, &skeleton)?;
@@ -410,6 +414,7 @@ impl RigDrive {
         };
         let mut stage = RetargetStage::new(&setup, &skeleton, floor, spec.retarget);
         stage.set_load_compensation(spec.load_compensation, &setup);
+        let mut rest_pose = None;
         if let (true, false, Some(m)) = (spec.walk, spec.retarget.upper_body, clip) {
             let (walked, plan) = crate::retarget::walk::retarget_walking(&setup, &skeleton, m, spec.retarget)
                 .map_err(|e| SessionError::Invalid(format!("cannot plan the walk: {e}")))?;
@@ -419,6 +424,19 @@ impl RigDrive {
                 "walking on a plan: {} footsteps ({} substituted, {} of the clip's left out), {:.3} m planned against {:.3} m in the clip, planned ZMP ≥ {:.1} mm inside the feet",
                 w.footsteps, w.substituted_steps, w.dropped_steps, w.planned_travel_m, w.clip_travel_m, w.zmp_margin_mm.planned_min
             )?;
+            // A stop ramps to the plan's last frame: standing on both feet, the centre of mass
+            // between them (not every joint at 0, straight legs on which the robot tips).
+            rest_pose = walked.frames.last().map(|f| {
+                setup
+                    .rig
+                    .servos
+                    .iter()
+                    .map(|s| match s.source {
+                        crate::rig::JointSource::Joint(j) => f.q.get(j).copied().unwrap_or(0.0),
+                        _ => 0.0,
+                    })
+                    .collect()
+            });
             stage.set_plan(walked.frames, m.frame_rate, w);
         }
         let balance = match (spec.walk, spec.imu, profile.bus.imu_board) {
@@ -469,6 +487,7 @@ impl RigDrive {
             rig: setup.rig,
             retarget: Some(stage),
             balance,
+            rest_pose,
         })
     }
 }
@@ -503,6 +522,9 @@ pub fn controller(
     }
     if let Some(b) = drive.balance {
         c.set_balance(b);
+    }
+    if let Some(r) = drive.rest_pose {
+        c.set_rest_pose(r);
     }
     if let Some(p) = planner {
         c.set_lookahead(p);

@@ -191,6 +191,7 @@ pub fn soak(
             rig: rig.clone(),
             retarget: None,
             balance: None,
+            rest_pose: None,
         };
         let mut c = controller(&spec, profile, drive, &present, port, Solve::Frames, false);
         let ahead = c.preview_ns();
