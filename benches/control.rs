@@ -120,6 +120,7 @@ fn bench(c: &mut Criterion) {
             rig: rig.clone(),
             retarget: None,
             balance: None,
+            rest_pose: None,
         };
         let mut ctl = session::controller(&spec, &profile, drive, &present, port, solve, true);
         let mut bus = EncodeBus {
