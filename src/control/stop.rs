@@ -79,6 +79,8 @@ impl Controller {
             .map(|(s, t)| s.ticks_to_angle(f64::from(*t)))
             .collect();
         let dt = self.period_ns as f64 * 1e-9;
+        // No feedback is read while stopping: its last correction fades out within the limits.
+        self.stage.set_correction(&[]);
         let requests_at_start = stop.made();
         // After the ramp, up to two more seconds for the rate limits to arrive at rest.
         let extra = if to_rest {
