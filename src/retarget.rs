@@ -447,7 +447,7 @@ pub struct LimbErrors {
     pub head: Option<RmsMax>,
 }
 
-/// The largest joint change between two frames.
+/// The largest joint change between two frames, and the steps faster than a servo can turn.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct Continuity {
     /// Degrees.
@@ -456,6 +456,72 @@ pub struct Continuity {
     pub joint: String,
     /// The frame (index from 0) it happened at.
     pub frame: usize,
+    /// Joint steps between frames (summed over joints) faster than the velocity limit of the
+    /// servo that drives the joint (clips retargeted whole; absent in a live run).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub steps_over_velocity_limit: Option<u64>,
+    /// The fastest joint step against its servo's velocity limit (1: at the limit), with the
+    /// joint and the frame (clips retargeted whole).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fastest_step: Option<FastestStep>,
+}
+
+/// The joint step that asked most of its servo's speed.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct FastestStep {
+    /// Its speed over the servo's velocity limit.
+    pub limit_share: f64,
+    /// The joint.
+    pub joint: String,
+    /// The frame (index from 0) it ended at.
+    pub frame: usize,
+}
+
+/// Per robot joint, the velocity limit of the servo that drives it (rad/s; infinite for a
+/// joint no servo drives).
+fn joint_speed_limits(setup: &Setup) -> Vec<f64> {
+    let mut limits = vec![f64::INFINITY; setup.robot.joints().len()];
+    for s in &setup.rig.servos {
+        if let marionette_core::rig::JointSource::Joint(j) = s.source {
+            let v = s.max_velocity / s.ticks_per_radian().abs();
+            if let Some(l) = limits.get_mut(j) {
+                if v.is_finite() && v > 0.0 {
+                    *l = l.min(v);
+                }
+            }
+        }
+    }
+    limits
+}
+
+/// Counts the joint steps of `frames` (`dt` apart) faster than their servo's velocity limit
+/// into `report`, and names the fastest.
+fn count_fast_steps(
+    report: &mut Continuity,
+    frames: &[RetargetFrame],
+    dt: f64,
+    limits: &[f64],
+    names: &[String],
+) {
+    let mut over = 0;
+    let mut fastest = FastestStep::default();
+    for (k, w) in frames.windows(2).enumerate() {
+        for (j, limit) in limits.iter().enumerate() {
+            let share = (w[1].q[j] - w[0].q[j]).abs() / dt / limit;
+            if share > 1.0 {
+                over += 1;
+            }
+            if share > fastest.limit_share {
+                fastest = FastestStep {
+                    limit_share: share,
+                    joint: names.get(j).cloned().unwrap_or_default(),
+                    frame: k + 1,
+                };
+            }
+        }
+    }
+    report.steps_over_velocity_limit = Some(over);
+    report.fastest_step = Some(fastest);
 }
 
 /// What a retargeting run measured (the `retarget` block of the stats JSON, `--report`).
@@ -622,6 +688,7 @@ impl ReportBuilder {
                 max_joint_step_deg: self.step.0,
                 joint: joint_names.get(self.step.1).cloned().unwrap_or_default(),
                 frame: self.step.2,
+                ..Continuity::default()
             },
             planted_fraction: [self.planted[0] as f64 / frames, self.planted[1] as f64 / frames],
             leg_scale: retargeter.leg_scale(),
@@ -688,6 +755,13 @@ pub fn retarget_clip_with(
     let fps = (elapsed > 0.0).then(|| frames.len() as f64 / elapsed);
     let names = setup.joint_names();
     let mut report = report.finish(&r, &names, fps);
+    count_fast_steps(
+        &mut report.continuity,
+        &frames,
+        dt,
+        &joint_speed_limits(setup),
+        &names,
+    );
     let mut start = None;
     for (i, f) in frames.iter().enumerate() {
         let both = f.planted[0] && f.planted[1];

@@ -721,3 +721,49 @@ fn wild_poses_give_finite_joints_inside_the_limits() {
         }
     }
 }
+
+/// The report counts the joint steps faster than the servo that drives the joint can turn
+/// (its profile's velocity limit), checked here by hand: none on 16_15's upper body (its
+/// capture dropout filled, the bundled walk's arms and head keep within 270°/s), some where a
+/// clip's arm angle wraps (01_01), and the fastest named with its share of the limit.
+#[test]
+fn joint_steps_faster_than_their_servos_are_counted() {
+    let profile = op3();
+    for (a, m, upper_body) in [("16.asf", "16_15.amc", true), ("01.asf", "01_01.amc", false)] {
+        let (s, mut motion) = clip(a, &common::data(m));
+        // As `retarget` and `play` take it: capture dropouts filled (16_15's left arm).
+        marionette::motion::dropouts::repair(&s, &mut motion);
+        let setup = Setup::new(&profile, &s).unwrap();
+        let options = Options {
+            upper_body,
+            ..Options::default()
+        };
+        let out = run(&setup, &s, &motion, options);
+        let dt = 1.0 / motion.frame_rate;
+        let mut limits = vec![f64::INFINITY; setup.robot.joints().len()];
+        for servo in &setup.rig.servos {
+            if let marionette::rig::JointSource::Joint(j) = servo.source {
+                limits[j] = servo.max_velocity / servo.ticks_per_radian().abs();
+            }
+        }
+        let mut over = 0;
+        let mut fastest = 0.0f64;
+        for w in out.frames.windows(2) {
+            for (j, limit) in limits.iter().enumerate() {
+                let share = (w[1].q[j] - w[0].q[j]).abs() / dt / limit;
+                over += u64::from(share > 1.0);
+                fastest = fastest.max(share);
+            }
+        }
+        let c = &out.report.continuity;
+        println!("{m}: {c:?}");
+        assert_eq!(c.steps_over_velocity_limit, Some(over), "{m}");
+        let named = c.fastest_step.as_ref().unwrap();
+        assert!((named.limit_share - fastest).abs() < 1e-9, "{m}: {named:?}");
+        if upper_body {
+            assert_eq!(over, 0, "{m}: {named:?}");
+        } else {
+            assert!(over > 0 && fastest > 10.0, "{m}: {named:?}");
+        }
+    }
+}

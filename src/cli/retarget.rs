@@ -254,6 +254,13 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
         "  continuity: largest joint step {:.2}° ({} at frame {})",
         r.continuity.max_joint_step_deg, r.continuity.joint, r.continuity.frame
     )?;
+    if let (Some(over), Some(f)) = (r.continuity.steps_over_velocity_limit, &r.continuity.fastest_step) {
+        writeln!(
+            out,
+            "  servo speed: {over} joint steps faster than their servo's velocity limit; the fastest {:.2}× its limit ({} at frame {})",
+            f.limit_share, f.joint, f.frame
+        )?;
+    }
     if !r.standing_s.is_empty() {
         let list: Vec<String> = r
             .standing_s
