@@ -21,7 +21,10 @@ fn repo(p: &str) -> PathBuf {
 fn walk_of(asf_name: &str, amc_name: &str) -> (Setup, ClipRetarget, WalkPlan) {
     let profile = Profile::load(&repo("firmware-profile/robotis-op3.toml")).unwrap();
     let s: Skeleton = asf::load(&common::data(asf_name)).unwrap().skeleton;
-    let m: Motion = amc::load(&s, &common::data(amc_name)).unwrap();
+    let mut m: Motion = amc::load(&s, &common::data(amc_name)).unwrap();
+    // As `retarget --walk` and `play --walk` take it: dropouts filled, the last frame held.
+    marionette::motion::dropouts::repair(&s, &mut m);
+    let m = marionette::retarget::walk::settled(&m);
     let setup = Setup::new(&profile, &s).unwrap();
     let (walked, plan) = retarget_walking(&setup, &s, &m, Options::default()).unwrap();
     (setup, walked, plan)
