@@ -447,6 +447,15 @@ pub struct LimbErrors {
     pub head: Option<RmsMax>,
 }
 
+/// Hand errors per arm (absent for an unmapped arm), mm.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct HandErrors {
+    /// Left hand.
+    pub left: Option<RmsMax>,
+    /// Right hand.
+    pub right: Option<RmsMax>,
+}
+
 /// The largest joint change between two frames, and the steps faster than a servo can turn.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct Continuity {
@@ -531,6 +540,10 @@ pub struct RetargetReport {
     pub frames: u64,
     /// Angle between each human segment and the robot segment it drives, in the pelvis frame.
     pub limb_direction_error_deg: LimbErrors,
+    /// Distance of each robot hand from the human's hand placed on the robot (the human's
+    /// shoulder-to-hand vector at the robot's arm scale from the robot's shoulder, in the
+    /// pelvis frame), mm.
+    pub hand_error_mm: HandErrors,
     /// How far a planted foot's sole moved during a stance phase (largest, mm).
     pub foot_slide_mm: MaxMm,
     /// Centre of mass inside the support polygon of the planted feet (smallest margin, mm).
@@ -592,6 +605,8 @@ pub struct ReportBuilder {
     previous_q: Vec<f64>,
     step: (f64, usize, usize),
     planted: [u64; 2],
+    /// Per arm: sum of squared hand errors (mm²), the largest (mm), frames.
+    hand: [(f64, f64, u64); 2],
 }
 
 impl ReportBuilder {
@@ -610,6 +625,7 @@ impl ReportBuilder {
             previous_q: vec![f64::NAN; joints],
             step: (0.0, 0, 0),
             planted: [0; 2],
+            hand: [(0.0, 0.0, 0); 2],
         }
     }
 
@@ -620,6 +636,12 @@ impl ReportBuilder {
                 self.limb[k].0 += sq;
                 self.limb[k].1 = self.limb[k].1.max(f.limb_error_deg[k]);
                 self.limb[k].2 += u64::from(*n);
+            }
+        }
+        for (h, e) in self.hand.iter_mut().zip(f.hand_error) {
+            if e.is_finite() {
+                let mm = e * 1000.0;
+                *h = (h.0 + mm * mm, h.1.max(mm), h.2 + 1);
             }
         }
         for side in 0..2 {
@@ -669,8 +691,19 @@ impl ReportBuilder {
             max: self.limb.iter().map(|l| l.1).fold(0.0, f64::max),
         };
         let frames = self.frames.max(1) as f64;
+        let hand = |side: usize| {
+            let (sq, max, n) = self.hand[side];
+            (n > 0).then(|| RmsMax {
+                rms: (sq / n as f64).sqrt(),
+                max,
+            })
+        };
         RetargetReport {
             frames: self.frames,
+            hand_error_mm: HandErrors {
+                left: hand(0),
+                right: hand(1),
+            },
             limb_direction_error_deg: LimbErrors {
                 overall,
                 left_arm: rms_max(0),

@@ -767,3 +767,37 @@ fn joint_steps_faster_than_their_servos_are_counted() {
         }
     }
 }
+
+/// The hand error (the robot's hand against the human's placed on the robot at its arm
+/// scale): reported per arm as the RMS and largest of the frames' own, in millimetres; on the
+/// bundled walk's arms within 25 mm RMS (the arms follow the segments' directions, so the hands
+/// miss by what the robot's segment proportions and the direction errors make), far more on
+/// 01_01's playground moves.
+#[test]
+fn hand_errors_are_reported_per_arm() {
+    let profile = op3();
+    for (a, m, most) in [("16.asf", "16_15.amc", 25.0), ("01.asf", "01_01.amc", 150.0)] {
+        let (s, mut motion) = clip(a, &common::data(m));
+        marionette::motion::dropouts::repair(&s, &mut motion);
+        let setup = Setup::new(&profile, &s).unwrap();
+        let options = Options {
+            upper_body: true,
+            ..Options::default()
+        };
+        let out = run(&setup, &s, &motion, options);
+        let h = out.report.hand_error_mm;
+        println!("{m}: hand error {h:?}");
+        for (side, e) in [h.left, h.right].into_iter().enumerate() {
+            let e = e.unwrap();
+            let mm: Vec<f64> = out.frames.iter().map(|f| f.hand_error[side] * 1000.0).collect();
+            assert!(mm.iter().all(|v| v.is_finite() && *v >= 0.0), "{m}");
+            let rms = (mm.iter().map(|v| v * v).sum::<f64>() / mm.len() as f64).sqrt();
+            let max = mm.iter().copied().fold(0.0, f64::max);
+            assert!(
+                (e.rms - rms).abs() < 1e-9 && (e.max - max).abs() < 1e-9,
+                "{m}: {e:?}"
+            );
+            assert!(e.rms > 1.0 && e.rms < most, "{m}: {e:?}");
+        }
+    }
+}

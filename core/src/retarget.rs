@@ -257,6 +257,10 @@ pub struct RetargetFrame {
     pub limb_error_deg: [Real; 5],
     /// Per limb: sum of squared segment errors (degrees²) and the number of segments.
     pub limb_error_sq: [(Real, u32); 5],
+    /// Per arm (left, right): how far the robot's hand is from the human's hand placed on the
+    /// robot — the human's shoulder-to-hand vector, at the robot's arm scale, from the robot's
+    /// shoulder, in the pelvis frame — metres (NaN for an unmapped arm).
+    pub hand_error: [Real; 2],
     /// Whether each foot is planted.
     pub planted: [bool; 2],
     /// Each sole's centre in the robot's world (metres).
@@ -290,6 +294,7 @@ impl Default for RetargetFrame {
             base_rot: RealQuat::IDENTITY,
             limb_error_deg: [Real::NAN; 5],
             limb_error_sq: [(0.0, 0); 5],
+            hand_error: [Real::NAN; 2],
             planted: [false; 2],
             sole: [RealVec3::ZERO; 2],
             sole_yaw: [0.0; 2],
@@ -1643,6 +1648,10 @@ impl Retargeter {
                 let fore = tip - at(2);
                 add(side, at(2) - at(1), human(bones[0]));
                 add(side, fore - axis * axis.dot(fore), human(bones[1]));
+                let reach = (human(bones[0]) + human(bones[1])) * (self.units * self.arm_scale[side]);
+                out.hand_error[side] = (tip - (at(1) + reach)).length();
+            } else {
+                out.hand_error[side] = Real::NAN;
             }
             let g = &self.legs[side];
             let [thigh, shin, _] = h.legs[side];

@@ -228,6 +228,18 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
         "    {:<44}{:>6.2}  {:>6.2}",
         "overall", e.overall.rms, e.overall.max
     )?;
+    let h = &r.hand_error_mm;
+    if h.left.is_some() || h.right.is_some() {
+        writeln!(
+            out,
+            "  hand error (mm, the human's hand scaled)        RMS     max"
+        )?;
+        for (name, v) in [("left hand", &h.left), ("right hand", &h.right)] {
+            if let Some(v) = v {
+                writeln!(out, "    {name:<44}{:>6.1}  {:>6.1}", v.rms, v.max)?;
+            }
+        }
+    }
     writeln!(
         out,
         "  feet: planted {:.0} % / {:.0} % of frames, slide at most {:.2} mm, lowest sole {:.2} mm above the floor",
