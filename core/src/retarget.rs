@@ -261,6 +261,8 @@ pub struct RetargetFrame {
     /// robot — the human's shoulder-to-hand vector, at the robot's arm scale, from the robot's
     /// shoulder, in the pelvis frame — metres (NaN for an unmapped arm).
     pub hand_error: [Real; 2],
+    /// Per arm: that placed human hand, in the robot's world (metres; NaN for an unmapped arm).
+    pub hand_target: [RealVec3; 2],
     /// Whether each foot is planted.
     pub planted: [bool; 2],
     /// Each sole's centre in the robot's world (metres).
@@ -295,6 +297,7 @@ impl Default for RetargetFrame {
             limb_error_deg: [Real::NAN; 5],
             limb_error_sq: [(0.0, 0); 5],
             hand_error: [Real::NAN; 2],
+            hand_target: [RealVec3::NAN; 2],
             planted: [false; 2],
             sole: [RealVec3::ZERO; 2],
             sole_yaw: [0.0; 2],
@@ -1649,9 +1652,12 @@ impl Retargeter {
                 add(side, at(2) - at(1), human(bones[0]));
                 add(side, fore - axis * axis.dot(fore), human(bones[1]));
                 let reach = (human(bones[0]) + human(bones[1])) * (self.units * self.arm_scale[side]);
-                out.hand_error[side] = (tip - (at(1) + reach)).length();
+                let target = at(1) + reach;
+                out.hand_error[side] = (tip - target).length();
+                out.hand_target[side] = out.base_pos + out.base_rot * target;
             } else {
                 out.hand_error[side] = Real::NAN;
+                out.hand_target[side] = RealVec3::NAN;
             }
             let g = &self.legs[side];
             let [thigh, shin, _] = h.legs[side];

@@ -140,6 +140,13 @@ fn render<DB: DrawingBackend<ErrorType: 'static>>(pic: &RetargetPicture<'_>, roo
             )
         }))?;
         let f = &pic.run.frames[i];
+        // Where the human's hands are, placed on the robot at its arm scale: the hands' targets.
+        chart.draw_series(
+            f.hand_target
+                .iter()
+                .filter(|t| t.is_finite())
+                .map(|t| Circle::new(shift(*t, 0.15), 5, RGBColor(40, 90, 200).stroke_width(2))),
+        )?;
         let com = shift(DVec3::new(f.com.x, f.com.y, 0.0), 0.15);
         chart.draw_series(std::iter::once(Circle::new(com, 4, BLACK.filled())))?;
         chart.draw_series(std::iter::once(Text::new(
