@@ -80,6 +80,24 @@ fn at(profile: &Path, n: &Named, message: String) -> FileError {
 }
 
 impl Setup {
+    /// Per robot joint, the velocity limit of the servo that drives it (rad/s; infinite for a
+    /// joint no servo drives or whose servo gives no limit).
+    #[must_use]
+    pub fn joint_speed_limits(&self) -> Vec<f64> {
+        let mut limits = vec![f64::INFINITY; self.robot.joints().len()];
+        for s in &self.rig.servos {
+            if let marionette_core::rig::JointSource::Joint(j) = s.source {
+                let v = s.max_velocity / s.ticks_per_radian().abs();
+                if let Some(l) = limits.get_mut(j) {
+                    if v.is_finite() && v > 0.0 {
+                        *l = l.min(v);
+                    }
+                }
+            }
+        }
+        limits
+    }
+
     /// Resolves `profile`'s `[retarget]` against its model and `skeleton`.
     ///
     /// # Errors
@@ -486,23 +504,6 @@ pub struct FastestStep {
     pub frame: usize,
 }
 
-/// Per robot joint, the velocity limit of the servo that drives it (rad/s; infinite for a
-/// joint no servo drives).
-fn joint_speed_limits(setup: &Setup) -> Vec<f64> {
-    let mut limits = vec![f64::INFINITY; setup.robot.joints().len()];
-    for s in &setup.rig.servos {
-        if let marionette_core::rig::JointSource::Joint(j) = s.source {
-            let v = s.max_velocity / s.ticks_per_radian().abs();
-            if let Some(l) = limits.get_mut(j) {
-                if v.is_finite() && v > 0.0 {
-                    *l = l.min(v);
-                }
-            }
-        }
-    }
-    limits
-}
-
 /// Counts the joint steps of `frames` (`dt` apart) faster than their servo's velocity limit
 /// into `report`, and names the fastest.
 fn count_fast_steps(
@@ -792,7 +793,7 @@ pub fn retarget_clip_with(
         &mut report.continuity,
         &frames,
         dt,
-        &joint_speed_limits(setup),
+        &setup.joint_speed_limits(),
         &names,
     );
     let mut start = None;

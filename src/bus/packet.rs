@@ -89,6 +89,8 @@ struct PendingRead {
     n: usize,
     /// When the request's last byte left (transport time).
     sent: Duration,
+    /// Whether the merged block was asked after the positions.
+    merged: bool,
 }
 
 impl<T: Transport> PacketBus<T> {
@@ -439,7 +441,7 @@ impl<T: Transport> PacketBus<T> {
     fn take_positions(&mut self, p: &PendingRead, out: &mut [i32]) -> Result<(), BusError> {
         let ids = &p.ids[..p.n];
         let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
-        if let Some(m) = self.merged {
+        if let (true, Some(m)) = (p.merged, self.merged) {
             // A Bulk Read: the servos' status packets in entry order, then the device's.
             let positions = self.sync_read_replies(4, ids, &mut data[..4 * p.n], p.sent, self.margin);
             let mut block = m;
@@ -450,7 +452,7 @@ impl<T: Transport> PacketBus<T> {
             } else {
                 let len = usize::from(m.len);
                 let baud = self.link.baud();
-                let due = p.sent + wire_time(15, baud) * p.n as u32 + wire_time(11 + len, baud);
+                let due = p.sent + wire_time(11 + 4, baud) * p.n as u32 + wire_time(11 + len, baud);
                 let due = due.max(self.link.now() + wire_time(11 + len, baud)) + self.margin;
                 if self.status_by(m.id, Some(len), due).is_ok() {
                     block.data[..len].copy_from_slice(&self.params[1..=len]);
@@ -793,8 +795,10 @@ impl<T: Transport> ServoBus for PacketBus<T> {
 
     fn request_positions(&mut self, ids: &[u8]) -> Result<(), BusError> {
         let n = ids.len().min(crate::servo::MAX_SERVOS);
+        // The board as one more Bulk Read entry, where the entries leave room for it.
+        let merged = self.merged.is_some() && n < MAX_SERVOS;
         let sent = match (self.read, self.merged) {
-            (_, Some(m)) if n < MAX_SERVOS => {
+            (_, Some(m)) if merged => {
                 let mut entries = [(0u8, addr::PRESENT_POSITION, 4u16); MAX_SERVOS];
                 for (e, &id) in entries.iter_mut().zip(&ids[..n]) {
                     e.0 = id;
@@ -821,6 +825,7 @@ impl<T: Transport> ServoBus for PacketBus<T> {
             ids: [0; crate::servo::MAX_SERVOS],
             n,
             sent,
+            merged,
         };
         p.ids[..n].copy_from_slice(&ids[..n]);
         self.pending = Some(p);

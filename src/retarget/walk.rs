@@ -24,7 +24,6 @@ use crate::motion::Motion;
 use crate::preview::{AxisState, PreviewError, PreviewGains, MAX_PREVIEW};
 use crate::skeleton::Skeleton;
 use marionette_core::retarget::{convex_hull, polygon_margin, Retargeter};
-use marionette_core::rig::JointSource;
 
 /// How long a walk holds the clip's last frame after it, s: the centre of mass, still moving
 /// when a walking clip ends, comes to rest between the feet (the preview's time constant is a
@@ -233,14 +232,13 @@ impl From<StepLimits> for LimitsReport {
 /// The slowest velocity limit (rad/s) of the servos that drive a leg joint.
 #[must_use]
 pub fn leg_speed(setup: &Setup) -> f64 {
-    let legs: Vec<usize> = setup.map.legs.iter().flat_map(|l| l.joints).collect();
+    let limits = setup.joint_speed_limits();
     setup
-        .rig
-        .servos
+        .map
+        .legs
         .iter()
-        .filter(|s| matches!(s.source, JointSource::Joint(j) if legs.contains(&j)))
-        .map(|s| s.max_velocity / s.ticks_per_radian().abs())
-        .filter(|v| v.is_finite() && *v > 0.0)
+        .flat_map(|l| l.joints)
+        .filter_map(|j| limits.get(j).copied())
         .fold(f64::INFINITY, f64::min)
 }
 
@@ -399,8 +397,6 @@ pub fn streamed_com(
 ) -> Result<Vec<DVec2>, PreviewError> {
     let dt = plan.dt;
     let frames = run.frames.len();
-    let samples_ahead = ((PREVIEW_S / dt).round() as usize).clamp(1, MAX_PREVIEW);
-    let gains = PreviewGains::design(dt, plan.com_height, samples_ahead)?;
     let mut planner = start_planner(setup, retargeter, run, plan.limits);
     let mut footsteps: Vec<Footstep> = Vec::new();
     let window = (window_s / dt).round().max(0.0) as usize;
@@ -408,18 +404,12 @@ pub fn streamed_com(
     let shift = plan.limits.zmp_shift_s;
     let lead = (LEAD_IN_S / dt).round() as usize;
     let mut seen = 0;
-    let mut axes: Option<[AxisState; 2]> = None;
-    let mut com = Vec::with_capacity(frames);
-    for k in 0..lead + frames {
-        let t = (k as f64 - lead as f64) * dt;
-        // Frames seen by now: those up to the window ahead of this one.
+    let path = preview_path(dt, plan.com_height, frames, |k| {
+        // Frames seen by step k: those up to the window ahead of it.
         let upto = (k + window + 1).saturating_sub(lead).min(frames);
         while seen < upto {
-            planner.observe(
-                run.times[seen],
-                run.frames[seen].planted,
-                footprints(&run.frames[seen]),
-            );
+            let f = &run.frames[seen];
+            planner.observe(run.times[seen], f.planted, footprints(f));
             seen += 1;
         }
         keep_steps(&planner, &mut footsteps);
@@ -430,20 +420,9 @@ pub fn streamed_com(
         } else {
             run.times[seen.saturating_sub(1)]
         };
-        let reference = |t: f64| zmp_reference(&steps, t.clamp(0.0, known), shift).unwrap_or(DVec2::ZERO);
-        let state = axes.get_or_insert_with(|| {
-            let start = reference(0.0);
-            [AxisState::at(start.x), AxisState::at(start.y)]
-        });
-        if k >= lead {
-            com.push(DVec2::new(state[0].x[0], state[1].x[0]));
-        }
-        let now = reference(t);
-        for (axis, s) in state.iter_mut().enumerate() {
-            s.step(&gains, now[axis], |j| reference(t + j as f64 * dt)[axis]);
-        }
-    }
-    Ok(com)
+        move |t: f64| zmp_reference(&steps, t.clamp(0.0, known), shift).unwrap_or(DVec2::ZERO)
+    })?;
+    Ok(path.into_iter().map(|(com, _)| com).collect())
 }
 
 /// The preview controller's centre of mass and the cart-table's ZMP at each of `frames`
@@ -455,9 +434,21 @@ fn preview_com(
     frames: usize,
     reference: &impl Fn(f64) -> DVec2,
 ) -> Result<Vec<(DVec2, DVec2)>, PreviewError> {
+    preview_path(dt, com_height, frames, |_| reference)
+}
+
+/// [`preview_com`] with the reference as known at each step: `reference_at(k)` is the ZMP
+/// reference (a function of time) the controller sees at its `k`-th step, the lead-in's
+/// steps first.
+fn preview_path<R: Fn(f64) -> DVec2>(
+    dt: f64,
+    com_height: f64,
+    frames: usize,
+    mut reference_at: impl FnMut(usize) -> R,
+) -> Result<Vec<(DVec2, DVec2)>, PreviewError> {
     let samples_ahead = ((PREVIEW_S / dt).round() as usize).clamp(1, MAX_PREVIEW);
     let gains = PreviewGains::design(dt, com_height, samples_ahead)?;
-    let start = reference(0.0);
+    let start = reference_at(0)(0.0);
     let mut axes = [AxisState::at(start.x), AxisState::at(start.y)];
     let lead = (LEAD_IN_S / dt).round() as usize;
     let mut com = Vec::with_capacity(frames);
@@ -469,6 +460,7 @@ fn preview_com(
                 DVec2::new(axes[0].zmp(com_height), axes[1].zmp(com_height)),
             ));
         }
+        let reference = reference_at(k);
         let now = reference(t);
         for (axis, state) in axes.iter_mut().enumerate() {
             state.step(&gains, now[axis], |j| reference(t + j as f64 * dt)[axis]);

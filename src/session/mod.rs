@@ -427,15 +427,9 @@ impl RigDrive {
             // A stop ramps to the plan's last frame: standing on both feet, the centre of mass
             // between them (not every joint at 0, straight legs on which the robot tips).
             rest_pose = walked.frames.last().map(|f| {
-                setup
-                    .rig
-                    .servos
-                    .iter()
-                    .map(|s| match s.source {
-                        crate::rig::JointSource::Joint(j) => f.q.get(j).copied().unwrap_or(0.0),
-                        _ => 0.0,
-                    })
-                    .collect()
+                let mut angles = vec![0.0; setup.rig.servos.len()];
+                setup.rig.joint_angles(&skeleton, &[], &f.q, &mut angles);
+                angles
             });
             stage.set_plan(walked.frames, m.frame_rate, w);
         }
