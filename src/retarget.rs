@@ -16,6 +16,7 @@ use crate::motion::{frame_to_radians, Motion};
 use crate::profile::{ChainSpec, Drive, Named, PointSpec, Profile, RetargetSpec};
 pub use marionette_core::retarget::*;
 
+pub mod continuity;
 pub mod plot;
 pub mod walk;
 use crate::rig::{JointSource, Rig};
@@ -91,6 +92,24 @@ impl Setup {
                 if let Some(l) = limits.get_mut(j) {
                     if v.is_finite() && v > 0.0 {
                         *l = l.min(v);
+                    }
+                }
+            }
+        }
+        limits
+    }
+
+    /// Per robot joint, the acceleration limit of the servo that drives it (rad/s²; infinite
+    /// for a joint no servo drives or whose servo gives no limit).
+    #[must_use]
+    pub fn joint_acceleration_limits(&self) -> Vec<f64> {
+        let mut limits = vec![f64::INFINITY; self.robot.joints().len()];
+        for s in &self.rig.servos {
+            if let marionette_core::rig::JointSource::Joint(j) = s.source {
+                let a = s.max_acceleration / s.ticks_per_radian().abs();
+                if let Some(l) = limits.get_mut(j) {
+                    if a.is_finite() && a > 0.0 {
+                        *l = l.min(a);
                     }
                 }
             }
@@ -491,6 +510,20 @@ pub struct Continuity {
     /// joint and the frame (clips retargeted whole).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fastest_step: Option<FastestStep>,
+    /// Where the human moved faster than the servos can follow, before the planned trajectory
+    /// slowed it (clips planned whole; not with `--per-frame`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub faster_than_servos: Option<FasterThanServos>,
+}
+
+/// Where a clip's human moved faster than the robot's servos can follow (the planned
+/// trajectory slows there).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct FasterThanServos {
+    /// Frames where some joint the human's motion asks for steps faster than its servo can.
+    pub frames: u64,
+    /// Those frames as spans `[start, end]`, seconds (frames 0.1 s apart or closer joined).
+    pub spans_s: Vec<[f64; 2]>,
 }
 
 /// The joint step that asked most of its servo's speed.
@@ -773,14 +806,40 @@ pub fn retarget_clip_with(
     let mut out = RetargetFrame::default();
     let mut frames = Vec::with_capacity(motion.len());
     let started = Instant::now();
+    let mut solutions: [Vec<ArmSolutions>; 2] = Default::default();
+    let mut planned_legs = false;
     for (k, ch) in frames_in.iter().enumerate() {
         fk64(skeleton, ch, &mut pose);
         match plan(k) {
-            Some(stance) => r.step_on_plan(&setup.robot, &pose, dt, &stance, &mut out),
+            Some(stance) => {
+                planned_legs = true;
+                r.step_on_plan(&setup.robot, &pose, dt, &stance, &mut out);
+            }
             None => r.step(&setup.robot, &pose, dt, &mut out),
         }
         frames.push(out.clone());
+        if !options.per_frame {
+            for (side, sols) in solutions.iter_mut().enumerate() {
+                let mut s = ArmSolutions::new();
+                r.arm_solutions(&pose, side, None, &mut s);
+                sols.push(s);
+            }
+        }
     }
+    let faster_than_servos = if options.per_frame {
+        None
+    } else {
+        Some(plan_clip(
+            setup,
+            &mut r,
+            skeleton,
+            &frames_in,
+            dt,
+            &solutions,
+            planned_legs,
+            &mut frames,
+        ))
+    };
     let elapsed = started.elapsed().as_secs_f64();
     let mut report = ReportBuilder::new(n);
     for f in &frames {
@@ -796,6 +855,7 @@ pub fn retarget_clip_with(
         &setup.joint_speed_limits(),
         &names,
     );
+    report.continuity.faster_than_servos = faster_than_servos;
     let mut start = None;
     for (i, f) in frames.iter().enumerate() {
         let both = f.planted[0] && f.planted[1];
@@ -822,6 +882,83 @@ pub fn retarget_clip_with(
         report,
         frames,
         floor,
+    }
+}
+
+/// Makes a clip's per-frame retargeting one the servos can play: each arm's branches planned
+/// over the clip ([`continuity::plan_branches`]), then every joint a servo drives but the legs'
+/// (which follow their feet, or a walking plan that plans their speeds) kept within its servo's
+/// velocity and acceleration
+/// ([`continuity::limit_speed`]), and the frames measured again. Returns where the human moved
+/// faster than the servos can follow.
+#[allow(clippy::too_many_arguments)]
+fn plan_clip(
+    setup: &Setup,
+    r: &mut Retargeter,
+    skeleton: &Skeleton,
+    frames_in: &[Vec<f64>],
+    dt: f64,
+    solutions: &[Vec<ArmSolutions>; 2],
+    planned_legs: bool,
+    frames: &mut [RetargetFrame],
+) -> FasterThanServos {
+    let speed = setup.joint_speed_limits();
+    let accel = setup.joint_acceleration_limits();
+    let step: Vec<f64> = speed.iter().map(|v| v * dt).collect();
+    for (side, sols) in solutions.iter().enumerate() {
+        let Some(joints) = r.arm_joints(side) else {
+            continue;
+        };
+        let Some(path) = continuity::plan_branches(sols, joints.map(|j| step[j])) else {
+            continue;
+        };
+        for ((f, s), &b) in frames.iter_mut().zip(sols).zip(&path) {
+            for (k, j) in joints.iter().enumerate() {
+                f.q[*j] = s[b].q[k];
+            }
+        }
+    }
+    let legs: Vec<usize> = setup.map.legs.iter().flat_map(|l| l.joints).collect();
+    let limited: Vec<usize> = (0..setup.robot.joints().len())
+        .filter(|j| speed[*j].is_finite() && !legs.contains(j))
+        .collect();
+    let q: Vec<Vec<f64>> = frames
+        .iter()
+        .map(|f| limited.iter().map(|&j| f.q[j]).collect())
+        .collect();
+    let fast = continuity::fast_frames(&q, &limited.iter().map(|&j| step[j]).collect::<Vec<_>>());
+    let mut x = vec![0.0; frames.len()];
+    for &j in &limited {
+        for (x, f) in x.iter_mut().zip(frames.iter()) {
+            *x = f.q[j];
+        }
+        // A hair inside the limits, so rounding never puts a step over them.
+        let share = 1.0 - 1e-6;
+        continuity::limit_speed(
+            &mut x,
+            step[j] * share,
+            accel[j] * dt * dt * share,
+            setup.robot.joints()[j].range,
+        );
+        for (x, f) in x.iter().zip(frames.iter_mut()) {
+            f.q[j] = *x;
+        }
+    }
+    let mut pose = Pose64::default();
+    for (f, ch) in frames.iter_mut().zip(frames_in) {
+        let zmp = f.zmp;
+        fk64(skeleton, ch, &mut pose);
+        r.remeasure(&setup.robot, &pose, f);
+        if planned_legs {
+            f.zmp = zmp;
+        }
+    }
+    FasterThanServos {
+        frames: fast.len() as u64,
+        spans_s: continuity::spans(&fast, (0.1 / dt).round() as usize)
+            .into_iter()
+            .map(|[a, b]| [a as f64 * dt, b as f64 * dt])
+            .collect(),
     }
 }
 

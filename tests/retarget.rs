@@ -12,7 +12,7 @@ use marionette::fk::{fk64, Pose64};
 use marionette::formats::{amc, asf, bvh};
 use marionette::motion::{frame_to_radians, Motion};
 use marionette::profile::Profile;
-use marionette::retarget::{floor_of_clip, retarget_clip, Options, RetargetFrame, Setup};
+use marionette::retarget::{floor_of_clip, retarget_clip, ArmSolution, Options, RetargetFrame, Setup};
 use marionette::robot::RobotPose;
 use marionette::skeleton::Skeleton;
 
@@ -573,54 +573,97 @@ fn play_drives_the_op3_on_the_virtual_chain() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// What the arm errors are made of: a 3-DOF arm whose elbow axis stays square to the lateral
-/// axis cannot bend its elbow in the human's sagittal plane. An exhaustive search over the three
-/// arm joints (3° grid inside the limits) on frames across both clips finds no configuration
-/// better than the retargeter's by more than the grid's resolution, so the remaining error is the
-/// robot's kinematics, not the solver.
+/// The arms follow where the hands go, on the branch nearest the human's elbow: on frames
+/// across both clips, each taken as a first frame, an exhaustive search over the three arm
+/// joints (5° grid inside the limits) finds no pose cheaper than the retargeter's
+/// ([`ArmSolution::cost`]: the hand's distance from its target, then the upper arm's direction
+/// against the human's); where the grid reaches the target within 5 mm, the retargeter's hand
+/// is within 3 mm of it (on it but where only a bent elbow the human does not have would reach).
 #[test]
-fn arm_errors_are_what_the_3_dof_arm_cannot_follow() {
+fn arms_reach_the_hand_targets_with_the_human_elbow_branch() {
     let profile = op3();
-    let mut worst_gain = 0.0f64;
-    let mut checked = 0;
+    let (mut checked, mut reached) = (0, 0);
     for (a, m) in [("16.asf", "16_15.amc"), ("01.asf", "01_01.amc")] {
         let (s, motion) = clip(a, &common::data(m));
         let setup = Setup::new(&profile, &s).unwrap();
         let mut r = setup.retargeter(
             &s,
             floor_of_clip(&s, &motion, &setup.map.human),
-            Options::default(),
+            Options {
+                upper_body: true,
+                ..Options::default()
+            },
         );
         let mut pose = Pose64::default();
         let mut out = RetargetFrame::default();
-        for i in (0..motion.len()).step_by(motion.len() / 12) {
+        let mut robot_pose = marionette::robot::RobotPose::default();
+        for i in (0..motion.len()).step_by(motion.len() / 8) {
             fk64(&s, &frame_to_radians(&s, motion.frame(i)), &mut pose);
             r.reset();
             r.step(&setup.robot, &pose, 1.0 / 120.0, &mut out);
+            let (pos, rot) = r.model_placement(out.base_pos, out.base_rot);
+            let to_base = |p: glam::DVec3| out.base_rot.inverse() * (p - out.base_pos);
             for side in 0..2 {
-                let (upper, fore) = r.human_arm(&pose, side).unwrap();
                 let joints = r.arm_joints(side).unwrap();
-                let ours = r.arm_error_deg(side, joints.map(|j| out.q[j]), upper, fore);
+                let (human_upper, _) = r.human_arm(&pose, side).unwrap();
+                let target = out.hand_target[side];
+                // Hand error and upper-arm direction error (degrees) at the frame's joints with
+                // the arm's replaced by `arm`.
+                let mut measure = |arm: [f64; 3]| {
+                    let mut q = out.q;
+                    for (k, j) in joints.iter().enumerate() {
+                        q[*j] = arm[k];
+                    }
+                    setup.robot.forward(pos, rot, &q, &mut robot_pose);
+                    let hand = r.effector_points(&setup.robot, &robot_pose)[side];
+                    let at = |j: usize| {
+                        let joint = &setup.robot.joints()[j];
+                        to_base(robot_pose.pos[joint.body] + robot_pose.rot[joint.body] * joint.anchor)
+                    };
+                    let upper = at(joints[2]) - at(joints[1]);
+                    let elbow = upper.angle_between(human_upper).to_degrees();
+                    ((hand - target).length(), elbow)
+                };
+                let (ours, our_elbow) = measure(joints.map(|j| out.q[j]));
+                assert!((ours - out.hand_error[side]).abs() < 1e-9);
                 let ranges = joints.map(|j| setup.robot.joints()[j].range.unwrap());
                 let grid = |(lo, hi): (f64, f64)| {
-                    let n = ((hi - lo) / 3f64.to_radians()).ceil() as usize;
+                    let n = ((hi - lo) / 5f64.to_radians()).ceil() as usize;
                     (0..=n).map(move |k| lo + (hi - lo) * k as f64 / n as f64)
                 };
-                let mut best = f64::INFINITY;
+                let cost = |d: f64, e: f64| {
+                    ArmSolution {
+                        q: [0.0; 3],
+                        hand_error: d,
+                        elbow_error: e.to_radians(),
+                    }
+                    .cost()
+                };
+                let ours_cost = cost(ours, our_elbow);
+                let (mut nearest, mut cheapest) = (f64::INFINITY, f64::INFINITY);
                 for q1 in grid(ranges[0]) {
                     for q2 in grid(ranges[1]) {
                         for q3 in grid(ranges[2]) {
-                            best = best.min(r.arm_error_deg(side, [q1, q2, q3], upper, fore));
+                            let (d, e) = measure([q1, q2, q3]);
+                            nearest = nearest.min(d);
+                            cheapest = cheapest.min(cost(d, e));
                         }
                     }
                 }
-                worst_gain = worst_gain.max(ours - best);
+                assert!(
+                    ours_cost <= cheapest + 0.05,
+                    "{m} frame {i}: cost {ours_cost} ({ours} m, {our_elbow:.1}°) against the grid's {cheapest}"
+                );
+                if nearest < 0.005 {
+                    reached += 1;
+                    assert!(ours < 0.003, "{m} frame {i}: {ours} m off a reachable target");
+                }
                 checked += 1;
             }
         }
     }
-    println!("{checked} arms checked; the grid beat the retargeter by at most {worst_gain:.2}°");
-    assert!(worst_gain < 2.0, "the grid found arms {worst_gain:.2}° better");
+    println!("{checked} arms checked, {reached} on reachable targets");
+    assert!(reached * 2 > checked, "{reached} of {checked} reachable");
 }
 
 /// A robot whose legs do not allow the closed form (hip pitch axes 12 mm below the roll axes):
@@ -723,19 +766,24 @@ fn wild_poses_give_finite_joints_inside_the_limits() {
 }
 
 /// The report counts the joint steps faster than the servo that drives the joint can turn
-/// (its profile's velocity limit), checked here by hand: none on 16_15's upper body (its
-/// capture dropout filled, the bundled walk's arms and head keep within 270°/s), some where a
-/// clip's arm angle wraps (01_01), and the fastest named with its share of the limit.
+/// (its profile's velocity limit), checked here by hand, and names the fastest with its share
+/// of the limit: none on either clip planned whole (branches planned, speeds limited); many on
+/// 01_01 retargeted frame by frame (its arms switch branches and outrun the servos).
 #[test]
 fn joint_steps_faster_than_their_servos_are_counted() {
     let profile = op3();
-    for (a, m, upper_body) in [("16.asf", "16_15.amc", true), ("01.asf", "01_01.amc", false)] {
+    for (a, m, per_frame) in [
+        ("16.asf", "16_15.amc", false),
+        ("01.asf", "01_01.amc", false),
+        ("01.asf", "01_01.amc", true),
+    ] {
         let (s, mut motion) = clip(a, &common::data(m));
         // As `retarget` and `play` take it: capture dropouts filled (16_15's left arm).
         marionette::motion::dropouts::repair(&s, &mut motion);
         let setup = Setup::new(&profile, &s).unwrap();
         let options = Options {
-            upper_body,
+            upper_body: true,
+            per_frame,
             ..Options::default()
         };
         let out = run(&setup, &s, &motion, options);
@@ -760,23 +808,25 @@ fn joint_steps_faster_than_their_servos_are_counted() {
         assert_eq!(c.steps_over_velocity_limit, Some(over), "{m}");
         let named = c.fastest_step.as_ref().unwrap();
         assert!((named.limit_share - fastest).abs() < 1e-9, "{m}: {named:?}");
-        if upper_body {
-            assert_eq!(over, 0, "{m}: {named:?}");
-        } else {
+        if per_frame {
             assert!(over > 0 && fastest > 10.0, "{m}: {named:?}");
+            assert!(c.faster_than_servos.is_none());
+        } else {
+            assert_eq!(over, 0, "{m}: {named:?}");
+            assert!(fastest <= 1.0, "{m}: {named:?}");
         }
     }
 }
 
 /// The hand error (the robot's hand against the human's placed on the robot at its arm
-/// scale): reported per arm as the RMS and largest of the frames' own, in millimetres; on the
-/// bundled walk's arms within 25 mm RMS (the arms follow the segments' directions, so the hands
-/// miss by what the robot's segment proportions and the direction errors make), far more on
-/// 01_01's playground moves.
+/// scale): reported per arm as the RMS and largest of the frames' own, in millimetres; within
+/// 3 mm RMS on the bundled walk's arms (the hands reach their targets but where a limit stops
+/// them), within 12 mm on 01_01's playground moves (where the human moves faster than the
+/// servos can follow, the hands lag).
 #[test]
 fn hand_errors_are_reported_per_arm() {
     let profile = op3();
-    for (a, m, most) in [("16.asf", "16_15.amc", 25.0), ("01.asf", "01_01.amc", 150.0)] {
+    for (a, m, most) in [("16.asf", "16_15.amc", 3.0), ("01.asf", "01_01.amc", 12.0)] {
         let (s, mut motion) = clip(a, &common::data(m));
         marionette::motion::dropouts::repair(&s, &mut motion);
         let setup = Setup::new(&profile, &s).unwrap();
@@ -797,7 +847,7 @@ fn hand_errors_are_reported_per_arm() {
                 (e.rms - rms).abs() < 1e-9 && (e.max - max).abs() < 1e-9,
                 "{m}: {e:?}"
             );
-            assert!(e.rms > 1.0 && e.rms < most, "{m}: {e:?}");
+            assert!(e.rms > 0.0 && e.rms < most, "{m}: {e:?}");
         }
     }
 }

@@ -10,11 +10,14 @@
 //! Per frame ([`Retargeter::step`]):
 //! * **Pelvis**: the base turns as the human pelvis turns; its height and path are the human's,
 //!   scaled by the leg-length ratio (floor at z = 0, from the clip's lowest feet).
-//! * **Arms** follow *directions*: the upper arm's direction exactly (two shoulder joints, the
-//!   Paden–Kahan subproblem 2), the elbow the angle that best aligns the forearm (subproblem 1).
-//!   A 3-DOF arm cannot twist its upper arm, so the plane the elbow bends in is fixed by the upper
-//!   arm's direction; of the two shoulder solutions the one with the smaller direction error is
-//!   taken, the previous one kept unless the other is better by [`BRANCH_HYSTERESIS`].
+//! * **Arms** follow *where the hands go*: the hand's target is the human's shoulder-to-wrist
+//!   vector at the robot's arm scale, from the robot's shoulder. The 3-DOF arm reaches it in
+//!   closed form (the elbow from the distance — subproblem 3, the help note's eq. 16 —, the
+//!   shoulder from the direction — subproblem 2), refined on the hand's position within the
+//!   limits; out of reach or past a limit, the nearest point it can reach. Of the solutions
+//!   (two elbow and two shoulder branches) the one whose upper arm lies nearest the human's is
+//!   taken, the previous one kept unless another is better by [`BRANCH_HYSTERESIS`]
+//!   ([`ArmSolution::cost`]); a whole clip plans its branches over time instead (the std edge).
 //! * **Legs** follow *end points*: the ankle at the scaled human ankle, the sole flat on the floor
 //!   while the foot is planted, solved in closed form in product-of-exponentials form (knee from
 //!   the hip–ankle distance — subproblem 3 —, ankle pitch and roll by subproblem 2, hip yaw, roll
@@ -42,9 +45,45 @@ use crate::skeleton::Skeleton;
 /// Left and right.
 pub const SIDES: [&str; 2] = ["left", "right"];
 
-/// Extra error (radians of direction error) the other shoulder branch must save before the
-/// arm switches to it.
-pub const BRANCH_HYSTERESIS: Real = 0.35;
+/// Extra cost ([`ArmSolution::cost`]) another arm branch must save before a stream switches
+/// to it.
+pub const BRANCH_HYSTERESIS: Real = 1.0;
+
+/// The hand error that costs an arm solution as much as [`ELBOW_TOLERANCE`] of upper-arm
+/// direction, metres.
+pub const HAND_TOLERANCE_M: Real = 0.003;
+
+/// The upper arm's direction error that costs an arm solution as much as
+/// [`HAND_TOLERANCE_M`] of hand error, radians.
+pub const ELBOW_TOLERANCE: Real = 0.5;
+
+/// Most distinct solutions an arm gives for one hand target.
+pub const MAX_ARM_SOLUTIONS: usize = 8;
+
+/// The solutions of an arm for one frame.
+pub type ArmSolutions = heapless::Vec<ArmSolution, MAX_ARM_SOLUTIONS>;
+
+/// One way a 3-DOF arm puts its hand on (or nearest) its target.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ArmSolution {
+    /// Shoulder, shoulder and elbow angles, radians, within the joints' limits.
+    pub q: [Real; 3],
+    /// Distance of the hand from its target, metres.
+    pub hand_error: Real,
+    /// Angle between the robot's upper arm and the human's, radians.
+    pub elbow_error: Real,
+}
+
+impl ArmSolution {
+    /// What taking this solution costs: the hand error in [`HAND_TOLERANCE_M`] and the upper
+    /// arm's direction error in [`ELBOW_TOLERANCE`], squared and summed.
+    #[must_use]
+    pub fn cost(&self) -> Real {
+        let h = self.hand_error / HAND_TOLERANCE_M;
+        let e = self.elbow_error / ELBOW_TOLERANCE;
+        h * h + e * e
+    }
+}
 
 /// The share of a leg's full length (hip to ankle, straight) a foot target may be away.
 pub const REACH_SHARE: Real = 0.995;
@@ -204,6 +243,9 @@ pub struct Options {
     pub upper_body: bool,
     /// Keep the centre of mass over the planted feet.
     pub balance: bool,
+    /// Retarget a whole clip frame by frame as a stream would (the arms' branches by
+    /// hysteresis, no speed limits), not planned over the clip (the std edge).
+    pub per_frame: bool,
 }
 
 impl Default for Options {
@@ -211,6 +253,7 @@ impl Default for Options {
         Options {
             upper_body: false,
             balance: true,
+            per_frame: false,
         }
     }
 }
@@ -347,6 +390,26 @@ pub fn angles_about_two(a1: RealVec3, a2: RealVec3, v: RealVec3, t: RealVec3) ->
     out
 }
 
+/// Distance from a point rotated about a line to a fixed point (Paden–Kahan subproblem 3, the
+/// law of cosines of the help note's eq. 16 for an axis in general position): the angles
+/// about unit `axis` through `at` that put `p` at distance `d` from `c`, the nearest distance
+/// twice when `d` cannot be reached.
+#[must_use]
+pub fn angles_for_distance(axis: RealVec3, at: RealVec3, p: RealVec3, c: RealVec3, d: Real) -> [Real; 2] {
+    let (u, v) = (p - at, c - at);
+    let (up, vp) = (u - axis * axis.dot(u), v - axis * axis.dot(v));
+    let along = axis.dot(p - c);
+    let dp2 = (d * d - along * along).max(0.0);
+    let theta0 = real::atan2(axis.dot(up.cross(vp)), up.dot(vp));
+    let (lu, lv) = (up.length(), vp.length());
+    let spread = if lu * lv > 1e-12 {
+        real::acos(((lu * lu + lv * lv - dp2) / (2.0 * lu * lv)).clamp(-1.0, 1.0))
+    } else {
+        0.0
+    };
+    [wrap(theta0 - spread), wrap(theta0 + spread)]
+}
+
 /// An angle in (−π, π].
 fn wrap(a: Real) -> Real {
     crate::math::wrap_near(a, 0.0)
@@ -428,6 +491,107 @@ struct ArmGeometry {
     upper: RealVec3,
     fore: RealVec3,
     length: Real,
+    /// The hand at the zero pose.
+    tip: RealVec3,
+    /// The shoulder: the point of the first axis nearest the second (fixed in the base).
+    centre: RealVec3,
+}
+
+impl ArmGeometry {
+    /// The hand at angles `q`.
+    fn hand(&self, q: [Real; 3]) -> RealVec3 {
+        let [s1, s2, s3] = self.joints;
+        s1.apply(q[0], s2.apply(q[1], s3.apply(q[2], self.tip)))
+    }
+
+    /// The upper arm's direction at angles `q`.
+    fn upper_at(&self, q: [Real; 3]) -> RealVec3 {
+        let [s1, s2, _] = self.joints;
+        s1.rot(q[0]) * (s2.rot(q[1]) * self.upper)
+    }
+
+    fn clamp(&self, q: [Real; 3]) -> [Real; 3] {
+        let c = |s: &Screw, v: Real| match s.range {
+            Some((lo, hi)) => v.clamp(lo, hi),
+            None => v,
+        };
+        let [s1, s2, s3] = &self.joints;
+        [c(s1, q[0]), c(s2, q[1]), c(s3, q[2])]
+    }
+
+    /// The closed form's four starts for a hand at `target`: the elbow angles that put the
+    /// hand at the target's distance from the shoulder (subproblem 3), and for each the two
+    /// shoulder turns that point it at the target (subproblem 2). Exact when the shoulder axes
+    /// meet; [`ArmGeometry::reach`] finishes them when they do not.
+    fn closed_form(&self, target: RealVec3) -> [[Real; 3]; 4] {
+        let [s1, s2, s3] = self.joints;
+        let to_target = target - self.centre;
+        let mut out = [[0.0; 3]; 4];
+        let elbows = angles_for_distance(s3.axis, s3.point, self.tip, self.centre, to_target.length());
+        for (i, q3) in elbows.into_iter().enumerate() {
+            let w = s3.apply(q3, self.tip) - self.centre;
+            for (k, (q1, q2)) in angles_about_two(s1.axis, s2.axis, w, to_target)
+                .into_iter()
+                .enumerate()
+            {
+                out[2 * i + k] = [q1, q2, q3];
+            }
+        }
+        out
+    }
+
+    /// Levenberg–Marquardt on the hand's position from `start`, each step clamped into the
+    /// limits: the angles and the hand's distance from `target` (metres).
+    fn reach(&self, start: [Real; 3], target: RealVec3) -> ([Real; 3], Real) {
+        let [s1, s2, s3] = self.joints;
+        let mut q = self.clamp(start);
+        let mut hand = self.hand(q);
+        let mut cost = (hand - target).length_squared();
+        let mut lambda = 1e-3;
+        for _ in 0..40 {
+            if cost < 1e-14 {
+                break;
+            }
+            // A turn about axis a through p moves the hand by a × (hand − p).
+            let r1 = s1.rot(q[0]);
+            let a2 = r1 * s2.axis;
+            let p2 = s1.apply(q[0], s2.point);
+            let a3 = r1 * (s2.rot(q[1]) * s3.axis);
+            let p3 = s1.apply(q[0], s2.apply(q[1], s3.point));
+            let j = RealMat3::from_cols(
+                s1.axis.cross(hand - s1.point),
+                a2.cross(hand - p2),
+                a3.cross(hand - p3),
+            );
+            let jt = j.transpose();
+            let jtj = jt * j;
+            let jtr = jt * (hand - target);
+            let mut improved = false;
+            for _ in 0..8 {
+                let diag =
+                    RealVec3::new(jtj.x_axis.x, jtj.y_axis.y, jtj.z_axis.z) * lambda + RealVec3::splat(1e-12);
+                let damped = jtj + RealMat3::from_diagonal(diag);
+                if damped.determinant().abs() < 1e-24 {
+                    break;
+                }
+                let dq = -(damped.inverse() * jtr);
+                let trial = self.clamp([q[0] + dq.x, q[1] + dq.y, q[2] + dq.z]);
+                let h = self.hand(trial);
+                let c = (h - target).length_squared();
+                if c < cost {
+                    improved = cost - c > 1e-16;
+                    (q, hand, cost) = (trial, h, c);
+                    lambda = (lambda * 0.3).max(1e-9);
+                    break;
+                }
+                lambda *= 10.0;
+            }
+            if !improved {
+                break;
+            }
+        }
+        (q, real::sqrt(cost))
+    }
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -666,11 +830,26 @@ impl Retargeter {
             if s[0].axis.cross(s[1].axis).length() < 1e-6 {
                 return Err(RetargetError::Geometry("the two shoulder axes are parallel"));
             }
+            // The shoulder: the first axis's point nearest the second.
+            let (a1, a2) = (s[0].axis, s[1].axis);
+            let w0 = s[0].point - s[1].point;
+            let b = a1.dot(a2);
+            let t = (b * a2.dot(w0) - a1.dot(w0)) / (1.0 - b * b);
+            let centre = s[0].point + a1 * t;
+            // The reach: the hand's greatest distance from the shoulder as the elbow turns.
+            let (u, v) = (tip - s[2].point, centre - s[2].point);
+            let a3 = s[2].axis;
+            let (up, vp) = (u - a3 * a3.dot(u), v - a3 * a3.dot(v));
+            let along = a3.dot(tip - centre);
+            let span = up.length() + vp.length();
+            let reach = real::sqrt(along * along + span * span);
             arms[side] = Some(ArmGeometry {
                 joints: s,
                 upper: upper.normalize(),
                 fore: fore.normalize(),
-                length: upper.length() + fore.length(),
+                length: reach,
+                tip,
+                centre,
             });
         }
         let head = match map.head {
@@ -1019,12 +1198,10 @@ impl Retargeter {
 
         // Arms.
         for side in 0..2 {
-            let (Some(g), Some(bones)) = (self.arms[side], h.arms[side]) else {
+            let Some(g) = self.arms[side] else {
                 continue;
             };
-            let upper = to_base * (pose.tip[bones[0]] - pose.start[bones[0]]);
-            let fore = to_base * (pose.tip[bones[1]] - pose.start[bones[1]]);
-            let sol = self.solve_arm(side, &g, upper, fore, &mut out.clamps);
+            let sol = self.solve_arm(side, &g, pose, to_base, &mut out.clamps);
             for (k, s) in g.joints.iter().enumerate() {
                 q[s.index] = sol[k];
             }
@@ -1062,6 +1239,14 @@ impl Retargeter {
         if let (Some(plan), false) = (plan, self.options.upper_body) {
             out.zmp = plan.zmp;
         }
+    }
+
+    /// Measures `out` again after its joints were changed (direction and hand errors, soles,
+    /// centre of mass and its margin, effectors; the ZMP is the centre of mass's), for the
+    /// human `pose` it was retargeted from.
+    pub fn remeasure(&mut self, robot: &Robot, pose: &Pose64, out: &mut RetargetFrame) {
+        let to_base = self.to_base(pose);
+        self.measure(robot, pose, to_base, out);
     }
 
     /// The torque the static load of `frame`'s pose puts on each joint (N·m, joint order,
@@ -1560,57 +1745,27 @@ impl Retargeter {
         [best.0[0], best.0[1], best.0[2], q4, q5, q6]
     }
 
-    /// The arm: of the shoulder's two closed-form solutions for the upper arm's direction
-    /// (subproblem 2, the elbow by subproblem 1) and the previous frame's angles, each refined
-    /// by Levenberg–Marquardt on both segments' directions within the limits ([`refine_arm`]);
-    /// the best is taken, the previous branch kept unless another is better by
-    /// [`BRANCH_HYSTERESIS`].
+    /// The arm in a stream: of [`Retargeter::arm_solutions`] the cheapest, the one continuing
+    /// the previous frame's kept unless another is cheaper by [`BRANCH_HYSTERESIS`].
     fn solve_arm(
         &mut self,
         side: usize,
         g: &ArmGeometry,
-        upper: RealVec3,
-        fore: RealVec3,
+        pose: &Pose64,
+        to_base: RealMat3,
         clamps: &mut u32,
     ) -> [Real; 3] {
-        let [s1, s2, s3] = g.joints;
-        let (upper, fore) = (upper.normalize_or_zero(), fore.normalize_or_zero());
-        let prev = self.arm_prev[side];
-        let reference = prev.unwrap_or([0.0; 3]);
-        let mut starts = [[0.0; 3]; 3];
-        for (k, (q1, q2)) in angles_about_two(s1.axis, s2.axis, g.upper, upper)
-            .into_iter()
-            .enumerate()
-        {
-            let r12 = s1.rot(q1) * s2.rot(q2);
-            let q3 = angle_about(r12 * s3.axis, r12 * g.fore, fore);
-            starts[k] = [q1, q2, q3];
-        }
-        starts[2] = reference;
-        let count = if prev.is_some() { 3 } else { 2 };
-        let mut best: Option<([Real; 3], Real)> = None;
-        let mut from_prev = None;
-        for (k, start) in starts.iter().take(count).enumerate() {
-            let start = [
-                s1.limit(start[0], reference[0]).0,
-                s2.limit(start[1], reference[1]).0,
-                s3.limit(start[2], reference[2]).0,
-            ];
-            let (q, cost) = refine_arm(g, start, upper, fore);
-            let error = real::sqrt(cost);
-            if k == 2 {
-                from_prev = Some((q, error));
-            }
-            if best.is_none_or(|(_, e)| error < e) {
-                best = Some((q, error));
-            }
-        }
-        let (mut q, error) = best.unwrap_or((reference, 0.0));
-        if let Some((qp, ep)) = from_prev {
-            if ep <= error + BRANCH_HYSTERESIS {
-                q = qp;
-            }
-        }
+        let mut sols = ArmSolutions::new();
+        let from_prev = self.solutions_in(side, pose, to_base, self.arm_prev[side], &mut sols);
+        let best = sols
+            .iter()
+            .min_by(|a, b| a.cost().total_cmp(&b.cost()))
+            .copied()
+            .unwrap_or_default();
+        let q = match from_prev.and_then(|i| sols.get(i)) {
+            Some(p) if p.cost() <= best.cost() + BRANCH_HYSTERESIS => p.q,
+            _ => best.q,
+        };
         for (k, s) in g.joints.iter().enumerate() {
             if s.range
                 .is_some_and(|(lo, hi)| q[k] <= lo + 1e-9 || q[k] >= hi - 1e-9)
@@ -1620,6 +1775,91 @@ impl Retargeter {
         }
         self.arm_prev[side] = Some(q);
         q
+    }
+
+    /// Human world vectors → the robot base's frame (pelvis frame to pelvis frame) at `pose`.
+    fn to_base(&self, pose: &Pose64) -> RealMat3 {
+        let rel = pose.world[self.map.human.pelvis] * self.human_rest_world[REST_PELVIS].transpose();
+        self.robot_frame * (rel * self.human_frame).transpose()
+    }
+
+    /// Where arm `side`'s hand should be at `pose`: the human's shoulder-to-wrist vector at the
+    /// robot's arm scale from the robot's shoulder, base frame, with the human's upper-arm
+    /// direction (unit); `None` when the arm is unmapped.
+    fn hand_goal(&self, side: usize, pose: &Pose64, to_base: RealMat3) -> Option<(RealVec3, RealVec3)> {
+        let g = self.arms[side & 1]?;
+        let bones = self.map.human.arms[side & 1]?;
+        let upper = to_base * (pose.tip[bones[0]] - pose.start[bones[0]]);
+        let fore = to_base * (pose.tip[bones[1]] - pose.start[bones[1]]);
+        let target = g.centre + (upper + fore) * (self.units * self.arm_scale[side & 1]);
+        Some((target, upper.normalize_or_zero()))
+    }
+
+    /// Every distinct way arm `side` reaches its hand target at `pose` (empty when unmapped):
+    /// from the closed form's four starts, the two that point the upper arm along the human's,
+    /// and `prev` (the arm's angles a frame before) when given, each finished on the hand's
+    /// position within the limits. Angles are taken a turn away where that keeps them inside
+    /// their range nearer `prev`. Allocates nothing.
+    pub fn arm_solutions(&self, pose: &Pose64, side: usize, prev: Option<[Real; 3]>, out: &mut ArmSolutions) {
+        self.solutions_in(side, pose, self.to_base(pose), prev, out);
+    }
+
+    /// [`Retargeter::arm_solutions`]; returns which of them continues `prev`.
+    fn solutions_in(
+        &self,
+        side: usize,
+        pose: &Pose64,
+        to_base: RealMat3,
+        prev: Option<[Real; 3]>,
+        out: &mut ArmSolutions,
+    ) -> Option<usize> {
+        out.clear();
+        let g = self.arms[side & 1]?;
+        let (target, human_upper) = self.hand_goal(side, pose, to_base)?;
+        let [s1, s2, s3] = g.joints;
+        let reference = prev.unwrap_or([0.0; 3]);
+        let mut starts = [[0.0; 3]; 7];
+        starts[..4].copy_from_slice(&g.closed_form(target));
+        for (k, (q1, q2)) in angles_about_two(s1.axis, s2.axis, g.upper, human_upper)
+            .into_iter()
+            .enumerate()
+        {
+            let r12 = s1.rot(q1) * s2.rot(q2);
+            let fore = target - g.centre - r12 * (g.upper * g.length * 0.5);
+            starts[4 + k] = [q1, q2, angle_about(r12 * s3.axis, r12 * g.fore, fore)];
+        }
+        starts[6] = reference;
+        let count = if prev.is_some() { 7 } else { 6 };
+        let mut from_prev = None;
+        for (k, start) in starts.iter().take(count).enumerate() {
+            let start = [
+                s1.limit(start[0], reference[0]).0,
+                s2.limit(start[1], reference[1]).0,
+                s3.limit(start[2], reference[2]).0,
+            ];
+            let (q, hand_error) = g.reach(start, target);
+            let sol = ArmSolution {
+                q,
+                hand_error,
+                elbow_error: angle_between(g.upper_at(q), human_upper),
+            };
+            let same = out
+                .iter()
+                .position(|o| (0..3).all(|i| (o.q[i] - q[i]).abs() < 1e-3));
+            let at = match same {
+                Some(i) => {
+                    if sol.hand_error < out[i].hand_error {
+                        out[i] = sol;
+                    }
+                    Some(i)
+                }
+                None => out.push(sol).ok().map(|()| out.len() - 1),
+            };
+            if k == 6 {
+                from_prev = at;
+            }
+        }
+        from_prev
     }
 
     /// Direction errors per limb, the soles, the centre of mass and its margin.
@@ -1651,8 +1891,8 @@ impl Retargeter {
                 let fore = tip - at(2);
                 add(side, at(2) - at(1), human(bones[0]));
                 add(side, fore - axis * axis.dot(fore), human(bones[1]));
-                let reach = (human(bones[0]) + human(bones[1])) * (self.units * self.arm_scale[side]);
-                let target = at(1) + reach;
+                let target =
+                    g.centre + (human(bones[0]) + human(bones[1])) * (self.units * self.arm_scale[side]);
                 out.hand_error[side] = (tip - target).length();
                 out.hand_target[side] = out.base_pos + out.base_rot * target;
             } else {
@@ -1758,87 +1998,6 @@ fn foot_frame(pose: &Pose64, leg: [usize; 3]) -> RealMat3 {
     let left = forward.cross(down).normalize_or(RealVec3::Y);
     let up = left.cross(forward);
     RealMat3::from_cols(forward, left, up)
-}
-
-/// Weight pulling an arm's angles towards zero where the directions leave them free (a
-/// straight arm's twist), rad⁻².
-const ARM_REGULARISATION: Real = 1e-4;
-
-/// Squared direction error of an arm at `q` (unit targets), with the regularisation.
-fn arm_cost(g: &ArmGeometry, q: [Real; 3], upper: RealVec3, fore: RealVec3) -> Real {
-    let [s1, s2, s3] = g.joints;
-    let r12 = s1.rot(q[0]) * s2.rot(q[1]);
-    let u = r12 * g.upper;
-    let f = r12 * s3.rot(q[2]) * g.fore;
-    (u - upper).length_squared()
-        + (f - fore).length_squared()
-        + ARM_REGULARISATION * (q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
-}
-
-/// Levenberg–Marquardt on an arm's two segment directions (six residuals, three angles),
-/// each step clamped into the joint limits; returns the angles and the cost.
-fn refine_arm(g: &ArmGeometry, start: [Real; 3], upper: RealVec3, fore: RealVec3) -> ([Real; 3], Real) {
-    let [s1, s2, s3] = g.joints;
-    let clamp = |q: [Real; 3]| -> [Real; 3] {
-        let c = |s: &Screw, v: Real| match s.range {
-            Some((lo, hi)) => v.clamp(lo, hi),
-            None => v,
-        };
-        [c(&s1, q[0]), c(&s2, q[1]), c(&s3, q[2])]
-    };
-    let mut q = clamp(start);
-    let mut cost = arm_cost(g, q, upper, fore);
-    let mut lambda = 1e-3;
-    for _ in 0..30 {
-        let r1 = s1.rot(q[0]);
-        let r12 = r1 * s2.rot(q[1]);
-        let u = r12 * g.upper;
-        let f = r12 * s3.rot(q[2]) * g.fore;
-        let a1 = s1.axis;
-        let a2 = r1 * s2.axis;
-        let a3 = r12 * s3.axis;
-        // Residuals and their derivatives (a turn about axis a moves v by a × v).
-        let (ru, rf) = (u - upper, f - fore);
-        let ju = [a1.cross(u), a2.cross(u), RealVec3::ZERO];
-        let jf = [a1.cross(f), a2.cross(f), a3.cross(f)];
-        let mut jtj = RealMat3::ZERO;
-        let mut jtr = RealVec3::ZERO;
-        for i in 0..3 {
-            for k in 0..3 {
-                let v = ju[i].dot(ju[k]) + jf[i].dot(jf[k]) + if i == k { ARM_REGULARISATION } else { 0.0 };
-                let mut col = jtj.col(k);
-                col[i] = v;
-                *jtj.col_mut(k) = col;
-            }
-            jtr[i] = ju[i].dot(ru) + jf[i].dot(rf) + ARM_REGULARISATION * q[i];
-        }
-        let mut improved = false;
-        for _ in 0..6 {
-            let damped = jtj
-                + RealMat3::from_diagonal(
-                    RealVec3::new(jtj.x_axis.x, jtj.y_axis.y, jtj.z_axis.z) * lambda + RealVec3::splat(1e-12),
-                );
-            if damped.determinant().abs() < 1e-18 {
-                break;
-            }
-            let dq = -(damped.inverse() * jtr);
-            let trial = clamp([q[0] + dq.x, q[1] + dq.y, q[2] + dq.z]);
-            let c = arm_cost(g, trial, upper, fore);
-            if c < cost {
-                let gain = cost - c;
-                q = trial;
-                cost = c;
-                lambda = (lambda * 0.3).max(1e-9);
-                improved = gain > 1e-14;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
-    (q, cost)
 }
 
 /// The heading of a body's x axis about the vertical.

@@ -319,6 +319,7 @@ impl LoopArgs {
             retarget: RetargetOptions {
                 upper_body: self.upper_body,
                 balance: !self.no_balance,
+                per_frame: false,
             },
             walk: self.walk,
             load_compensation: !self.no_load_compensation,

@@ -30,6 +30,7 @@ pub struct RetargetArgs<'a> {
     pub fps: f64,
     pub bvh_unit: BvhUnit,
     pub keep_dropouts: bool,
+    pub per_frame: bool,
 }
 
 /// Reads a skeleton and its clip: `.bvh` alone, or `.asf` with an `.amc` at `fps`.
@@ -98,6 +99,7 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
     let options = Options {
         upper_body: args.upper_body,
         balance: args.balance,
+        per_frame: args.per_frame,
     };
     if args.walk && args.upper_body {
         return Err(CliError::Usage(
@@ -273,6 +275,29 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
             f.limit_share, f.joint, f.frame
         )?;
     }
+    match &r.continuity.faster_than_servos {
+        Some(f) if f.frames > 0 => {
+            let list: Vec<String> = f
+                .spans_s
+                .iter()
+                .take(6)
+                .map(|[a, b]| format!("{a:.2}–{b:.2}"))
+                .collect();
+            writeln!(
+                out,
+                "  the human moved faster than the servos can follow in {} frames ({} stretches: {}{} s); the robot lags there",
+                f.frames,
+                f.spans_s.len(),
+                list.join(", "),
+                if f.spans_s.len() > 6 { ", …" } else { "" }
+            )?;
+        }
+        Some(_) => writeln!(out, "  the human never moved faster than the servos can follow")?,
+        None => writeln!(
+            out,
+            "  retargeted frame by frame (--per-frame): arm branches by hysteresis, speeds not limited"
+        )?,
+    }
     if !r.standing_s.is_empty() {
         let list: Vec<String> = r
             .standing_s
@@ -347,6 +372,11 @@ pub(super) struct RetargetCmd {
     /// frames) as recorded instead of filling them from their neighbours.
     #[arg(long)]
     pub(super) keep_dropouts: bool,
+    /// Retarget each frame on its own, as a live stream is (the arms' branches kept by
+    /// hysteresis, joint speeds unlimited), instead of planning the branches over the clip
+    /// and keeping every joint within its servo's speed and acceleration.
+    #[arg(long)]
+    pub(super) per_frame: bool,
 }
 
 impl RetargetCmd {
@@ -369,6 +399,7 @@ impl RetargetCmd {
             fps,
             bvh_unit,
             keep_dropouts,
+            per_frame,
         } = self;
         retarget_cmd(
             &RetargetArgs {
@@ -385,6 +416,7 @@ impl RetargetCmd {
                 fps,
                 bvh_unit,
                 keep_dropouts,
+                per_frame,
             },
             &mut std::io::stdout().lock(),
         )

@@ -252,6 +252,7 @@ impl Default for SessionSpec {
             retarget: RetargetOptions {
                 upper_body: false,
                 balance: true,
+                per_frame: false,
             },
             walk: false,
             imu: ImuUse::Off,
