@@ -75,7 +75,8 @@ impl std::str::FromStr for BusArg {
     }
 }
 
-/// Seconds a rig of bones spends moving to a clip's first frame before the clip starts.
+/// Seconds the servos spend moving from where they stand to a clip's first frame before the
+/// clip starts.
 pub const DEFAULT_PRE_ROLL_S: f64 = 1.0;
 
 /// Options shared by `play` and `follow`.
@@ -451,11 +452,7 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
         ));
     }
     let profile = Profile::load(profile_path)?;
-    let joint_driven = profile
-        .servos
-        .iter()
-        .any(|s| matches!(s.drive, crate::profile::Drive::Joint(_)));
-    let pre_roll = pre_roll.unwrap_or(if joint_driven { 0.0 } else { DEFAULT_PRE_ROLL_S });
+    let pre_roll = pre_roll.unwrap_or(DEFAULT_PRE_ROLL_S);
     // A loaded motion has at least one frame.
     let (skeleton, mut motion) = if a.amc.is_none() {
         super::retarget::load_clip(asf_path, None, 0.0, a.bvh_unit)?
@@ -792,9 +789,8 @@ pub(super) struct PlayArgs {
     pub(super) start: f64,
     /// Seconds to move to the clip's first frame before it starts (eased in from where the
     /// servos stand, unless --ease-in says otherwise); not counted in the fidelity. 0: the
-    /// clip starts at once, from wherever the servos stand. Default: 1 s for a rig of the
-    /// skeleton's bones; 0 for a robot retargeted on its floor (a joint-space blend into a
-    /// clip's first pose, a crouch say, can tip it: give --ease-in, or --pre-roll, knowingly).
+    /// clip starts at once, from wherever the servos stand (each servo's speed and
+    /// acceleration limits still apply). Default: 1 s.
     #[arg(long)]
     pub(super) pre_roll: Option<f64>,
     /// Play capture dropouts (a bone reading exactly zero between far-away frames) as

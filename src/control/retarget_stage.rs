@@ -90,17 +90,17 @@ impl RetargetStage {
         }
     }
 
-    /// Plays `frames` (a clip retargeted on a walking plan at `rate` frames a second) in place
-    /// of retargeting each pose: a pose at clip time `t` becomes frame `round(t × rate)`.
-    /// `walk`: the plan's figures, reported with the run's.
+    /// Plays `frames` (a clip retargeted whole — its arm branches and speeds planned, on a
+    /// walking plan when `walk` gives its figures — at `rate` frames a second) in place of
+    /// retargeting each pose: a pose at clip time `t` is the frames either side of `t × rate`.
     pub fn set_plan(
         &mut self,
         frames: Vec<RetargetFrame>,
         rate: f64,
-        walk: crate::retarget::walk::WalkReport,
+        walk: Option<crate::retarget::walk::WalkReport>,
     ) {
         self.planned = (!frames.is_empty() && rate > 0.0).then_some((frames, rate));
-        self.walk = Some(walk);
+        self.walk = walk;
     }
 
     /// Room for `frames` frames retargeted ahead (before the first tick).

@@ -432,7 +432,26 @@ impl RigDrive {
                 setup.rig.joint_angles(&skeleton, &[], &f.q, &mut angles);
                 angles
             });
-            stage.set_plan(walked.frames, m.frame_rate, w);
+            stage.set_plan(walked.frames, m.frame_rate, Some(w));
+        } else if let (Some(m), false) = (clip, spec.retarget.per_frame) {
+            // The whole clip retargeted before the run: arm branches planned over it, every
+            // joint within its servo's speed and acceleration.
+            let run = crate::retarget::retarget_clip(&setup, &skeleton, m, spec.retarget);
+            if let Some(f) = &run.report.continuity.faster_than_servos {
+                writeln!(
+                    log,
+                    "retargeted the clip whole: arm branches planned, joints within their servos' speed and acceleration{}",
+                    if f.frames > 0 {
+                        format!(
+                            "; the human moves faster than the servos in {} frames, where the robot lags",
+                            f.frames
+                        )
+                    } else {
+                        String::new()
+                    }
+                )?;
+            }
+            stage.set_plan(run.frames, m.frame_rate, None);
         }
         let balance = match (spec.walk, spec.imu, profile.bus.imu_board) {
             (false, _, _) => None,
