@@ -520,6 +520,9 @@ pub struct Continuity {
 /// trajectory slows there).
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct FasterThanServos {
+    /// Joint values of capture glitches (a jump away and back within two frames, or a first
+    /// frame unlike the next) taken from their neighbours first.
+    pub glitches: u64,
     /// Frames where some joint the human's motion asks for steps faster than its servo can.
     pub frames: u64,
     /// Those frames as spans `[start, end]`, seconds (frames 0.1 s apart or closer joined).
@@ -889,7 +892,8 @@ pub fn retarget_clip_with(
 /// over the clip ([`continuity::plan_branches`]), then every joint a servo drives but the legs'
 /// (which follow their feet, or a walking plan that plans their speeds) kept within its servo's
 /// velocity and acceleration
-/// ([`continuity::limit_speed`]), and the frames measured again. Returns where the human moved
+/// ([`continuity::limit_speed`]) after its capture glitches are taken from their neighbours
+/// ([`continuity::remove_glitches`]), and the frames measured again. Returns where the human moved
 /// faster than the servos can follow.
 #[allow(clippy::too_many_arguments)]
 fn plan_clip(
@@ -922,12 +926,22 @@ fn plan_clip(
     let limited: Vec<usize> = (0..setup.robot.joints().len())
         .filter(|j| speed[*j].is_finite() && !legs.contains(j))
         .collect();
+    let mut x = vec![0.0; frames.len()];
+    let mut glitches = 0;
+    for &j in &limited {
+        for (x, f) in x.iter_mut().zip(frames.iter()) {
+            *x = f.q[j];
+        }
+        glitches += continuity::remove_glitches(&mut x, step[j]) as u64;
+        for (x, f) in x.iter().zip(frames.iter_mut()) {
+            f.q[j] = *x;
+        }
+    }
     let q: Vec<Vec<f64>> = frames
         .iter()
         .map(|f| limited.iter().map(|&j| f.q[j]).collect())
         .collect();
     let fast = continuity::fast_frames(&q, &limited.iter().map(|&j| step[j]).collect::<Vec<_>>());
-    let mut x = vec![0.0; frames.len()];
     for &j in &limited {
         for (x, f) in x.iter_mut().zip(frames.iter()) {
             *x = f.q[j];
@@ -954,6 +968,7 @@ fn plan_clip(
         }
     }
     FasterThanServos {
+        glitches,
         frames: fast.len() as u64,
         spans_s: continuity::spans(&fast, (0.1 / dt).round() as usize)
             .into_iter()

@@ -88,6 +88,32 @@ pub fn spans(frames: &[usize], gap: usize) -> Vec<[usize; 2]> {
     out
 }
 
+/// Frames of a capture glitch taken from their neighbours: a value further than `2·v` (two
+/// frames at the servo's speed) from the median of the five frames around it — a jump away and
+/// back within two frames, which no servo could follow and no body made — becomes that median.
+/// Returns how many values were replaced. A trajectory without such spikes is unchanged.
+pub fn remove_glitches(x: &mut [f64], v: f64) -> usize {
+    let n = x.len();
+    if n < 3 || !(v > 0.0) || !v.is_finite() {
+        return 0;
+    }
+    let source = x.to_vec();
+    let mut replaced = 0;
+    for (k, x) in x.iter_mut().enumerate() {
+        let mut window: heapless::Vec<f64, 5> = source[k.saturating_sub(2)..(k + 3).min(n)]
+            .iter()
+            .copied()
+            .collect();
+        window.sort_unstable_by(f64::total_cmp);
+        let median = window[window.len() / 2];
+        if (*x - median).abs() > 2.0 * v {
+            *x = median;
+            replaced += 1;
+        }
+    }
+    replaced
+}
+
 /// Keeps one joint's trajectory `x` (radians, one value a frame) within a step of `v` and a
 /// change of step of `a` a frame (the servo's velocity × dt and acceleration × dt²) and inside
 /// `range`, without lag: first the nearest trajectory within the velocity in the largest
@@ -193,6 +219,26 @@ mod tests {
         // The half-way crossing sits at the jump.
         let cross = x.iter().position(|v| *v >= 0.5).unwrap();
         assert!((199..=201).contains(&cross), "{cross}");
+    }
+
+    /// A first frame in a T-pose, or one noisy frame, is taken from its neighbours; a fast
+    /// but real motion (within two frames' travel of its median) is not touched.
+    #[test]
+    fn glitches_are_taken_from_their_neighbours() {
+        let mut x: Vec<f64> = (0..100).map(|k| 0.01 * k as f64).collect();
+        let clean = x.clone();
+        x[0] = 1.5;
+        x[50] = -1.0;
+        assert_eq!(remove_glitches(&mut x, 0.05), 2);
+        assert!(
+            x.iter().zip(&clean).all(|(a, b)| (a - b).abs() < 0.05),
+            "{:?}",
+            &x[..3]
+        );
+        let mut fast: Vec<f64> = (0..100).map(|k| 0.08 * k as f64).collect();
+        let before = fast.clone();
+        assert_eq!(remove_glitches(&mut fast, 0.05), 0);
+        assert_eq!(fast, before);
     }
 
     #[test]
