@@ -30,7 +30,7 @@ fn bench_retarget(c: &mut Criterion) {
             "16_15.amc",
             Options {
                 upper_body: true,
-                balance: true,
+                ..Options::default()
             },
         ),
     ] {

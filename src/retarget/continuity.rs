@@ -94,7 +94,7 @@ pub fn spans(frames: &[usize], gap: usize) -> Vec<[usize; 2]> {
 /// Returns how many values were replaced. A trajectory without such spikes is unchanged.
 pub fn remove_glitches(x: &mut [f64], v: f64) -> usize {
     let n = x.len();
-    if n < 3 || !(v > 0.0) || !v.is_finite() {
+    if n < 3 || v.is_nan() || v <= 0.0 || !v.is_finite() {
         return 0;
     }
     let source = x.to_vec();
@@ -122,7 +122,7 @@ pub fn remove_glitches(x: &mut [f64], v: f64) -> usize {
 /// meets both limits, so their mean does; a trajectory already within them is unchanged.
 pub fn limit_speed(x: &mut [f64], v: f64, a: f64, range: Option<(f64, f64)>) {
     let n = x.len();
-    if n < 2 || !(v > 0.0) || !(a > 0.0) {
+    if n < 2 || v.is_nan() || a.is_nan() || v <= 0.0 || a <= 0.0 {
         return;
     }
     if v.is_finite() {
