@@ -302,7 +302,15 @@ impl Setup {
     /// Never for a setup made by [`Setup::new`] with the same skeleton (checked there).
     #[must_use]
     pub fn retargeter(&self, skeleton: &Skeleton, floor: Floor, options: Options) -> Retargeter {
-        Retargeter::new(&self.robot, skeleton, self.map, floor, options).expect("checked in Setup::new")
+        let mut r =
+            Retargeter::new(&self.robot, skeleton, self.map, floor, options).expect("checked in Setup::new");
+        let speed = self.joint_speed_limits();
+        for side in 0..2 {
+            if let Some(joints) = r.arm_joints(side) {
+                r.set_arm_speed_limits(side, joints.map(|j| speed[j]));
+            }
+        }
+        r
     }
 
     /// Names of the robot's joints, in joint-vector order.

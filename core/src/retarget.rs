@@ -16,8 +16,9 @@
 //!   shoulder from the direction — subproblem 2), refined on the hand's position within the
 //!   limits; out of reach or past a limit, the nearest point it can reach. Of the solutions
 //!   (two elbow and two shoulder branches) the one whose upper arm lies nearest the human's is
-//!   taken, the previous one kept unless another is better by [`BRANCH_HYSTERESIS`]
-//!   ([`ArmSolution::cost`]); a whole clip plans its branches over time instead (the std edge).
+//!   taken ([`ArmSolution::cost`]); a stream keeps its branch until staying has cost more than
+//!   the jump to another (at the servos' speeds); a whole clip plans its branches over time
+//!   instead (the std edge).
 //! * **Legs** follow *end points*: the ankle at the scaled human ankle, the sole flat on the floor
 //!   while the foot is planted, solved in closed form in product-of-exponentials form (knee from
 //!   the hip–ankle distance — subproblem 3 —, ankle pitch and roll by subproblem 2, hip yaw, roll
@@ -45,8 +46,8 @@ use crate::skeleton::Skeleton;
 /// Left and right.
 pub const SIDES: [&str; 2] = ["left", "right"];
 
-/// Extra cost ([`ArmSolution::cost`]) another arm branch must save before a stream switches
-/// to it.
+/// Extra cost ([`ArmSolution::cost`]) another arm branch must save, beyond the jump to it,
+/// before a stream switches to it.
 pub const BRANCH_HYSTERESIS: Real = 1.0;
 
 /// The hand error that costs an arm solution as much as [`ELBOW_TOLERANCE`] of upper-arm
@@ -56,6 +57,31 @@ pub const HAND_TOLERANCE_M: Real = 0.003;
 /// The upper arm's direction error that costs an arm solution as much as
 /// [`HAND_TOLERANCE_M`] of hand error, radians.
 pub const ELBOW_TOLERANCE: Real = 0.5;
+
+/// Weight of an arm joint's step between frames (its share of the servo's speed limit,
+/// squared) in the cost of a path through the arm's solutions: a slow path is preferred among
+/// equally good poses.
+pub const STEP_WEIGHT: Real = 0.01;
+
+/// Weight of the part of a step beyond the servo's speed limit (as a share of the limit,
+/// squared): a branch changes where it costs the robot least to get there.
+pub const OVERSPEED_WEIGHT: Real = 1.0;
+
+/// What moving an arm from angles `a` to `b` in one frame costs, each joint's step against
+/// `step_limit` (radians a frame): `STEP_WEIGHT·s² + OVERSPEED_WEIGHT·max(0, s − 1)²` for the
+/// step's share `s` of its limit, summed. Zero without limits (infinite).
+#[must_use]
+pub fn arm_step_cost(a: [Real; 3], b: [Real; 3], step_limit: [Real; 3]) -> Real {
+    let mut cost = 0.0;
+    for k in 0..3 {
+        if step_limit[k].is_finite() && step_limit[k] > 0.0 {
+            let share = (b[k] - a[k]).abs() / step_limit[k];
+            let over = (share - 1.0).max(0.0);
+            cost += STEP_WEIGHT * share * share + OVERSPEED_WEIGHT * over * over;
+        }
+    }
+    cost
+}
 
 /// Most distinct solutions an arm gives for one hand target.
 pub const MAX_ARM_SOLUTIONS: usize = 8;
@@ -659,6 +685,11 @@ pub struct Retargeter {
     options: Options,
     feet: [FootState; 2],
     arm_prev: [Option<[Real; 3]>; 2],
+    /// Per arm joint, its servo's speed limit (rad/s; infinite: none).
+    arm_speed: [[Real; 3]; 2],
+    /// Per arm: what staying on its branch has cost over the best other since it last was the
+    /// best (see [`Retargeter::solve_arm`]).
+    arm_regret: [Real; 2],
     /// The legs' last angles: where a leg without the closed form starts its iterations.
     leg_prev: [[Real; 6]; 2],
     shift: RealVec2,
@@ -909,6 +940,8 @@ impl Retargeter {
             options,
             feet: [FootState::default(); 2],
             arm_prev: [None; 2],
+            arm_speed: [[Real::INFINITY; 3]; 2],
+            arm_regret: [0.0; 2],
             leg_prev: [[0.0; 6]; 2],
             shift: RealVec2::ZERO,
             rest: pose.clone(),
@@ -986,6 +1019,12 @@ impl Retargeter {
         let u = angle_between(r12 * g.upper, upper).to_degrees();
         let f = angle_between(r12 * s3.rot(q[2]) * g.fore, fore).to_degrees();
         real::sqrt(0.5 * (u * u + f * f))
+    }
+
+    /// The speed limits of arm `side`'s joints (shoulder, shoulder, elbow; rad/s, infinite for
+    /// none): a stream changes an arm's branch only when staying has cost more than the jump.
+    pub fn set_arm_speed_limits(&mut self, side: usize, limits: [Real; 3]) {
+        self.arm_speed[side & 1] = limits;
     }
 
     /// The arm joints of arm `side` in the robot's joint order (shoulder, shoulder, elbow).
@@ -1116,6 +1155,7 @@ impl Retargeter {
     pub fn reset(&mut self) {
         self.feet = [FootState::default(); 2];
         self.arm_prev = [None; 2];
+        self.arm_regret = [0.0; 2];
         self.leg_prev = self.neutral_legs();
         self.shift = RealVec2::ZERO;
     }
@@ -1201,7 +1241,7 @@ impl Retargeter {
             let Some(g) = self.arms[side] else {
                 continue;
             };
-            let sol = self.solve_arm(side, &g, pose, to_base, &mut out.clamps);
+            let sol = self.solve_arm(side, &g, pose, to_base, dt, &mut out.clamps);
             for (k, s) in g.joints.iter().enumerate() {
                 q[s.index] = sol[k];
             }
@@ -1745,25 +1785,45 @@ impl Retargeter {
         [best.0[0], best.0[1], best.0[2], q4, q5, q6]
     }
 
-    /// The arm in a stream: of [`Retargeter::arm_solutions`] the cheapest, the one continuing
-    /// the previous frame's kept unless another is cheaper by [`BRANCH_HYSTERESIS`].
+    /// The arm in a stream, `dt` after the previous frame: the solution continuing the previous
+    /// frame's is kept until what it has cost over the best other, summed over the frames since
+    /// it was last the best, exceeds the jump to that other ([`arm_step_cost`] at the joints'
+    /// speed limits) plus [`BRANCH_HYSTERESIS`] — a stream cannot know whether the other stays
+    /// better, so it pays at most twice what the clip's plan would (the rent-or-buy rule).
     fn solve_arm(
         &mut self,
         side: usize,
         g: &ArmGeometry,
         pose: &Pose64,
         to_base: RealMat3,
+        dt: Real,
         clamps: &mut u32,
     ) -> [Real; 3] {
         let mut sols = ArmSolutions::new();
-        let from_prev = self.solutions_in(side, pose, to_base, self.arm_prev[side], &mut sols);
+        let prev = self.arm_prev[side];
+        let from_prev = self.solutions_in(side, pose, to_base, prev, &mut sols);
         let best = sols
             .iter()
             .min_by(|a, b| a.cost().total_cmp(&b.cost()))
             .copied()
             .unwrap_or_default();
-        let q = match from_prev.and_then(|i| sols.get(i)) {
-            Some(p) if p.cost() <= best.cost() + BRANCH_HYSTERESIS => p.q,
+        let q = match (from_prev.and_then(|i| sols.get(i)), prev) {
+            (Some(stay), Some(prev)) => {
+                let extra = stay.cost() - best.cost();
+                if extra <= 0.0 {
+                    self.arm_regret[side] = 0.0;
+                    stay.q
+                } else {
+                    self.arm_regret[side] += extra;
+                    let limit = self.arm_speed[side].map(|v| v * dt.max(1e-6));
+                    if self.arm_regret[side] > arm_step_cost(prev, best.q, limit) + BRANCH_HYSTERESIS {
+                        self.arm_regret[side] = 0.0;
+                        best.q
+                    } else {
+                        stay.q
+                    }
+                }
+            }
             _ => best.q,
         };
         for (k, s) in g.joints.iter().enumerate() {

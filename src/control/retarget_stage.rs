@@ -178,8 +178,9 @@ impl RetargetStage {
     }
 }
 
-/// Puts the continuous quantities of `out` (joints, base, centre of mass, ZMP, soles,
-/// effectors) at `w` of the way from `a` to `b`.
+/// Puts the continuous quantities of `out` (joints, base, centre of mass, ZMP, the soles of
+/// feet in the air, effectors) at `w` of the way from `a` to `b`; `out` holds the nearer
+/// frame, whose planted soles it keeps.
 fn blend(out: &mut RetargetFrame, a: &RetargetFrame, b: &RetargetFrame, w: f64) {
     for ((q, qa), qb) in out.q.iter_mut().zip(&a.q).zip(&b.q) {
         *q = qa + w * (qb - qa);
@@ -189,7 +190,11 @@ fn blend(out: &mut RetargetFrame, a: &RetargetFrame, b: &RetargetFrame, w: f64) 
     out.com = a.com.lerp(b.com, w);
     out.zmp = a.zmp.lerp(b.zmp, w);
     for side in 0..2 {
-        out.sole[side] = a.sole[side].lerp(b.sole[side], w);
+        // A foot planted in the nearer frame stays where that frame put it (a landing between
+        // the two frames is not a slide).
+        if !out.planted[side] {
+            out.sole[side] = a.sole[side].lerp(b.sole[side], w);
+        }
     }
     for ((e, ea), eb) in out.effectors.iter_mut().zip(&a.effectors).zip(&b.effectors) {
         *e = ea.lerp(*eb, w);

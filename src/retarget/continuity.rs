@@ -2,35 +2,18 @@
 //! the clip (a shortest path through each frame's solutions), then every joint kept within its
 //! servo's velocity and acceleration without lag.
 
-use marionette_core::retarget::ArmSolutions;
-
-/// Weight of a step's speed (its share of the servo's limit, squared) in the branch plan: a
-/// slow path is preferred among equally good poses.
-const STEP_WEIGHT: f64 = 0.01;
-
-/// Weight of the part of a step beyond the servo's limit (as a share of it, squared): a branch
-/// changes where it costs the robot least to get there.
-const OVERSPEED_WEIGHT: f64 = 1.0;
+use marionette_core::retarget::{arm_step_cost, ArmSolutions};
 
 /// The branch of each frame (an index into its solutions) that minimises the sum of the
 /// solutions' own costs ([`marionette_core::retarget::ArmSolution::cost`]) and of the steps
-/// between them, a step of joint `k` by `d` radians costing `STEP_WEIGHT·(d/l)²` plus
-/// `OVERSPEED_WEIGHT·(d/l − 1)²` beyond the limit `l` (radians a frame) — the Viterbi recursion.
+/// between them ([`arm_step_cost`] at `step_limit`, radians a frame) — the Viterbi recursion.
 /// `None` when a frame has no solution.
 #[must_use]
 pub fn plan_branches(solutions: &[ArmSolutions], step_limit: [f64; 3]) -> Option<Vec<usize>> {
     if solutions.iter().any(|s| s.is_empty()) {
         return None;
     }
-    let step_cost = |a: &[f64; 3], b: &[f64; 3]| -> f64 {
-        (0..3)
-            .map(|k| {
-                let share = (b[k] - a[k]).abs() / step_limit[k].max(1e-12);
-                let over = (share - 1.0).max(0.0);
-                STEP_WEIGHT * share * share + OVERSPEED_WEIGHT * over * over
-            })
-            .sum()
-    };
+    let step_cost = |a: &[f64; 3], b: &[f64; 3]| arm_step_cost(*a, *b, step_limit);
     let mut cost: Vec<f64> = solutions.first()?.iter().map(|s| s.cost()).collect();
     let mut back: Vec<Vec<usize>> = Vec::with_capacity(solutions.len());
     back.push(vec![0; cost.len()]);

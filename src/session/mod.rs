@@ -948,13 +948,15 @@ impl Run<'_> {
         let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
         let mut tracking = bus.with(|t| {
             let p = t.plant();
-            report::TrackingReport::new(
+            let mut r = report::TrackingReport::new(
                 p.samples(),
                 &names,
                 p.saturated_steps(),
                 &p.site_names(),
                 p.steps(),
-            )
+            );
+            r.saturated_steps_first_s = p.saturated_first_second();
+            r
         });
         if let Some(f) = &controller.stats.fidelity {
             tracking.add_fidelity(f);

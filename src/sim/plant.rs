@@ -173,6 +173,10 @@ pub struct SimPlant {
     pending: f64,
     steps: u64,
     saturated: Vec<u64>,
+    /// Physics steps × servos at the torque limit in the first second of recording.
+    saturated_first_s: u64,
+    /// Simulated time recording first started.
+    recording_since: Option<f64>,
     record_every: u64,
     recording: bool,
     /// A push of the torso, if one is given.
@@ -270,6 +274,8 @@ impl SimPlant {
             pending: 0.0,
             steps: 0,
             saturated: vec![0; n],
+            saturated_first_s: 0,
+            recording_since: None,
             record_every,
             recording: false,
             samples: Vec::new(),
@@ -323,6 +329,16 @@ impl SimPlant {
     /// Starts (or stops) recording a sample every millisecond of simulated time.
     pub fn record(&mut self, on: bool) {
         self.recording = on;
+        if on && self.recording_since.is_none() {
+            self.recording_since = Some(self.world.time());
+        }
+    }
+
+    /// Physics steps × servos at the torque limit in the first second after recording started
+    /// (the move to a clip's first pose, and its start).
+    #[must_use]
+    pub fn saturated_first_second(&self) -> u64 {
+        self.saturated_first_s
     }
 
     /// The samples recorded so far.
@@ -396,6 +412,12 @@ impl SimPlant {
         for (k, s) in self.servos.iter().enumerate() {
             if self.world.actuator_force(s.actuator).abs() >= s.force_limit * 0.999 {
                 self.saturated[k] += 1;
+                if self
+                    .recording_since
+                    .is_some_and(|t0| self.world.time() - t0 < 1.0)
+                {
+                    self.saturated_first_s += 1;
+                }
             }
         }
         if self.recording && self.steps % self.record_every == 0 && self.samples.len() < MAX_SAMPLES {

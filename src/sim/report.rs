@@ -64,6 +64,8 @@ pub struct TrackingReport {
     pub max_deg: f64,
     /// Physics steps × servos at the torque limit, over all servos.
     pub saturated_steps: u64,
+    /// Of those, the ones in the first second of the run (the move to the first pose).
+    pub saturated_steps_first_s: u64,
     /// Per servo.
     pub servos: Vec<ServoTracking>,
     /// Per effector site.
@@ -289,6 +291,7 @@ impl TrackingReport {
             rms_deg: rms(sum_sq, count).to_degrees(),
             max_deg: worst.to_degrees(),
             saturated_steps: saturated.iter().sum(),
+            saturated_steps_first_s: 0,
             servos,
             effectors,
         }
@@ -311,8 +314,14 @@ impl std::fmt::Display for TrackingReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "simulated tracking over {:.2} s ({} samples, {} physics steps): RMS {:.2}°, max {:.2}°, {} steps at a torque limit",
-            self.duration_s, self.samples, self.physics_steps, self.rms_deg, self.max_deg, self.saturated_steps
+            "simulated tracking over {:.2} s ({} samples, {} physics steps): RMS {:.2}°, max {:.2}°, {} steps at a torque limit ({} in the first second)",
+            self.duration_s,
+            self.samples,
+            self.physics_steps,
+            self.rms_deg,
+            self.max_deg,
+            self.saturated_steps,
+            self.saturated_steps_first_s
         )?;
         writeln!(
             f,
