@@ -1081,6 +1081,13 @@ impl Retargeter {
         }
     }
 
+    /// The standing stance's joint angles (`--upper-body`'s legs: knees bent so the hips sit
+    /// [`STANCE_DROP`] of a leg lower than straight, soles flat; every other joint 0).
+    #[must_use]
+    pub fn stance(&self) -> [Real; MAX_ROBOT_JOINTS] {
+        self.stance
+    }
+
     /// The soles of the standing stance ([`Options::upper_body`]'s), the base at the world's
     /// origin facing as at rest: where a walking plan starts the robot's feet.
     #[must_use]

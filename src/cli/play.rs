@@ -33,8 +33,9 @@ use crate::session::{self, BusChoice, ImuUse, Lead, Outcome, Session, SessionSpe
 /// What to do when a run ends (end of input, `--duration`, Ctrl-C).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum OnStop {
-    /// Ease to the rest pose (all joint angles 0; with --walk, the plan's standing stance on
-    /// both feet) over --ramp seconds, then torque off.
+    /// Ease to the rest pose over --ramp seconds, then torque off: every joint angle 0 for a
+    /// rig of bones; a robot's standing stance (knees bent, soles flat; with --walk, the
+    /// plan's last frame, on both feet).
     Rest,
     /// Hold the last command for --ramp seconds, then torque off.
     Hold,
@@ -312,6 +313,7 @@ impl LoopArgs {
             hold_after: self.hold_after,
             torque_off_after_ms: self.torque_off_after,
             ease_in_s: self.ease_in,
+            clip_start_s: 0.0,
             lead: match (self.no_lookahead, self.lead_ms) {
                 (true, _) => Lead::Off,
                 (false, Some(ms)) => Lead::Fixed(ms),
@@ -495,6 +497,7 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
         )));
     }
     let mut spec = args.spec(false, None, allocations, out)?;
+    spec.clip_start_s = start_at;
     // The move to the first frame is eased in from where the servos stand.
     if pre_roll > 0.0 && spec.ease_in_s == 0.0 {
         spec.ease_in_s = pre_roll;

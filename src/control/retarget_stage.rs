@@ -31,6 +31,8 @@ pub struct RetargetStage {
     planned: Option<(Vec<RetargetFrame>, f64)>,
     /// The plan's figures, for the run's report.
     walk: Option<crate::retarget::walk::WalkReport>,
+    /// The clip time a pre-roll (negative clip times) holds.
+    clip_start: f64,
     /// Per rig servo, its stiffness at the joint (N·m/rad); empty: no load compensation.
     stiffness: Vec<f64>,
     /// Per robot joint, the static load's torque (scratch).
@@ -55,6 +57,7 @@ impl RetargetStage {
             pending: std::collections::VecDeque::new(),
             planned: None,
             walk: None,
+            clip_start: 0.0,
             stiffness: setup.stiffness.clone(),
             torque: vec![0.0; setup.robot.joints().len()],
             largest_offset: 0.0,
@@ -101,6 +104,16 @@ impl RetargetStage {
     ) {
         self.planned = (!frames.is_empty() && rate > 0.0).then_some((frames, rate));
         self.walk = walk;
+    }
+
+    /// The clip time the run starts at: a pre-roll's samples (negative clip times) hold the
+    /// planned frame there.
+    pub fn set_clip_start(&mut self, seconds: f64) {
+        self.clip_start = if seconds.is_finite() {
+            seconds.max(0.0)
+        } else {
+            0.0
+        };
     }
 
     /// Room for `frames` frames retargeted ahead (before the first tick).
@@ -160,8 +173,14 @@ impl RetargetStage {
         match &self.planned {
             Some((frames, rate)) if clip_time.is_finite() => {
                 // Between the two frames either side of the clip time, linearly (the feet's
-                // contacts and the limb figures from the nearer one).
-                let at = (clip_time * rate).clamp(0.0, (frames.len() - 1) as f64);
+                // contacts and the limb figures from the nearer one); a pre-roll holds the
+                // start's.
+                let t = if clip_time < 0.0 {
+                    self.clip_start
+                } else {
+                    clip_time
+                };
+                let at = (t * rate).clamp(0.0, (frames.len() - 1) as f64);
                 let k = at.floor() as usize;
                 let next = (k + 1).min(frames.len() - 1);
                 let w = at - k as f64;

@@ -209,6 +209,8 @@ pub struct SessionSpec {
     pub torque_off_after_ms: f64,
     /// Seconds over which the first commands blend from where the servos stand.
     pub ease_in_s: f64,
+    /// Where in the clip the run starts, seconds (the pose a pre-roll holds).
+    pub clip_start_s: f64,
     /// The look-ahead.
     pub lead: Lead,
     /// Retargeting onto a robot's joints (profiles of robot joints).
@@ -248,6 +250,7 @@ impl Default for SessionSpec {
             hold_after: config.hold_after,
             torque_off_after_ms: config.torque_off_after_ms,
             ease_in_s: config.ease_in_s,
+            clip_start_s: 0.0,
             lead: Lead::Profile,
             retarget: RetargetOptions {
                 upper_body: false,
@@ -380,8 +383,8 @@ pub struct RigDrive {
     pub retarget: Option<RetargetStage>,
     /// The IMU board's reading and the legs' feedback (walking, with a board in the profile).
     pub balance: Option<crate::control::balance::Balance>,
-    /// Where the ramp to rest ends (radians per servo) when not at every angle 0: a walk's
-    /// standing stance on both feet (its plan's last frame).
+    /// Where the ramp to rest ends (radians per servo) when not at every angle 0: a robot's
+    /// standing stance (a walk's: its plan's last frame, on both feet).
     pub rest_pose: Option<Vec<f64>>,
 }
 
@@ -415,7 +418,12 @@ impl RigDrive {
         };
         let mut stage = RetargetStage::new(&setup, &skeleton, floor, spec.retarget);
         stage.set_load_compensation(spec.load_compensation, &setup);
-        let mut rest_pose = None;
+        // A stop ramps to the standing stance (knees bent, soles flat, feet under the hips),
+        // not to every joint at 0 (straight legs).
+        let stance = setup.retargeter(&skeleton, floor, spec.retarget).stance();
+        let mut angles = vec![0.0; setup.rig.servos.len()];
+        setup.rig.joint_angles(&skeleton, &[], &stance, &mut angles);
+        let mut rest_pose = Some(angles);
         if let (true, false, Some(m)) = (spec.walk, spec.retarget.upper_body, clip) {
             let (walked, plan) = crate::retarget::walk::retarget_walking(&setup, &skeleton, m, spec.retarget)
                 .map_err(|e| SessionError::Invalid(format!("cannot plan the walk: {e}")))?;
@@ -427,11 +435,11 @@ impl RigDrive {
             )?;
             // A stop ramps to the plan's last frame: standing on both feet, the centre of mass
             // between them (not every joint at 0, straight legs on which the robot tips).
-            rest_pose = walked.frames.last().map(|f| {
+            if let Some(f) = walked.frames.last() {
                 let mut angles = vec![0.0; setup.rig.servos.len()];
                 setup.rig.joint_angles(&skeleton, &[], &f.q, &mut angles);
-                angles
-            });
+                rest_pose = Some(angles);
+            }
             stage.set_plan(walked.frames, m.frame_rate, Some(w));
         } else if let (Some(m), false) = (clip, spec.retarget.per_frame) {
             // The whole clip retargeted before the run: arm branches planned over it, every
@@ -452,6 +460,9 @@ impl RigDrive {
                 )?;
             }
             stage.set_plan(run.frames, m.frame_rate, None);
+        }
+        if clip.is_some() {
+            stage.set_clip_start(spec.clip_start_s);
         }
         let balance = match (spec.walk, spec.imu, profile.bus.imu_board) {
             (false, _, _) => None,
