@@ -85,31 +85,26 @@ impl Setup {
     /// joint no servo drives or whose servo gives no limit).
     #[must_use]
     pub fn joint_speed_limits(&self) -> Vec<f64> {
-        let mut limits = vec![f64::INFINITY; self.robot.joints().len()];
-        for s in &self.rig.servos {
-            if let marionette_core::rig::JointSource::Joint(j) = s.source {
-                let v = s.max_velocity / s.ticks_per_radian().abs();
-                if let Some(l) = limits.get_mut(j) {
-                    if v.is_finite() && v > 0.0 {
-                        *l = l.min(v);
-                    }
-                }
-            }
-        }
-        limits
+        self.joint_limits(|s| s.max_velocity)
     }
 
     /// Per robot joint, the acceleration limit of the servo that drives it (rad/s²; infinite
     /// for a joint no servo drives or whose servo gives no limit).
     #[must_use]
     pub fn joint_acceleration_limits(&self) -> Vec<f64> {
+        self.joint_limits(|s| s.max_acceleration)
+    }
+
+    /// Per robot joint, the smallest `limit` (ticks per second or second²) of the servos that
+    /// drive it, in radians.
+    fn joint_limits(&self, limit: impl Fn(&marionette_core::rig::ServoMap) -> f64) -> Vec<f64> {
         let mut limits = vec![f64::INFINITY; self.robot.joints().len()];
         for s in &self.rig.servos {
             if let marionette_core::rig::JointSource::Joint(j) = s.source {
-                let a = s.max_acceleration / s.ticks_per_radian().abs();
+                let v = limit(s) / s.ticks_per_radian().abs();
                 if let Some(l) = limits.get_mut(j) {
-                    if a.is_finite() && a > 0.0 {
-                        *l = l.min(a);
+                    if v.is_finite() && v > 0.0 {
+                        *l = l.min(v);
                     }
                 }
             }
