@@ -893,11 +893,10 @@ pub fn retarget_clip_with(
 
 /// Makes a clip's per-frame retargeting one the servos can play: each arm's branches planned
 /// over the clip ([`continuity::plan_branches`]), then every joint a servo drives but the legs'
-/// (which follow their feet, or a walking plan that plans their speeds) kept within its servo's
-/// velocity and acceleration
-/// ([`continuity::limit_speed`]) after its capture glitches are taken from their neighbours
-/// ([`continuity::remove_glitches`]), and the frames measured again. Returns where the human moved
-/// faster than the servos can follow.
+/// (which follow their feet, or a walking plan that paces them) cleared of capture glitches
+/// ([`continuity::remove_glitches`]) and kept within its servo's velocity and acceleration
+/// ([`continuity::limit_speed`]), and the frames measured again (`planned_legs`: the ZMP is the
+/// walking plan's, kept). Returns where the human moved faster than the servos can follow.
 #[allow(clippy::too_many_arguments)]
 fn plan_clip(
     setup: &Setup,
@@ -932,34 +931,24 @@ fn plan_clip(
     let mut x = vec![0.0; frames.len()];
     let mut glitches = 0;
     for &j in &limited {
-        for (x, f) in x.iter_mut().zip(frames.iter()) {
-            *x = f.q[j];
-        }
-        glitches += continuity::remove_glitches(&mut x, step[j]) as u64;
-        for (x, f) in x.iter().zip(frames.iter_mut()) {
-            f.q[j] = *x;
-        }
+        glitches += on_joint(frames, j, &mut x, |x| continuity::remove_glitches(x, step[j])) as u64;
     }
     let q: Vec<Vec<f64>> = frames
         .iter()
         .map(|f| limited.iter().map(|&j| f.q[j]).collect())
         .collect();
     let fast = continuity::fast_frames(&q, &limited.iter().map(|&j| step[j]).collect::<Vec<_>>());
+    // A hair inside the limits, so rounding never puts a step over them.
+    let share = 1.0 - 1e-6;
     for &j in &limited {
-        for (x, f) in x.iter_mut().zip(frames.iter()) {
-            *x = f.q[j];
-        }
-        // A hair inside the limits, so rounding never puts a step over them.
-        let share = 1.0 - 1e-6;
-        continuity::limit_speed(
-            &mut x,
-            step[j] * share,
-            accel[j] * dt * dt * share,
-            setup.robot.joints()[j].range,
-        );
-        for (x, f) in x.iter().zip(frames.iter_mut()) {
-            f.q[j] = *x;
-        }
+        on_joint(frames, j, &mut x, |x| {
+            continuity::limit_speed(
+                x,
+                step[j] * share,
+                accel[j] * dt * dt * share,
+                setup.robot.joints()[j].range,
+            );
+        });
     }
     let mut pose = Pose64::default();
     for (f, ch) in frames.iter_mut().zip(frames_in) {
@@ -978,6 +967,23 @@ fn plan_clip(
             .map(|[a, b]| [a as f64 * dt, b as f64 * dt])
             .collect(),
     }
+}
+
+/// Runs `edit` on joint `j`'s values over `frames`, through the scratch `x` (one per frame).
+fn on_joint<R>(
+    frames: &mut [RetargetFrame],
+    j: usize,
+    x: &mut [f64],
+    edit: impl FnOnce(&mut [f64]) -> R,
+) -> R {
+    for (x, f) in x.iter_mut().zip(frames.iter()) {
+        *x = f.q[j];
+    }
+    let r = edit(x);
+    for (x, f) in x.iter().zip(frames.iter_mut()) {
+        f.q[j] = *x;
+    }
+    r
 }
 
 /// Writes the joint trajectory as CSV: `time` then one column per joint (radians).

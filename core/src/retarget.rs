@@ -1958,8 +1958,7 @@ impl Retargeter {
                 let fore = tip - at(2);
                 add(side, at(2) - at(1), human(bones[0]));
                 add(side, fore - axis * axis.dot(fore), human(bones[1]));
-                let target =
-                    g.centre + (human(bones[0]) + human(bones[1])) * (self.units * self.arm_scale[side]);
+                let (target, _) = self.hand_goal(side, pose, to_base).unwrap_or_default();
                 out.hand_error[side] = (tip - target).length();
                 out.hand_target[side] = out.base_pos + out.base_rot * target;
             } else {

@@ -116,6 +116,12 @@ impl RetargetStage {
         };
     }
 
+    /// The robot's standing stance, joint angles ([`Retargeter::stance`]).
+    #[must_use]
+    pub fn stance(&self) -> [f64; MAX_ROBOT_JOINTS] {
+        self.retargeter.stance()
+    }
+
     /// Room for `frames` frames retargeted ahead (before the first tick).
     pub(super) fn reserve(&mut self, frames: usize) {
         self.pending = std::collections::VecDeque::with_capacity(frames.max(4));

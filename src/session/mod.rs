@@ -420,9 +420,10 @@ impl RigDrive {
         stage.set_load_compensation(spec.load_compensation, &setup);
         // A stop ramps to the standing stance (knees bent, soles flat, feet under the hips),
         // not to every joint at 0 (straight legs).
-        let stance = setup.retargeter(&skeleton, floor, spec.retarget).stance();
         let mut angles = vec![0.0; setup.rig.servos.len()];
-        setup.rig.joint_angles(&skeleton, &[], &stance, &mut angles);
+        setup
+            .rig
+            .joint_angles(&skeleton, &[], &stage.stance(), &mut angles);
         let mut rest_pose = Some(angles);
         if let (true, false, Some(m)) = (spec.walk, spec.retarget.upper_body, clip) {
             let (walked, plan) = crate::retarget::walk::retarget_walking(&setup, &skeleton, m, spec.retarget)
