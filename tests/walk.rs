@@ -10,7 +10,7 @@ use marionette::footstep::contact;
 use marionette::formats::{amc, asf};
 use marionette::motion::Motion;
 use marionette::profile::Profile;
-use marionette::retarget::walk::{retarget_walking, WalkPlan};
+use marionette::retarget::walk::{self, retarget_walking, WalkPlan};
 use marionette::retarget::{ClipRetarget, Options, Setup};
 use marionette::skeleton::Skeleton;
 
@@ -119,6 +119,29 @@ fn the_bundled_walk_becomes_steps_the_op3_can_take_with_the_zmp_inside_its_feet(
     );
     assert!(highest.iter().all(|h| *h >= 0.9 * clearance), "{highest:?}");
     assert!(com_rms < 2e-3, "{com_rms}");
+
+    // Every joint, the legs' too, within its servo's speed: the swings that would ask the knee
+    // for more are lifted lower, none below the lowest share, and the report says which.
+    assert_eq!(
+        walked.report.continuity.steps_over_velocity_limit,
+        Some(0),
+        "{:?}",
+        walked.report.continuity
+    );
+    let lowered = plan.clearance_share.iter().filter(|s| **s < 1.0).count();
+    assert!(
+        lowered >= 1 && lowered == report.lowered_swings,
+        "{:?}",
+        plan.clearance_share
+    );
+    assert!(plan
+        .clearance_share
+        .iter()
+        .all(|s| *s >= walk::MIN_CLEARANCE_SHARE));
+    let lowest = report.lowest_clearance_mm;
+    assert!(lowest >= 1e3 * clearance * walk::MIN_CLEARANCE_SHARE - 1e-9 && lowest < report.clearance_mm);
+    let ratios = walk::swing_speed_ratios(&setup, &plan, &walked.frames);
+    assert!(ratios.iter().all(|r| *r <= 1.0), "{ratios:?}");
 
     // The same clip plans the same way twice.
     let (_, again, plan2) = walk_of("16.asf", "16_15.amc");
@@ -318,7 +341,8 @@ fn a_streamed_plan_with_two_seconds_of_window_is_the_offline_plan() {
     let setup = Setup::new(&profile, &s).unwrap();
     let kinematic = marionette::retarget::retarget_clip(&setup, &s, &m, Options::default());
     let retargeter = setup.retargeter(&s, kinematic.floor, Options::default());
-    let plan = marionette::retarget::walk::plan_walk(&setup, &retargeter, &kinematic, f64::INFINITY).unwrap();
+    let plan =
+        marionette::retarget::walk::plan_walk(&setup, &retargeter, &kinematic, f64::INFINITY, &[]).unwrap();
     let mut deviation = Vec::new();
     for window in [3.0, 2.0, 1.6, 1.0, 0.5] {
         let com = streamed_com(&setup, &retargeter, &kinematic, &plan, window).unwrap();

@@ -323,6 +323,15 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
             "  step limits: forward {:.3} m, backward {:.3} m, width {:.3}–{:.3} m, turn {:.0}°, swing ≥ {:.2} s, foot ≤ {:.2} m/s, double support ≥ {:.2} s",
             l.forward_m, l.backward_m, l.width_min_m, l.width_max_m, l.turn_deg, l.swing_min_s, l.foot_speed_m_s, l.double_support_s
         )?;
+        if w.lowered_swings == 0 {
+            writeln!(out, "  swings: the foot lifts {:.0} mm", w.clearance_mm)?;
+        } else {
+            writeln!(
+                out,
+                "  swings: the foot lifts {:.0} mm; {} lifted lower for the leg servos' speed, the lowest {:.0} mm",
+                w.clearance_mm, w.lowered_swings, w.lowest_clearance_mm
+            )?;
+        }
     }
     if let Some(fps) = r.frames_per_second {
         writeln!(out, "  speed: {fps:.0} frames per second")?;

@@ -70,6 +70,15 @@ pub const REACH_MARGIN_M: f64 = 0.002;
 /// Most plans made for one clip while lowering the base to reach.
 const REACH_ATTEMPTS: usize = 4;
 
+/// Most plans made for one clip while lowering swings that ask a leg servo for more than its
+/// speed (the knee lifting the foot is the fastest joint of a swing).
+const PACE_ATTEMPTS: usize = 6;
+
+/// The lowest share of [`Retargeter::swing_clearance`] a swing is lowered to for its leg's
+/// speed: below it the foot would scuff the floor, and the swing is left faster than the
+/// servos (and counted in the report's continuity).
+pub const MIN_CLEARANCE_SHARE: f64 = 0.3;
+
 /// One sample of the plan, at a clip frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlanSample {
@@ -110,6 +119,11 @@ pub struct WalkPlan {
     pub leg_speed: f64,
     /// The clip's own travel: its pelvis (scaled to the robot), start to end, m.
     pub clip_travel_m: f64,
+    /// How high a swing foot lifts at most, m.
+    pub clearance: f64,
+    /// Each swing's share of `clearance`, by the number of the footstep it lands on (a
+    /// missing entry: 1): lowered where the swing leg's servos could not lift it in time.
+    pub clearance_share: Vec<f64>,
 }
 
 /// The plan's figures (the `walk` block of a retarget report).
@@ -133,6 +147,12 @@ pub struct WalkReport {
     pub com_height_m: f64,
     /// Preview, s.
     pub preview_s: f64,
+    /// How high a swing foot lifts, mm.
+    pub clearance_mm: f64,
+    /// Swings lifted lower than that for the servos' speed.
+    pub lowered_swings: usize,
+    /// The lowest swing's clearance, mm.
+    pub lowest_clearance_mm: f64,
     /// The limits steps were planned within.
     pub limits: LimitsReport,
     /// Every footstep: the plan's and the clip's.
@@ -252,6 +272,7 @@ pub fn plan_walk(
     retargeter: &Retargeter,
     run: &ClipRetarget,
     highest_base: f64,
+    clearance_share: &[f64],
 ) -> Result<WalkPlan, PreviewError> {
     let speed = leg_speed(setup);
     let limits = retargeter.step_limits(
@@ -286,7 +307,8 @@ pub fn plan_walk(
         .iter()
         .enumerate()
         .map(|(k, (c, _))| {
-            let stance = stance_at(&footsteps, k as f64 * dt, (*c, *c), clearance, f64::NAN);
+            let t = k as f64 * dt;
+            let stance = stance_at(&footsteps, t, (*c, *c), clearance, clearance_share, f64::NAN);
             retargeter.reach_height(&setup.robot, &stance, WALK_REACH_SHARE)
         })
         .fold(stance_base.min(highest_base), f64::min);
@@ -308,7 +330,7 @@ pub fn plan_walk(
                 zmp_margin: support_margin(&footsteps, t, sole_half, zmp),
                 zmp_multibody: zmp,
                 zmp_multibody_margin: f64::NAN,
-                stance: stance_at(&footsteps, t, (c, zmp), clearance, base_height),
+                stance: stance_at(&footsteps, t, (c, zmp), clearance, clearance_share, base_height),
             }
         })
         .collect();
@@ -327,6 +349,8 @@ pub fn plan_walk(
         samples,
         substituted: planner.substituted(),
         leg_speed: speed,
+        clearance,
+        clearance_share: clearance_share.to_vec(),
     })
 }
 
@@ -488,14 +512,16 @@ pub fn footprints(f: &RetargetFrame) -> [Footprint; 2] {
 
 /// Where the plan has each sole at `t`: on its footprint when in contact; in a swing,
 /// minimum jerk along the floor from the footprint it left to the one it lands on and
-/// lifted `clearance` at the middle (zero slope and curvature at both ends: it lands flat
-/// and soft); the centre of mass and the ZMP as given, the base at `base_height`.
+/// lifted `clearance` (times the swing's `share`, by the number of the step it lands on) at
+/// the middle (zero slope and curvature at both ends: it lands flat and soft); the centre of
+/// mass and the ZMP as given, the base at `base_height`.
 #[must_use]
 pub fn stance_at(
     steps: &[Footstep],
     t: f64,
     (com, zmp): (DVec2, DVec2),
     clearance: f64,
+    share: &[f64],
     base_height: f64,
 ) -> PlannedStance {
     let mut soles = [(Footprint::default(), 0.0); 2];
@@ -519,7 +545,7 @@ pub fn stance_at(
                         centre: a.at.centre + (b.at.centre - a.at.centre) * m,
                         yaw: a.at.yaw + turn * m,
                     },
-                    clearance * bump,
+                    clearance * share.get(b.number as usize).copied().unwrap_or(1.0) * bump,
                 )
             }
             (Some(a), None) => (a.at, 0.0),
@@ -591,24 +617,40 @@ pub fn retarget_walking(
     motion: &Motion,
     options: Options,
 ) -> Result<(ClipRetarget, WalkPlan), PreviewError> {
-    let kinematic = retarget_clip(setup, skeleton, motion, options);
+    // The clip's own feet, frame by frame: nothing paced or smoothed before the plan sees them.
+    let kinematic = retarget_clip(
+        setup,
+        skeleton,
+        motion,
+        Options {
+            per_frame: true,
+            ..options
+        },
+    );
     let retargeter = setup.retargeter(skeleton, kinematic.floor, options);
     // The base's height from the plan's footsteps and centre of mass; lowered again where the
     // whole body's pass still found a foot out of the legs' reach.
+    // Then each swing that asks its leg's servos for more than their speed lifted lower.
     let mut highest = f64::INFINITY;
-    let mut attempt = 0;
+    let mut share: Vec<f64> = Vec::new();
+    let (mut reach_attempts, mut pace_attempts) = (0, 0);
     let (plan, walked) = loop {
-        let plan = plan_walk(setup, &retargeter, &kinematic, highest)?;
+        let plan = plan_walk(setup, &retargeter, &kinematic, highest, &share)?;
         let walked = super::retarget_clip_with(setup, skeleton, motion, options, kinematic.floor, |k| {
             plan.samples.get(k).map(|s| s.stance)
         });
         let planned = plan.samples.first().map_or(0.0, |s| s.stance.base_height);
         let lowest = walked.frames.iter().map(|f| f.base_pos.z).fold(planned, f64::min);
-        attempt += 1;
-        if lowest >= planned - 1e-6 || attempt == REACH_ATTEMPTS {
+        if lowest < planned - 1e-6 && reach_attempts < REACH_ATTEMPTS {
+            reach_attempts += 1;
+            highest = lowest - REACH_MARGIN_M;
+            continue;
+        }
+        let over = swing_speed_ratios(setup, &plan, &walked.frames);
+        if pace_attempts == PACE_ATTEMPTS || !lower_fast_swings(&mut share, &over) {
             break (plan, walked);
         }
-        highest = lowest - REACH_MARGIN_M;
+        pace_attempts += 1;
     };
     let zmp = multibody_zmp(setup, &retargeter, &walked.frames, plan.dt);
     let mut plan = plan;
@@ -617,6 +659,62 @@ pub fn retarget_walking(
         sample.zmp_multibody_margin = support_margin(&plan.footsteps, sample.t, plan.sole_half, z);
     }
     Ok((walked, plan))
+}
+
+/// For each footstep (by number), the most a joint of the leg that swings to it moves, as a
+/// share of its servo's velocity limit, from its lift to a frame after its landing (0 for the
+/// starting feet and steps never swung to).
+#[must_use]
+pub fn swing_speed_ratios(setup: &Setup, plan: &WalkPlan, frames: &[RetargetFrame]) -> Vec<f64> {
+    let limits = setup.joint_speed_limits();
+    let dt = plan.dt;
+    let mut ratios = vec![
+        0.0;
+        plan.footsteps
+            .iter()
+            .map(|s| s.number as usize + 1)
+            .max()
+            .unwrap_or(0)
+    ];
+    for (i, b) in plan.footsteps.iter().enumerate() {
+        let Some(a) = plan.footsteps[..i].iter().rev().find(|s| s.side == b.side) else {
+            continue;
+        };
+        if !a.lift_s.is_finite() || !b.land_s.is_finite() {
+            continue;
+        }
+        let first = ((a.lift_s / dt).floor() as usize).max(1);
+        let last = ((b.land_s / dt).ceil() as usize + 1).min(frames.len().saturating_sub(1));
+        for k in first..=last {
+            for &j in &setup.map.legs[b.side].joints {
+                let v = (frames[k].q[j] - frames[k - 1].q[j]).abs() / (limits[j] * dt);
+                if v.is_finite() {
+                    ratios[b.number as usize] = f64::max(ratios[b.number as usize], v);
+                }
+            }
+        }
+    }
+    ratios
+}
+
+/// Lowers the clearance share of every swing whose leg moved faster than its servos (a ratio
+/// over 1 in `ratios`, from [`swing_speed_ratios`]) by the square of the excess (and 2 % more)
+/// — the knee's speed grows with the lift and with the step along the floor, which stays —
+/// never below [`MIN_CLEARANCE_SHARE`]. Whether any share changed.
+pub fn lower_fast_swings(share: &mut Vec<f64>, ratios: &[f64]) -> bool {
+    if share.len() < ratios.len() {
+        share.resize(ratios.len(), 1.0);
+    }
+    let mut changed = false;
+    for (s, &r) in share.iter_mut().zip(ratios) {
+        if r > 1.0 && *s > MIN_CLEARANCE_SHARE {
+            // A hair further, so that a swing at its limit to the printed digit ends within it.
+            let r = r / 0.98;
+            *s = (*s / (r * r)).max(MIN_CLEARANCE_SHARE);
+            changed = true;
+        }
+    }
+    changed
 }
 
 /// The ZMP of the whole robot moving through `frames` (one per `dt`), every link's mass
@@ -702,6 +800,11 @@ impl WalkPlan {
                 .fold(0.0, f64::max),
             com_height_m: self.com_height,
             preview_s: PREVIEW_S,
+            clearance_mm: self.clearance * 1000.0,
+            lowered_swings: self.clearance_share.iter().filter(|s| **s < 1.0).count(),
+            lowest_clearance_mm: self.clearance_share.iter().fold(1.0, |a: f64, b| a.min(*b))
+                * self.clearance
+                * 1000.0,
             limits: self.limits.into(),
         }
     }
