@@ -121,6 +121,7 @@ fn bench(c: &mut Criterion) {
             retarget: None,
             balance: None,
             rest_pose: None,
+            start_pose: None,
         };
         let mut ctl = session::controller(&spec, &profile, drive, &present, port, solve, true);
         let mut bus = EncodeBus {

@@ -1200,3 +1200,59 @@ fn pointing_tracks_carry_the_captured_directions_and_turn_the_feet() {
     let turned = feet(&limb);
     assert!(turned > 0.1, "the left foot turned {turned} rad at most");
 }
+
+#[test]
+fn the_move_to_a_clips_first_pose_is_sized_by_the_farthest_servo() {
+    use marionette::session::{start_move_s, START_MOVE_SPEED_SHARE};
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml");
+    let profile = Profile::load(&path).unwrap();
+    let skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
+    let rig = profile.rig(Some(&skeleton)).unwrap();
+    let n = rig.servos.len();
+    let present: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
+    // The move's length for servo k to `angle`: its target taken inside its range, as the
+    // command stage takes it, at the smoothstep's peak (1.5 times the mean speed) a quarter
+    // of its velocity limit.
+    let expected = |k: usize, angle: f64| {
+        let s = &rig.servos[k];
+        let to = s
+            .angle_to_ticks_exact(angle)
+            .clamp(f64::from(s.min_tick), f64::from(s.max_tick));
+        1.5 * (to - f64::from(present[k])).abs() / (START_MOVE_SPEED_SHARE * s.max_velocity)
+    };
+    let mut pose: Vec<f64> = rig
+        .servos
+        .iter()
+        .map(|s| s.ticks_to_angle(f64::from(s.rest_tick())))
+        .collect();
+    let (still, _, degrees) = start_move_s(&rig, &present, &pose).unwrap();
+    assert!(
+        still.abs() < 1e-9 && degrees.abs() < 1e-6,
+        "{still} s, {degrees}°"
+    );
+
+    // Two servos away from where they stand: the one that takes longer sets the time.
+    pose[3] += 0.2;
+    pose[7] += 0.6;
+    let (seconds, servo, degrees) = start_move_s(&rig, &present, &pose).unwrap();
+    let longer = if expected(7, pose[7]) >= expected(3, pose[3]) {
+        7
+    } else {
+        3
+    };
+    assert_eq!(servo, longer);
+    assert!(
+        (seconds - expected(longer, pose[longer])).abs() < 1e-9,
+        "{seconds}"
+    );
+    assert!(seconds > 0.0 && degrees > 0.0);
+
+    // A target far past the range is taken at its end; a NaN is left out; nothing finite: no
+    // move.
+    pose[7] = 100.0;
+    let (far, _, _) = start_move_s(&rig, &present, &pose).unwrap();
+    assert!((far - expected(7, 100.0).max(expected(3, pose[3]))).abs() < 1e-9);
+    pose[3] = f64::NAN;
+    assert!((start_move_s(&rig, &present, &pose).unwrap().0 - expected(7, 100.0)).abs() < 1e-9);
+    assert!(start_move_s(&rig, &present, &vec![f64::NAN; n]).is_none());
+}

@@ -143,8 +143,14 @@ fn play_streams_the_whole_clip_over_the_virtual_chain() {
         ]));
         println!("{out}");
         assert!(out.contains("ended: end of input; torque off"));
+        // The chain's servos stand at their zero angle, far from the clip's first pose: the
+        // pre-roll is made longer than its 1 s, and the first pass with it.
+        assert!(out.contains("moving to the clip's first pose over"), "{out}");
         let v = json(&stats);
         check_stats(&v, rate.parse().unwrap());
+        let hz: f64 = rate.parse().unwrap();
+        let pass = (3.916 * hz) as u64;
+        assert!(v["samples_per_pass"].as_u64().unwrap() > pass + hz as u64, "{v}");
         assert!(v["inputs_used"].as_u64() <= v["samples_per_pass"].as_u64());
         if kept_time(&v) {
             assert_eq!(v["all_samples_sent"].as_bool(), Some(true));

@@ -77,7 +77,7 @@ impl std::str::FromStr for BusArg {
 }
 
 /// Seconds the servos spend moving from where they stand to a clip's first frame before the
-/// clip starts.
+/// clip starts, at least (without `--pre-roll`, longer when the move needs it).
 pub const DEFAULT_PRE_ROLL_S: f64 = 1.0;
 
 /// Options shared by `play` and `follow`.
@@ -314,6 +314,7 @@ impl LoopArgs {
             torque_off_after_ms: self.torque_off_after,
             ease_in_s: self.ease_in,
             clip_start_s: 0.0,
+            size_start_move: false,
             lead: match (self.no_lookahead, self.lead_ms) {
                 (true, _) => Lead::Off,
                 (false, Some(ms)) => Lead::Fixed(ms),
@@ -498,6 +499,8 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
     }
     let mut spec = args.spec(false, None, allocations, out)?;
     spec.clip_start_s = start_at;
+    // Without a --pre-roll, one long enough for the servos' move to the first pose.
+    spec.size_start_move = a.pre_roll.is_none();
     // The move to the first frame is eased in from where the servos stand.
     if pre_roll > 0.0 && spec.ease_in_s == 0.0 {
         spec.ease_in_s = pre_roll;
@@ -508,7 +511,7 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
     player.set_pre_roll(pre_roll);
     // The pre-roll's samples come first: the first pass is that much longer.
     let pre_roll_samples = player.pre_roll_samples();
-    let samples = player.samples_per_pass() + pre_roll_samples;
+    let pass = player.samples_per_pass();
     writeln!(
         out,
         "{}: {} frames at {} Hz ({:.2} s) → {} samples a pass at {} Hz{}{}",
@@ -547,7 +550,8 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
     )?;
     let figures = ClipFigures {
         clip_frames: motion.len(),
-        samples_per_pass: samples,
+        // The first pass with its pre-roll, as long as the move to the first pose made it.
+        samples_per_pass: pass + outcome.producer.pre_roll,
         all_samples_sent: all,
     };
     finish(&outcome, args, figures, out)
@@ -793,7 +797,8 @@ pub(super) struct PlayArgs {
     /// Seconds to move to the clip's first frame before it starts (eased in from where the
     /// servos stand, unless --ease-in says otherwise); not counted in the fidelity. 0: the
     /// clip starts at once, from wherever the servos stand (each servo's speed and
-    /// acceleration limits still apply). Default: 1 s.
+    /// acceleration limits still apply). Default: 1 s, or longer when the servos stand further
+    /// from the first frame than a quarter of their speed covers in it.
     #[arg(long)]
     pub(super) pre_roll: Option<f64>,
     /// Play capture dropouts (a bone reading exactly zero between far-away frames) as

@@ -498,6 +498,14 @@ impl Controller {
         self.retarget = Some(Box::new(stage));
     }
 
+    /// Blends the first commands from where the servos stand over `seconds` (smoothstep, the
+    /// help note's eq. 13), in place of the configured ease-in.
+    pub fn set_ease_in(&mut self, seconds: f64) {
+        if seconds.is_finite() && seconds >= 0.0 {
+            self.ease.ticks = (seconds * 1e9 / self.period_ns as f64).round() as u64;
+        }
+    }
+
     /// Ends the ramp to rest in `angles` (radians per servo, rig order) instead of every angle
     /// at 0: a robot on the floor ramps to a stance it stands in.
     pub fn set_rest_pose(&mut self, angles: Vec<f64>) {

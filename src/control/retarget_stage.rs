@@ -116,6 +116,17 @@ impl RetargetStage {
         };
     }
 
+    /// The planned frame's joint angles at the clip time the run starts at (the pose a
+    /// pre-roll holds); `None` without a plan.
+    #[must_use]
+    pub fn planned_start(&self) -> Option<[f64; MAX_ROBOT_JOINTS]> {
+        let (frames, rate) = self.planned.as_ref()?;
+        let k = (self.clip_start * rate)
+            .round()
+            .clamp(0.0, (frames.len() - 1) as f64) as usize;
+        Some(frames[k].q)
+    }
+
     /// The robot's standing stance, joint angles ([`Retargeter::stance`]).
     #[must_use]
     pub fn stance(&self) -> [f64; MAX_ROBOT_JOINTS] {

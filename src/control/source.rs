@@ -110,6 +110,11 @@ pub trait Source: Send {
 
     /// What was sent.
     fn report(&self) -> ProducerReport;
+
+    /// A paced source that holds its first input before the rest (a clip's pre-roll) holds it
+    /// at least `seconds`: the servos' move to the first pose takes that long. Others ignore
+    /// it.
+    fn hold_first(&mut self, _seconds: f64) {}
 }
 
 impl<S: Source + ?Sized> Source for Box<S> {
@@ -121,6 +126,9 @@ impl<S: Source + ?Sized> Source for Box<S> {
     }
     fn runs_in_lockstep(&self) -> bool {
         (**self).runs_in_lockstep()
+    }
+    fn hold_first(&mut self, seconds: f64) {
+        (**self).hold_first(seconds);
     }
     fn next_due(&self, grid: Grid) -> Option<u64> {
         (**self).next_due(grid)
@@ -205,12 +213,16 @@ impl ClipSource {
     #[must_use]
     pub fn new(player: ClipPlayer, commands: Option<Receiver<PlayerCommand>>) -> ClipSource {
         let channels = player.channel_count().min(MAX_CHANNELS);
+        let player_pre_roll = player.pre_roll_samples();
         ClipSource {
             player,
             commands,
             next: 0,
             channels,
-            report: ProducerReport::default(),
+            report: ProducerReport {
+                pre_roll: player_pre_roll,
+                ..ProducerReport::default()
+            },
         }
     }
 }
@@ -250,6 +262,13 @@ impl Source for ClipSource {
     }
     fn report(&self) -> ProducerReport {
         self.report
+    }
+    fn hold_first(&mut self, seconds: f64) {
+        // Only before the first sample: a pre-roll under way is not lengthened.
+        if self.next == 0 && seconds / self.player.period_s() > self.player.pre_roll_samples() as f64 {
+            self.player.set_pre_roll(seconds);
+            self.report.pre_roll = self.player.pre_roll_samples();
+        }
     }
 }
 

@@ -100,6 +100,12 @@ impl ClipPlayer {
         };
     }
 
+    /// The time between samples (the loop's period), s.
+    #[must_use]
+    pub fn period_s(&self) -> f64 {
+        self.period_s
+    }
+
     /// Samples of the pre-roll still to come.
     #[must_use]
     pub fn pre_roll_samples(&self) -> u64 {
@@ -183,6 +189,9 @@ pub struct ProducerReport {
     pub bad_lines: u64,
     /// Datagrams over [`MAX_DATAGRAM_BYTES`], refused whole.
     pub oversized: u64,
+    /// Of those sent, the samples that held a clip's first frame before it started (its
+    /// pre-roll).
+    pub pre_roll: u64,
 }
 
 /// Samples of effector targets over time, read from a file.

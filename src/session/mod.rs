@@ -211,6 +211,10 @@ pub struct SessionSpec {
     pub ease_in_s: f64,
     /// Where in the clip the run starts, seconds (the pose a pre-roll holds).
     pub clip_start_s: f64,
+    /// A clip's pre-roll and the ease-in are lengthened when the servos stand further from
+    /// the clip's first pose than they can travel in `ease_in_s` at
+    /// [`START_MOVE_SPEED_SHARE`] of their velocity limits ([`start_move_s`]).
+    pub size_start_move: bool,
     /// The look-ahead.
     pub lead: Lead,
     /// Retargeting onto a robot's joints (profiles of robot joints).
@@ -251,6 +255,7 @@ impl Default for SessionSpec {
             torque_off_after_ms: config.torque_off_after_ms,
             ease_in_s: config.ease_in_s,
             clip_start_s: 0.0,
+            size_start_move: false,
             lead: Lead::Profile,
             retarget: RetargetOptions {
                 upper_body: false,
@@ -386,6 +391,37 @@ pub struct RigDrive {
     /// Where the ramp to rest ends (radians per servo) when not at every angle 0: a robot's
     /// standing stance (a walk's: its plan's last frame, on both feet).
     pub rest_pose: Option<Vec<f64>>,
+    /// The clip's pose where the run starts (radians per servo), when it is known before the
+    /// run: a bone rig's frame, a robot's planned frame.
+    pub start_pose: Option<Vec<f64>>,
+}
+
+/// The share of each servo's velocity limit the move to a clip's first pose reaches at its
+/// fastest: a gentle start, a quarter of the servos' speed.
+pub const START_MOVE_SPEED_SHARE: f64 = 0.25;
+
+/// How long an eased move (smoothstep, the help note's eq. 13: its peak speed 1.5 times its
+/// mean) from `present` (ticks) to `pose` (radians per servo, clamped to each servo's range)
+/// takes when no servo goes faster than [`START_MOVE_SPEED_SHARE`] of its velocity limit, s;
+/// with the servo that takes longest and how far it goes, degrees of joint. `None` when no
+/// servo has a finite target and a velocity limit.
+#[must_use]
+pub fn start_move_s(rig: &Rig, present: &[i32], pose: &[f64]) -> Option<(f64, usize, f64)> {
+    rig.servos
+        .iter()
+        .zip(present)
+        .zip(pose)
+        .enumerate()
+        .filter_map(|(k, ((s, &p), &a))| {
+            let to = s.angle_to_ticks_exact(a);
+            if !(to.is_finite() && s.max_velocity > 0.0) {
+                return None;
+            }
+            let ticks = (to.clamp(f64::from(s.min_tick), f64::from(s.max_tick)) - f64::from(p)).abs();
+            let seconds = 1.5 * ticks / (START_MOVE_SPEED_SHARE * s.max_velocity);
+            Some((seconds, k, (ticks / s.ticks_per_radian().abs()).to_degrees()))
+        })
+        .max_by(|a, b| a.0.total_cmp(&b.0))
 }
 
 impl RigDrive {
@@ -403,12 +439,22 @@ impl RigDrive {
     ) -> Result<RigDrive, SessionError> {
         let joint_driven = profile.servos.iter().any(|s| matches!(s.drive, Drive::Joint(_)));
         if !joint_driven {
+            let rig = profile.rig(Some(&skeleton))?;
+            let start_pose = clip.and_then(|m| {
+                let k = (spec.clip_start_s * m.frame_rate).round().max(0.0) as usize;
+                let frame = m.frames().nth(k).or_else(|| m.frames().last())?;
+                let channels = crate::motion::frame_to_radians(&skeleton, frame);
+                let mut angles = vec![0.0; rig.servos.len()];
+                rig.joint_angles(&skeleton, &channels, &[], &mut angles);
+                Some(angles)
+            });
             return Ok(RigDrive {
-                rig: profile.rig(Some(&skeleton))?,
+                rig,
                 skeleton,
                 retarget: None,
                 balance: None,
                 rest_pose: None,
+                start_pose,
             });
         }
         let setup = Setup::new(profile, &skeleton)?;
@@ -465,6 +511,11 @@ impl RigDrive {
         if clip.is_some() {
             stage.set_clip_start(spec.clip_start_s);
         }
+        let start_pose = stage.planned_start().map(|q| {
+            let mut angles = vec![0.0; setup.rig.servos.len()];
+            setup.rig.joint_angles(&skeleton, &[], &q, &mut angles);
+            angles
+        });
         let balance = match (spec.walk, spec.imu, profile.bus.imu_board) {
             (false, _, _) => None,
             (true, _, None) => {
@@ -514,6 +565,7 @@ impl RigDrive {
             retarget: Some(stage),
             balance,
             rest_pose,
+            start_pose,
         })
     }
 }
@@ -769,6 +821,38 @@ fn warn_if_over_budget(
     Ok(())
 }
 
+/// How long the move to the clip's first pose takes when `spec` sizes it and it is longer
+/// than the ease-in ([`start_move_s`]); says so on `log`.
+fn sized_start_move(
+    spec: &SessionSpec,
+    profile: &Profile,
+    drive: &RigDrive,
+    present: &[i32],
+    log: &mut dyn Write,
+) -> std::io::Result<Option<f64>> {
+    if !spec.size_start_move {
+        return Ok(None);
+    }
+    let Some((seconds, servo, degrees)) = drive
+        .start_pose
+        .as_deref()
+        .and_then(|pose| start_move_s(&drive.rig, present, pose))
+    else {
+        return Ok(None);
+    };
+    if seconds <= spec.ease_in_s {
+        return Ok(None);
+    }
+    writeln!(
+        log,
+        "moving to the clip's first pose over {seconds:.2} s, not {} s: {} is {degrees:.0}° from it (at most {:.0} % of each servo's speed)",
+        spec.ease_in_s,
+        profile.servos.get(servo).map_or("a servo", |s| s.name.as_str()),
+        100.0 * START_MOVE_SPEED_SHARE
+    )?;
+    Ok(Some(seconds))
+}
+
 impl Run<'_> {
     /// The loop in its own thread on the machine clock (sleep, then spin to the deadline), the
     /// source in another, the telemetry sinks in others; waits for the end.
@@ -794,7 +878,13 @@ impl Run<'_> {
         let present = start_up(bus.as_mut(), profile.bus_section())?;
         writeln!(log, "{label}: {} servos up, torque on", present.len())?;
         let rig = drive.rig.clone();
+        let start_move = sized_start_move(spec, profile, &drive, &present, log)?;
         let mut controller = controller(spec, profile, drive, &present, port, solve, true);
+        let mut source = source;
+        if let Some(seconds) = start_move {
+            controller.set_ease_in(seconds);
+            source.hold_first(seconds);
+        }
         let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
         let _ = controller.add_telemetry(ttx);
         let period = controller.period_ns();
@@ -941,7 +1031,13 @@ impl Run<'_> {
         // In lockstep the physics (and its recorder) runs inside the bus calls of each tick, so
         // an allocation count would be the simulator's: the loop's own ticks are counted on the
         // other buses.
+        let start_move = sized_start_move(spec, profile, &drive, &present, log)?;
         let mut controller = controller(spec, profile, drive, &present, port, solve, false);
+        let mut source = source;
+        if let Some(seconds) = start_move {
+            controller.set_ease_in(seconds);
+            source.hold_first(seconds);
+        }
         let period = controller.period_ns();
         let start = bus.now_ns() + period;
         let grid = Grid {

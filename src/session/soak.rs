@@ -192,6 +192,7 @@ pub fn soak(
             retarget: None,
             balance: None,
             rest_pose: None,
+            start_pose: None,
         };
         let mut c = controller(&spec, profile, drive, &present, port, Solve::Frames, false);
         let ahead = c.preview_ns();
