@@ -74,6 +74,10 @@ const REACH_ATTEMPTS: usize = 4;
 /// speed (the knee lifting the foot is the fastest joint of a swing).
 const PACE_ATTEMPTS: usize = 6;
 
+/// How much lower the base walks for a swing still faster than its leg's servos at its lowest
+/// lift, m.
+const PACE_BASE_STEP_M: f64 = 0.005;
+
 /// The lowest share of [`Retargeter::swing_clearance`] a swing is lowered to for its leg's
 /// speed: below it the foot would scuff the floor, and the swing is left faster than the
 /// servos (and counted in the report's continuity).
@@ -629,8 +633,9 @@ pub fn retarget_walking(
     );
     let retargeter = setup.retargeter(skeleton, kinematic.floor, options);
     // The base's height from the plan's footsteps and centre of mass; lowered again where the
-    // whole body's pass still found a foot out of the legs' reach.
-    // Then each swing that asks its leg's servos for more than their speed lifted lower.
+    // whole body's pass still found a foot out of the legs' reach. Then each swing that asks
+    // its leg's servos for more than their speed lifted lower, and where that is not enough,
+    // the whole walk lower.
     let mut highest = f64::INFINITY;
     let mut share: Vec<f64> = Vec::new();
     let (mut reach_attempts, mut pace_attempts) = (0, 0);
@@ -647,8 +652,16 @@ pub fn retarget_walking(
             continue;
         }
         let over = swing_speed_ratios(setup, &plan, &walked.frames);
-        if pace_attempts == PACE_ATTEMPTS || !lower_fast_swings(&mut share, &over) {
+        if pace_attempts == PACE_ATTEMPTS {
             break (plan, walked);
+        }
+        if !lower_fast_swings(&mut share, &over) {
+            if over.iter().all(|r| *r <= 1.0) {
+                break (plan, walked);
+            }
+            // Swings at their lowest lift still too fast: the step along the floor drives the
+            // knee near the leg's reach. The whole walk lower, the knees more bent.
+            highest = planned - PACE_BASE_STEP_M;
         }
         pace_attempts += 1;
     };
