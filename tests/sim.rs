@@ -853,7 +853,9 @@ fn op3_stopped_mid_walk_ramps_to_a_stance_it_stands_in() {
         stats["end"]
     );
     assert_eq!(sim["fell"].as_bool(), Some(false), "{sim}");
-    assert!(sim["torso_max_tilt_deg"].as_f64().unwrap() <= 10.0, "{sim}");
+    // The swinging foot is put down first (the plan goes on to its double support), then the
+    // ramp: no more tilt than the walk itself has (4.4°).
+    assert!(sim["torso_max_tilt_deg"].as_f64().unwrap() <= 6.0, "{sim}");
 }
 
 /// Plays the walk on the simulated puppet through the command line (`--bus sim --rate 120

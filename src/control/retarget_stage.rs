@@ -127,6 +127,12 @@ impl RetargetStage {
         Some(frames[k].q)
     }
 
+    /// Whether it plays a walking plan.
+    #[must_use]
+    pub fn walking(&self) -> bool {
+        self.walk.is_some() && self.planned.is_some()
+    }
+
     /// The robot's standing stance, joint angles ([`Retargeter::stance`]).
     #[must_use]
     pub fn stance(&self) -> [f64; MAX_ROBOT_JOINTS] {

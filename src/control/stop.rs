@@ -6,6 +6,10 @@ use crate::bus::{BusError, ServoBus};
 use crate::schedule::{Clock, Schedule};
 use crate::servo::{addr, MAX_SERVOS};
 
+/// The longest a stopped walk goes on to put its swinging foot down, s (the OP3's plans
+/// swing for 0.14–0.6 s).
+pub const FINISH_STEP_S: f64 = 1.0;
+
 impl Controller {
     /// Runs ticks on `schedule` until the input ends, `max_ticks` pass, a stop is requested,
     /// reads fail for the torque-off time or the port fails; then (except after a fault) ramps
@@ -32,6 +36,13 @@ impl Controller {
                 break end;
             }
         };
+        let why = match why {
+            RunEnd::Interrupted | RunEnd::Duration => match self.finish_step(schedule, bus, clock, stop) {
+                Some(fault @ (RunEnd::ReadsFailed | RunEnd::PortLost)) => fault,
+                _ => why,
+            },
+            _ => why,
+        };
         self.input.stop_producers();
         if let Some(r) = &self.retarget {
             self.stats.retarget = Some(r.report());
@@ -51,6 +62,37 @@ impl Controller {
             return RunEnd::PortLost;
         }
         why
+    }
+
+    /// A walk stopped with a foot in the air goes on with its plan until both feet are down,
+    /// for at most [`FINISH_STEP_S`] (a further stop request cuts it short): the ramp to the
+    /// stance then starts from a double support, not from one leg. What ended the ticks when
+    /// one did.
+    fn finish_step(
+        &mut self,
+        schedule: &mut Schedule,
+        bus: &mut dyn ServoBus,
+        clock: &mut dyn Clock,
+        stop: &StopRequests,
+    ) -> Option<RunEnd> {
+        if !self.retarget.as_ref().is_some_and(|r| r.walking()) {
+            return None;
+        }
+        let requests = stop.made();
+        let limit = (FINISH_STEP_S * self.config.rate_hz).ceil() as usize;
+        for _ in 0..limit {
+            if self.preview.current().is_none_or(|c| c.contact == [true, true]) {
+                break;
+            }
+            let tick = schedule.wait(clock);
+            if stop.made() > requests {
+                break;
+            }
+            if let Some(end) = self.tick(&tick, bus, clock) {
+                return Some(end);
+            }
+        }
+        None
     }
 
     /// The end of a run: ramp to the rest pose (every angle 0, or the one set: a walk's
