@@ -530,6 +530,10 @@ pub struct FasterThanServos {
     pub frames: u64,
     /// Those frames as spans `[start, end]`, seconds (frames 0.1 s apart or closer joined).
     pub spans_s: Vec<[f64; 2]>,
+    /// Frames where a leg that follows the human's feet (not a walking plan) steps faster than
+    /// its servos: kept to the feet, not slowed (the command stage limits them; a walking plan
+    /// paces the legs).
+    pub legs_frames: u64,
 }
 
 /// The joint step that asked most of its servo's speed.
@@ -938,6 +942,16 @@ fn plan_clip(
         .map(|f| limited.iter().map(|&j| f.q[j]).collect())
         .collect();
     let fast = continuity::fast_frames(&q, &limited.iter().map(|&j| step[j]).collect::<Vec<_>>());
+    let free_legs: Vec<usize> = if planned_legs {
+        Vec::new()
+    } else {
+        legs.iter().copied().filter(|j| speed[*j].is_finite()).collect()
+    };
+    let legs_q: Vec<Vec<f64>> = frames
+        .iter()
+        .map(|f| free_legs.iter().map(|&j| f.q[j]).collect())
+        .collect();
+    let legs_fast = continuity::fast_frames(&legs_q, &free_legs.iter().map(|&j| step[j]).collect::<Vec<_>>());
     // A hair inside the limits, so rounding never puts a step over them.
     let share = 1.0 - 1e-6;
     for &j in &limited {
@@ -961,6 +975,7 @@ fn plan_clip(
     }
     FasterThanServos {
         glitches,
+        legs_frames: legs_fast.len() as u64,
         frames: fast.len() as u64,
         spans_s: continuity::spans(&fast, (0.1 / dt).round() as usize)
             .into_iter()

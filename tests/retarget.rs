@@ -821,8 +821,32 @@ fn joint_steps_faster_than_their_servos_are_counted() {
         } else {
             assert_eq!(over, 0, "{m}: {named:?}");
             assert!(fastest <= 1.0, "{m}: {named:?}");
+            // Upper body: the legs stand.
+            assert_eq!(c.faster_than_servos.as_ref().unwrap().legs_frames, 0, "{m}");
         }
     }
+
+    // The whole body on the human's feet: the legs keep to the feet and are not slowed; the
+    // frames where they step faster than their servos are counted apart from the arms'.
+    let (s, mut motion) = clip("16.asf", &common::data("16_15.amc"));
+    marionette::motion::dropouts::repair(&s, &mut motion);
+    let setup = Setup::new(&profile, &s).unwrap();
+    let out = run(&setup, &s, &motion, Options::default());
+    let f = out.report.continuity.faster_than_servos.as_ref().unwrap();
+    let legs: Vec<usize> = setup.map.legs.iter().flat_map(|l| l.joints).collect();
+    let dt = 1.0 / motion.frame_rate;
+    let limits = setup.joint_speed_limits();
+    let leg_frames = out
+        .frames
+        .windows(2)
+        .filter(|w| {
+            legs.iter()
+                .any(|&j| (w[1].q[j] - w[0].q[j]).abs() > limits[j] * dt)
+        })
+        .count() as u64;
+    assert!(leg_frames > 0);
+    assert_eq!(f.legs_frames, leg_frames, "{f:?}");
+    assert_eq!(f.frames, 0, "the walk's arms and head: {f:?}");
 }
 
 /// The hand error (the robot's hand against the human's placed on the robot at its arm

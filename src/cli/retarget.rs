@@ -285,18 +285,33 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
                 .collect();
             writeln!(
                 out,
-                "  the human moved faster than the servos can follow in {} frames ({} stretches: {}{} s); the robot lags there",
+                "  the human's arms and head moved faster than the servos can follow in {} frames ({} stretches: {}{} s); the robot lags there",
                 f.frames,
                 f.spans_s.len(),
                 list.join(", "),
                 if f.spans_s.len() > 6 { ", …" } else { "" }
             )?;
         }
-        Some(_) => writeln!(out, "  the human never moved faster than the servos can follow")?,
+        Some(_) => writeln!(
+            out,
+            "  the human's arms and head never moved faster than the servos can follow"
+        )?,
         None => writeln!(
             out,
             "  retargeted frame by frame (--per-frame): arm branches by hysteresis, speeds not limited"
         )?,
+    }
+    if let Some(f) = r
+        .continuity
+        .faster_than_servos
+        .as_ref()
+        .filter(|f| f.legs_frames > 0)
+    {
+        writeln!(
+            out,
+            "  the legs, on the human's feet, step faster than their servos in {} frames: the servos' limits cut those steps (--walk plans steps the legs can make)",
+            f.legs_frames
+        )?;
     }
     if !r.standing_s.is_empty() {
         let list: Vec<String> = r
