@@ -128,20 +128,20 @@ fn the_bundled_walk_becomes_steps_the_op3_can_take_with_the_zmp_inside_its_feet(
         "{:?}",
         walked.report.continuity
     );
-    let lowered = plan.clearance_share.iter().filter(|s| **s < 1.0).count();
-    assert!(
-        lowered >= 1 && lowered == report.lowered_swings,
-        "{:?}",
-        plan.clearance_share
-    );
-    assert!(plan
-        .clearance_share
-        .iter()
-        .all(|s| *s >= walk::MIN_CLEARANCE_SHARE));
+    let pace = &plan.pace;
+    let lowered = pace.clearance.iter().filter(|s| s.1 < 1.0).count();
+    assert!(lowered >= 1 && lowered == report.lowered_swings, "{pace:?}");
+    assert!(pace.clearance.iter().all(|s| s.1 >= walk::MIN_CLEARANCE_SHARE));
+    assert!(pace.speed.iter().all(|s| s.1 >= walk::MIN_FOOT_SPEED_SHARE));
     let lowest = report.lowest_clearance_mm;
     assert!(lowest >= 1e3 * clearance * walk::MIN_CLEARANCE_SHARE - 1e-9 && lowest < report.clearance_mm);
     let ratios = walk::swing_speed_ratios(&setup, &plan, &walked.frames);
-    assert!(ratios.iter().all(|r| *r <= 1.0), "{ratios:?}");
+    assert!(ratios.len() >= report.footsteps - 1, "{ratios:?}");
+    assert!(ratios.iter().all(|r| r.1 <= 1.0), "{ratios:?}");
+    // Each paced swing is one the plan has, by its landing.
+    for (land, _) in pace.clearance.iter().chain(&pace.speed) {
+        assert!(plan.footsteps.iter().any(|s| s.land_s == *land), "{land}");
+    }
 
     // The same clip plans the same way twice.
     let (_, again, plan2) = walk_of("16.asf", "16_15.amc");
@@ -341,8 +341,14 @@ fn a_streamed_plan_with_two_seconds_of_window_is_the_offline_plan() {
     let setup = Setup::new(&profile, &s).unwrap();
     let kinematic = marionette::retarget::retarget_clip(&setup, &s, &m, Options::default());
     let retargeter = setup.retargeter(&s, kinematic.floor, Options::default());
-    let plan =
-        marionette::retarget::walk::plan_walk(&setup, &retargeter, &kinematic, f64::INFINITY, &[]).unwrap();
+    let plan = marionette::retarget::walk::plan_walk(
+        &setup,
+        &retargeter,
+        &kinematic,
+        f64::INFINITY,
+        &walk::SwingPace::default(),
+    )
+    .unwrap();
     let mut deviation = Vec::new();
     for window in [3.0, 2.0, 1.6, 1.0, 0.5] {
         let com = streamed_com(&setup, &retargeter, &kinematic, &plan, window).unwrap();

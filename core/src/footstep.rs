@@ -37,6 +37,9 @@ const FEASIBLE_ITERATIONS: usize = 32;
 /// Footsteps a planner keeps (a stream forgets the ones it has played).
 pub const MAX_FOOTSTEPS: usize = 64;
 
+/// Most steps a plan gives a foot speed of their own ([`FootstepPlanner::pace_step`]).
+pub const MAX_PACED_STEPS: usize = 32;
+
 /// Where a sole is on the floor.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Footprint {
@@ -157,6 +160,8 @@ pub struct StepLimits {
 pub struct FootstepPlanner {
     limits: StepLimits,
     steps: heapless::Vec<Footstep, MAX_FOOTSTEPS>,
+    /// Steps planned with a share of [`StepLimits::foot_speed`]: (the clip's landing, share).
+    paced: heapless::Vec<(Real, Real), MAX_PACED_STEPS>,
     next_number: u32,
     started: bool,
     /// The clip's planted feet at the previous frame.
@@ -184,6 +189,7 @@ impl FootstepPlanner {
         FootstepPlanner {
             limits,
             steps: heapless::Vec::new(),
+            paced: heapless::Vec::new(),
             next_number: 0,
             started: false,
             clip_planted: [true; 2],
@@ -202,6 +208,23 @@ impl FootstepPlanner {
     #[must_use]
     pub fn limits(&self) -> &StepLimits {
         &self.limits
+    }
+
+    /// Plans the step the clip lands at `land_s` with `share` of [`StepLimits::foot_speed`]
+    /// (a slower swing: the step shortened, or lifted earlier), for a plan made again after
+    /// that swing asked its leg for more than its servos' speed. False when
+    /// [`MAX_PACED_STEPS`] steps are paced already.
+    pub fn pace_step(&mut self, land_s: Real, share: Real) -> bool {
+        let share = if share.is_finite() {
+            share.clamp(1e-3, 1.0)
+        } else {
+            1.0
+        };
+        if let Some(p) = self.paced.iter_mut().find(|p| p.0 == land_s) {
+            p.1 = share;
+            return true;
+        }
+        self.paced.push((land_s, share)).is_ok()
     }
 
     /// The footsteps kept, in the order they land.
@@ -350,7 +373,8 @@ impl FootstepPlanner {
         // The swing's time against the distance; a swing too short for it lifts earlier.
         let (mut lifted, from) = self.swing[side];
         let distance = (at.centre - from.centre).length();
-        let needed = l.swing_min_s + distance / l.foot_speed;
+        let foot_speed = l.foot_speed * self.paced.iter().find(|p| p.0 == t).map_or(1.0, |p| p.1);
+        let needed = l.swing_min_s + distance / foot_speed;
         if t - lifted < needed - 1e-9 {
             let earlier = self.earliest_lift(side, lifted).max(t - needed);
             if earlier < lifted - 1e-9 {
@@ -363,7 +387,7 @@ impl FootstepPlanner {
             }
         }
         let time = t - lifted;
-        let allowed = (time - l.swing_min_s) * l.foot_speed;
+        let allowed = (time - l.swing_min_s) * foot_speed;
         self.clip_last[side] = clip;
         if allowed <= 0.0 {
             // Too short a swing to lift the foot at all: it stays where it was.
@@ -583,6 +607,39 @@ mod tests {
         // Every foot but the last of each side has lifted again.
         assert!(steps[..6].iter().all(|s| s.lift_s.is_finite()));
         assert_eq!(p.substituted(), (0, 0));
+    }
+
+    #[test]
+    fn a_paced_step_is_planned_at_its_share_of_the_foot_speed_and_no_other() {
+        // 0.1 m steps in 0.3 s swings (0.5 s period): within reach and speed as they are.
+        let mut free = FootstepPlanner::new(limits());
+        walk(&mut free, 0.1, 0.5, 4);
+        let steps = free.steps();
+        assert!(steps[2..].iter().all(|s| !s.changed.too_fast), "{steps:#?}");
+        // The third step (landing at the same clip time) at a fifth of the foot's speed: it
+        // lifts earlier and still reaches only what its swing allows at 0.1 m/s.
+        let mut paced = FootstepPlanner::new(limits());
+        assert!(paced.pace_step(steps[4].land_s, 0.2));
+        walk(&mut paced, 0.1, 0.5, 4);
+        let slow = paced.steps();
+        assert_eq!(slow.len(), steps.len());
+        assert!(slow[4].changed.too_fast, "{:?}", slow[4]);
+        let swing = slow[4].land_s - slow[2].lift_s;
+        let reach = (swing - limits().swing_min_s) * 0.2 * limits().foot_speed;
+        let went = (slow[4].at.centre - slow[2].at.centre).length();
+        let free_went = (steps[4].at.centre - steps[2].at.centre).length();
+        assert!(
+            went <= reach + 1e-9 && went < free_went,
+            "{went} {reach} {free_went}"
+        );
+        assert_eq!(slow[3].at, steps[3].at);
+        // Pacing the same step again replaces its share; a plan has room for MAX_PACED_STEPS.
+        assert!(paced.pace_step(steps[4].land_s, 0.5));
+        let mut full = FootstepPlanner::new(limits());
+        for k in 0..MAX_PACED_STEPS {
+            assert!(full.pace_step(k as Real, 0.5));
+        }
+        assert!(!full.pace_step(-1.0, 0.5));
     }
 
     #[test]

@@ -338,15 +338,21 @@ pub fn print_report(r: &RetargetReport, out: &mut dyn Write) -> std::io::Result<
             "  step limits: forward {:.3} m, backward {:.3} m, width {:.3}–{:.3} m, turn {:.0}°, swing ≥ {:.2} s, foot ≤ {:.2} m/s, double support ≥ {:.2} s",
             l.forward_m, l.backward_m, l.width_min_m, l.width_max_m, l.turn_deg, l.swing_min_s, l.foot_speed_m_s, l.double_support_s
         )?;
-        if w.lowered_swings == 0 {
-            writeln!(out, "  swings: the foot lifts {:.0} mm", w.clearance_mm)?;
-        } else {
-            writeln!(
-                out,
-                "  swings: the foot lifts {:.0} mm; {} lifted lower for the leg servos' speed, the lowest {:.0} mm",
-                w.clearance_mm, w.lowered_swings, w.lowest_clearance_mm
-            )?;
+        let mut swings = format!("  swings: the foot lifts {:.0} mm", w.clearance_mm);
+        if w.lowered_swings > 0 {
+            swings += &format!(
+                "; {} lifted lower for the leg servos' speed, the lowest {:.0} mm",
+                w.lowered_swings, w.lowest_clearance_mm
+            );
         }
+        if w.slowed_swings > 0 {
+            swings += &format!(
+                "; {} slower along the floor, the slowest at {:.0} % of the foot's speed limit",
+                w.slowed_swings,
+                100.0 * w.slowest_foot_speed_share
+            );
+        }
+        writeln!(out, "{swings}")?;
     }
     if let Some(fps) = r.frames_per_second {
         writeln!(out, "  speed: {fps:.0} frames per second")?;

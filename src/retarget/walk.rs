@@ -78,6 +78,9 @@ const PACE_ATTEMPTS: usize = 6;
 /// lift, m.
 const PACE_BASE_STEP_M: f64 = 0.005;
 
+/// The lowest share of the foot's speed limit a swing is slowed to for its leg's speed.
+pub const MIN_FOOT_SPEED_SHARE: f64 = 0.3;
+
 /// The lowest share of [`Retargeter::swing_clearance`] a swing is lowered to for its leg's
 /// speed: below it the foot would scuff the floor, and the swing is left faster than the
 /// servos (and counted in the report's continuity).
@@ -125,9 +128,74 @@ pub struct WalkPlan {
     pub clip_travel_m: f64,
     /// How high a swing foot lifts at most, m.
     pub clearance: f64,
-    /// Each swing's share of `clearance`, by the number of the footstep it lands on (a
-    /// missing entry: 1): lowered where the swing leg's servos could not lift it in time.
-    pub clearance_share: Vec<f64>,
+    /// The swings paced for the leg servos' speed.
+    pub pace: SwingPace,
+}
+
+/// What a plan made again changes for the swings whose legs were too slow for them, each by
+/// the clip time its step lands (the same in every plan of a clip).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SwingPace {
+    /// (landing, share of [`Retargeter::swing_clearance`]): lifted lower.
+    pub clearance: Vec<(f64, f64)>,
+    /// (landing, share of the foot's speed limit): a slower swing, the step shorter or lifted
+    /// earlier ([`FootstepPlanner::pace_step`]).
+    pub speed: Vec<(f64, f64)>,
+}
+
+impl SwingPace {
+    /// The share of the clearance of the swing that lands at `land_s`.
+    #[must_use]
+    pub fn clearance_at(&self, land_s: f64) -> f64 {
+        share_at(&self.clearance, land_s)
+    }
+
+    /// The share of the foot's speed limit of the swing that lands at `land_s`.
+    #[must_use]
+    pub fn speed_at(&self, land_s: f64) -> f64 {
+        share_at(&self.speed, land_s)
+    }
+
+    /// Paces every swing whose leg moved faster than its servos (a ratio over 1 in `ratios`,
+    /// from [`swing_speed_ratios`]): first lifted lower by the square of the excess (and 2 %
+    /// more) — the knee's speed grows with the lift — down to [`MIN_CLEARANCE_SHARE`]; then
+    /// slower along the floor by the excess, down to [`MIN_FOOT_SPEED_SHARE`]. Whether any
+    /// swing changed.
+    pub fn slow_down(&mut self, ratios: &[(f64, f64)]) -> bool {
+        let mut changed = false;
+        for &(land, r) in ratios {
+            if r <= 1.0 {
+                continue;
+            }
+            // A hair further, so that a swing at its limit to the printed digit ends within it.
+            let r = r / 0.98;
+            let lift = self.clearance_at(land);
+            let speed = self.speed_at(land);
+            if lift > MIN_CLEARANCE_SHARE {
+                set_share(
+                    &mut self.clearance,
+                    land,
+                    (lift / (r * r)).max(MIN_CLEARANCE_SHARE),
+                );
+                changed = true;
+            } else if speed > MIN_FOOT_SPEED_SHARE {
+                set_share(&mut self.speed, land, (speed / r).max(MIN_FOOT_SPEED_SHARE));
+                changed = true;
+            }
+        }
+        changed
+    }
+}
+
+fn share_at(list: &[(f64, f64)], land_s: f64) -> f64 {
+    list.iter().find(|p| p.0 == land_s).map_or(1.0, |p| p.1)
+}
+
+fn set_share(list: &mut Vec<(f64, f64)>, land_s: f64, share: f64) {
+    match list.iter_mut().find(|p| p.0 == land_s) {
+        Some(p) => p.1 = share,
+        None => list.push((land_s, share)),
+    }
 }
 
 /// The plan's figures (the `walk` block of a retarget report).
@@ -157,6 +225,10 @@ pub struct WalkReport {
     pub lowered_swings: usize,
     /// The lowest swing's clearance, mm.
     pub lowest_clearance_mm: f64,
+    /// Swings slowed along the floor (shorter, or lifted earlier) for the servos' speed.
+    pub slowed_swings: usize,
+    /// The slowest swing's share of the foot's speed limit.
+    pub slowest_foot_speed_share: f64,
     /// The limits steps were planned within.
     pub limits: LimitsReport,
     /// Every footstep: the plan's and the clip's.
@@ -276,7 +348,7 @@ pub fn plan_walk(
     retargeter: &Retargeter,
     run: &ClipRetarget,
     highest_base: f64,
-    clearance_share: &[f64],
+    pace: &SwingPace,
 ) -> Result<WalkPlan, PreviewError> {
     let speed = leg_speed(setup);
     let limits = retargeter.step_limits(
@@ -289,6 +361,9 @@ pub fn plan_walk(
     );
     let dt = frame_period(run);
     let mut planner = start_planner(setup, retargeter, run, limits);
+    for &(land, share) in &pace.speed {
+        planner.pace_step(land, share);
+    }
     let mut footsteps: Vec<Footstep> = Vec::new();
     for (t, f) in run.times.iter().zip(&run.frames) {
         planner.observe(*t, f.planted, footprints(f));
@@ -312,7 +387,7 @@ pub fn plan_walk(
         .enumerate()
         .map(|(k, (c, _))| {
             let t = k as f64 * dt;
-            let stance = stance_at(&footsteps, t, (*c, *c), clearance, clearance_share, f64::NAN);
+            let stance = stance_at(&footsteps, t, (*c, *c), clearance, &pace.clearance, f64::NAN);
             retargeter.reach_height(&setup.robot, &stance, WALK_REACH_SHARE)
         })
         .fold(stance_base.min(highest_base), f64::min);
@@ -334,7 +409,7 @@ pub fn plan_walk(
                 zmp_margin: support_margin(&footsteps, t, sole_half, zmp),
                 zmp_multibody: zmp,
                 zmp_multibody_margin: f64::NAN,
-                stance: stance_at(&footsteps, t, (c, zmp), clearance, clearance_share, base_height),
+                stance: stance_at(&footsteps, t, (c, zmp), clearance, &pace.clearance, base_height),
             }
         })
         .collect();
@@ -354,7 +429,7 @@ pub fn plan_walk(
         substituted: planner.substituted(),
         leg_speed: speed,
         clearance,
-        clearance_share: clearance_share.to_vec(),
+        pace: pace.clone(),
     })
 }
 
@@ -516,7 +591,7 @@ pub fn footprints(f: &RetargetFrame) -> [Footprint; 2] {
 
 /// Where the plan has each sole at `t`: on its footprint when in contact; in a swing,
 /// minimum jerk along the floor from the footprint it left to the one it lands on and
-/// lifted `clearance` (times the swing's `share`, by the number of the step it lands on) at
+/// lifted `clearance` (times the swing's `share`, by the clip time it lands) at
 /// the middle (zero slope and curvature at both ends: it lands flat and soft); the centre of
 /// mass and the ZMP as given, the base at `base_height`.
 #[must_use]
@@ -525,7 +600,7 @@ pub fn stance_at(
     t: f64,
     (com, zmp): (DVec2, DVec2),
     clearance: f64,
-    share: &[f64],
+    share: &[(f64, f64)],
     base_height: f64,
 ) -> PlannedStance {
     let mut soles = [(Footprint::default(), 0.0); 2];
@@ -549,7 +624,7 @@ pub fn stance_at(
                         centre: a.at.centre + (b.at.centre - a.at.centre) * m,
                         yaw: a.at.yaw + turn * m,
                     },
-                    clearance * share.get(b.number as usize).copied().unwrap_or(1.0) * bump,
+                    clearance * share_at(share, b.land_s) * bump,
                 )
             }
             (Some(a), None) => (a.at, 0.0),
@@ -637,10 +712,10 @@ pub fn retarget_walking(
     // its leg's servos for more than their speed lifted lower, and where that is not enough,
     // the whole walk lower.
     let mut highest = f64::INFINITY;
-    let mut share: Vec<f64> = Vec::new();
+    let mut pace = SwingPace::default();
     let (mut reach_attempts, mut pace_attempts) = (0, 0);
     let (plan, walked) = loop {
-        let plan = plan_walk(setup, &retargeter, &kinematic, highest, &share)?;
+        let plan = plan_walk(setup, &retargeter, &kinematic, highest, &pace)?;
         let walked = super::retarget_clip_with(setup, skeleton, motion, options, kinematic.floor, |k| {
             plan.samples.get(k).map(|s| s.stance)
         });
@@ -655,12 +730,12 @@ pub fn retarget_walking(
         if pace_attempts == PACE_ATTEMPTS {
             break (plan, walked);
         }
-        if !lower_fast_swings(&mut share, &over) {
-            if over.iter().all(|r| *r <= 1.0) {
+        if !pace.slow_down(&over) {
+            if over.iter().all(|(_, r)| *r <= 1.0) {
                 break (plan, walked);
             }
-            // Swings at their lowest lift still too fast: the step along the floor drives the
-            // knee near the leg's reach. The whole walk lower, the knees more bent.
+            // Swings at their lowest lift and speed still too fast: the whole walk lower,
+            // the knees more bent.
             highest = planned - PACE_BASE_STEP_M;
         }
         pace_attempts += 1;
@@ -674,21 +749,14 @@ pub fn retarget_walking(
     Ok((walked, plan))
 }
 
-/// For each footstep (by number), the most a joint of the leg that swings to it moves, as a
-/// share of its servo's velocity limit, from its lift to a frame after its landing (0 for the
-/// starting feet and steps never swung to).
+/// For each step the plan swings a foot to, (its landing, s; the most a joint of that leg
+/// moves from the lift to a frame after the landing, as a share of its servo's velocity
+/// limit).
 #[must_use]
-pub fn swing_speed_ratios(setup: &Setup, plan: &WalkPlan, frames: &[RetargetFrame]) -> Vec<f64> {
+pub fn swing_speed_ratios(setup: &Setup, plan: &WalkPlan, frames: &[RetargetFrame]) -> Vec<(f64, f64)> {
     let limits = setup.joint_speed_limits();
     let dt = plan.dt;
-    let mut ratios = vec![
-        0.0;
-        plan.footsteps
-            .iter()
-            .map(|s| s.number as usize + 1)
-            .max()
-            .unwrap_or(0)
-    ];
+    let mut ratios = Vec::new();
     for (i, b) in plan.footsteps.iter().enumerate() {
         let Some(a) = plan.footsteps[..i].iter().rev().find(|s| s.side == b.side) else {
             continue;
@@ -698,36 +766,18 @@ pub fn swing_speed_ratios(setup: &Setup, plan: &WalkPlan, frames: &[RetargetFram
         }
         let first = ((a.lift_s / dt).floor() as usize).max(1);
         let last = ((b.land_s / dt).ceil() as usize + 1).min(frames.len().saturating_sub(1));
+        let mut most = 0.0f64;
         for k in first..=last {
             for &j in &setup.map.legs[b.side].joints {
                 let v = (frames[k].q[j] - frames[k - 1].q[j]).abs() / (limits[j] * dt);
                 if v.is_finite() {
-                    ratios[b.number as usize] = f64::max(ratios[b.number as usize], v);
+                    most = most.max(v);
                 }
             }
         }
+        ratios.push((b.land_s, most));
     }
     ratios
-}
-
-/// Lowers the clearance share of every swing whose leg moved faster than its servos (a ratio
-/// over 1 in `ratios`, from [`swing_speed_ratios`]) by the square of the excess (and 2 % more)
-/// — the knee's speed grows with the lift and with the step along the floor, which stays —
-/// never below [`MIN_CLEARANCE_SHARE`]. Whether any share changed.
-pub fn lower_fast_swings(share: &mut Vec<f64>, ratios: &[f64]) -> bool {
-    if share.len() < ratios.len() {
-        share.resize(ratios.len(), 1.0);
-    }
-    let mut changed = false;
-    for (s, &r) in share.iter_mut().zip(ratios) {
-        if r > 1.0 && *s > MIN_CLEARANCE_SHARE {
-            // A hair further, so that a swing at its limit to the printed digit ends within it.
-            let r = r / 0.98;
-            *s = (*s / (r * r)).max(MIN_CLEARANCE_SHARE);
-            changed = true;
-        }
-    }
-    changed
 }
 
 /// The ZMP of the whole robot moving through `frames` (one per `dt`), every link's mass
@@ -814,10 +864,12 @@ impl WalkPlan {
             com_height_m: self.com_height,
             preview_s: PREVIEW_S,
             clearance_mm: self.clearance * 1000.0,
-            lowered_swings: self.clearance_share.iter().filter(|s| **s < 1.0).count(),
-            lowest_clearance_mm: self.clearance_share.iter().fold(1.0, |a: f64, b| a.min(*b))
+            lowered_swings: self.pace.clearance.iter().filter(|s| s.1 < 1.0).count(),
+            lowest_clearance_mm: self.pace.clearance.iter().fold(1.0, |a: f64, b| a.min(b.1))
                 * self.clearance
                 * 1000.0,
+            slowed_swings: self.pace.speed.iter().filter(|s| s.1 < 1.0).count(),
+            slowest_foot_speed_share: self.pace.speed.iter().fold(1.0, |a: f64, b| a.min(b.1)),
             limits: self.limits.into(),
         }
     }
