@@ -84,7 +84,7 @@ pub const MIN_FOOT_SPEED_SHARE: f64 = 0.3;
 /// The lowest share of [`Retargeter::swing_clearance`] a swing is lowered to for its leg's
 /// speed: below it the foot would scuff the floor, and the swing is left faster than the
 /// servos (and counted in the report's continuity).
-pub const MIN_CLEARANCE_SHARE: f64 = 0.3;
+pub const MIN_CLEARANCE_SHARE: f64 = 0.5;
 
 /// One sample of the plan, at a clip frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
