@@ -14,6 +14,18 @@ use crate::sensor_board::SensorBoard;
 use crate::servo::{addr, status_error, step_towards, ServoModel, MAX_SERVOS, RPM2_PER_ACCELERATION_UNIT};
 use crate::servo::{RPM_PER_VELOCITY_UNIT, TICKS_PER_TURN};
 
+/// What a servo answers to an instruction on addresses no control-table item defines: a
+/// write inside the table's gaps (X-series: 252–577) or past its end, a read past its end.
+///
+/// The e-manual lists Access Error (7) for an address "not defined". Real X-series firmware
+/// answers Data Range Error (4): ROBOTIS's own `read_write` example run with Pro-series
+/// addresses (Torque Enable at 562, a gap on the X series) got "The data value is out of
+/// range!" from an XM430-W350-R (DynamixelSDK issue 148), an XM540-W270-R (175) and an MX-28
+/// on Protocol 2.0 (456); the same reports show a read inside the table (611) answered with
+/// data and no error, which is what a read here does (reserved bytes read 0). The chain
+/// answers as those servos did.
+pub const UNDEFINED_ADDRESS_ERROR: u8 = status_error::DATA_RANGE;
+
 /// Bytes of control table each virtual servo keeps (addresses 0…661: Indirect Data 56 last).
 pub const TABLE_LEN: usize = 662;
 /// Largest packet (stuffed) the chain accepts or sends.
@@ -520,13 +532,17 @@ impl VirtualServo {
     /// against the model's control table ([`control_table`]) before anything is stored:
     /// Access Error for a read-only item or EEPROM while torque is on, Data Length Error for
     /// an item covered in part, Data Range Error beyond an item's range (Data Limit Error for
-    /// a goal beyond the position limits). Reserved bytes inside a write are skipped; Indirect
-    /// Data is forwarded to the addresses it points at.
+    /// a goal beyond the position limits) and for addresses no item defines
+    /// ([`UNDEFINED_ADDRESS_ERROR`]). Reserved bytes inside a write are skipped; Indirect Data
+    /// is forwarded to the addresses it points at.
     fn write(&mut self, a: u16, data: &[u8]) -> u8 {
         let start = usize::from(a);
         let end = start + data.len();
-        if data.is_empty() || end > usize::from(control_table::table_end(self.model)) {
+        if data.is_empty() {
             return status_error::DATA_LENGTH;
+        }
+        if end > usize::from(control_table::table_end(self.model)) {
+            return UNDEFINED_ADDRESS_ERROR;
         }
         let mut items: heapless::Vec<Item, 64> = heapless::Vec::new();
         let mut indirect = false;
@@ -550,7 +566,7 @@ impl VirtualServo {
             }
         }
         if items.is_empty() && !indirect {
-            return status_error::ACCESS;
+            return UNDEFINED_ADDRESS_ERROR;
         }
         if cut {
             return status_error::DATA_LENGTH;
@@ -819,7 +835,7 @@ impl Chain {
                         s.note_reply(a, n);
                         match s.read(a, n) {
                             Some(data) => w.status(s, 0, data),
-                            None => w.status(s, status_error::DATA_RANGE, &[]),
+                            None => w.status(s, UNDEFINED_ADDRESS_ERROR, &[]),
                         }
                     }
                     None => w.status(s, status_error::DATA_LENGTH, &[]),
@@ -871,9 +887,11 @@ impl Chain {
             }
             instruction::ACTION => {
                 for s in self.servos.iter_mut().filter(|s| s.hears(id)) {
+                    // Action with nothing registered: Instruction Error (the e-manual's
+                    // "Action without Reg Write", as Protocol 1.0 servos answered it).
                     let e = match s.registered.take() {
                         Some((a, data)) => s.write(a, &data),
-                        None => 0,
+                        None => status_error::INSTRUCTION,
                     };
                     s.table[usize::from(REGISTERED_INSTRUCTION)] = 0;
                     if s.answers(id) && s.table[usize::from(addr::STATUS_RETURN_LEVEL)] >= 2 {
@@ -949,7 +967,7 @@ impl Chain {
                         s.note_reply(a, n);
                         match s.read(a, n) {
                             Some(data) => w.status(s, 0, data),
-                            None => w.status(s, status_error::DATA_RANGE, &[]),
+                            None => w.status(s, UNDEFINED_ADDRESS_ERROR, &[]),
                         }
                     }
                 }
@@ -979,7 +997,7 @@ impl Chain {
                         s.note_reply(a, n);
                         match s.read(a, n) {
                             Some(data) => w.status(s, 0, data),
-                            None => w.status(s, status_error::DATA_RANGE, &[]),
+                            None => w.status(s, UNDEFINED_ADDRESS_ERROR, &[]),
                         }
                     }
                 }
@@ -1078,7 +1096,7 @@ impl Writer<'_, '_> {
             let alert = s.alert();
             let (error, data) = match s.read(a, n) {
                 Some(d) => (0, Some(d)),
-                None => (status_error::DATA_RANGE, None),
+                None => (UNDEFINED_ADDRESS_ERROR, None),
             };
             out[at] = error | alert;
             out[at + 1] = sid;

@@ -3,7 +3,7 @@
 //! Type as the e-manual describes them.
 
 use marionette_core::control_table::{self, Access, Item, Range};
-use marionette_core::device::{Chain, Replies, VirtualServo, MAX_PACKET};
+use marionette_core::device::{Chain, Replies, VirtualServo, MAX_PACKET, UNDEFINED_ADDRESS_ERROR};
 use marionette_core::protocol::{self, instruction, BROADCAST_ID};
 use marionette_core::servo::{addr, status_error, ServoModel, MODELS};
 
@@ -168,8 +168,12 @@ fn limits_held_by_other_items_bound_the_goals() {
     // Extended Position Control Mode: the position limits do not apply.
     assert_eq!(write(&mut chain, 1, addr::OPERATING_MODE, &[4]), Some(0));
     assert_eq!(write(&mut chain, 1, addr::GOAL_POSITION, &le(9000, 4)), Some(0));
-    // Reserved bytes inside a write are skipped; a write of reserved bytes alone is refused.
-    assert_eq!(write(&mut chain, 1, 14, &[1, 2]), Some(status_error::ACCESS));
+    // Reserved bytes inside a write are skipped; a write of reserved bytes alone is refused
+    // as real X-series firmware refuses it (UNDEFINED_ADDRESS_ERROR: Data Range Error), and so
+    // is a write past the table's end.
+    assert_eq!(write(&mut chain, 1, 14, &[1, 2]), Some(UNDEFINED_ADDRESS_ERROR));
+    assert_eq!(UNDEFINED_ADDRESS_ERROR, status_error::DATA_RANGE);
+    assert_eq!(write(&mut chain, 1, 2000, &[1]), Some(UNDEFINED_ADDRESS_ERROR));
     assert_eq!(write(&mut chain, 1, 24, &[5, 0, 0, 0, 9, 9, 9, 60]), Some(0));
     assert_eq!(read(&mut chain, 1, 24, 8).map(|r| r.1), Some(5));
     assert_eq!(read(&mut chain, 1, 31, 1), Some((0, 60)));
@@ -315,4 +319,32 @@ fn read_bytes(chain: &mut Chain, id: u8, address: u16, n: u16) -> Vec<u8> {
     let mut params = address.to_le_bytes().to_vec();
     params.extend_from_slice(&n.to_le_bytes());
     send(chain, id, instruction::READ, &params).remove(0).2
+}
+
+#[test]
+fn action_without_a_registered_write_answers_instruction_error() {
+    let mut chain = chain_of(&MODELS[2]);
+    // Nothing registered: Instruction Error, nothing changes.
+    let replies = send(&mut chain, 1, instruction::ACTION, &[]);
+    assert_eq!(replies.first().map(|r| r.1), Some(status_error::INSTRUCTION));
+    assert_eq!(read(&mut chain, 1, 69, 1), Some((0, 0)));
+    // A registered write: Action applies it, answers no error, and the flag clears.
+    let mut params = 112u16.to_le_bytes().to_vec();
+    params.extend_from_slice(&le(10, 4));
+    assert_eq!(
+        send(&mut chain, 1, instruction::REG_WRITE, &params)
+            .first()
+            .map(|r| r.1),
+        Some(0)
+    );
+    assert_eq!(read(&mut chain, 1, 69, 1), Some((0, 1)));
+    assert_eq!(
+        send(&mut chain, 1, instruction::ACTION, &[]).first().map(|r| r.1),
+        Some(0)
+    );
+    assert_eq!(read(&mut chain, 1, 112, 4), Some((0, 10)));
+    assert_eq!(read(&mut chain, 1, 69, 1), Some((0, 0)));
+    // Again, with nothing registered any more.
+    let replies = send(&mut chain, 1, instruction::ACTION, &[]);
+    assert_eq!(replies.first().map(|r| r.1), Some(status_error::INSTRUCTION));
 }

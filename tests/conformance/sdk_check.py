@@ -11,8 +11,9 @@ import sys
 import time
 import tomllib
 
-from dynamixel_sdk import (COMM_SUCCESS, GroupBulkRead, GroupSyncRead, PacketHandler,
-                           PortHandler)
+from dynamixel_sdk import (COMM_SUCCESS, INST_ACTION, PKT_ERROR, PKT_ID, PKT_INSTRUCTION,
+                           PKT_LENGTH_H, PKT_LENGTH_L, GroupBulkRead, GroupSyncRead,
+                           PacketHandler, PortHandler)
 
 PORT, PROFILE = sys.argv[1], sys.argv[2]
 # Model numbers (e-manual, each model's control table, address 0).
@@ -29,7 +30,7 @@ TEMPERATURE_LIMITS = {"XL330-M288": 70, "XL430-W250": 72, "XM430-W210": 80, "XM4
 VOLTAGE_LIMITS = {"XL330-M288": (70, 35), "XL430-W250": (140, 60), "XM430-W210": (160, 95),
                   "XM430-W350": (160, 95), "XH540-W270": (160, 95)}
 # Protocol 2.0 status error numbers.
-RANGE, LENGTH, ACCESS = 4, 5, 7
+INSTRUCTION, RANGE, LENGTH, ACCESS = 2, 4, 5, 7
 
 with open(PROFILE, "rb") as f:
     profile = tomllib.load(f)
@@ -144,8 +145,14 @@ b.addParam(first, 132, 4)
 b.addParam(second, 126, 2)
 r = b.txRxPacket()
 check("Bulk Read of two servos, two items", r == COMM_SUCCESS and b.isAvailable(first, 132, 4) and b.isAvailable(second, 126, 2), f"{r}")
+bulk = (b.getData(first, 132, 4), b.getData(second, 126, 2)) if r == COMM_SUCCESS else None
 r = b.fastBulkRead() if hasattr(b, "fastBulkRead") else -1
-check("Fast Bulk Read of two servos", r == COMM_SUCCESS, f"{r}")
+fast = (b.getData(first, 132, 4), b.getData(second, 126, 2)) \
+    if r == COMM_SUCCESS and b.isAvailable(first, 132, 4) and b.isAvailable(second, 126, 2) else None
+# (In MuJoCo the servos sag and settle between the two reads: the position within 20 ticks.)
+check("Fast Bulk Read of two servos, two items: the Bulk Read's data",
+      r == COMM_SUCCESS and fast is not None and bulk is not None and abs(fast[0] - bulk[0]) <= 20,
+      f"{r} {fast} {bulk}")
 
 
 # ---- The control table item by item (e-manual pages of each model, firmware 46+) ----
@@ -300,6 +307,38 @@ ph.action(port, first)
 time.sleep(0.01)
 v, _, _ = ph.read4ByteTxRx(port, first, 112)
 check("Action applies the registered write", v == 10, f"{v}")
+
+
+def action_status(sid):
+    """Action to one servo, its status read (the SDK's action() sends and never reads)."""
+    pkt = [0] * 10
+    pkt[PKT_ID], pkt[PKT_LENGTH_L], pkt[PKT_LENGTH_H], pkt[PKT_INSTRUCTION] = sid, 3, 0, INST_ACTION
+    r = ph.txPacket(port, pkt)
+    if r != COMM_SUCCESS:
+        return r, None
+    port.setPacketTimeout(11)
+    rx, r = ph.rxPacket(port, False)
+    port.is_using = False
+    return r, (rx[PKT_ERROR] & 0x7F if r == COMM_SUCCESS else None)
+
+
+r, e = action_status(first)
+v, _, _ = ph.read4ByteTxRx(port, first, 112)
+check("Action with nothing registered answers Instruction Error and changes nothing",
+      r == COMM_SUCCESS and e == INSTRUCTION and v == 10, f"{r} {e} {v}")
+
+# Addresses no item defines: real X-series firmware answers Data Range Error where the e-manual
+# says Access Error (DynamixelSDK issues 148, 175, 456: Torque Enable written at 562, in the X
+# series' gap); reserved bytes inside the table read as data. See UNDEFINED_ADDRESS_ERROR in
+# core/src/device.rs.
+r, e = ph.write1ByteTxRx(port, first, 562, 1)
+check("a write in the control table's gap (562) answers Data Range Error", error_of(r, e) == RANGE, f"{r} {e}")
+r, e = ph.write1ByteTxRx(port, first, 2000, 1)
+check("a write past the control table's end answers Data Range Error", error_of(r, e) == RANGE, f"{r} {e}")
+data, r, e = ph.readTxRx(port, first, 2000, 2)
+check("a read past the control table's end answers Data Range Error", error_of(r, e) == RANGE, f"{r} {e}")
+v, r, e = ph.read2ByteTxRx(port, first, 66)
+check("reserved bytes inside the table (66–67) read as 0", r == COMM_SUCCESS and e == 0 and v == 0, f"{v} {r} {e}")
 
 # Indirect Address 1 at Status Return Level (RAM: indirect addresses start at 64): Indirect
 # Data 1 (208 on the XL330, 224 on the others) reads it.
