@@ -56,6 +56,8 @@ pub mod servo_dynamics;
 
 pub mod budget;
 
+pub mod doctor;
+
 pub mod retarget;
 
 pub mod bus;

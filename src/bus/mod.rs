@@ -630,3 +630,12 @@ pub fn line_timed_chain(
         .real_time();
     host(link, bus, servos)
 }
+
+/// The latency timer (ms) of a Linux USB serial port, if the kernel exposes it (FTDI adapters
+/// such as the U2D2: 16 ms by default, 1 ms for a control loop).
+#[must_use]
+pub fn latency_timer_ms(port: &str) -> Option<u32> {
+    let name = std::path::Path::new(port).file_name()?.to_str()?;
+    let text = std::fs::read_to_string(format!("/sys/bus/usb-serial/devices/{name}/latency_timer")).ok()?;
+    text.trim().parse().ok()
+}

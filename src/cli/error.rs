@@ -68,6 +68,9 @@ pub enum CliError {
     /// torque left on).
     #[error("the soak counted {0} safety violations (see the figures above)")]
     SoakFailed(u64),
+    /// `doctor` found faults: the rig cannot run the profile.
+    #[error("doctor: {0} fault(s): the rig cannot run the profile (see the lines above)")]
+    RigNotReady(usize),
     /// The control loop's thread ended by a panic.
     #[error("the control loop thread panicked")]
     LoopPanicked,

@@ -74,6 +74,11 @@ enum CliCommand {
     Ports,
     /// Ping every id on a bus: ids, models, firmware, hardware error status.
     Scan(rig::ScanArgs),
+    /// Check a rig against its profile before its first motion: the adapter, every servo
+    /// (missing, other model, hardware error, Return Delay Time, operating mode, EEPROM
+    /// limits, supply, temperature) and the loop's cycle; one line per finding with what to
+    /// do; exit 1 when the rig cannot run the profile. `--fix` writes what it safely can.
+    Doctor(rig::DoctorArgs),
     /// Describe a skeleton (ASF or BVH) and, given one, a motion: bones, DOFs, limits, frames.
     Info(inspect::InfoArgs),
     /// Global position of every bone's tip (the root: its position) per frame.
@@ -166,6 +171,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
         CliCommand::IkEdit(a) => a.run(),
         CliCommand::Ports => rig::ports_cmd(&mut io::stdout().lock()),
         CliCommand::Scan(a) => a.run(),
+        CliCommand::Doctor(a) => a.run(),
         CliCommand::Info(a) => a.run(),
         CliCommand::Fk(a) => a.run(),
         CliCommand::Convert(a) => a.run(),

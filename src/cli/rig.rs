@@ -5,7 +5,7 @@ use std::path::Path;
 
 use super::error::CliError;
 use crate::budget::{plan, plan_with_board};
-use crate::bus::virtual_chain::{chain_for, PtyChain};
+use crate::bus::virtual_chain::{chain_for, LineTiming, PtyChain};
 use crate::bus::ServoBus;
 use crate::formats::asf;
 use crate::profile::{BusConfig, Drive, Profile};
@@ -116,8 +116,6 @@ pub fn budget_cmd(
 /// and the host's wake-ups). The chain starts up as the loop does (the profile's Return Delay
 /// Time written; the factory's is 500 µs per servo).
 fn measure_cycles(profile: &Profile, cycles: usize, json: bool, out: &mut dyn Write) -> Result<(), CliError> {
-    use crate::bus::virtual_chain::LineTiming;
-
     if cycles == 0 {
         return Err(CliError::Usage("--measure needs at least one cycle".into()));
     }
@@ -249,8 +247,6 @@ pub fn serve_cmd(
     duration: Option<f64>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
-    use crate::bus::virtual_chain::LineTiming;
-
     if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
         return Err(CliError::Usage(
             "--duration must be a positive number of seconds".into(),
@@ -318,14 +314,6 @@ const FTDI_VID: u16 = 0x0403;
 /// FT232H, the chip of the ROBOTIS U2D2.
 const U2D2_PID: u16 = 0x6014;
 
-/// The latency timer (ms) of a Linux USB serial port, if the kernel exposes it.
-#[must_use]
-pub fn latency_timer_ms(port: &str) -> Option<u32> {
-    let name = Path::new(port).file_name()?.to_str()?;
-    let text = std::fs::read_to_string(format!("/sys/bus/usb-serial/devices/{name}/latency_timer")).ok()?;
-    text.trim().parse().ok()
-}
-
 /// `marionette ports`.
 pub fn ports_cmd(out: &mut dyn Write) -> Result<(), CliError> {
     let ports = serialport::available_ports()?;
@@ -350,7 +338,7 @@ pub fn ports_cmd(out: &mut dyn Write) -> Result<(), CliError> {
                     "{}  USB {:04x}:{:04x} {maker} {product}{mark}",
                     p.port_name, u.vid, u.pid
                 )?;
-                match latency_timer_ms(&p.port_name) {
+                match crate::bus::latency_timer_ms(&p.port_name) {
                     Some(ms) if ms > 1 => writeln!(
                         out,
                         "\n  warning: latency timer {ms} ms caps the loop near {} Hz; \
@@ -553,4 +541,159 @@ impl ScanArgs {
             &mut std::io::stdout().lock(),
         )
     }
+}
+
+/// `marionette doctor`.
+#[derive(clap::Args, Debug)]
+pub(super) struct DoctorArgs {
+    /// The rig profile to check the rig against.
+    profile: PathBuf,
+    /// Serial port of the rig, e.g. /dev/ttyUSB0 (at the profile's baud).
+    #[arg(long, conflicts_with = "bus")]
+    port: Option<String>,
+    /// `virtual`: a virtual chain built from the profile, served on a pseudo-terminal.
+    #[arg(long, value_parser = ["virtual"])]
+    bus: Option<String>,
+    /// Print the report as JSON (one object) instead of lines.
+    #[arg(long)]
+    json: bool,
+    /// Write what can be written safely (torque off first), say what was written, check again.
+    #[arg(long)]
+    fix: bool,
+}
+
+impl DoctorArgs {
+    /// Runs it: exit 0 when the rig can run the profile, 1 when not.
+    ///
+    /// # Errors
+    /// [`CliError`]; [`CliError::RigNotReady`] when a fault remains.
+    pub(super) fn run(self) -> Result<(), CliError> {
+        doctor_cmd(&self, &mut std::io::stdout().lock())
+    }
+}
+
+fn doctor_cmd(a: &DoctorArgs, out: &mut dyn Write) -> Result<(), CliError> {
+    use crate::doctor::{self, Level};
+    let profile = Profile::load(&a.profile)?;
+    let (_served, path) = match (&a.port, a.bus.as_deref()) {
+        (Some(p), None) => (None, p.clone()),
+        (None, Some("virtual")) => {
+            // Line time kept (the profile's baud and latency timer): the measured cycle means
+            // what it would on the wire.
+            let chain = chain_for(profile.bus_section(), |_| 2048);
+            let pty = PtyChain::serve_timed(chain, LineTiming::of(&profile.bus)).map_err(CliError::Output)?;
+            let path = pty.path().to_string();
+            (Some(pty), path)
+        }
+        _ => return Err(CliError::Usage("give --port <PATH> or --bus virtual".into())),
+    };
+    // The rig as it stands, not yet as start-up sets it: replies may wait the longest Return
+    // Delay Time and the adapter's default latency timer.
+    let mut lenient = profile.bus.clone();
+    lenient.return_delay_us = 508;
+    lenient.usb_latency_us = lenient.usb_latency_us.max(16_000);
+    lenient.pipeline = false;
+    let mut bus = crate::bus::open(
+        crate::bus::Wire::Port(path.clone()),
+        &lenient,
+        profile.servos.len(),
+    )
+    .map_err(CliError::at_port(&path))?;
+    let at_port = |source| CliError::Bus {
+        port: path.clone(),
+        source,
+    };
+    let mut report = doctor::examine(bus.as_mut(), &profile).map_err(at_port)?;
+    if a.port.is_some() {
+        doctor::check_adapter(&path, &mut report);
+    }
+    if a.fix {
+        let fixed = doctor::apply_fixes(bus.as_mut(), &report).map_err(at_port)?;
+        if !fixed.is_empty() {
+            report = doctor::examine(bus.as_mut(), &profile).map_err(at_port)?;
+            if a.port.is_some() {
+                doctor::check_adapter(&path, &mut report);
+            }
+        }
+        report.fixed = fixed;
+    }
+    let faults = report.at(Level::Fault).count();
+    if a.json {
+        writeln!(
+            out,
+            "{}",
+            serde_json::to_string(&report).map_err(|e| CliError::Output(e.into()))?
+        )?;
+    } else {
+        writeln!(
+            out,
+            "doctor: {} on {path} at {} bit/s ({} servos{})",
+            a.profile.display(),
+            profile.bus.baud,
+            profile.servos.len(),
+            profile
+                .bus
+                .imu_board
+                .map_or(String::new(), |b| format!(", IMU board at id {b}"))
+        )?;
+        for f in &report.fixed {
+            writeln!(out, "fixed  {f}")?;
+        }
+        // The same finding on several servos is one line naming them.
+        let mut lines: Vec<(&doctor::Finding, Vec<String>)> = Vec::new();
+        for f in &report.findings {
+            let who = match (f.id, &f.servo) {
+                (Some(id), Some(name)) => Some(format!("{id} {name}")),
+                (Some(id), None) => Some(id.to_string()),
+                _ => None,
+            };
+            match lines
+                .iter_mut()
+                .find(|(g, _)| g.level == f.level && g.what == f.what && g.todo == f.todo && who.is_some())
+            {
+                Some((_, names)) => names.extend(who),
+                None => lines.push((f, who.into_iter().collect())),
+            }
+        }
+        for (f, names) in &lines {
+            let level = match f.level {
+                Level::Ok => "ok    ",
+                Level::Warn => "warn  ",
+                Level::Fault => "FAULT ",
+            };
+            let who = match names.len() {
+                0 => String::new(),
+                1 => format!("id {}: ", names[0]),
+                n if n == profile.servos.len() => format!("all {n} servos: "),
+                n => format!("{n} servos (ids {}): ", names.join(", ")),
+            };
+            let todo = if f.todo.is_empty() {
+                String::new()
+            } else {
+                format!(" — {}", f.todo)
+            };
+            writeln!(out, "{level} {who}{}{todo}", f.what)?;
+        }
+        let warnings = report.at(Level::Warn).count();
+        let answering = profile.servos.len()
+            - report
+                .findings
+                .iter()
+                .filter(|f| f.level == Level::Fault && f.what.contains("does not answer"))
+                .count();
+        writeln!(
+            out,
+            "{answering} of {} servos answer; {faults} fault(s), {warnings} warning(s): {}",
+            profile.servos.len(),
+            if faults == 0 {
+                "the rig can run the profile"
+            } else {
+                "the rig cannot run the profile until the faults are fixed"
+            }
+        )?;
+    }
+    if faults > 0 {
+        return Err(CliError::RigNotReady(faults));
+    }
+    Ok(())
 }

@@ -1,0 +1,177 @@
+//! `doctor`: a rig made wrong on purpose (virtual chains served on a pseudo-terminal, line time
+//! kept) is checked against its profile: every fault named, the exit code, and `--fix`.
+
+mod common;
+
+use marionette::bus::virtual_chain::{chain_for, LineTiming, PtyChain};
+use marionette::bus::{open, Wire};
+use marionette::device::{Chain, VirtualServo};
+use marionette::doctor::{self, Level, Report};
+use marionette::profile::Profile;
+use marionette::servo::{addr, MODELS};
+
+fn op3() -> Profile {
+    Profile::load(
+        &std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/robotis-op3.toml"),
+    )
+    .unwrap()
+}
+
+/// Serves `chain` and checks it against `profile` (and with `fix`, fixes, then checks again).
+fn doctor_on(profile: &Profile, chain: Chain, fix: bool) -> (Report, Option<Report>, Vec<String>) {
+    let pty = PtyChain::serve_timed(chain, LineTiming::of(&profile.bus)).unwrap();
+    let mut lenient = profile.bus.clone();
+    lenient.return_delay_us = 508;
+    lenient.usb_latency_us = lenient.usb_latency_us.max(16_000);
+    lenient.pipeline = false;
+    let mut bus = open(Wire::Port(pty.path().to_string()), &lenient, profile.servos.len()).unwrap();
+    let first = doctor::examine(bus.as_mut(), profile).unwrap();
+    if !fix {
+        return (first, None, Vec::new());
+    }
+    let fixed = doctor::apply_fixes(bus.as_mut(), &first).unwrap();
+    let again = doctor::examine(bus.as_mut(), profile).unwrap();
+    (first, Some(again), fixed)
+}
+
+fn named(report: &Report, level: Level, id: Option<u8>, words: &str) -> bool {
+    report
+        .findings
+        .iter()
+        .any(|f| f.level == level && f.id == id && f.what.contains(words))
+}
+
+#[test]
+fn a_rig_as_the_profile_says_is_ready() {
+    let profile = op3();
+    let mut chain = chain_for(profile.bus_section(), |_| 2048);
+    // As start-up leaves it: the profile's Return Delay Time.
+    for s in chain.servos_mut() {
+        s.poke(addr::RETURN_DELAY_TIME, &[0]);
+    }
+    let (report, _, _) = doctor_on(&profile, chain, false);
+    println!("{report:#?}");
+    assert!(report.can_run());
+    assert_eq!(report.at(Level::Fault).count(), 0);
+    assert_eq!(report.at(Level::Warn).count(), 0, "{report:?}");
+    let measured = report.measured_cycle_us.unwrap();
+    println!(
+        "cycle {measured:.0} µs against {:.0} µs planned",
+        report.planned_cycle_us
+    );
+    assert!(measured > 0.0);
+}
+
+#[test]
+fn every_fault_is_named_and_what_can_be_written_is_fixed() {
+    let profile = op3();
+    let spec = |id: u8| profile.servos.iter().find(|s| s.id == id).unwrap();
+    let mut chain = Chain::new();
+    for s in &profile.servos {
+        match s.id {
+            // Missing.
+            5 => continue,
+            // Another model at the id.
+            6 => chain.add(VirtualServo::new(6, &MODELS[0], 2048)).unwrap(),
+            _ => chain.add(VirtualServo::new(s.id, s.model, 2048)).unwrap(),
+        }
+    }
+    // An id the profile does not name.
+    chain.add(VirtualServo::new(42, spec(1).model, 2048)).unwrap();
+    chain.set_board(marionette::sensor_board::SensorBoard::new(200));
+    chain.servo_mut(1).unwrap().raise_hardware_error(0x04);
+    chain.servo_mut(2).unwrap().poke(addr::OPERATING_MODE, &[1]);
+    chain
+        .servo_mut(3)
+        .unwrap()
+        .poke(addr::MAX_POSITION_LIMIT, &2100u32.to_le_bytes());
+    chain.servo_mut(4).unwrap().poke(addr::STATUS_RETURN_LEVEL, &[1]);
+    chain
+        .servo_mut(7)
+        .unwrap()
+        .poke(addr::VELOCITY_LIMIT, &100u32.to_le_bytes());
+    chain
+        .servo_mut(8)
+        .unwrap()
+        .poke(addr::PWM_LIMIT, &500u16.to_le_bytes());
+    let (first, again, fixed) = doctor_on(&profile, chain, true);
+    for f in &first.findings {
+        println!(
+            "{:?} {:?} {}: {} — {}",
+            f.level,
+            f.id,
+            f.servo.as_deref().unwrap_or(""),
+            f.what,
+            f.todo
+        );
+    }
+    assert!(!first.can_run());
+    assert!(named(&first, Level::Fault, Some(5), "does not answer"));
+    assert!(named(
+        &first,
+        Level::Fault,
+        Some(6),
+        "the profile says XM430-W350"
+    ));
+    assert!(named(&first, Level::Warn, Some(42), "does not name it"));
+    assert!(named(&first, Level::Fault, Some(1), "overheating"));
+    assert!(named(&first, Level::Fault, Some(2), "Operating Mode 1"));
+    assert!(named(&first, Level::Warn, Some(3), "position limits"));
+    assert!(named(&first, Level::Warn, Some(4), "Status Return Level 1"));
+    assert!(named(&first, Level::Warn, Some(7), "Velocity Limit 100"));
+    assert!(named(&first, Level::Warn, Some(8), "PWM Limit 500"));
+    // The factory Return Delay Time (500 µs) on every servo present.
+    assert!(named(&first, Level::Warn, Some(10), "Return Delay Time 500 µs"));
+    // Every fixable one written, and gone when checked again; what cannot be written stays.
+    println!("{fixed:#?}");
+    assert!(fixed.len() >= 6);
+    let again = again.unwrap();
+    for f in &again.findings {
+        println!("after --fix: {:?} {:?} {}", f.level, f.id, f.what);
+    }
+    assert!(!named(&again, Level::Fault, Some(2), "Operating Mode"));
+    assert!(!named(&again, Level::Warn, Some(3), "position limits"));
+    assert!(!named(&again, Level::Warn, Some(7), "Velocity Limit"));
+    assert!(!named(&again, Level::Warn, Some(10), "Return Delay Time"));
+    assert!(named(&again, Level::Fault, Some(5), "does not answer"));
+    assert!(named(&again, Level::Fault, Some(1), "overheating"));
+    assert!(!again.can_run());
+}
+
+#[test]
+fn the_command_exits_1_with_faults_and_0_when_the_rig_can_run() {
+    let out = common::run(&["doctor", "firmware-profile/robotis-op3.toml", "--bus", "virtual"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}");
+    // Fresh virtual servos: the factory Return Delay Time is a warning, not a fault.
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("all 20 servos: Return Delay Time 500 µs"), "{text}");
+    assert!(text.contains("the rig can run the profile"));
+    let out = common::run(&[
+        "doctor",
+        "firmware-profile/cmu-puppet.toml",
+        "--bus",
+        "virtual",
+        "--fix",
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["fixed"].as_array().unwrap().len(), 28, "{v}");
+    assert!(
+        v["findings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|f| f["level"] != "fault"),
+        "{v}"
+    );
+    // No way to reach a rig: a usage error.
+    let out = common::run(&["doctor", "firmware-profile/robotis-op3.toml"]);
+    assert_eq!(out.status.code(), Some(2));
+}
