@@ -171,6 +171,60 @@ fn the_command_exits_1_with_faults_and_0_when_the_rig_can_run() {
             .all(|f| f["level"] != "fault"),
         "{v}"
     );
+    // A chain made wrong from the command line (`serve --misconfigure`), checked over its
+    // pseudo-terminal: every fault named, exit 1.
+    let mut serve = common::bin()
+        .args([
+            "serve",
+            "firmware-profile/robotis-op3.toml",
+            "--duration",
+            "60",
+            "--misconfigure",
+            "missing=5,model=6:XL330-M288,hwerror=1:4,max_limit=3:2100,extra=42",
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(serve.stdout.take().unwrap()));
+    let first = lines.next().unwrap().unwrap();
+    let path = first
+        .split_whitespace()
+        .find(|w| w.starts_with("/dev/pts/"))
+        .unwrap()
+        .trim_end_matches(',');
+    let out = common::run(&["doctor", "firmware-profile/robotis-op3.toml", "--port", path]);
+    let _ = serve.kill();
+    let _ = serve.wait();
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}");
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for words in [
+        "id 5 r_el: id 5 does not answer",
+        "id 6 l_el: id 6 is model 1200 (XL330-M288)",
+        "id 42 (XM430-W350) answers but the profile does not name it",
+        "id 1 r_sho_pitch: hardware error 0x04 (overheating)",
+        "id 3 r_sho_roll: position limits",
+        "Return Delay Time 500 µs",
+        "the rig cannot run the profile",
+    ] {
+        assert!(text.contains(words), "{words}: {text}");
+    }
+    // A list it cannot read: a usage error naming the item.
+    let out = common::run(&[
+        "serve",
+        "firmware-profile/robotis-op3.toml",
+        "--misconfigure",
+        "rdt=1",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("`rdt=1`"));
     // No way to reach a rig: a usage error.
     let out = common::run(&["doctor", "firmware-profile/robotis-op3.toml"]);
     assert_eq!(out.status.code(), Some(2));

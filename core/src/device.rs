@@ -719,6 +719,12 @@ impl Chain {
         &self.servos
     }
 
+    /// Takes the servo with `id` off the bus.
+    pub fn remove(&mut self, id: u8) -> Option<VirtualServo> {
+        let k = self.servos.iter().position(|s| s.id() == id)?;
+        Some(self.servos.remove(k))
+    }
+
     /// Puts a sensor board on the bus (one at most: a second replaces the first).
     pub fn set_board(&mut self, board: SensorBoard) {
         self.board = Some(board);

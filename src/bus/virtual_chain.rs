@@ -34,6 +34,79 @@ pub fn chain_for(profile: BusSection<'_>, position: impl Fn(usize) -> i32) -> Ch
     chain
 }
 
+/// Makes `chain` wrong on purpose, to try `doctor` on it: `spec` is a comma-separated list of
+/// `missing=ID` (taken off the bus), `extra=ID` (one more servo the profile does not name),
+/// `model=ID:NAME` (another model at the id), `rdt=ID:MICROSECONDS`, `srl=ID:LEVEL`,
+/// `mode=ID:OPERATING_MODE`, `max_limit=ID:TICK`, `velocity_limit=ID:UNITS`, `pwm_limit=ID:N`
+/// and `hwerror=ID:BITS` (Hardware Error Status bits, e.g. 4 for overheating).
+///
+/// # Errors
+/// What is wrong with `spec`, as one line.
+pub fn misconfigure(chain: &mut Chain, spec: &str) -> Result<(), String> {
+    use crate::servo::addr;
+    for item in spec.split(',').map(str::trim).filter(|i| !i.is_empty()) {
+        let (what, rest) = item
+            .split_once('=')
+            .ok_or_else(|| format!("`{item}`: expected WHAT=ID or WHAT=ID:VALUE"))?;
+        let (id, value) = rest.split_once(':').map_or((rest, None), |(i, v)| (i, Some(v)));
+        let id: u8 = id
+            .parse()
+            .map_err(|_| format!("`{item}`: the id must be a number 0–252"))?;
+        let number = |v: Option<&str>| -> Result<u32, String> {
+            v.ok_or_else(|| format!("`{item}`: expected {what}={id}:VALUE"))?
+                .parse()
+                .map_err(|_| format!("`{item}`: the value must be a whole number"))
+        };
+        let poke = |chain: &mut Chain, address: u16, data: &[u8]| -> Result<(), String> {
+            chain
+                .servo_mut(id)
+                .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?
+                .poke(address, data);
+            Ok(())
+        };
+        match what {
+            "missing" => {
+                chain
+                    .remove(id)
+                    .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?;
+            }
+            "extra" => {
+                let model = chain.servos().first().map_or(&crate::servo::MODELS[2], |s| s.model());
+                chain
+                    .add(VirtualServo::new(id, model, 2048))
+                    .map_err(|e| format!("`{item}`: {e}"))?;
+            }
+            "model" => {
+                let name = value.ok_or_else(|| format!("`{item}`: expected model={id}:NAME"))?;
+                let model = crate::servo::model_by_name(name)
+                    .ok_or_else(|| format!("`{item}`: unknown model {name}"))?;
+                chain
+                    .remove(id)
+                    .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?;
+                chain
+                    .add(VirtualServo::new(id, model, 2048))
+                    .map_err(|e| format!("`{item}`: {e}"))?;
+            }
+            "rdt" => poke(chain, addr::RETURN_DELAY_TIME, &[(number(value)? / 2).min(254) as u8])?,
+            "srl" => poke(chain, addr::STATUS_RETURN_LEVEL, &[number(value)?.min(2) as u8])?,
+            "mode" => poke(chain, addr::OPERATING_MODE, &[number(value)?.min(16) as u8])?,
+            "max_limit" => poke(chain, addr::MAX_POSITION_LIMIT, &number(value)?.min(4095).to_le_bytes())?,
+            "velocity_limit" => poke(chain, addr::VELOCITY_LIMIT, &number(value)?.to_le_bytes())?,
+            "pwm_limit" => poke(chain, addr::PWM_LIMIT, &(number(value)?.min(885) as u16).to_le_bytes())?,
+            "hwerror" => chain
+                .servo_mut(id)
+                .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?
+                .raise_hardware_error(number(value)?.min(255) as u8),
+            _ => {
+                return Err(format!(
+                    "`{item}`: unknown; expected missing, extra, model, rdt, srl, mode, max_limit, velocity_limit, pwm_limit or hwerror"
+                ))
+            }
+        }
+    }
+    Ok(())
+}
+
 /// What moves a chain's servos as time passes.
 pub trait Plant {
     /// Lets `dt` seconds pass for the servos of `chain`.

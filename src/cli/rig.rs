@@ -245,6 +245,7 @@ pub fn serve_cmd(
     path: &Path,
     line_time: Option<Option<i32>>,
     duration: Option<f64>,
+    misconfigure: Option<&str>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
     if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
@@ -254,9 +255,13 @@ pub fn serve_cmd(
     }
     let profile = Profile::load(path)?;
     // Each horn at its joint's zero.
-    let chain = chain_for(profile.bus_section(), |k| {
+    let mut chain = chain_for(profile.bus_section(), |k| {
         profile.servos[k].zero.round().clamp(0.0, 4095.0) as i32
     });
+    if let Some(spec) = misconfigure {
+        crate::bus::virtual_chain::misconfigure(&mut chain, spec)
+            .map_err(|e| CliError::Usage(format!("--misconfigure: {e}")))?;
+    }
     let pty = if let Some(priority) = line_time {
         PtyChain::serve_timed(chain, LineTiming::of(&profile.bus).at_priority(priority))
     } else {
@@ -486,6 +491,12 @@ pub(super) struct ServeArgs {
     /// its own time whatever else the machine does.
     #[arg(long)]
     pub(super) rt_priority: Option<i32>,
+    /// Make the chain wrong on purpose, to try `doctor`: a comma-separated list of
+    /// `missing=ID`, `extra=ID`, `model=ID:NAME`, `rdt=ID:MICROSECONDS`, `srl=ID:LEVEL`,
+    /// `mode=ID:N`, `max_limit=ID:TICK`, `velocity_limit=ID:UNITS`, `pwm_limit=ID:N`,
+    /// `hwerror=ID:BITS`.
+    #[arg(long, value_name = "LIST")]
+    pub(super) misconfigure: Option<String>,
 }
 
 impl ServeArgs {
@@ -499,11 +510,13 @@ impl ServeArgs {
             no_line_time,
             duration,
             rt_priority,
+            misconfigure,
         } = self;
         serve_cmd(
             &profile,
             (!no_line_time).then_some(rt_priority),
             duration,
+            misconfigure.as_deref(),
             &mut std::io::stdout().lock(),
         )
     }
