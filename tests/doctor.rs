@@ -171,6 +171,16 @@ fn the_command_exits_1_with_faults_and_0_when_the_rig_can_run() {
             .all(|f| f["level"] != "fault"),
         "{v}"
     );
+    // The virtual servos are powered as the profile says (the puppet's knees and ankles at
+    // 14.8 V): no supply finding.
+    assert!(
+        v["findings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|f| !f["what"].as_str().unwrap().contains("supply")),
+        "{v}"
+    );
     // A chain made wrong from the command line (`serve --misconfigure`), checked over its
     // pseudo-terminal: every fault named, exit 1.
     let mut serve = common::bin()

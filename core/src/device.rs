@@ -62,6 +62,8 @@ pub struct VirtualServo {
     profile: Option<(Real, Real)>,
     /// An Indirect Address was written since power-on: Indirect Data must follow writes.
     indirect_in_use: bool,
+    /// The supply it is powered from, volts (Present Input Voltage).
+    supply_v: Real,
 }
 
 /// PWM Limit's factory value and full scale (0.113 % units).
@@ -105,9 +107,18 @@ impl VirtualServo {
             load_nm: 0.0,
             profile: None,
             indirect_in_use: false,
+            supply_v: model.rated_v,
         };
         s.factory_defaults(id);
         s
+    }
+
+    /// Powers it from `volts` (Present Input Voltage reads it); a value that is not a positive
+    /// number leaves the model's rated supply.
+    pub fn set_supply(&mut self, volts: Real) {
+        if volts.is_finite() && volts > 0.0 {
+            self.supply_v = volts;
+        }
     }
 
     /// Sets the Baud Rate register to the code of `baud` (the line the servo is on); a baud
@@ -342,7 +353,7 @@ impl VirtualServo {
         let (current, pwm) = self.motor_readings();
         self.put(addr::PRESENT_CURRENT, 2, u32::from(current as u16));
         self.put(addr::PRESENT_PWM, 2, u32::from(pwm as u16));
-        let supply = real::round(self.model.rated_v * 10.0) as u32;
+        let supply = real::round(self.supply_v * 10.0) as u32;
         self.put(addr::PRESENT_INPUT_VOLTAGE, 2, supply);
         self.put(addr::PRESENT_TEMPERATURE, 1, 35);
         // The profile's set point while one runs; otherwise the goal (torque on) or where it is.

@@ -24,8 +24,9 @@ pub fn chain_for(profile: BusSection<'_>, position: impl Fn(usize) -> i32) -> Ch
     let mut chain = Chain::new();
     for (k, s) in profile.servos.iter().enumerate() {
         let mut servo = VirtualServo::new(s.id, s.model, position(k));
-        // Set to the bus's baud, as the rig's servos are.
+        // Set to the bus's baud and powered as the profile says, as the rig's servos are.
         servo.set_baud(profile.config.baud);
+        servo.set_supply(s.supply_v);
         let _ = chain.add(servo);
     }
     if let Some(id) = profile.config.imu_board {
