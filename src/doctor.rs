@@ -15,7 +15,7 @@ use serde::Serialize;
 
 use crate::budget;
 use crate::bus::{BusError, PingInfo, ServoBus};
-use crate::profile::{Profile, ServoSpec};
+use crate::profile::{BusConfig, Profile, ServoSpec};
 use crate::servo::addr;
 
 /// How bad a finding is.
@@ -141,7 +141,19 @@ pub fn hardware_error_names(bits: u8) -> String {
     }
 }
 
-/// Checks the rig on `bus` (opened at the profile's baud) against `profile`.
+/// The bus settings to open a rig with as it stands, before start-up sets it: `bus` with
+/// replies allowed the longest Return Delay Time (254 × 2 µs) and an adapter's default
+/// latency timer, and no pipelining.
+#[must_use]
+pub fn bus_as_found(bus: &BusConfig) -> BusConfig {
+    let mut lenient = bus.clone();
+    lenient.return_delay_us = 508;
+    lenient.usb_latency_us = lenient.usb_latency_us.max(16_000);
+    lenient.pipeline = false;
+    lenient
+}
+
+/// Checks the rig on `bus` (opened with [`bus_as_found`]) against `profile`.
 ///
 /// # Errors
 /// [`BusError`] when the bus itself fails (a servo that does not answer is a finding).

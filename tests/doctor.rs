@@ -20,11 +20,13 @@ fn op3() -> Profile {
 /// Serves `chain` and checks it against `profile` (and with `fix`, fixes, then checks again).
 fn doctor_on(profile: &Profile, chain: Chain, fix: bool) -> (Report, Option<Report>, Vec<String>) {
     let pty = PtyChain::serve_timed(chain, LineTiming::of(&profile.bus)).unwrap();
-    let mut lenient = profile.bus.clone();
-    lenient.return_delay_us = 508;
-    lenient.usb_latency_us = lenient.usb_latency_us.max(16_000);
-    lenient.pipeline = false;
-    let mut bus = open(Wire::Port(pty.path().to_string()), &lenient, profile.servos.len()).unwrap();
+    let as_found = doctor::bus_as_found(&profile.bus);
+    let mut bus = open(
+        Wire::Port(pty.path().to_string()),
+        &as_found,
+        profile.servos.len(),
+    )
+    .unwrap();
     let first = doctor::examine(bus.as_mut(), profile).unwrap();
     if !fix {
         return (first, None, Vec::new());
@@ -53,7 +55,13 @@ fn a_rig_as_the_profile_says_is_ready() {
     println!("{report:#?}");
     assert!(report.can_run());
     assert_eq!(report.at(Level::Fault).count(), 0);
-    assert_eq!(report.at(Level::Warn).count(), 0, "{report:?}");
+    // No servo warns; the cycle's own line is a measured time, printed, not asserted.
+    assert!(
+        report
+            .at(Level::Warn)
+            .all(|f| f.id.is_none() && f.what.contains("cycle")),
+        "{report:?}"
+    );
     let measured = report.measured_cycle_us.unwrap();
     println!(
         "cycle {measured:.0} µs against {:.0} µs planned",

@@ -600,15 +600,10 @@ fn doctor_cmd(a: &DoctorArgs, out: &mut dyn Write) -> Result<(), CliError> {
         }
         _ => return Err(CliError::Usage("give --port <PATH> or --bus virtual".into())),
     };
-    // The rig as it stands, not yet as start-up sets it: replies may wait the longest Return
-    // Delay Time and the adapter's default latency timer.
-    let mut lenient = profile.bus.clone();
-    lenient.return_delay_us = 508;
-    lenient.usb_latency_us = lenient.usb_latency_us.max(16_000);
-    lenient.pipeline = false;
+    let as_found = doctor::bus_as_found(&profile.bus);
     let mut bus = crate::bus::open(
         crate::bus::Wire::Port(path.clone()),
-        &lenient,
+        &as_found,
         profile.servos.len(),
     )
     .map_err(CliError::at_port(&path))?;
