@@ -529,14 +529,20 @@ fn torque_on_and_arm(
 pub const STARTUP_TRIES: usize = 3;
 
 /// Start-up's transactions are idempotent (reads, and writes of fixed values): one that meets a
-/// busy line or host — no reply in time, a bad CRC, the late reply of the one before — is tried
-/// again, [`STARTUP_TRIES`] times in all, before it fails the start-up. A servo's own error
-/// answer is not retried.
+/// busy line or host — no reply in time, a bad CRC, the late reply of the one before (another
+/// servo's, or the same servo's to another instruction: a write's empty status taken for a
+/// read's) — is tried again, [`STARTUP_TRIES`] times in all, before it fails the start-up. A
+/// servo's own error answer is not retried.
 fn retried<T>(mut transaction: impl FnMut() -> Result<T, BusError>) -> Result<T, BusError> {
     let mut outcome = transaction();
     for _ in 1..STARTUP_TRIES {
         match outcome {
-            Err(BusError::Timeout { .. } | BusError::Crc { .. } | BusError::WrongId { .. }) => {
+            Err(
+                BusError::Timeout { .. }
+                | BusError::Crc { .. }
+                | BusError::WrongId { .. }
+                | BusError::Malformed { .. },
+            ) => {
                 outcome = transaction();
             }
             _ => break,
@@ -638,4 +644,47 @@ pub fn latency_timer_ms(port: &str) -> Option<u32> {
     let name = std::path::Path::new(port).file_name()?.to_str()?;
     let text = std::fs::read_to_string(format!("/sys/bus/usb-serial/devices/{name}/latency_timer")).ok()?;
     text.trim().parse().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{retried, BusError, STARTUP_TRIES};
+
+    /// What a busy line does to a transaction is tried again; what a servo answers is not.
+    #[test]
+    fn start_up_tries_again_after_a_line_fault_but_not_after_a_servos_error() {
+        let line_faults = [
+            BusError::Timeout { id: 4 },
+            BusError::Crc { id: 4 },
+            BusError::WrongId { expected: 4, got: 3 },
+            BusError::Malformed {
+                id: 4,
+                what: "parameter count",
+            },
+        ];
+        for fault in line_faults {
+            let mut calls = 0;
+            let mut first = Some(fault);
+            let got = retried(|| {
+                calls += 1;
+                first.take().map_or(Ok(7), Err)
+            });
+            assert_eq!(got.ok(), Some(7));
+            assert_eq!(calls, 2);
+        }
+        let mut calls = 0;
+        let got: Result<(), BusError> = retried(|| {
+            calls += 1;
+            Err(BusError::Timeout { id: 4 })
+        });
+        assert!(matches!(got, Err(BusError::Timeout { id: 4 })));
+        assert_eq!(calls, STARTUP_TRIES);
+        let mut calls = 0;
+        let got: Result<(), BusError> = retried(|| {
+            calls += 1;
+            Err(BusError::Servo { id: 4, error: 7 })
+        });
+        assert!(matches!(got, Err(BusError::Servo { id: 4, error: 7 })));
+        assert_eq!(calls, 1);
+    }
 }
