@@ -343,7 +343,42 @@ fn check_servo(
             fix(addr::OPERATING_MODE, vec![3]),
         );
     }
+    let homing = read(bus, addr::HOMING_OFFSET, 4)? as i32;
+    match s.homing_offset {
+        Some(want) if homing != want => report.push(
+            Level::Fault,
+            Some(s),
+            format!(
+                "Homing Offset {homing} ticks, the profile's zero assumes {want}: every angle would be off"
+            ),
+            "--fix writes the profile's with torque off (start-up does too)",
+            fix(addr::HOMING_OFFSET, want.to_le_bytes().to_vec()),
+        ),
+        None if homing != 0 => report.push(
+            Level::Warn,
+            Some(s),
+            format!("Homing Offset {homing} ticks: the profile's zero was not measured with it"),
+            "run `marionette calibrate` (it records the offset it uses), or write 0",
+            None,
+        ),
+        _ => {}
+    }
     let (lo, hi) = s.tick_limits();
+    let at = read(bus, addr::PRESENT_POSITION, 4)? as i32;
+    if at < lo || at > hi {
+        report.push(
+            Level::Fault,
+            Some(s),
+            format!(
+                "present position {at} ticks ({:.0}° by the profile), outside its {lo}…{hi} ({}…{}°): start-up refuses it",
+                f64::from(at - s.zero as i32) / (s.direction * s.gear * 4096.0 / 360.0),
+                s.min_deg,
+                s.max_deg
+            ),
+            "move the joint inside its range by hand; if it is inside, the zero is wrong: `marionette calibrate`",
+            None,
+        );
+    }
     let max = read(bus, addr::MAX_POSITION_LIMIT, 4)? as i32;
     let min = read(bus, addr::MIN_POSITION_LIMIT, 4)? as i32;
     if min > lo || max < hi {

@@ -58,6 +58,8 @@ pub mod budget;
 
 pub mod doctor;
 
+pub mod calibrate;
+
 pub mod retarget;
 
 pub mod bus;

@@ -25,7 +25,9 @@
 //! model = "XL430-W250"
 //! bone = "lhumerus.rz"      # or: joint = "r_sho_pitch" for a robot joint
 //! direction = 1             # +1 or −1
-//! zero = 2048               # tick at joint angle 0
+//! zero = 2048               # tick at joint angle 0 (`marionette calibrate` measures it)
+//! homing_offset = 0         # optional: the servo's Homing Offset (ticks), written at start-up;
+//!                           # `calibrate` sets it where the joint's range would wrap past 0/4095
 //! gear = 1.0                # servo turns per joint turn
 //! min_deg = -90             # software limits (joint degrees)
 //! max_deg = 90
@@ -229,6 +231,9 @@ pub struct ServoSpec {
     /// The servo's supply, volts (the model's recommended one unless given): its no-load speed
     /// and stall torque scale with it ([`ServoModel::voltage_factor`]).
     pub supply_v: f64,
+    /// The servo's Homing Offset, ticks (Present Position = the horn's + it), written at
+    /// start-up when given; `zero` is in the offset's frame. `None`: the servo's own, expected 0.
+    pub homing_offset: Option<i32>,
     /// Line of its `[[servo]]` entry.
     pub line: u32,
 }
@@ -275,6 +280,9 @@ pub struct Profile {
     pub path: PathBuf,
     /// The rig's name.
     pub name: String,
+    /// How the rig stands with every joint at 0°, in words (`[rig] reference_pose`), for
+    /// `marionette calibrate` to ask for; `None`: described from the servos' drives.
+    pub reference_pose: Option<String>,
     /// The bus.
     pub bus: BusConfig,
     /// Bones whose servos follow another axis order than the ASF DOFs: name, order, line.
@@ -433,6 +441,8 @@ struct RawRig {
     #[serde(default)]
     #[allow(dead_code)]
     description: Option<String>,
+    #[serde(default)]
+    reference_pose: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -490,6 +500,8 @@ struct RawServo {
     lag_ms: Option<Spanned<f64>>,
     #[serde(default)]
     supply_v: Option<Spanned<f64>>,
+    #[serde(default)]
+    homing_offset: Option<Spanned<i64>>,
 }
 
 /// Line and column (1-based) of a byte offset.
@@ -782,6 +794,7 @@ impl Profile {
         Ok(Profile {
             path: path.to_path_buf(),
             name: raw.rig.name,
+            reference_pose: raw.rig.reference_pose,
             bus,
             bone_orders,
             servos,
@@ -1138,6 +1151,19 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
             x
         }
     };
+    let homing_offset = match &s.homing_offset {
+        None => None,
+        Some(h) => match i32::try_from(*h.get_ref()) {
+            Ok(v) if (-HOMING_OFFSET_MAX..=HOMING_OFFSET_MAX).contains(&v) => Some(v),
+            _ => return Err(ck.at(
+                h,
+                format!(
+                    "expected a Homing Offset in -{HOMING_OFFSET_MAX}…{HOMING_OFFSET_MAX} ticks, found {}",
+                    h.get_ref()
+                ),
+            )),
+        },
+    };
     let spec = ServoSpec {
         id,
         name,
@@ -1153,6 +1179,7 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
         position_p_gain,
         lag_ms,
         supply_v,
+        homing_offset,
         line: ck.line(raw),
     };
     // The software limits must map inside the servo's own range.
@@ -1179,13 +1206,29 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
     Ok(spec)
 }
 
+/// The largest Homing Offset an X-series servo takes (e-manual: ±1,044,479 ticks, ±255 turns).
+pub const HOMING_OFFSET_MAX: i32 = 1_044_479;
+
 /// The profile text with `lag_ms = …` set in the `[[servo]]` entries named in `lags`: an
 /// existing `lag_ms` line is replaced, otherwise one is added at the end of the entry.
 /// Everything else — comments, order, layout — stays as it was.
 #[must_use]
 pub fn set_servo_lags(text: &str, lags: &[(String, f64)]) -> String {
+    let keys: Vec<(String, Vec<(&str, String)>)> = lags
+        .iter()
+        .map(|(name, lag)| (name.clone(), vec![("lag_ms", lag.to_string())]))
+        .collect();
+    set_servo_keys(text, &keys)
+}
+
+/// The profile text with keys set in the `[[servo]]` entries named in `values` (each a servo's
+/// name and its `(key, value as TOML)` pairs): an existing line of the key is replaced (its
+/// trailing comment kept), otherwise one is added at the end of the entry. Everything else —
+/// comments, order, layout — stays as it was.
+#[must_use]
+pub fn set_servo_keys(text: &str, values: &[(String, Vec<(&str, String)>)]) -> String {
     let lines: Vec<&str> = text.lines().collect();
-    let mut out: Vec<String> = Vec::with_capacity(lines.len() + lags.len());
+    let mut out: Vec<String> = Vec::with_capacity(lines.len() + values.len());
     let mut i = 0;
     while i < lines.len() {
         let line = lines[i];
@@ -1218,25 +1261,34 @@ pub fn set_servo_lags(text: &str, lags: &[(String, f64)]) -> String {
                     .trim_matches('"')
                     .to_string()
             });
-        let Some(lag) = name
-            .and_then(|n| lags.iter().find(|(m, _)| *m == n))
-            .map(|(_, l)| *l)
+        let Some(pairs) = name
+            .and_then(|n| values.iter().find(|(m, _)| *m == n))
+            .map(|(_, p)| p)
         else {
             continue;
         };
-        let entry = format!("lag_ms = {lag}");
-        if let Some(l) = out[start..].iter_mut().find(|l| key(l) == "lag_ms") {
-            *l = entry;
-        } else {
-            // After the entry's last key, before its trailing blank lines and comments.
-            let last = (start..out.len())
-                .rev()
-                .find(|&k| {
-                    let t = out[k].trim();
-                    !t.is_empty() && !t.starts_with('#')
-                })
-                .map_or(start, |k| k + 1);
-            out.insert(last, entry);
+        for (k, v) in pairs {
+            let entry = format!("{k} = {v}");
+            if let Some(l) = out[start..].iter_mut().find(|l| key(l) == *k) {
+                // Keep the line's comment, aligned where it was when it fits.
+                *l = match l.find('#') {
+                    Some(at) if !l[..at].contains('"') || l[..at].matches('"').count() % 2 == 0 => {
+                        let width = at.max(entry.len() + 1);
+                        format!("{entry:<width$}{}", &l[at..])
+                    }
+                    _ => entry,
+                };
+            } else {
+                // After the entry's last key, before its trailing blank lines and comments.
+                let last = (start..out.len())
+                    .rev()
+                    .find(|&k| {
+                        let t = out[k].trim();
+                        !t.is_empty() && !t.starts_with('#')
+                    })
+                    .map_or(start, |k| k + 1);
+                out.insert(last, entry);
+            }
         }
     }
     let mut s = out.join("\n");

@@ -11,6 +11,7 @@ use crate::control_table::{self, indirect_blocks, Access, Item};
 use crate::math::{real, Real};
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
 use crate::sensor_board::SensorBoard;
+use crate::servo::addr::HOMING_OFFSET;
 use crate::servo::{addr, status_error, step_towards, ServoModel, MAX_SERVOS, RPM2_PER_ACCELERATION_UNIT};
 use crate::servo::{RPM_PER_VELOCITY_UNIT, TICKS_PER_TURN};
 
@@ -79,8 +80,6 @@ const REALTIME_TICK: u16 = 120;
 const SECONDARY_ID: usize = 12;
 /// Protocol Type: the servo answers Protocol 2.0 only while it holds 2.
 const PROTOCOL_TYPE: usize = 13;
-/// Homing Offset, 4 bytes signed: Present Position = the horn's position + the offset.
-const HOMING_OFFSET: u16 = 20;
 /// Velocity Trajectory and Position Trajectory (4 bytes each): the profile's set point.
 const VELOCITY_TRAJECTORY: u16 = 136;
 const POSITION_TRAJECTORY: u16 = 140;

@@ -19,6 +19,8 @@ pub mod addr {
     pub const RETURN_DELAY_TIME: u16 = 9;
     /// Operating mode, 1 byte (3 = position control).
     pub const OPERATING_MODE: u16 = 11;
+    /// Homing Offset (4 B, signed, EEPROM): Present Position = the horn's position + it.
+    pub const HOMING_OFFSET: u16 = 20;
     /// Velocity limit, 4 bytes, 0.229 rpm units.
     pub const VELOCITY_LIMIT: u16 = 44;
     /// Maximum position limit, 4 bytes.

@@ -397,8 +397,8 @@ pub enum StartupError {
 
 /// Brings a profiled rig up safely and returns the present positions (ticks):
 /// scan; check every profiled id answers with the right model and no hardware error; torque
-/// off (EEPROM is writable only then); Return Delay Time, Status Return Level 2, the position
-/// limits, the profile's Position P Gain (when it gives one); read present positions and copy
+/// off (EEPROM is writable only then); Return Delay Time, Status Return Level 2, the profile's
+/// Homing Offset (when it gives one), the position limits, the profile's Position P Gain (when it gives one); read present positions and copy
 /// them into the goals; only then torque on — so no servo jumps; last, the Bus Watchdog on all
 /// servos at once (the caller's first command must follow within it). Each transaction that
 /// meets a busy line or host is tried again ([`STARTUP_TRIES`] in all).
@@ -453,6 +453,10 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: BusSection<'_>) -> Result<Vec<i
         }
         let delay = [(profile.config.return_delay_us / 2) as u8];
         retried(|| bus.write(s.id, addr::RETURN_DELAY_TIME, &delay))?;
+        // Before the limits: they are in the offset's frame.
+        if let Some(offset) = s.homing_offset {
+            retried(|| bus.write(s.id, addr::HOMING_OFFSET, &offset.to_le_bytes()))?;
+        }
         retried(|| bus.write(s.id, addr::STATUS_RETURN_LEVEL, &[2]))?;
         retried(|| bus.write(s.id, addr::MAX_POSITION_LIMIT, &hi.to_le_bytes()))?;
         retried(|| bus.write(s.id, addr::MIN_POSITION_LIMIT, &lo.to_le_bytes()))?;

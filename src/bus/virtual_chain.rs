@@ -108,6 +108,38 @@ pub fn misconfigure(chain: &mut Chain, spec: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// How a rig of `servos` servos is really mounted, unknown to its profile (seeded): for each
+/// servo, its horn's tick when the rig stands in its reference pose (anywhere in the turn, the
+/// 0/4095 seam included), the direction its joint turns for rising ticks, and a Homing Offset
+/// someone left in it (a third of them), `(horn, direction, homing_offset)`.
+#[must_use]
+pub fn miscalibration(seed: u64, servos: usize) -> Vec<(i32, i8, i32)> {
+    let mut rng = super::faults::Rng::new(seed);
+    (0..servos)
+        .map(|_| {
+            let horn = rng.below(4096) as i32;
+            let direction = if rng.below(2) == 0 { 1 } else { -1 };
+            let homing = if rng.below(3) == 0 {
+                rng.below(2049) as i32 - 1024
+            } else {
+                0
+            };
+            (horn, direction, homing)
+        })
+        .collect()
+}
+
+/// Mounts `chain`'s servos (in profile order) as `truth` says ([`miscalibration`]), the rig
+/// standing in its reference pose: each horn at its tick, its Homing Offset in place.
+pub fn miscalibrate(chain: &mut Chain, ids: &[u8], truth: &[(i32, i8, i32)]) {
+    for (&id, &(horn, _, homing)) in ids.iter().zip(truth) {
+        if let Some(servo) = chain.servo_mut(id) {
+            servo.poke(crate::servo::addr::HOMING_OFFSET, &homing.to_le_bytes());
+            servo.set_position(f64::from(horn));
+        }
+    }
+}
+
 /// What moves a chain's servos as time passes.
 pub trait Plant {
     /// Lets `dt` seconds pass for the servos of `chain`.

@@ -2,6 +2,7 @@
 //! close group; this file only names the commands and hands each to its file.
 
 mod args;
+mod calibrate;
 mod convert;
 mod edit;
 mod error;
@@ -79,6 +80,10 @@ enum CliCommand {
     /// limits, supply, temperature) and the loop's cycle; one line per finding with what to
     /// do; exit 1 when the rig cannot run the profile. `--fix` writes what it safely can.
     Doctor(rig::DoctorArgs),
+    /// Measure each servo's zero and direction on the rig: torque off, the rig posed in its
+    /// reference pose, each joint moved a little (or by hand) and watched; written into the
+    /// profile, wrap-safe (a Homing Offset for a servo near the 0/4095 seam).
+    Calibrate(calibrate::CalibrateArgs),
     /// Describe a skeleton (ASF or BVH) and, given one, a motion: bones, DOFs, limits, frames.
     Info(inspect::InfoArgs),
     /// Global position of every bone's tip (the root: its position) per frame.
@@ -172,6 +177,7 @@ pub fn run_with(cli: Cli, allocations: Option<fn() -> u64>) -> Result<(), CliErr
         CliCommand::Ports => rig::ports_cmd(&mut io::stdout().lock()),
         CliCommand::Scan(a) => a.run(),
         CliCommand::Doctor(a) => a.run(),
+        CliCommand::Calibrate(a) => a.run(),
         CliCommand::Info(a) => a.run(),
         CliCommand::Fk(a) => a.run(),
         CliCommand::Convert(a) => a.run(),

@@ -246,6 +246,7 @@ pub fn serve_cmd(
     line_time: Option<Option<i32>>,
     duration: Option<f64>,
     misconfigure: Option<&str>,
+    miscalibrate: Option<u64>,
     out: &mut dyn Write,
 ) -> Result<(), CliError> {
     if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
@@ -261,6 +262,10 @@ pub fn serve_cmd(
     if let Some(spec) = misconfigure {
         crate::bus::virtual_chain::misconfigure(&mut chain, spec)
             .map_err(|e| CliError::Usage(format!("--misconfigure: {e}")))?;
+    }
+    if let Some(seed) = miscalibrate {
+        let truth = crate::bus::virtual_chain::miscalibration(seed, profile.servos.len());
+        crate::bus::virtual_chain::miscalibrate(&mut chain, &profile.ids(), &truth);
     }
     let pty = if let Some(priority) = line_time {
         PtyChain::serve_timed(chain, LineTiming::of(&profile.bus).at_priority(priority))
@@ -497,6 +502,11 @@ pub(super) struct ServeArgs {
     /// `hwerror=ID:BITS`.
     #[arg(long, value_name = "LIST")]
     pub(super) misconfigure: Option<String>,
+    /// Mount every servo unlike the profile says, to try `calibrate`: each horn somewhere in
+    /// its turn in the reference pose, its direction either way, a third with a Homing Offset
+    /// left in them — chosen by this seed, not told.
+    #[arg(long, value_name = "SEED")]
+    pub(super) miscalibrate: Option<u64>,
 }
 
 impl ServeArgs {
@@ -511,12 +521,14 @@ impl ServeArgs {
             duration,
             rt_priority,
             misconfigure,
+            miscalibrate,
         } = self;
         serve_cmd(
             &profile,
             (!no_line_time).then_some(rt_priority),
             duration,
             misconfigure.as_deref(),
+            miscalibrate,
             &mut std::io::stdout().lock(),
         )
     }

@@ -1,0 +1,258 @@
+//! `calibrate`: a rig whose servos are mounted unlike its profile says (`serve --miscalibrate`,
+//! served on a pseudo-terminal with line time) is calibrated from the command line, the test
+//! answering as the operator who sees the rig; the zeros, directions and Homing Offsets it
+//! writes are the rig's, and the calibrated profile then drives the rig.
+
+mod common;
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Stdio};
+
+use marionette::bus::virtual_chain::miscalibration;
+use marionette::bus::{open, Wire};
+use marionette::calibrate::wrap_safe_zero;
+use marionette::profile::Profile;
+use marionette::servo::addr;
+
+const SEED: u64 = 7;
+
+fn puppet_copy(dir: &Path) -> PathBuf {
+    let path = dir.join("cmu-puppet.toml");
+    std::fs::copy(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml"),
+        &path,
+    )
+    .unwrap();
+    path
+}
+
+/// `serve PROFILE --miscalibrate SEED` and its device path.
+fn serve(profile: &Path, seconds: u32) -> (Child, String) {
+    let mut child = common::bin()
+        .arg("serve")
+        .arg(profile)
+        .args([
+            "--miscalibrate",
+            &SEED.to_string(),
+            "--duration",
+            &seconds.to_string(),
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let first = lines.next().unwrap().unwrap();
+    assert!(first.contains("28 virtual servos"), "{first}");
+    let path = lines.next().unwrap().unwrap();
+    assert!(path.starts_with("/dev/"), "{path}");
+    (child, path)
+}
+
+fn calibrate(profile: &Path, port: &str, answers: &str, extra: &[&str]) -> std::process::Output {
+    let mut child = common::bin()
+        .arg("calibrate")
+        .arg(profile)
+        .args(["--port", port])
+        .args(extra)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all(answers.as_bytes()).unwrap();
+    child.wait_with_output().unwrap()
+}
+
+#[test]
+fn calibrate_recovers_the_zeros_and_directions_of_a_miscalibrated_rig_and_the_result_drives_it() {
+    let dir = common::tempdir("calibrate");
+    let path = puppet_copy(&dir);
+    let before = Profile::load(&path).unwrap();
+    let truth = miscalibration(SEED, before.servos.len());
+    let (mut served, port) = serve(&path, 120);
+
+    // As it was, the profile does not fit the rig: doctor says which servos stand outside
+    // their range and the rig cannot run it.
+    let doctor = common::bin()
+        .arg("doctor")
+        .arg(&path)
+        .args(["--port", &port])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&doctor.stdout);
+    assert_eq!(doctor.status.code(), Some(1), "{text}");
+    assert!(
+        text.contains("outside its") && text.contains("marionette calibrate"),
+        "{text}"
+    );
+
+    // The operator poses the rig (Enter), then watches each joint's move: out the positive
+    // way when the servo is mounted turning positive with rising ticks.
+    let mut answers = String::from("\n");
+    for (_, direction, _) in &truth {
+        answers.push_str(if *direction > 0 { "y\n" } else { "n\n" });
+    }
+    let json = dir.join("calibration.json");
+    let out = calibrate(&path, &port, &answers, &["--json", json.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success());
+    assert!(text.contains("written into"), "{text}");
+
+    let found: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let after = Profile::load(&path).unwrap();
+    let mut offsets = 0;
+    for ((s, c), (horn, direction, _)) in after.servos.iter().zip(&found).zip(&truth) {
+        // The horn's tick in the reference pose, whatever Homing Offset was left in it.
+        assert_eq!(c["horn"].as_i64(), Some(i64::from(*horn)), "{}", s.name);
+        assert_eq!(s.direction, f64::from(*direction), "{}", s.name);
+        let homing = s.homing_offset.unwrap_or(0);
+        assert_eq!(
+            s.zero as i32 - homing,
+            *horn,
+            "{}: zero less the offset is the horn",
+            s.name
+        );
+        offsets += usize::from(homing != 0);
+    }
+    // Seed 7 puts some horns where the range would wrap past 0/4095: those get an offset.
+    assert!(offsets >= 3, "{offsets} Homing Offsets");
+    // Comments and layout stay: only the calibrated keys changed.
+    let old = std::fs::read_to_string(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml"),
+    )
+    .unwrap();
+    let new = std::fs::read_to_string(&path).unwrap();
+    let comments = |t: &str| t.lines().filter(|l| l.trim_start().starts_with('#')).count();
+    assert_eq!(comments(&old), comments(&new));
+    assert_eq!(new.lines().count(), old.lines().count() + offsets);
+
+    // On the rig: every servo is back in the reference pose, reading its new zero (its
+    // offset written), torque off.
+    {
+        let mut bus = open(Wire::Port(port.clone()), &after.bus, after.servos.len()).unwrap();
+        for s in &after.servos {
+            let at = bus.read_value(s.id, addr::PRESENT_POSITION, 4).unwrap() as i32;
+            assert!(
+                (at - s.zero as i32).abs() <= 3,
+                "{}: at {at}, zero {}",
+                s.name,
+                s.zero
+            );
+            assert_eq!(
+                bus.read_value(s.id, addr::TORQUE_ENABLE, 1).unwrap(),
+                0,
+                "{}",
+                s.name
+            );
+            let homing = bus.read_value(s.id, addr::HOMING_OFFSET, 4).unwrap() as i32;
+            assert_eq!(homing, s.homing_offset.unwrap_or(0), "{}", s.name);
+        }
+    }
+
+    // The calibrated profile passes doctor and plays the walk on the rig.
+    let doctor = common::bin()
+        .arg("doctor")
+        .arg(&path)
+        .args(["--port", &port])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&doctor.stdout);
+    assert_eq!(doctor.status.code(), Some(0), "{text}");
+    assert!(!text.contains("Homing Offset"), "{text}");
+    let play = common::bin()
+        .arg("play")
+        .arg(&path)
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .args(["--bus", &port, "--rate", "60", "--duration", "1", "-q"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&play.stdout);
+    println!("{text}{}", String::from_utf8_lossy(&play.stderr));
+    assert!(play.status.success());
+    assert!(text.contains("28 servos up, torque on"), "{text}");
+    let _ = served.kill();
+    let _ = served.wait();
+}
+
+#[test]
+fn calibrate_stopped_by_the_operator_leaves_the_profile_unchanged_and_torque_off() {
+    let dir = common::tempdir("calibrate-stop");
+    let path = puppet_copy(&dir);
+    let text_before = std::fs::read_to_string(&path).unwrap();
+    let profile = Profile::load(&path).unwrap();
+    let (mut served, port) = serve(&path, 60);
+    // Posed, three joints watched, then stdin closes (nobody at the rig any more).
+    let out = calibrate(&path, &port, "\ny\nn\ny\n", &[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("calibration stopped") && err.contains("stdin closed"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), text_before);
+    // "q" stops too.
+    let out = calibrate(&path, &port, "\ny\nq\n", &[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("stopped by the operator"), "{err}");
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), text_before);
+    // The servos as they were: torque off, the Homing Offsets left in them, horns where they
+    // stood.
+    let truth = miscalibration(SEED, profile.servos.len());
+    let mut bus = open(Wire::Port(port), &profile.bus, profile.servos.len()).unwrap();
+    for (s, (horn, _, homing)) in profile.servos.iter().zip(&truth) {
+        assert_eq!(
+            bus.read_value(s.id, addr::TORQUE_ENABLE, 1).unwrap(),
+            0,
+            "{}",
+            s.name
+        );
+        assert_eq!(
+            bus.read_value(s.id, addr::HOMING_OFFSET, 4).unwrap() as i32,
+            *homing,
+            "{}",
+            s.name
+        );
+        let at = bus.read_value(s.id, addr::PRESENT_POSITION, 4).unwrap() as i32;
+        assert!((at - homing - horn).abs() <= 3, "{}: at {at}", s.name);
+    }
+    let _ = served.kill();
+    let _ = served.wait();
+}
+
+#[test]
+fn a_zero_near_the_seam_gets_a_homing_offset_that_centres_the_range() {
+    let profile =
+        Profile::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/robotis-op3.toml"))
+            .unwrap();
+    for s in &profile.servos {
+        for direction in [1.0, -1.0] {
+            // Mid-turn: the profile's zero alone, no offset.
+            assert_eq!(
+                wrap_safe_zero(s, 2048, direction).unwrap(),
+                (0, 2048),
+                "{}",
+                s.name
+            );
+            // At the seam, either side: an offset, and the range then inside 0…4095.
+            for horn in [0, 30, 4065, 4095] {
+                let (offset, zero) = wrap_safe_zero(s, horn, direction).unwrap();
+                assert_eq!(zero - offset, horn);
+                let mut spec = s.clone();
+                spec.zero = f64::from(zero);
+                spec.direction = direction;
+                let (lo, hi) = spec.tick_limits();
+                assert!(lo >= 0 && hi <= 4095, "{}: {lo}…{hi}", s.name);
+                if offset == 0 {
+                    // Only a joint whose range lies all on one side of 0° fits there.
+                    assert!(s.min_deg >= 0.0 || s.max_deg <= 0.0, "{} at {horn}", s.name);
+                }
+            }
+        }
+    }
+}
