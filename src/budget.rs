@@ -13,6 +13,11 @@
 //! Sync or Bulk Read as one more Bulk Read entry (request `10 + 5·(N + 1)`, its reply `11 + b`,
 //! one more return delay); beside a Fast read it is a Read of its own (request 14, reply
 //! `11 + b`, a return delay and a USB latency more).
+//!
+//! The loop's health watch ([`crate::control::health`]) adds, every few cycles, a Read of
+//! one servo's voltage and temperature (request 14, reply `11 + 3`) or its Hardware Error
+//! Status (reply `11 + 1`): a return delay and a USB latency more. Those cycles are the worst,
+//! and the asked rate must fit them too.
 
 use serde::Serialize;
 
@@ -61,6 +66,13 @@ pub struct Budget {
     pub utilisation: Option<f64>,
     /// Whether the asked rate fits.
     pub feasible: Option<bool>,
+    /// The health watch's read, on the cycles that carry it, µs (bytes, return delay, USB
+    /// latency).
+    pub health_read_us: f64,
+    /// A cycle with the health read, µs.
+    pub worst_cycle_us: f64,
+    /// Whether the asked rate fits the worst cycle too.
+    pub worst_feasible: Option<bool>,
 }
 
 /// Computes the budget of `servos` servos on `bus`, optionally against a loop rate.
@@ -103,6 +115,10 @@ pub fn plan_with_board(
     let cycle_time_us = wire_time_us + return_delay_us + usb_latency_us;
     let max_rate_hz = 1e6 / cycle_time_us;
     let utilisation = rate_hz.map(|r| cycle_time_us * r / 1e6);
+    let health_read_us = f64::from(HEALTH_READ_BYTES) * f64::from(BITS_PER_BYTE) * 1e6 / f64::from(bus.baud)
+        + f64::from(bus.return_delay_us)
+        + f64::from(bus.usb_latency_us);
+    let worst_cycle_us = cycle_time_us + health_read_us;
     Budget {
         servos,
         baud: bus.baud,
@@ -122,8 +138,14 @@ pub fn plan_with_board(
         requested_rate_hz: rate_hz,
         utilisation,
         feasible: utilisation.map(|u| u <= 1.0),
+        health_read_us,
+        worst_cycle_us,
+        worst_feasible: rate_hz.map(|r| worst_cycle_us * r / 1e6 <= 1.0),
     }
 }
+
+/// Bytes of the health watch's larger read: the request (14) and a reply of 11 + 3.
+pub const HEALTH_READ_BYTES: u32 = 14 + 11 + 3;
 
 impl std::fmt::Display for Budget {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -161,12 +183,22 @@ impl std::fmt::Display for Budget {
             "  cycle                    {:>9.1} µs  → at most {:.1} Hz",
             self.cycle_time_us, self.max_rate_hz
         )?;
+        writeln!(
+            f,
+            "  + health read              {:>9.1} µs  on one cycle in a few ({:.1} µs then)",
+            self.health_read_us, self.worst_cycle_us
+        )?;
         if let (Some(r), Some(u)) = (self.requested_rate_hz, self.utilisation) {
             if u <= 1.0 {
                 writeln!(
                     f,
-                    "  {r} Hz fits: the bus is busy {:.0} % of each period",
-                    u * 100.0
+                    "  {r} Hz fits: the bus is busy {:.0} % of each period{}",
+                    u * 100.0,
+                    if self.worst_feasible == Some(false) {
+                        " — but not the cycles with the health read: those run late (or give --no-health)"
+                    } else {
+                        ""
+                    }
                 )?;
             } else {
                 writeln!(

@@ -119,28 +119,6 @@ const READ_TRIES: usize = 3;
 /// Loop cycles timed for the measured cycle.
 const TIMED_CYCLES: usize = 40;
 
-/// The names of Hardware Error Status's bits (e-manual, X series).
-#[must_use]
-pub fn hardware_error_names(bits: u8) -> String {
-    const NAMES: [(u8, &str); 5] = [
-        (0x01, "input voltage"),
-        (0x04, "overheating"),
-        (0x08, "motor encoder"),
-        (0x10, "electrical shock"),
-        (0x20, "overload"),
-    ];
-    let names: Vec<&str> = NAMES
-        .iter()
-        .filter(|(b, _)| bits & b != 0)
-        .map(|(_, n)| *n)
-        .collect();
-    if names.is_empty() {
-        format!("{bits:#04x}")
-    } else {
-        format!("{bits:#04x} ({})", names.join(", "))
-    }
-}
-
 /// The bus settings to open a rig with as it stands, before start-up sets it: `bus` with
 /// replies allowed the longest Return Delay Time (254 × 2 µs) and an adapter's default
 /// latency timer, and no pipelining.
@@ -302,7 +280,7 @@ fn check_servo(
         report.push(
             Level::Fault,
             Some(s),
-            format!("hardware error {}", hardware_error_names(hw)),
+            format!("hardware error {}", crate::bus::hardware_error_names(hw)),
             "remove the cause (load, supply, heat), then reboot the servo or power-cycle the rig",
             None,
         );

@@ -65,7 +65,21 @@ pub struct VirtualServo {
     indirect_in_use: bool,
     /// The supply it is powered from, volts (Present Input Voltage).
     supply_v: Real,
+    /// The motor's temperature, °C (Present Temperature): [`VirtualServo::heat`].
+    temperature_c: Real,
 }
+
+/// The air around the servos, °C: where a servo starts and what it cools towards.
+pub const AMBIENT_C: Real = 25.0;
+
+/// The thermal model's time constant, s. The e-manual gives none; a small DC motor in a
+/// plastic case is assumed to take a couple of minutes to settle.
+pub const THERMAL_TIME_CONSTANT_S: Real = 120.0;
+
+/// The share of the stall current a servo carries forever at its Temperature Limit: the
+/// thermal resistance follows from it (catalogue continuous ratings are about a third to a
+/// half of stall).
+pub const CONTINUOUS_CURRENT_SHARE: Real = 0.4;
 
 /// PWM Limit's factory value and full scale (0.113 % units).
 const PWM_FULL: Real = 885.0;
@@ -78,6 +92,8 @@ const BAUD_CODES: [u32; 8] = [
 const REALTIME_TICK: u16 = 120;
 /// Secondary (Shadow) ID: 253 and above switch it off.
 const SECONDARY_ID: usize = 12;
+/// Temperature Limit (1 byte, °C, EEPROM).
+const TEMPERATURE_LIMIT: usize = 31;
 /// Protocol Type: the servo answers Protocol 2.0 only while it holds 2.
 const PROTOCOL_TYPE: usize = 13;
 /// Velocity Trajectory and Position Trajectory (4 bytes each): the profile's set point.
@@ -107,6 +123,7 @@ impl VirtualServo {
             profile: None,
             indirect_in_use: false,
             supply_v: model.rated_v,
+            temperature_c: AMBIENT_C,
         };
         s.factory_defaults(id);
         s
@@ -117,6 +134,46 @@ impl VirtualServo {
     pub fn set_supply(&mut self, volts: Real) {
         if volts.is_finite() && volts > 0.0 {
             self.supply_v = volts;
+        }
+    }
+
+    /// Sets the motor's temperature, °C (a servo warm from an earlier run); it heats and cools
+    /// from there ([`VirtualServo::heat`]). A value that is not finite is ignored.
+    pub fn set_temperature(&mut self, celsius: Real) {
+        if celsius.is_finite() {
+            self.temperature_c = celsius;
+            self.refresh_present();
+        }
+    }
+
+    /// The motor's temperature, °C.
+    #[must_use]
+    pub fn temperature(&self) -> Real {
+        self.temperature_c
+    }
+
+    /// The thermal model, first order: `C·dT/dt = I²R − (T − T_amb)/R_th`, with the current
+    /// from the load (`I = I_stall · |τ|/τ_stall`) and the winding's resistance from the stall
+    /// figures (`R = V_rated / I_stall`); `R_th` makes [`CONTINUOUS_CURRENT_SHARE`] of the stall
+    /// current settle at the model's Temperature Limit and `R_th·C` is
+    /// [`THERMAL_TIME_CONSTANT_S`]. At the Temperature Limit register's value the servo raises
+    /// its overheating error (and, as Shutdown says, drops torque), as the firmware does.
+    fn heat(&mut self, dt: Real) {
+        let m = self.model;
+        let share = if self.torque_on() {
+            (self.load_nm / m.stall_torque_nm).abs().min(1.0)
+        } else {
+            0.0
+        };
+        let stall_w = m.rated_v * m.stall_current_a;
+        let loss_w = share * share * stall_w;
+        let r_th = (Real::from(m.temperature_limit) - AMBIENT_C)
+            / (CONTINUOUS_CURRENT_SHARE * CONTINUOUS_CURRENT_SHARE * stall_w);
+        let capacity = THERMAL_TIME_CONSTANT_S / r_th;
+        self.temperature_c += dt * (loss_w - (self.temperature_c - AMBIENT_C) / r_th) / capacity;
+        let limit = self.table[TEMPERATURE_LIMIT];
+        if self.temperature_c >= Real::from(limit) {
+            self.raise_hardware_error(crate::servo::hardware_error::OVERHEATING);
         }
     }
 
@@ -354,7 +411,8 @@ impl VirtualServo {
         self.put(addr::PRESENT_PWM, 2, u32::from(pwm as u16));
         let supply = real::round(self.supply_v * 10.0) as u32;
         self.put(addr::PRESENT_INPUT_VOLTAGE, 2, supply);
-        self.put(addr::PRESENT_TEMPERATURE, 1, 35);
+        let celsius = real::round(self.temperature_c).clamp(0.0, 255.0);
+        self.put(addr::PRESENT_TEMPERATURE, 1, celsius as u32);
         // The profile's set point while one runs; otherwise the goal (torque on) or where it is.
         let (tp, tv) = match (self.profile, self.torque_on()) {
             (Some((tp, tv)), _) => (
@@ -493,6 +551,7 @@ impl VirtualServo {
         } else {
             self.velocity = 0.0;
         }
+        self.heat(dt);
         self.refresh_present();
     }
 
@@ -503,6 +562,7 @@ impl VirtualServo {
         self.run_watchdog(dt);
         self.position = position;
         self.velocity = velocity;
+        self.heat(dt);
         self.refresh_present();
     }
 

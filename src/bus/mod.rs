@@ -529,6 +529,28 @@ fn torque_on_and_arm(
     Ok(())
 }
 
+/// The names of Hardware Error Status's bits (e-manual, X series).
+#[must_use]
+pub fn hardware_error_names(bits: u8) -> String {
+    const NAMES: [(u8, &str); 5] = [
+        (0x01, "input voltage"),
+        (0x04, "overheating"),
+        (0x08, "motor encoder"),
+        (0x10, "electrical shock"),
+        (0x20, "overload"),
+    ];
+    let names: Vec<&str> = NAMES
+        .iter()
+        .filter(|(b, _)| bits & b != 0)
+        .map(|(_, n)| *n)
+        .collect();
+    if names.is_empty() {
+        format!("{bits:#04x}")
+    } else {
+        format!("{bits:#04x} ({})", names.join(", "))
+    }
+}
+
 /// How many times start-up tries each of its transactions.
 pub const STARTUP_TRIES: usize = 3;
 

@@ -38,8 +38,10 @@ pub fn chain_for(profile: BusSection<'_>, position: impl Fn(usize) -> i32) -> Ch
 /// Makes `chain` wrong on purpose, to try `doctor` on it: `spec` is a comma-separated list of
 /// `missing=ID` (taken off the bus), `extra=ID` (one more servo the profile does not name),
 /// `model=ID:NAME` (another model at the id), `rdt=ID:MICROSECONDS`, `srl=ID:LEVEL`,
-/// `mode=ID:OPERATING_MODE`, `max_limit=ID:TICK`, `velocity_limit=ID:UNITS`, `pwm_limit=ID:N`
-/// and `hwerror=ID:BITS` (Hardware Error Status bits, e.g. 4 for overheating).
+/// `mode=ID:OPERATING_MODE`, `max_limit=ID:TICK`, `velocity_limit=ID:UNITS`, `pwm_limit=ID:N`,
+/// `temp=ID:CELSIUS` (warm from an earlier run; it heats and cools from there),
+/// `supply=ID:VOLTS` and `hwerror=ID:BITS` (Hardware Error Status bits, e.g. 4 for
+/// overheating).
 ///
 /// # Errors
 /// What is wrong with `spec`, as one line.
@@ -94,13 +96,27 @@ pub fn misconfigure(chain: &mut Chain, spec: &str) -> Result<(), String> {
             "max_limit" => poke(chain, addr::MAX_POSITION_LIMIT, &number(value)?.min(4095).to_le_bytes())?,
             "velocity_limit" => poke(chain, addr::VELOCITY_LIMIT, &number(value)?.to_le_bytes())?,
             "pwm_limit" => poke(chain, addr::PWM_LIMIT, &(number(value)?.min(885) as u16).to_le_bytes())?,
+            "temp" => chain
+                .servo_mut(id)
+                .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?
+                .set_temperature(f64::from(number(value)?.min(150))),
+            "supply" => {
+                let volts: f64 = value
+                    .ok_or_else(|| format!("`{item}`: expected supply={id}:VOLTS"))?
+                    .parse()
+                    .map_err(|_| format!("`{item}`: the supply must be a number of volts"))?;
+                chain
+                    .servo_mut(id)
+                    .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?
+                    .set_supply(volts);
+            }
             "hwerror" => chain
                 .servo_mut(id)
                 .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?
                 .raise_hardware_error(number(value)?.min(255) as u8),
             _ => {
                 return Err(format!(
-                    "`{item}`: unknown; expected missing, extra, model, rdt, srl, mode, max_limit, velocity_limit, pwm_limit or hwerror"
+                    "`{item}`: unknown; expected missing, extra, model, rdt, srl, mode, max_limit, velocity_limit, pwm_limit, temp, supply or hwerror"
                 ))
             }
         }

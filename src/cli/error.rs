@@ -43,6 +43,9 @@ pub enum CliError {
         /// What failed.
         source: BusError,
     },
+    /// A servo's health ended the run (eased to rest, torque off).
+    #[error("{0}: the run was eased to rest and torque turned off; let it cool (or fix the supply) before the next")]
+    ServoHealth(String),
     /// The servos could not be started as the profile says.
     #[error("start-up: {0}")]
     StartUp(#[from] StartupError),

@@ -191,6 +191,11 @@ pub struct LoopArgs {
     /// nothing).
     #[arg(long)]
     pub no_load_compensation: bool,
+    /// Do not watch the servos' temperature, supply and hardware errors (by default one servo's
+    /// figures are read every few ticks, and a servo near its Temperature Limit, off its supply
+    /// range or in a hardware error ends the run: eased to rest, torque off).
+    #[arg(long)]
+    pub no_health: bool,
     /// Command each tick's target through the greedy limiter instead of planning the goal
     /// path over a preview of the input (the look-ahead).
     #[arg(long)]
@@ -327,6 +332,7 @@ impl LoopArgs {
             },
             walk: self.walk,
             load_compensation: !self.no_load_compensation,
+            health: !self.no_health,
             imu: match self.imu {
                 ImuArg::Off => ImuUse::Off,
                 ImuArg::Read => ImuUse::Read,
@@ -383,6 +389,7 @@ pub(super) fn finish(
         RunEnd::Interrupted => "interrupted",
         RunEnd::ReadsFailed => "reads failed",
         RunEnd::PortLost => "port lost",
+        RunEnd::Health => "servo health",
     };
     // Files first: after a hang-up (the terminal closed) printing may fail, the files not.
     let mut written = Vec::new();
@@ -414,10 +421,23 @@ pub(super) fn finish(
             servos.unwrap_or(0)
         )?,
     }
+    if let Some(h) = &outcome.stats.health {
+        for w in &h.warnings {
+            writeln!(out, "health warning: {w}")?;
+        }
+    }
     for line in written {
         writeln!(out, "{line}")?;
     }
     match outcome.end {
+        RunEnd::Health => Err(CliError::ServoHealth(
+            outcome
+                .stats
+                .health
+                .as_ref()
+                .and_then(|h| h.stopped.clone())
+                .unwrap_or_else(|| "a servo's health".into()),
+        )),
         RunEnd::ReadsFailed => Err(CliError::ServosSilent {
             ms: args.torque_off_after,
         }),

@@ -499,7 +499,7 @@ pub(super) struct ServeArgs {
     /// Make the chain wrong on purpose, to try `doctor`: a comma-separated list of
     /// `missing=ID`, `extra=ID`, `model=ID:NAME`, `rdt=ID:MICROSECONDS`, `srl=ID:LEVEL`,
     /// `mode=ID:N`, `max_limit=ID:TICK`, `velocity_limit=ID:UNITS`, `pwm_limit=ID:N`,
-    /// `hwerror=ID:BITS`.
+    /// `temp=ID:CELSIUS`, `supply=ID:VOLTS`, `hwerror=ID:BITS`.
     #[arg(long, value_name = "LIST")]
     pub(super) misconfigure: Option<String>,
     /// Mount every servo unlike the profile says, to try `calibrate`: each horn somewhere in

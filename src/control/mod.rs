@@ -19,6 +19,7 @@
 pub mod balance;
 pub mod fidelity;
 mod follow;
+pub mod health;
 pub mod identify;
 mod ingest;
 pub mod input;
@@ -159,6 +160,9 @@ pub struct Telemetry {
     pub read_ns: u64,
     /// Whether the tick belongs to the stop ramp (after the input's end or a stop request).
     pub stopping: bool,
+    /// The hottest servo the health watch has read: (id, °C); `None` before a read or
+    /// without a watch.
+    pub hottest: Option<(u8, u8)>,
 }
 
 impl Default for Telemetry {
@@ -179,6 +183,7 @@ impl Default for Telemetry {
             servos: 0,
             read_ns: 0,
             stopping: false,
+            hottest: None,
         }
     }
 }
@@ -207,6 +212,9 @@ pub enum RunEnd {
     ReadsFailed,
     /// The port failed (I/O error: the adapter went away); one torque-off was tried.
     PortLost,
+    /// A servo's health (temperature, supply, hardware error) ended the run: eased to rest,
+    /// torque off ([`health::HealthWatch::stopped`] says which and why).
+    Health,
 }
 
 /// Requests to stop the loop (from signal handlers, a user interface, a test), counted from
@@ -275,6 +283,8 @@ pub struct Controller {
     retarget: Option<Box<RetargetStage>>,
     /// The IMU board's reading and the legs' gyro feedback.
     balance: Option<Box<balance::Balance>>,
+    /// The servos' temperature, supply and hardware errors, read at a low rate.
+    health: Option<Box<health::HealthWatch>>,
     /// Where the ramp to rest ends, radians per servo (rig order); `None`: every angle 0.
     rest_pose: Option<Vec<f64>>,
     have_input: bool,
@@ -392,6 +402,7 @@ impl Controller {
             watched_chains,
             retarget: None,
             balance: None,
+            health: None,
             rest_pose: None,
             have_input: false,
             clip_time: f64::NAN,
@@ -513,6 +524,18 @@ impl Controller {
             (angles.len() == self.rig.servos.len() && angles.iter().all(|a| a.is_finite())).then_some(angles);
     }
 
+    /// Watches the servos' health from the bus's idle slot ([`health`]): a servo past its
+    /// thresholds ends the run ([`RunEnd::Health`]).
+    pub fn set_health(&mut self, watch: health::HealthWatch) {
+        self.health = Some(Box::new(watch));
+    }
+
+    /// Why the health watch ended the run, when it did.
+    #[must_use]
+    pub fn health_stop(&self) -> Option<String> {
+        self.health.as_ref().and_then(|h| h.stopped())
+    }
+
     /// Reads the IMU board every tick (and, as `balance` says, feeds its gyro back to the legs).
     pub fn set_balance(&mut self, balance: balance::Balance) {
         self.balance = Some(Box::new(balance));
@@ -587,6 +610,13 @@ impl Controller {
             b.read(bus);
             replies.1 += clock.now_ns() - t0;
         }
+        let mut unhealthy = false;
+        if let Some(h) = &mut self.health {
+            // The same idle slot, one item every few ticks.
+            let t0 = clock.now_ns();
+            unhealthy = h.read(bus);
+            replies.1 += clock.now_ns() - t0;
+        }
         let t_solve = clock.now_ns();
         let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;
         let current = self.take_current(tick, start, dt);
@@ -607,6 +637,9 @@ impl Controller {
             *self.stats.allocations_in_tick.get_or_insert(0) += f().saturating_sub(before);
         }
         let mut end = done_bus.end;
+        if end.is_none() && unhealthy {
+            end = Some(RunEnd::Health);
+        }
         if end.is_none()
             && self.input.finished()
             && !current.fresh

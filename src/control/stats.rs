@@ -107,6 +107,9 @@ pub struct LoopStats {
     pub retarget: Option<crate::retarget::RetargetReport>,
     /// What the IMU board read (profiles with one).
     pub imu: Option<super::balance::ImuReport>,
+    /// What the health watch read: each servo's temperature, supply and errors, the warnings,
+    /// and why it ended the run when it did.
+    pub health: Option<super::health::HealthReport>,
     /// Source against present, end to end (set when a run ends).
     pub fidelity: Option<super::fidelity::FidelityReport>,
     /// With the simulator: its report (tracking, the torso, a walk's footsteps), set when the
@@ -213,6 +216,7 @@ impl LoopStats {
             torque_off_acknowledged: self.torque_off_acknowledged,
             retarget: self.retarget.clone(),
             imu: self.imu.clone(),
+            health: self.health.clone(),
             fidelity: self.fidelity.clone(),
             sim: self.sim.clone(),
             tracking_rms_deg: self.tracking_rms_deg(),
@@ -275,6 +279,10 @@ pub struct Report {
     /// What the IMU board read: reads, failures, the torso's largest tilt, the feedback given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub imu: Option<super::balance::ImuReport>,
+    /// What the health watch read (temperature, supply, hardware errors per servo), its
+    /// warnings, and why it ended the run when it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub health: Option<super::health::HealthReport>,
     /// With the simulator (`--bus sim`): its report, as `--sim-report` writes it (`fell`,
     /// `torso_max_tilt_deg`, `torso_travel_m`, a walk's `footsteps`, `footstep_error_mm`,
     /// `zmp_margin_mm` …).

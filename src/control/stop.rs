@@ -37,7 +37,7 @@ impl Controller {
             }
         };
         let why = match why {
-            RunEnd::Interrupted | RunEnd::Duration => match self.finish_step(schedule, bus, clock, stop) {
+            RunEnd::Interrupted | RunEnd::Duration | RunEnd::Health => match self.finish_step(schedule, bus, clock, stop) {
                 Some(fault @ (RunEnd::ReadsFailed | RunEnd::PortLost)) => fault,
                 _ => why,
             },
@@ -49,6 +49,9 @@ impl Controller {
         }
         if let Some(b) = &self.balance {
             self.stats.imu = Some(b.report());
+        }
+        if let Some(h) = &self.health {
+            self.stats.health = Some(h.report());
         }
         self.stats.fidelity = Some(self.fidelity_report());
         if matches!(why, RunEnd::ReadsFailed | RunEnd::PortLost) {

@@ -350,6 +350,7 @@ impl Controller {
                 servos: len,
                 read_ns: self.reads.last_valid_ns,
                 stopping: false,
+                hottest: self.health.as_ref().and_then(|h| h.hottest()),
             };
             t.present[..len].copy_from_slice(&self.reads.present);
             self.emit(&t);

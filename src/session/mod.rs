@@ -228,6 +228,9 @@ pub struct SessionSpec {
     /// pose's static load (its stiffness from its model and Position P Gain), so that the
     /// horn ends on the angle. Off for a robot on a stand.
     pub load_compensation: bool,
+    /// Watch the servos' temperature, supply and hardware errors from the loop
+    /// ([`crate::control::health`]).
+    pub health: bool,
     /// Model metres per subject metre (the generated puppet; effector errors in metres).
     pub scale: f64,
     /// Scheduling of the loop's thread.
@@ -265,6 +268,7 @@ impl Default for SessionSpec {
             walk: false,
             imu: ImuUse::Off,
             load_compensation: true,
+            health: true,
             scale: 0.3,
             real_time: RealTime::default(),
             sim: SimSpec::default(),
@@ -610,6 +614,14 @@ pub fn controller(
     if let Some(v) = &spec.sinks.live {
         c.set_live_view(Arc::clone(v));
     }
+    if spec.health {
+        let servos: Vec<_> = profile
+            .servos
+            .iter()
+            .map(|s| (s.id, s.name.clone(), s.model, s.supply_v))
+            .collect();
+        c.set_health(crate::control::health::HealthWatch::new(&servos, spec.rate_hz));
+    }
     c
 }
 
@@ -816,6 +828,14 @@ fn warn_if_over_budget(
             b.cycle_time_us,
             100.0 * b.utilisation.unwrap_or(0.0),
             1e6 / rate_hz
+        )?;
+    } else if spec.health && b.worst_feasible == Some(false) {
+        writeln!(
+            log,
+            "warning: the cycles with the health read take {:.0} µs, over the {:.0} µs period: one tick in {:.0} runs late (--no-health, or a lower --rate)",
+            b.worst_cycle_us,
+            1e6 / rate_hz,
+            (rate_hz / crate::control::health::READS_PER_S).round().max(1.0)
         )?;
     }
     Ok(())
@@ -1206,11 +1226,13 @@ fn status_line<T>(
         };
         let fails = window.iter().filter(|t| !t.read_ok).count();
         let clip = window.last().map_or(f64::NAN, |t| t.clip_time);
+        let hottest = window.last().and_then(|t| t.hottest);
         let line = format!(
-            "{:>7.1} Hz  ticks {ticks:>7}  misses {misses:>4}  compute p99 {p99:>7.1} µs ({:.2} % of period)  tracking {rms:>6.3}°  failed reads {fails}{}",
+            "{:>7.1} Hz  ticks {ticks:>7}  misses {misses:>4}  compute p99 {p99:>7.1} µs ({:.2} % of period)  tracking {rms:>6.3}°  failed reads {fails}{}{}",
             window.len() as f64 / secs,
             p99 * 1e3 / period_ns as f64 * 100.0,
-            if clip.is_finite() { format!("  clip {clip:6.2} s") } else { String::new() }
+            if clip.is_finite() { format!("  clip {clip:6.2} s") } else { String::new() },
+            hottest.map_or(String::new(), |(id, c)| format!("  hottest id {id} {c} °C"))
         );
         // Writes may fail after a hang-up (the terminal closed): the loop goes on to its safe
         // stop regardless.
