@@ -1155,13 +1155,15 @@ fn check_servo(ck: &Checker<'_>, raw: &Spanned<RawServo>) -> Result<ServoSpec, T
         None => None,
         Some(h) => match i32::try_from(*h.get_ref()) {
             Ok(v) if (-HOMING_OFFSET_MAX..=HOMING_OFFSET_MAX).contains(&v) => Some(v),
-            _ => return Err(ck.at(
-                h,
-                format!(
+            _ => {
+                return Err(ck.at(
+                    h,
+                    format!(
                     "expected a Homing Offset in -{HOMING_OFFSET_MAX}…{HOMING_OFFSET_MAX} ticks, found {}",
                     h.get_ref()
                 ),
-            )),
+                ))
+            }
         },
     };
     let spec = ServoSpec {

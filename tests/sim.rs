@@ -1097,3 +1097,82 @@ fn the_op3_imu_read_over_the_bus_gives_mujocos_torso_tilt() {
         "{read} against {simulated}"
     );
 }
+
+/// A long heavy clip heats the servos that carry the load (the thermal model, from the current
+/// each draws in MuJoCo): the bundled walk looped for 47 s on the puppet, its servos warm from
+/// an earlier run (62 °C). The loaded leg servos heat, the light ones cool towards the air;
+/// the health watch ends the run before any servo reaches its Temperature Limit (no
+/// overheating error), eases it to rest and turns torque off, naming the servo and why.
+#[test]
+fn a_long_walk_heats_the_loaded_servos_and_the_health_watch_eases_to_rest_in_time() {
+    let dir = common::tempdir("sim-heat");
+    let walk = dir.join("walk40.amc");
+    let looped = common::bin()
+        .arg("loop")
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .arg("-o")
+        .arg(&walk)
+        .args(["--cycles", "40"])
+        .output()
+        .unwrap();
+    assert!(
+        looped.status.success(),
+        "{}",
+        String::from_utf8_lossy(&looped.stderr)
+    );
+    let stats_json = dir.join("stats.json");
+    let out = common::bin()
+        .arg("play")
+        .arg(repo("firmware-profile/cmu-puppet.toml"))
+        .arg(common::data("16.asf"))
+        .arg(&walk)
+        .args(["--bus", "sim", "-q", "--sim-servo-temp", "62", "--stats-json"])
+        .arg(&stats_json)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let (text, err) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    println!("{text}{err}");
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        err.contains("Temperature Limit") && err.contains("eased to rest"),
+        "{err}"
+    );
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&stats_json).unwrap()).unwrap();
+    assert_eq!(stats["end"], "servo health");
+    assert!(text.contains("torque off, acknowledged by 28 servos"), "{text}");
+    let health = &stats["health"];
+    let stopped = health["stopped"].as_str().unwrap();
+    let servos = health["servos"].as_array().unwrap();
+    let named = |s: &serde_json::Value| {
+        stopped.starts_with(&format!("id {} {}:", s["id"], s["name"].as_str().unwrap()))
+    };
+    let culprit = servos.iter().find(|s| named(s)).unwrap();
+    let leg = ["femur", "tibia", "foot"];
+    assert!(
+        leg.iter().any(|b| culprit["name"].as_str().unwrap().contains(b)),
+        "{stopped}"
+    );
+    // Before the clip's end (47 s at 120 Hz), and before the servo's own shutdown.
+    assert!(stats["ticks"].as_u64().unwrap() < 5600, "{}", stats["ticks"]);
+    assert!(servos.iter().all(|s| s["hardware_error"] == 0));
+    // The legs heated; the head and neck, nearly idle, cooled.
+    let hottest = |name: &str| {
+        servos.iter().find(|s| s["name"] == name).unwrap()["hottest_c"]
+            .as_u64()
+            .unwrap()
+    };
+    let last = |name: &str| {
+        servos.iter().find(|s| s["name"] == name).unwrap()["temperature_c"]
+            .as_u64()
+            .unwrap()
+    };
+    assert!(hottest("rtibia_rx") >= 66, "{}", hottest("rtibia_rx"));
+    assert!(last("head_rx") <= 55 && last("lowerneck_rx") <= 55, "{health}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

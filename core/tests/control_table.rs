@@ -348,3 +348,59 @@ fn action_without_a_registered_write_answers_instruction_error() {
     let replies = send(&mut chain, 1, instruction::ACTION, &[]);
     assert_eq!(replies.first().map(|r| r.1), Some(status_error::INSTRUCTION));
 }
+
+/// The thermal model: a servo holding a heavy load warms towards its Temperature Limit and,
+/// there, raises its overheating error and drops torque (Shutdown's factory bits); an unloaded
+/// warm servo cools towards the air with the model's time constant; Present Temperature
+/// reads it.
+#[test]
+fn a_loaded_servo_heats_to_its_limit_and_shuts_down_and_an_idle_one_cools() {
+    use marionette_core::device::{AMBIENT_C, CONTINUOUS_CURRENT_SHARE, THERMAL_TIME_CONSTANT_S};
+    use marionette_core::servo::hardware_error;
+    let model = &MODELS[2];
+    let mut chain = chain_of(model);
+    assert_eq!(write(&mut chain, 1, addr::TORQUE_ENABLE, &[1]), Some(0));
+    // At the continuous share it settles at the limit: after one time constant it has come
+    // 1 − 1/e of the way.
+    let servo = chain.servo_mut(1).unwrap();
+    servo.set_load(CONTINUOUS_CURRENT_SHARE * model.stall_torque_nm);
+    let dt = 0.01;
+    let steps = (THERMAL_TIME_CONSTANT_S / dt) as usize;
+    for _ in 0..steps {
+        chain.servo_mut(1).unwrap().step(dt);
+    }
+    let rise = chain.servo_mut(1).unwrap().temperature() - AMBIENT_C;
+    let full = f64::from(model.temperature_limit) - AMBIENT_C;
+    assert!(
+        (rise / full - (1.0 - (-1.0f64).exp())).abs() < 0.01,
+        "{rise} of {full}"
+    );
+    let (_, celsius) = read(&mut chain, 1, addr::PRESENT_TEMPERATURE, 1).unwrap();
+    assert!((f64::from(celsius) - (AMBIENT_C + rise)).abs() <= 0.5);
+    // Twice the continuous current heats it to its limit: overheating, torque off.
+    chain
+        .servo_mut(1)
+        .unwrap()
+        .set_load(2.0 * CONTINUOUS_CURRENT_SHARE * model.stall_torque_nm);
+    let mut seconds = 0.0;
+    while chain.servo_mut(1).unwrap().hardware_error() == 0 && seconds < 600.0 {
+        chain.servo_mut(1).unwrap().step(dt);
+        seconds += dt;
+    }
+    let servo = chain.servo_mut(1).unwrap();
+    assert_eq!(
+        servo.hardware_error(),
+        hardware_error::OVERHEATING,
+        "after {seconds} s"
+    );
+    assert!((servo.temperature() - f64::from(model.temperature_limit)).abs() < 0.1);
+    assert_eq!(read(&mut chain, 1, addr::TORQUE_ENABLE, 1).unwrap().1, 0);
+    // Idle (torque off, no current), it cools: down 1 − 1/e of the way in a time constant.
+    let servo = chain.servo_mut(1).unwrap();
+    let from = servo.temperature();
+    for _ in 0..steps {
+        servo.step(dt);
+    }
+    let left = (servo.temperature() - AMBIENT_C) / (from - AMBIENT_C);
+    assert!((left - (-1.0f64).exp()).abs() < 0.01, "{left}");
+}

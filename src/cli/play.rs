@@ -153,6 +153,10 @@ pub struct LoopArgs {
     /// With --bus sim: every simulated servo's torque limit times this (0.8: 20 % weaker).
     #[arg(long, default_value_t = 1.0)]
     pub sim_torque_scale: f64,
+    /// With --bus sim: every simulated servo starts this warm, °C (from an earlier run); each
+    /// heats from the current it draws and cools towards 25 °C (a first-order thermal model).
+    #[arg(long, value_name = "CELSIUS")]
+    pub sim_servo_temp: Option<f64>,
     /// With --bus sim and a model with an IMU: `SCALE[,SEED]` — its readings with the
     /// OpenCR's MPU-9250 errors times SCALE (1: its specification's zero-rate and zero-g
     /// offsets, 5 °/s and 60 mg, and noise, 0.1 °/s and 3 mg RMS), drawn from SEED (1).
@@ -266,6 +270,18 @@ impl LoopArgs {
                 ));
             }
         }
+        if let Some(c) = self.sim_servo_temp {
+            if self.bus != BusArg::Sim {
+                return Err(CliError::Usage(
+                    "--sim-servo-temp warms the simulated servos: give --bus sim".into(),
+                ));
+            }
+            if !(c.is_finite() && (0.0..=100.0).contains(&c)) {
+                return Err(CliError::Usage(format!(
+                    "--sim-servo-temp takes 0…100 °C, got {c}"
+                )));
+            }
+        }
         for (option, value) in [
             ("--sim-lag-scale", self.sim_lag_scale),
             ("--sim-torque-scale", self.sim_torque_scale),
@@ -353,6 +369,7 @@ impl LoopArgs {
                 push: self.sim_push.as_deref().map(|p| [p[0], p[1], p[2]]),
                 lag_scale: self.sim_lag_scale,
                 torque_scale: self.sim_torque_scale,
+                servo_temp_c: self.sim_servo_temp,
                 imu_errors,
             },
             sinks: Sinks {

@@ -37,10 +37,12 @@ impl Controller {
             }
         };
         let why = match why {
-            RunEnd::Interrupted | RunEnd::Duration | RunEnd::Health => match self.finish_step(schedule, bus, clock, stop) {
-                Some(fault @ (RunEnd::ReadsFailed | RunEnd::PortLost)) => fault,
-                _ => why,
-            },
+            RunEnd::Interrupted | RunEnd::Duration | RunEnd::Health => {
+                match self.finish_step(schedule, bus, clock, stop) {
+                    Some(fault @ (RunEnd::ReadsFailed | RunEnd::PortLost)) => fault,
+                    _ => why,
+                }
+            }
             _ => why,
         };
         self.input.stop_producers();

@@ -149,6 +149,9 @@ pub struct SimSpec {
     /// The model's IMU with its sensor's errors times this scale (1: the MPU-9250's
     /// specification) drawn from this seed.
     pub imu_errors: Option<(f64, u64)>,
+    /// Every simulated servo's motor temperature at the start, °C (warm from an earlier run;
+    /// `None`: the air's).
+    pub servo_temp_c: Option<f64>,
 }
 
 impl Default for SimSpec {
@@ -163,6 +166,7 @@ impl Default for SimSpec {
             lag_scale: 1.0,
             torque_scale: 1.0,
             imu_errors: None,
+            servo_temp_c: None,
         }
     }
 }
@@ -1023,6 +1027,17 @@ impl Run<'_> {
                 log,
                 "simulated servos unlike the profile: joint damping ×{lag}, torque limits ×{torque}"
             )?;
+        }
+        if let Some(celsius) = spec.sim.servo_temp_c {
+            let ids = profile.ids();
+            bus.with(|t| {
+                for &id in &ids {
+                    if let Some(s) = t.chain_mut().servo_mut(id) {
+                        s.set_temperature(celsius);
+                    }
+                }
+            });
+            writeln!(log, "simulated servos warm from an earlier run: {celsius} °C")?;
         }
         if let Some((scale, seed)) = spec.sim.imu_errors {
             bus.with(|t| {

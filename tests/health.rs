@@ -1,0 +1,164 @@
+//! The loop's health watch over a served virtual chain (line time kept): a servo warm from
+//! an earlier run, past its thresholds, or off its supply range, as `serve --misconfigure`
+//! makes it; the run warns, or ends eased to rest with torque off and one line naming the
+//! servo and why.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::Stdio;
+
+fn puppet() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml")
+}
+
+/// `serve --misconfigure SPEC`, then `play` of the bundled walk there: (exit code, stdout,
+/// stderr, the stats JSON).
+fn play_on(spec: &str, extra: &[&str]) -> (Option<i32>, String, String, serde_json::Value) {
+    let mut served = common::bin()
+        .arg("serve")
+        .arg(puppet())
+        .args(["--misconfigure", spec, "--duration", "60"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(served.stdout.take().unwrap()).lines();
+    let _ = lines.next().unwrap().unwrap();
+    let port = lines.next().unwrap().unwrap();
+    let dir = common::tempdir("health");
+    let json = dir.join("stats.json");
+    let out = common::bin()
+        .arg("play")
+        .arg(puppet())
+        .arg(common::data("16.asf"))
+        .arg(common::data("16_15.amc"))
+        .args(["--bus", &port, "--rate", "120", "-q", "--stats-json"])
+        .arg(&json)
+        .args(extra)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let _ = served.kill();
+    let _ = served.wait();
+    let stats = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+        stats,
+    )
+}
+
+#[test]
+fn a_servo_near_its_temperature_limit_ends_the_run_eased_to_rest_naming_it() {
+    // lowerneck_ry, an XM430-W350 (Temperature Limit 80 °C), at 79 °C.
+    let (code, out, err, stats) = play_on("temp=5:79", &[]);
+    println!("{out}{err}");
+    assert_eq!(code, Some(1));
+    // It cools a little (idle, torque on) during the move to the first pose before its read.
+    assert!(
+        err.contains("id 5 lowerneck_ry: 7")
+            && err.contains("Temperature Limit of 80 °C")
+            && err.contains("eased to rest"),
+        "{err}"
+    );
+    assert_eq!(stats["end"], "servo health");
+    assert!(
+        out.contains("ended: servo health; torque off, acknowledged by 28 servos"),
+        "{out}"
+    );
+    let health = &stats["health"];
+    assert!(health["stopped"]
+        .as_str()
+        .unwrap()
+        .starts_with("id 5 lowerneck_ry"));
+    assert_eq!(health["reads_failed"], 0);
+    // It stopped at the servo's first read (its turn comes after four servos' two reads).
+    assert_eq!(health["reads"], 9);
+    assert_eq!(stats["allocations_in_tick"], 0, "{stats}");
+}
+
+#[test]
+fn a_warm_servo_warns_and_the_run_goes_on() {
+    // lowerback_rz, an XH540-W270 (80 °C): warned from 65 °C, eased to rest from 75 °C.
+    let (code, out, err, stats) = play_on("temp=3:68", &["--duration", "2"]);
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(
+        out.contains("health warning: id 3 lowerback_rz: 68 °C, warm (it eases to rest at 75 °C)"),
+        "{out}"
+    );
+    assert_eq!(stats["end"], "duration reached");
+    let servos = stats["health"]["servos"].as_array().unwrap();
+    assert_eq!(servos[2]["warned"], true);
+    assert!(servos
+        .iter()
+        .filter(|s| s["id"] != 3)
+        .all(|s| s["warned"] == false));
+    // The others read the air's temperature and the profile's supply.
+    assert_eq!(servos[0]["temperature_c"], 25);
+    assert_eq!(servos[0]["voltage_v"], 12.0);
+}
+
+#[test]
+fn a_supply_off_the_models_range_ends_the_run() {
+    let (code, _, err, stats) = play_on("supply=2:9.2", &[]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("id 2 lowerback_ry: supply 9.2 V, outside the model's 10…14.8 V"),
+        "{err}"
+    );
+    assert_eq!(stats["health"]["servos"][1]["lowest_v"], 9.2);
+}
+
+#[test]
+fn a_hardware_error_raised_mid_run_is_read_at_the_servos_turn() {
+    use marionette::bus::virtual_chain::{chain_for, VirtualRig};
+    use marionette::control::health::HealthWatch;
+    use marionette::profile::Profile;
+    let profile = Profile::load(&puppet()).unwrap();
+    let chain = chain_for(profile.bus_section(), |_| 2048);
+    let mut rig = VirtualRig::new(chain, profile.bus.baud, std::time::Duration::from_millis(5));
+    let servos: Vec<_> = profile
+        .servos
+        .iter()
+        .map(|s| (s.id, s.name.clone(), s.model, s.supply_v))
+        .collect();
+    // At 120 Hz a read every 12 ticks.
+    let mut watch = HealthWatch::new(&servos, 120.0);
+    assert_eq!(watch.every(), 12);
+    let mut ticks = 0;
+    while ticks < 12 * 2 * 28 {
+        assert!(!watch.read(&mut rig), "healthy servos never stop it");
+        ticks += 1;
+    }
+    // Every servo read once, each twice (vitals, then errors).
+    let report = watch.report();
+    assert_eq!(report.reads, 56);
+    assert!(report.servos.iter().all(|s| s.temperature_c == Some(25)));
+    // Overload on servo 4 mid-run: found at its next error read, within one round.
+    rig.with(|t| t.chain_mut().servo_mut(4).unwrap().raise_hardware_error(0x20));
+    let mut stopped_after = None;
+    for k in 1..=12 * 2 * 28 {
+        if watch.read(&mut rig) {
+            stopped_after = Some(k);
+            break;
+        }
+    }
+    assert!(stopped_after.is_some());
+    assert_eq!(
+        watch.stopped().unwrap(),
+        "id 4 lowerneck_rx: hardware error 0x20 (overload)"
+    );
+    // It stays stopped.
+    assert!(watch.read(&mut rig));
+}
+
+#[test]
+fn no_health_turns_the_watch_off() {
+    // Without the watch, a warm servo is not read: the run plays to its end.
+    let (code, out, err, stats) = play_on("temp=5:79", &["--no-health", "--duration", "1.5"]);
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(stats.get("health").is_none_or(serde_json::Value::is_null));
+}
