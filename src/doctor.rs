@@ -40,6 +40,9 @@ pub struct Fix {
     pub address: u16,
     /// The bytes, little-endian.
     pub data: Vec<u8>,
+    /// The baud the servo answers at, when not the profile's (a servo found by
+    /// [`search_bauds`]): the write is made there ([`apply_baud_fixes`]).
+    pub at_baud: Option<u32>,
 }
 
 /// One thing found.
@@ -273,7 +276,14 @@ fn check_servo(
         result
     };
     let le = |v: u32, n: usize| v.to_le_bytes()[..n].to_vec();
-    let fix = |address: u16, data: Vec<u8>| Some(Fix { id, address, data });
+    let fix = |address: u16, data: Vec<u8>| {
+        Some(Fix {
+            id,
+            address,
+            data,
+            at_baud: None,
+        })
+    };
 
     let hw = read(bus, addr::HARDWARE_ERROR_STATUS, 1)? as u8;
     if hw != 0 {
@@ -545,7 +555,7 @@ pub fn apply_fixes(bus: &mut dyn ServoBus, report: &Report) -> Result<Vec<String
     let mut done = Vec::new();
     let mut torque_off: Vec<u8> = Vec::new();
     for f in &report.findings {
-        let Some(fix) = &f.fix else {
+        let Some(fix) = f.fix.as_ref().filter(|f| f.at_baud.is_none()) else {
             continue;
         };
         if !torque_off.contains(&fix.id) {
@@ -561,6 +571,109 @@ pub fn apply_fixes(bus: &mut dyn ServoBus, report: &Report) -> Result<Vec<String
             fix.data.len(),
             fix.address,
             f.what
+        ));
+    }
+    Ok(done)
+}
+
+/// The bauds an X-series servo can be set to (Baud Rate, 8), in the order they are tried for
+/// a servo that does not answer at the profile's: the factory 57,600 first, the slowest last
+/// (a scan at 9,600 waits about 4 s for an empty bus).
+pub const SEARCH_BAUDS: [u32; 8] = [
+    57_600, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000, 115_200, 9_600,
+];
+
+/// Looks on `port` at every other baud for the profiled servos that did not answer at the
+/// profile's, until all are found: each found turns its "does not answer" fault into one
+/// naming its baud, with the fix (its Baud Rate register set to the profile's, written at its
+/// own baud). Returns the bauds tried.
+///
+/// # Errors
+/// The port cannot be opened at a baud, or the bus fails there.
+pub fn search_bauds(port: &str, profile: &Profile, report: &mut Report) -> Result<Vec<u32>, BusError> {
+    let mut missing: Vec<u8> = report
+        .findings
+        .iter()
+        .filter(|f| f.level == Level::Fault && f.what.contains("does not answer"))
+        .filter_map(|f| f.id)
+        .collect();
+    let mut tried = Vec::new();
+    let Some(code) = crate::device::BAUD_CODES
+        .iter()
+        .position(|&b| b == profile.bus.baud)
+    else {
+        return Ok(tried);
+    };
+    for baud in SEARCH_BAUDS.into_iter().filter(|&b| b != profile.bus.baud) {
+        if missing.is_empty() {
+            break;
+        }
+        tried.push(baud);
+        let mut config = bus_as_found(&profile.bus);
+        config.baud = baud;
+        let mut bus = crate::bus::open(
+            crate::bus::Wire::Port(port.to_string()),
+            &config,
+            profile.servos.len(),
+        )
+        .map_err(BusError::Io)?;
+        let mut found = bus.scan()?;
+        found.retain(|p| missing.contains(&p.id));
+        for p in &found {
+            let Some(s) = profile.servos.iter().find(|s| s.id == p.id) else {
+                continue;
+            };
+            missing.retain(|&m| m != p.id);
+            report
+                .findings
+                .retain(|f| !(f.id == Some(p.id) && f.what.contains("does not answer")));
+            report.push(
+                Level::Fault,
+                Some(s),
+                format!(
+                    "answers at {baud} bit/s ({}), not the profile's {}",
+                    model_name(p),
+                    profile.bus.baud
+                ),
+                "--fix sets its Baud Rate (8) to the profile's, with torque off, at its own baud",
+                Some(Fix {
+                    id: p.id,
+                    address: addr::BAUD_RATE,
+                    data: vec![code as u8],
+                    at_baud: Some(baud),
+                }),
+            );
+        }
+    }
+    Ok(tried)
+}
+
+/// Makes the fixes [`search_bauds`] found — each servo's Baud Rate set to the profile's, at
+/// the baud it answers at, torque off first — and returns what was written, a line each.
+/// The servo takes the new baud after its reply.
+///
+/// # Errors
+/// The port cannot be opened at a baud, or a write fails.
+pub fn apply_baud_fixes(port: &str, profile: &Profile, report: &Report) -> Result<Vec<String>, BusError> {
+    let mut done = Vec::new();
+    for f in &report.findings {
+        let Some(fix) = &f.fix else {
+            continue;
+        };
+        let Some(baud) = fix.at_baud else {
+            continue;
+        };
+        let mut config = bus_as_found(&profile.bus);
+        config.baud = baud;
+        let mut bus =
+            crate::bus::open(crate::bus::Wire::Port(port.to_string()), &config, 1).map_err(BusError::Io)?;
+        bus.set_torque(fix.id, false)?;
+        bus.write(fix.id, fix.address, &fix.data)?;
+        done.push(format!(
+            "id {}{}: Baud Rate set to {} bit/s (written at {baud})",
+            fix.id,
+            f.servo.as_deref().map_or(String::new(), |n| format!(" {n}")),
+            profile.bus.baud
         ));
     }
     Ok(done)

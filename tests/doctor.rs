@@ -224,7 +224,7 @@ fn the_command_exits_1_with_faults_and_0_when_the_rig_can_run() {
         String::from_utf8_lossy(&out.stderr)
     );
     for words in [
-        "id 5 r_el: id 5 does not answer",
+        "id 5 r_el: id 5 does not answer at 2000000 bit/s",
         "id 6 l_el: id 6 is model 1200 (XL330-M288)",
         "id 42 (XM430-W350) answers but the profile does not name it",
         "id 1 r_sho_pitch: hardware error 0x04 (overheating)",
@@ -246,4 +246,82 @@ fn the_command_exits_1_with_faults_and_0_when_the_rig_can_run() {
     // No way to reach a rig: a usage error.
     let out = common::run(&["doctor", "firmware-profile/robotis-op3.toml"]);
     assert_eq!(out.status.code(), Some(2));
+}
+
+/// Servos set to other bauds than the profile's are silent at its baud (the served chain keeps
+/// to the baud the client sets): `doctor` finds each at its own baud, `--fix` sets it to the
+/// profile's there, and the rig then starts.
+#[test]
+fn servos_at_other_bauds_are_found_and_moved_to_the_profiles() {
+    use std::io::{BufRead, BufReader};
+    let mut serve = common::bin()
+        .args(["serve", "firmware-profile/robotis-op3.toml", "--misconfigure"])
+        .arg("baud=5:57600,baud=6:1000000")
+        .args(["--duration", "60"])
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(serve.stdout.take().unwrap()).lines();
+    let _ = lines.next().unwrap().unwrap();
+    let path = lines.next().unwrap().unwrap();
+    // At the profile's baud they are silent: start-up refuses the rig.
+    let play = |extra: &[&str]| {
+        let mut args = vec![
+            "play",
+            "firmware-profile/robotis-op3.toml",
+            "data/cmu/16.asf",
+            "data/cmu/16_15.amc",
+            "--upper-body",
+            "--bus",
+            &path,
+            "-q",
+        ];
+        args.extend_from_slice(extra);
+        common::run(&args)
+    };
+    let out = play(&["--duration", "0.5"]);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("5"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = common::run(&["doctor", "firmware-profile/robotis-op3.toml", "--port", &path]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}");
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        text.contains("id 5 r_el: answers at 57600 bit/s (XM430-W350), not the profile's 2000000"),
+        "{text}"
+    );
+    assert!(text.contains("id 6 l_el: answers at 1000000 bit/s"), "{text}");
+    assert!(text.contains("18 of 20 servos answer at 2000000 bit/s"), "{text}");
+    let out = common::run(&[
+        "doctor",
+        "firmware-profile/robotis-op3.toml",
+        "--port",
+        &path,
+        "--fix",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}");
+    assert_eq!(out.status.code(), Some(0), "{text}");
+    assert!(
+        text.contains("fixed  id 5 r_el: Baud Rate set to 2000000 bit/s (written at 57600)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("20 of 20 servos answer at 2000000 bit/s; 0 fault(s)"),
+        "{text}"
+    );
+    let out = play(&["--duration", "0.5"]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let _ = serve.kill();
+    let _ = serve.wait();
 }

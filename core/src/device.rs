@@ -50,6 +50,9 @@ pub struct VirtualServo {
     since_packet: Real,
     watchdog_expired: bool,
     torque_jumps: u32,
+    /// On a line at another baud than its Baud Rate register's (the chain's line baud): it
+    /// hears nothing.
+    off_baud: bool,
     write_count: u32,
     velocity_report: Option<i32>,
     reported_position: Option<i32>,
@@ -85,7 +88,7 @@ pub const CONTINUOUS_CURRENT_SHARE: Real = 0.4;
 const PWM_FULL: Real = 885.0;
 
 /// Baud Rate register codes (e-manual): 9,600 … 4.5 Mbps.
-const BAUD_CODES: [u32; 8] = [
+pub const BAUD_CODES: [u32; 8] = [
     9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000,
 ];
 /// Realtime Tick (2 bytes, ms, wraps at 32,767).
@@ -114,6 +117,7 @@ impl VirtualServo {
             since_packet: 0.0,
             watchdog_expired: false,
             torque_jumps: 0,
+            off_baud: false,
             write_count: 0,
             velocity_report: None,
             reported_position: None,
@@ -185,6 +189,15 @@ impl VirtualServo {
         }
     }
 
+    /// The baud of its Baud Rate register, bit/s.
+    #[must_use]
+    pub fn baud(&self) -> u32 {
+        BAUD_CODES
+            .get(usize::from(self.table[usize::from(addr::BAUD_RATE)]))
+            .copied()
+            .unwrap_or(BAUD_CODES[1])
+    }
+
     /// Every item at its factory value ([`control_table`]), the id given.
     fn factory_defaults(&mut self, id: u8) {
         self.table = [0; TABLE_LEN];
@@ -235,9 +248,10 @@ impl VirtualServo {
             && (id == BROADCAST_ID || id == self.id() || (secondary < 253 && id == secondary))
     }
 
-    /// Protocol Type 2: after any other is written the servo is silent to Protocol 2.0.
+    /// Protocol Type 2 (after any other is written the servo is silent to Protocol 2.0), on a
+    /// line at its baud.
     fn speaks_protocol_2(&self) -> bool {
-        self.table[PROTOCOL_TYPE] == 2
+        self.table[PROTOCOL_TYPE] == 2 && !self.off_baud
     }
 
     /// Whether a packet to `id` is answered by this servo: its own primary id, on Protocol 2.0.
@@ -751,6 +765,8 @@ pub type Replies = heapless::Vec<Reply, MAX_SERVOS>;
 #[derive(Clone, Debug, Default)]
 pub struct Chain {
     servos: heapless::Vec<VirtualServo, MAX_SERVOS>,
+    /// The line's baud when the chain keeps to it: servos set to another hear nothing.
+    line_baud: Option<u32>,
     /// A sensor board on the same bus (the OP3's OpenCR), answered after the servos.
     board: Option<SensorBoard>,
     instructions: u64,
@@ -773,6 +789,13 @@ impl Chain {
     #[must_use]
     pub fn new() -> Chain {
         Chain::default()
+    }
+
+    /// The line's baud (`None`: every servo hears whatever its Baud Rate register says, the
+    /// default): a servo set to another baud hears nothing, as on a real bus where its UART
+    /// samples the bytes at the wrong rate.
+    pub fn set_line_baud(&mut self, baud: Option<u32>) {
+        self.line_baud = baud;
     }
 
     /// Adds a servo.
@@ -847,6 +870,10 @@ impl Chain {
     /// The packet's [`CodecError`]; nothing was executed.
     pub fn handle(&mut self, packet: &[u8], out: &mut [u8], replies: &mut Replies) -> Result<(), CodecError> {
         replies.clear();
+        let line = self.line_baud;
+        for s in &mut self.servos {
+            s.off_baud = line.is_some_and(|b| b != s.baud());
+        }
         let mut buf = [0u8; MAX_PACKET];
         let (p, _) = protocol::decode(packet, &mut buf)?;
         if p.instruction == instruction::STATUS {

@@ -39,7 +39,8 @@ pub fn chain_for(profile: BusSection<'_>, position: impl Fn(usize) -> i32) -> Ch
 /// `missing=ID` (taken off the bus), `extra=ID` (one more servo the profile does not name),
 /// `model=ID:NAME` (another model at the id), `rdt=ID:MICROSECONDS`, `srl=ID:LEVEL`,
 /// `mode=ID:OPERATING_MODE`, `max_limit=ID:TICK`, `velocity_limit=ID:UNITS`, `pwm_limit=ID:N`,
-/// `temp=ID:CELSIUS` (warm from an earlier run; it heats and cools from there),
+/// `baud=ID:BITS_PER_S` (heard only at that baud once the chain keeps to the line's, as
+/// `serve` does), `temp=ID:CELSIUS` (warm from an earlier run; it heats and cools from there),
 /// `supply=ID:VOLTS` and `hwerror=ID:BITS` (Hardware Error Status bits, e.g. 4 for
 /// overheating).
 ///
@@ -75,20 +76,23 @@ pub fn misconfigure(chain: &mut Chain, spec: &str) -> Result<(), String> {
             }
             "extra" => {
                 let model = chain.servos().first().map_or(&crate::servo::MODELS[2], |s| s.model());
-                chain
-                    .add(VirtualServo::new(id, model, 2048))
-                    .map_err(|e| format!("`{item}`: {e}"))?;
+                let mut servo = VirtualServo::new(id, model, 2048);
+                // On the bus's baud, as its neighbours are.
+                if let Some(first) = chain.servos().first() {
+                    servo.set_baud(first.baud());
+                }
+                chain.add(servo).map_err(|e| format!("`{item}`: {e}"))?;
             }
             "model" => {
                 let name = value.ok_or_else(|| format!("`{item}`: expected model={id}:NAME"))?;
                 let model = crate::servo::model_by_name(name)
                     .ok_or_else(|| format!("`{item}`: unknown model {name}"))?;
-                chain
+                let was = chain
                     .remove(id)
                     .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?;
-                chain
-                    .add(VirtualServo::new(id, model, 2048))
-                    .map_err(|e| format!("`{item}`: {e}"))?;
+                let mut servo = VirtualServo::new(id, model, 2048);
+                servo.set_baud(was.baud());
+                chain.add(servo).map_err(|e| format!("`{item}`: {e}"))?;
             }
             "rdt" => poke(chain, addr::RETURN_DELAY_TIME, &[(number(value)? / 2).min(254) as u8])?,
             "srl" => poke(chain, addr::STATUS_RETURN_LEVEL, &[number(value)?.min(2) as u8])?,
@@ -96,6 +100,10 @@ pub fn misconfigure(chain: &mut Chain, spec: &str) -> Result<(), String> {
             "max_limit" => poke(chain, addr::MAX_POSITION_LIMIT, &number(value)?.min(4095).to_le_bytes())?,
             "velocity_limit" => poke(chain, addr::VELOCITY_LIMIT, &number(value)?.to_le_bytes())?,
             "pwm_limit" => poke(chain, addr::PWM_LIMIT, &(number(value)?.min(885) as u16).to_le_bytes())?,
+            "baud" => chain
+                .servo_mut(id)
+                .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?
+                .set_baud(number(value)?),
             "temp" => chain
                 .servo_mut(id)
                 .ok_or_else(|| format!("`{item}`: no servo {id} on the chain"))?
@@ -116,7 +124,7 @@ pub fn misconfigure(chain: &mut Chain, spec: &str) -> Result<(), String> {
                 .raise_hardware_error(number(value)?.min(255) as u8),
             _ => {
                 return Err(format!(
-                    "`{item}`: unknown; expected missing, extra, model, rdt, srl, mode, max_limit, velocity_limit, pwm_limit, temp, supply or hwerror"
+                    "`{item}`: unknown; expected missing, extra, model, rdt, srl, mode, max_limit, velocity_limit, pwm_limit, baud, temp, supply or hwerror"
                 ))
             }
         }
@@ -441,6 +449,8 @@ pub struct PtyChain {
     torque_log: Arc<Mutex<Vec<TorqueEvent>>>,
     injector: Arc<Mutex<Option<FaultInjector>>>,
     stop: Arc<AtomicBool>,
+    /// Whether servos at another baud than the client's port hear nothing.
+    baud_checked: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
     _client_end: serialport::TTYPort,
 }
@@ -548,7 +558,9 @@ impl PtyChain {
         let injector = Arc::new(Mutex::new(injector));
         let torque_log = Arc::new(Mutex::new(Vec::new()));
         let stop = Arc::new(AtomicBool::new(false));
+        let baud_checked = Arc::new(AtomicBool::new(false));
         let thread = {
+            let baud_checked = Arc::clone(&baud_checked);
             let chain = Arc::clone(&chain);
             let injector = Arc::clone(&injector);
             let log = Arc::clone(&torque_log);
@@ -568,7 +580,7 @@ impl PtyChain {
                         &mut device_end,
                         &chain,
                         &mut plant,
-                        &stop,
+                        (&stop, &baud_checked),
                         &injector,
                         &log,
                         timing,
@@ -581,9 +593,16 @@ impl PtyChain {
             torque_log,
             injector,
             stop,
+            baud_checked,
             thread: Some(thread),
             _client_end: client_end,
         })
+    }
+
+    /// From now on, servos whose Baud Rate register is not the baud the client set on its
+    /// port hear nothing, as on a real bus (by default every servo hears every client).
+    pub fn keep_to_the_line_baud(&self) {
+        self.baud_checked.store(true, Ordering::Relaxed);
     }
 
     /// The device path clients open.
@@ -649,7 +668,7 @@ fn serve_loop(
     port: &mut serialport::TTYPort,
     chain: &Mutex<Chain>,
     plant: &mut impl Plant,
-    stop: &AtomicBool,
+    (stop, baud_checked): (&AtomicBool, &AtomicBool),
     injector: &Mutex<Option<FaultInjector>>,
     torque_log: &Mutex<Vec<TorqueEvent>>,
     timing: Option<LineTiming>,
@@ -682,6 +701,10 @@ fn serve_loop(
             _ => sends.push((d, b.to_vec())),
         };
         let mut inj = injector.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if baud_checked.load(Ordering::Relaxed) && rx.pending() > 0 {
+            // The pseudo-terminal's two ends share one setting: the client's baud.
+            chain.set_line_baud(serialport::SerialPort::baud_rate(port).ok());
+        }
         while let Received::Packet(raw) = rx.next_packet() {
             let n = raw.len();
             let packet = raw.to_vec();

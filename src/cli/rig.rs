@@ -273,6 +273,8 @@ pub fn serve_cmd(
         PtyChain::serve(chain, None)
     }
     .map_err(CliError::Output)?;
+    // A servo set to another baud is silent, as on the rig.
+    pty.keep_to_the_line_baud();
     writeln!(
         out,
         "{}: {} virtual servos on {}, {}",
@@ -499,7 +501,7 @@ pub(super) struct ServeArgs {
     /// Make the chain wrong on purpose, to try `doctor`: a comma-separated list of
     /// `missing=ID`, `extra=ID`, `model=ID:NAME`, `rdt=ID:MICROSECONDS`, `srl=ID:LEVEL`,
     /// `mode=ID:N`, `max_limit=ID:TICK`, `velocity_limit=ID:UNITS`, `pwm_limit=ID:N`,
-    /// `temp=ID:CELSIUS`, `supply=ID:VOLTS`, `hwerror=ID:BITS`.
+    /// `baud=ID:BITS_PER_S`, `temp=ID:CELSIUS`, `supply=ID:VOLTS`, `hwerror=ID:BITS`.
     #[arg(long, value_name = "LIST")]
     pub(super) misconfigure: Option<String>,
     /// Mount every servo unlike the profile says, to try `calibrate`: each horn somewhere in
@@ -607,33 +609,52 @@ fn doctor_cmd(a: &DoctorArgs, out: &mut dyn Write) -> Result<(), CliError> {
             // what it would on the wire.
             let chain = chain_for(profile.bus_section(), |_| 2048);
             let pty = PtyChain::serve_timed(chain, LineTiming::of(&profile.bus)).map_err(CliError::Output)?;
+            pty.keep_to_the_line_baud();
             let path = pty.path().to_string();
             (Some(pty), path)
         }
         _ => return Err(CliError::Usage("give --port <PATH> or --bus virtual".into())),
     };
     let as_found = doctor::bus_as_found(&profile.bus);
-    let mut bus = crate::bus::open(
-        crate::bus::Wire::Port(path.clone()),
-        &as_found,
-        profile.servos.len(),
-    )
-    .map_err(CliError::at_port(&path))?;
+    // The port is held by one bus at a time: the baud search opens it at other bauds.
+    let open = || {
+        crate::bus::open(
+            crate::bus::Wire::Port(path.clone()),
+            &as_found,
+            profile.servos.len(),
+        )
+        .map_err(CliError::at_port(&path))
+    };
     let at_port = |source| CliError::Bus {
         port: path.clone(),
         source,
     };
-    let mut report = doctor::examine(bus.as_mut(), &profile).map_err(at_port)?;
-    if a.port.is_some() {
-        doctor::check_adapter(&path, &mut report);
-    }
+    let mut report = doctor::examine(open()?.as_mut(), &profile).map_err(at_port)?;
+    // Servos that did not answer may be at another baud: the port is opened at each in turn.
+    let search = |report: &mut doctor::Report| -> Result<(), CliError> {
+        if report.findings.iter().any(|f| f.what.contains("does not answer")) {
+            doctor::search_bauds(&path, &profile, report).map_err(at_port)?;
+        }
+        if a.port.is_some() {
+            doctor::check_adapter(&path, report);
+        }
+        Ok(())
+    };
+    search(&mut report)?;
     if a.fix {
-        let fixed = doctor::apply_fixes(bus.as_mut(), &report).map_err(at_port)?;
+        let mut fixed = doctor::apply_baud_fixes(&path, &profile, &report).map_err(at_port)?;
+        let mut bus = open()?;
+        fixed.extend(doctor::apply_fixes(bus.as_mut(), &report).map_err(at_port)?);
         if !fixed.is_empty() {
             report = doctor::examine(bus.as_mut(), &profile).map_err(at_port)?;
-            if a.port.is_some() {
-                doctor::check_adapter(&path, &mut report);
+            // A servo moved to the profile's baud may bring fixes of its own.
+            let more = doctor::apply_fixes(bus.as_mut(), &report).map_err(at_port)?;
+            if !more.is_empty() {
+                report = doctor::examine(bus.as_mut(), &profile).map_err(at_port)?;
+                fixed.extend(more);
             }
+            drop(bus);
+            search(&mut report)?;
         }
         report.fixed = fixed;
     }
@@ -699,12 +720,16 @@ fn doctor_cmd(a: &DoctorArgs, out: &mut dyn Write) -> Result<(), CliError> {
             - report
                 .findings
                 .iter()
-                .filter(|f| f.level == Level::Fault && f.what.contains("does not answer"))
+                .filter(|f| {
+                    f.level == Level::Fault
+                        && (f.what.contains("does not answer") || f.what.starts_with("answers at"))
+                })
                 .count();
         writeln!(
             out,
-            "{answering} of {} servos answer; {faults} fault(s), {warnings} warning(s): {}",
+            "{answering} of {} servos answer at {} bit/s; {faults} fault(s), {warnings} warning(s): {}",
             profile.servos.len(),
+            profile.bus.baud,
             if faults == 0 {
                 "the rig can run the profile"
             } else {
