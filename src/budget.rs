@@ -11,8 +11,8 @@
 //!
 //! A sensor board read every cycle ([`plan_with_board`], the OP3's OpenCR and its IMU) joins a
 //! Sync or Bulk Read as one more Bulk Read entry (request `10 + 5·(N + 1)`, its reply `11 + b`,
-//! one more return delay); beside a Fast read it is a Read of its own (request 14, reply
-//! `11 + b`, a return delay and a USB latency more).
+//! one more return delay), and a Fast read as one more Fast Bulk Read entry (request
+//! `10 + 5·(N + 1)`, its block `4 + b` in the one reply).
 //!
 //! The loop's health watch ([`crate::control::health`]) adds, every few cycles, a Read of
 //! one servo's voltage and temperature (request 14, reply `11 + 3`) or its Hardware Error
@@ -93,21 +93,16 @@ pub fn plan_with_board(
     let n = servos as u32;
     let d = u32::from(bus.read_fields.block().1);
     let write_bytes = 14 + 5 * n;
-    let merged = matches!(bus.read, ReadMode::Sync | ReadMode::Bulk);
-    let (mut read_request_bytes, mut read_reply_bytes, mut delays) = match (bus.read, board_bytes) {
+    let merged = true;
+    let (read_request_bytes, read_reply_bytes, delays) = match (bus.read, board_bytes) {
         (ReadMode::Sync | ReadMode::Bulk, Some(b)) => (10 + 5 * (n + 1), n * (11 + d) + 11 + b, n + 1),
+        (ReadMode::FastSync | ReadMode::FastBulk, Some(b)) => (10 + 5 * (n + 1), 8 + (4 + d) * n + 4 + b, 1),
         (ReadMode::Sync, None) => (14 + n, n * (11 + d), n),
         (ReadMode::Bulk, None) => (10 + 5 * n, n * (11 + d), n),
-        (ReadMode::FastSync, _) => (14 + n, 8 + (4 + d) * n, 1),
-        (ReadMode::FastBulk, _) => (10 + 5 * n, 8 + (4 + d) * n, 1),
+        (ReadMode::FastSync, None) => (14 + n, 8 + (4 + d) * n, 1),
+        (ReadMode::FastBulk, None) => (10 + 5 * n, 8 + (4 + d) * n, 1),
     };
-    let mut latencies = 1;
-    if let (false, Some(b)) = (merged, board_bytes) {
-        read_request_bytes += 14;
-        read_reply_bytes += 11 + b;
-        delays += 1;
-        latencies += 1;
-    }
+    let latencies = 1;
     let bytes_per_cycle = write_bytes + read_request_bytes + read_reply_bytes;
     let wire_time_us = f64::from(bytes_per_cycle) * f64::from(BITS_PER_BYTE) * 1e6 / f64::from(bus.baud);
     let return_delay_us = f64::from(delays) * f64::from(bus.return_delay_us);
@@ -161,10 +156,10 @@ impl std::fmt::Display for Budget {
             self.servos, self.baud, self.read_bytes_per_servo
         )?;
         if let (Some(b), Some(merged)) = (self.board_bytes, self.board_merged) {
-            let how = if merged {
-                "one more entry of a Bulk Read"
-            } else {
-                "a Read of its own"
+            let how = match (merged, self.read_mode) {
+                (false, _) => "a Read of its own",
+                (true, ReadMode::FastSync | ReadMode::FastBulk) => "one more entry of a Fast Bulk Read",
+                (true, _) => "one more entry of a Bulk Read",
             };
             writeln!(f, "  and {b} bytes of the sensor board, {how}")?;
         }

@@ -1128,7 +1128,7 @@ fn a_silent_servo_costs_at_most_its_own_tick() {
 /// The OP3's IMU board read in the servos' position read (one Bulk Read, its block last): in
 /// virtual time on the line-timed chain a cycle (Sync Write, the read) takes what the
 /// planner says with the board counted; a board that does not answer costs its block, not
-/// the positions; a Fast read is not merged.
+/// the positions; a Fast read merges it as a Fast Bulk Read, at its planned cost too.
 #[test]
 fn the_imu_board_read_with_the_positions_costs_what_the_planner_says() {
     use marionette::budget::plan_with_board;
@@ -1188,8 +1188,54 @@ fn the_imu_board_read_with_the_positions_costs_what_the_planner_says() {
     bus.read_positions(&ids, &mut present).unwrap();
     assert!(present.iter().all(|t| *t == 2048), "{present:?}");
     assert_eq!(bus.take_merged(&mut block), Some(false));
-    // Fast reads are not merged: the board gets a Read of its own there.
-    let link = InProcess::new(chain_for(p.bus_section(), |_| 2048), p.bus.baud);
+    // A Fast read merges it too: one Fast Bulk Read, the board's block last in the one reply,
+    // at the planner's cost for the profile read fast.
+    let mut chain = chain_for(p.bus_section(), |_| 2048);
+    chain.board_mut().unwrap().set_imu(&ImuReading {
+        gyro_dps: [4.0, 5.0, -6.0],
+        acc_g: [0.0, 0.0, 1.0],
+        rpy_deg: [1.5, 0.0, -20.0],
+    });
+    let link = InProcess::new(chain, p.bus.baud)
+        .with_usb_latency(Duration::from_micros(u64::from(p.bus.usb_latency_us)));
     let mut fast = PacketBus::new(link, margin).with_read_mode(ReadMode::FastSync);
-    assert!(!fast.merge_into_reads(200, board_addr::GYRO, IMU_BYTES as u16));
+    for id in &ids {
+        fast.write(*id, addr::RETURN_DELAY_TIME, &[(p.bus.return_delay_us / 2) as u8])
+            .unwrap();
+    }
+    assert!(fast.merge_into_reads(200, board_addr::GYRO, IMU_BYTES as u16));
+    let mut fast_bus = p.bus.clone();
+    fast_bus.read = ReadMode::FastSync;
+    let planned = plan_with_board(&fast_bus, n, None, Some(IMU_BYTES as u32));
+    assert_eq!(planned.board_merged, Some(true));
+    let mut cycles = Vec::new();
+    for _ in 0..10 {
+        let t0 = fast.link().now();
+        fast.write_goals(&ids, &present).unwrap();
+        fast.read_positions(&ids, &mut present).unwrap();
+        cycles.push((fast.link().now() - t0).as_secs_f64() * 1e6);
+        assert_eq!(fast.take_merged(&mut block), Some(true));
+    }
+    let r = ImuReading::decode(&block).unwrap();
+    assert!(
+        (r.gyro_dps[2] + 6.0).abs() < 0.1 && (r.rpy_deg[2] + 20.0).abs() < 0.1,
+        "{r:?}"
+    );
+    assert!(present.iter().all(|t| *t == 2048), "{present:?}");
+    let mean = cycles.iter().sum::<f64>() / cycles.len() as f64;
+    println!(
+        "OP3 cycle with the IMU in a Fast Bulk Read: {mean:.0} µs measured, {:.0} µs planned",
+        planned.cycle_time_us
+    );
+    assert!(
+        (mean - planned.cycle_time_us).abs() <= 0.02 * planned.cycle_time_us,
+        "{mean} µs against {} planned",
+        planned.cycle_time_us
+    );
+    // A silent board costs its block only, here too.
+    assert!(fast.merge_into_reads(201, board_addr::GYRO, IMU_BYTES as u16));
+    present.fill(0);
+    fast.read_positions(&ids, &mut present).unwrap();
+    assert!(present.iter().all(|t| *t == 2048), "{present:?}");
+    assert_eq!(fast.take_merged(&mut block), Some(false));
 }

@@ -1078,11 +1078,11 @@ impl Chain {
             instruction::FAST_SYNC_READ if broadcast && params.len() >= 4 => {
                 let (a, n) = (le16(params), usize::from(le16(&params[2..])));
                 let ids = &params[4..];
-                w.fast_chain(&mut self.servos, ids.len(), |k| (ids[k], a, n));
+                w.fast_chain(&mut self.servos, None, ids.len(), |k| (ids[k], a, n));
             }
             instruction::FAST_BULK_READ if broadcast => {
                 let items = &params[..params.len() / 5 * 5];
-                w.fast_chain(&mut self.servos, items.len() / 5, |k| {
+                w.fast_chain(&mut self.servos, self.board.as_ref(), items.len() / 5, |k| {
                     let item = &items[5 * k..5 * k + 5];
                     (item[0], le16(&item[1..]), usize::from(le16(&item[3..])))
                 });
@@ -1174,6 +1174,7 @@ impl Writer<'_, '_> {
     fn fast_chain(
         &mut self,
         servos: &mut [VirtualServo],
+        board: Option<&SensorBoard>,
         count: usize,
         entry: impl Fn(usize) -> (u8, u16, usize),
     ) {
@@ -1186,28 +1187,36 @@ impl Writer<'_, '_> {
         let mut blocks = 0;
         for k in 0..count {
             let (sid, a, n) = entry(k);
-            let Some(s) = servos.iter_mut().find(|s| s.answers(sid)) else {
-                continue;
-            };
-            if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0
-                || at + 4 + n > out.len()
-                || blocks == ends.len()
-            {
+            if at + 4 + n > out.len() || blocks == ends.len() {
                 continue;
             }
-            s.note_reply(a, n);
-            let alert = s.alert();
-            let (error, data) = match s.read(a, n) {
-                Some(d) => (0, Some(d)),
-                None => (UNDEFINED_ADDRESS_ERROR, None),
+            let (error, data, delay_us) = if let Some(s) = servos.iter_mut().find(|s| s.answers(sid)) {
+                if s.table[usize::from(addr::STATUS_RETURN_LEVEL)] == 0 {
+                    continue;
+                }
+                s.note_reply(a, n);
+                let alert = s.alert();
+                let delay = s.return_delay_us();
+                match s.read(a, n) {
+                    Some(d) => (alert, Some(d), delay),
+                    None => (UNDEFINED_ADDRESS_ERROR | alert, None, delay),
+                }
+            } else if let Some(b) = board.filter(|b| b.id() == sid && b.status_return_level() > 0) {
+                // A sensor board on the bus (the OP3's OpenCR) adds its block as a servo does.
+                match b.read(a, n) {
+                    Some(d) => (0, Some(d), b.return_delay_us()),
+                    None => (status_error::DATA_RANGE, None, b.return_delay_us()),
+                }
+            } else {
+                continue;
             };
-            out[at] = error | alert;
+            out[at] = error;
             out[at + 1] = sid;
             match data {
                 Some(d) => out[at + 2..at + 2 + n].copy_from_slice(d),
                 None => out[at + 2..at + 2 + n].fill(0),
             }
-            first.get_or_insert((sid, s.return_delay_us()));
+            first.get_or_insert((sid, delay_us));
             ends[blocks] = (at + 2 + n) as u16;
             blocks += 1;
             // Error, id, data, and room for the block's CRC.

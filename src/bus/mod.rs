@@ -322,9 +322,9 @@ pub trait ServoBus {
     }
 
     /// Reads `len` bytes at `address` of device `id` (e.g. the IMU board) in the loop's
-    /// position read from now on, as one more entry of a Bulk Read after the servos' (as
-    /// ROBOTIS's OP3 framework reads its OpenCR). `false` when this bus cannot: read it
-    /// on its own then.
+    /// position read from now on, as one more entry after the servos': of a Bulk Read (as
+    /// ROBOTIS's OP3 framework reads its OpenCR), or of a Fast Bulk Read where the bus reads
+    /// fast. `false` when this bus cannot: read it on its own then.
     fn merge_into_reads(&mut self, id: u8, address: u16, len: u16) -> bool {
         let _ = (id, address, len);
         false

@@ -441,7 +441,36 @@ impl<T: Transport> PacketBus<T> {
     fn take_positions(&mut self, p: &PendingRead, out: &mut [i32]) -> Result<(), BusError> {
         let ids = &p.ids[..p.n];
         let mut data = [0u8; 4 * crate::servo::MAX_SERVOS];
-        if let (true, Some(m)) = (p.merged, self.merged) {
+        let fast = matches!(self.read, ReadMode::FastSync | ReadMode::FastBulk);
+        if let (true, true, Some(m)) = (p.merged, fast, self.merged) {
+            // A Fast Bulk Read: one reply, the servos' blocks then the device's, each checked
+            // on its own. The positions are used only when every servo's block held (all or
+            // nothing, as a Fast Sync Read); the device's block stands on its own.
+            let mut ids = [0u8; MAX_SERVOS];
+            let mut lens = [4u16; MAX_SERVOS];
+            ids[..p.n].copy_from_slice(&p.ids[..p.n]);
+            (ids[p.n], lens[p.n]) = (m.id, m.len);
+            let mut buf = [0u8; 4 * MAX_SERVOS + MAX_MERGED];
+            let mut valid = [false; MAX_SERVOS];
+            let all = self.fast_replies(
+                &ids[..=p.n],
+                &lens[..=p.n],
+                &mut buf,
+                &mut valid,
+                (p.sent, self.margin),
+            );
+            let mut block = m;
+            let len = usize::from(m.len);
+            block.fresh = Some(valid[p.n]);
+            if valid[p.n] {
+                block.data[..len].copy_from_slice(&buf[4 * p.n..4 * p.n + len]);
+            }
+            self.merged = Some(block);
+            if !valid[..p.n].iter().all(|&v| v) {
+                return Err(all.err().unwrap_or(BusError::Timeout { id: ids[0] }));
+            }
+            data[..4 * p.n].copy_from_slice(&buf[..4 * p.n]);
+        } else if let (true, Some(m)) = (p.merged, self.merged) {
             // A Bulk Read: the servos' status packets in entry order, then the device's.
             let positions = self.sync_read_replies(4, ids, &mut data[..4 * p.n], p.sent, self.margin);
             let mut block = m;
@@ -768,8 +797,7 @@ impl<T: Transport> ServoBus for PacketBus<T> {
     }
 
     fn merge_into_reads(&mut self, id: u8, address: u16, len: u16) -> bool {
-        // A Fast read's one combined reply is not known to be answered by other devices.
-        if matches!(self.read, ReadMode::FastSync | ReadMode::FastBulk) || usize::from(len) > MAX_MERGED {
+        if usize::from(len) > MAX_MERGED {
             return false;
         }
         self.settle();
@@ -798,13 +826,20 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         // The board as one more Bulk Read entry, where the entries leave room for it.
         let merged = self.merged.is_some() && n < MAX_SERVOS;
         let sent = match (self.read, self.merged) {
-            (_, Some(m)) if merged => {
+            (mode, Some(m)) if merged => {
+                // Different items from different devices: a Bulk Read, or a Fast Bulk Read
+                // (one combined reply) where the profile reads fast.
                 let mut entries = [(0u8, addr::PRESENT_POSITION, 4u16); MAX_SERVOS];
                 for (e, &id) in entries.iter_mut().zip(&ids[..n]) {
                     e.0 = id;
                 }
                 entries[n] = (m.id, m.address, m.len);
-                self.bulk_request(instruction::BULK_READ, &entries[..=n])?
+                let inst = if matches!(mode, ReadMode::FastSync | ReadMode::FastBulk) {
+                    instruction::FAST_BULK_READ
+                } else {
+                    instruction::BULK_READ
+                };
+                self.bulk_request(inst, &entries[..=n])?
             }
             (ReadMode::Sync, _) => self.sync_read_request(addr::PRESENT_POSITION, 4, &ids[..n])?,
             (ReadMode::FastSync, _) => self.fast_sync_request(addr::PRESENT_POSITION, 4, &ids[..n])?,

@@ -14,7 +14,8 @@
 //!
 //! The board is read in the servos' position read where the bus can merge it
 //! ([`ServoBus::merge_into_reads`]: one Bulk Read, the board's block last, as the OP3
-//! framework reads its OpenCR), else with a Read of its own. The reading is low-pass filtered
+//! framework reads its OpenCR; one Fast Bulk Read where the profile reads fast), else with a
+//! Read of its own. The reading is low-pass filtered
 //! (α = 0.4 on each new sample, as the framework's OpenCR module does), a read that fails any
 //! check is not used (the last good one stands and the failure is counted; after
 //! [`STALE_READS`] failures in a row the feedback stops until a read succeeds, so a board
@@ -54,8 +55,8 @@ pub struct ImuReport {
     pub reads_ok: u64,
     /// Reads that failed (timeout, CRC, an error status…): not used.
     pub reads_failed: u64,
-    /// Whether the board was read in the servos' position read (a Bulk Read) rather than
-    /// with a Read of its own.
+    /// Whether the board was read in the servos' position read (a Bulk or Fast Bulk Read)
+    /// rather than with a Read of its own.
     pub merged: bool,
     /// Ticks whose feedback was left out because the last [`STALE_READS`] reads or more had
     /// failed.

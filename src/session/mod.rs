@@ -544,7 +544,7 @@ impl RigDrive {
                 let feedback = use_ == ImuUse::Feedback;
                 writeln!(
                     log,
-                    "IMU board at id {id}: read every tick with the servos' positions (one Bulk Read; beside a Fast read, a Read of its own){}",
+                    "IMU board at id {id}: read every tick with the servos' positions (one more entry of their Bulk Read, or Fast Bulk Read where the profile reads fast){}",
                     if feedback {
                         ", its gyro fed back to the legs"
                     } else {

@@ -44,7 +44,7 @@ OPENCR_OP3 = 0x7400
 
 port = PortHandler(PORT)
 port.openPort()
-port.setBaudRate(57600)  # a pty ignores it
+port.setBaudRate(baud)  # the served chain keeps to the line's baud, as servos do
 ph = PacketHandler(2.0)
 results = []
 
@@ -102,6 +102,13 @@ if board is not None:
     r = b.txRxPacket()
     check("Bulk Read of a servo's position and the IMU board's IMU (the OP3 framework's read)",
           r == COMM_SUCCESS and b.isAvailable(first, 132, 4) and b.isAvailable(board, 32, 18), f"{r}")
+    bulk_imu = b.getData(board, 32, 2) if r == COMM_SUCCESS else None
+    # The same two entries as one Fast Bulk Read (the loop's read when a profile reads fast):
+    # the board's block in the one reply, its data the Bulk Read's.
+    r = b.fastBulkRead() if hasattr(b, "fastBulkRead") else -1
+    ok = r == COMM_SUCCESS and b.isAvailable(first, 132, 4) and b.isAvailable(board, 32, 18)
+    check("Fast Bulk Read of a servo's position and the IMU board's IMU",
+          ok and ("--sim" in sys.argv or b.getData(board, 32, 2) == bulk_imu), f"{r}")
 
 v, r, e = ph.read4ByteTxRx(port, first, 132)
 check("read Present Position", r == COMM_SUCCESS and e == 0 and 0 <= v < 4096, f"{v} {r} {e}")
