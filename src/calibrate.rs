@@ -41,6 +41,23 @@ const SETTLE_POLL: Duration = Duration::from_millis(20);
 /// How many times a read or write is tried on a busy line.
 const TRIES: usize = 3;
 
+/// How calibration lets time pass while a servo moves: the wall clock on a rig
+/// ([`WallClock`]); a virtual chain's own time in a test.
+pub trait Wait {
+    /// Lets `d` pass.
+    fn wait(&mut self, d: Duration);
+}
+
+/// Real time: the thread sleeps.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct WallClock;
+
+impl Wait for WallClock {
+    fn wait(&mut self, d: Duration) {
+        std::thread::sleep(d);
+    }
+}
+
 /// Who stands at the rig: poses it, watches it, moves a joint by hand.
 pub trait Operator {
     /// Asks for the reference pose (`pose` describes it) and returns once it is held.
@@ -247,9 +264,10 @@ pub fn calibrate(
     profile: &Profile,
     how: Directions,
     operator: &mut dyn Operator,
+    clock: &mut dyn Wait,
 ) -> Result<Vec<Calibrated>, CalibrationError> {
     let mut saved = Vec::with_capacity(profile.servos.len());
-    let result = run(bus, profile, how, operator, &mut saved);
+    let result = run(bus, profile, (how, clock), operator, &mut saved);
     let off = all_torque_off(bus, profile);
     if result.is_err() {
         // Best effort: the error that stopped it is the one to report.
@@ -267,7 +285,7 @@ pub fn calibrate(
 fn run(
     bus: &mut dyn ServoBus,
     profile: &Profile,
-    how: Directions,
+    (how, clock): (Directions, &mut dyn Wait),
     operator: &mut dyn Operator,
     saved: &mut Vec<Saved>,
 ) -> Result<Vec<Calibrated>, CalibrationError> {
@@ -297,7 +315,7 @@ fn run(
         let (direction, found) = match how {
             Directions::Keep => (was, Found::Kept),
             Directions::Step if room >= MIN_STEP_DEG => {
-                (step_direction(bus, s, horn, operator)?, Found::Step)
+                (step_direction(bus, s, horn, operator, clock)?, Found::Step)
             }
             Directions::Step | Directions::ByHand => (hand_direction(bus, s, operator)?, Found::Hand),
         };
@@ -334,6 +352,7 @@ fn step_direction(
     s: &ServoSpec,
     horn: i32,
     operator: &mut dyn Operator,
+    clock: &mut dyn Wait,
 ) -> Result<i8, CalibrationError> {
     let deg = STEP_DEG.min(0.8 * s.max_deg.min(-s.min_deg));
     let step = tick_at(s, 0.0, 1.0, deg).abs().round().max(2.0) as i32;
@@ -362,12 +381,12 @@ fn step_direction(
         )?;
         tried(|| bus.set_torque(s.id, true))?;
         write(bus, s.id, addr::GOAL_POSITION, &(start + step).to_le_bytes())?;
-        let there = settle(bus, s.id, start + step)?;
+        let there = settle(bus, clock, s.id, start + step)?;
         Ok(there - start)
     })();
     // Back, whatever happened, then torque off and the speed as it was.
     let back = write(bus, s.id, addr::GOAL_POSITION, &start.to_le_bytes())
-        .and_then(|()| settle(bus, s.id, start).map(drop));
+        .and_then(|()| settle(bus, clock, s.id, start).map(drop));
     tried(|| bus.set_torque(s.id, false))?;
     write(bus, s.id, addr::PROFILE_VELOCITY, &velocity_before.to_le_bytes())?;
     let moved = moved?;
@@ -385,12 +404,13 @@ fn step_direction(
 
 /// Waits until servo `id` is within a few ticks of `goal` (or [`STEP_SETTLE`] has passed);
 /// returns where it is.
-fn settle(bus: &mut dyn ServoBus, id: u8, goal: i32) -> Result<i32, BusError> {
-    let since = std::time::Instant::now();
+fn settle(bus: &mut dyn ServoBus, clock: &mut dyn Wait, id: u8, goal: i32) -> Result<i32, BusError> {
+    let mut waited = Duration::ZERO;
     loop {
-        std::thread::sleep(SETTLE_POLL);
+        clock.wait(SETTLE_POLL);
+        waited += SETTLE_POLL;
         let at = read_i32(bus, id, addr::PRESENT_POSITION)?;
-        if (at - goal).abs() <= 3 || since.elapsed() >= STEP_SETTLE {
+        if (at - goal).abs() <= 3 || waited >= STEP_SETTLE {
             return Ok(at);
         }
     }

@@ -29,15 +29,16 @@ fn puppet_copy(dir: &Path) -> PathBuf {
 
 /// `serve PROFILE --miscalibrate SEED` and its device path.
 fn serve(profile: &Path, seconds: u32) -> (Child, String) {
+    serve_with(profile, seconds, &["--miscalibrate", &SEED.to_string()])
+}
+
+/// `serve PROFILE EXTRA…` and its device path.
+fn serve_with(profile: &Path, seconds: u32, extra: &[&str]) -> (Child, String) {
     let mut child = common::bin()
         .arg("serve")
         .arg(profile)
-        .args([
-            "--miscalibrate",
-            &SEED.to_string(),
-            "--duration",
-            &seconds.to_string(),
-        ])
+        .args(extra)
+        .args(["--duration", &seconds.to_string()])
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .spawn()
@@ -155,12 +156,7 @@ fn calibrate_recovers_the_zeros_and_directions_of_a_miscalibrated_rig_and_the_re
                 s.name,
                 s.zero
             );
-            assert_eq!(
-                read(bus.as_mut(), s.id, addr::TORQUE_ENABLE, 1),
-                0,
-                "{}",
-                s.name
-            );
+            assert_eq!(read(bus.as_mut(), s.id, addr::TORQUE_ENABLE, 1), 0, "{}", s.name);
             let homing = read(bus.as_mut(), s.id, addr::HOMING_OFFSET, 4) as i32;
             assert_eq!(homing, s.homing_offset.unwrap_or(0), "{}", s.name);
         }
@@ -176,21 +172,36 @@ fn calibrate_recovers_the_zeros_and_directions_of_a_miscalibrated_rig_and_the_re
     let text = String::from_utf8_lossy(&doctor.stdout);
     assert_eq!(doctor.status.code(), Some(0), "{text}");
     assert!(!text.contains("Homing Offset"), "{text}");
-    let play = common::bin()
-        .arg("play")
-        .arg(&path)
-        .arg(common::data("16.asf"))
-        .arg(common::data("16_15.amc"))
-        .args(["--bus", &port, "--rate", "60", "--duration", "1", "-q"])
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&play.stdout);
-    println!("{text}{}", String::from_utf8_lossy(&play.stderr));
-    assert!(play.status.success());
-    assert!(text.contains("28 servos up, torque on"), "{text}");
+    // The walk, whole, on the calibrated rig and on a rig as the stock profile says: the same
+    // fidelity (source against present).
+    let play = |profile: &Path, port: &str, json: &Path| {
+        let out = common::bin()
+            .arg("play")
+            .arg(profile)
+            .arg(common::data("16.asf"))
+            .arg(common::data("16_15.amc"))
+            .args(["--bus", port, "--rate", "120", "-q", "--stats-json"])
+            .arg(json)
+            .stdin(Stdio::null())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        println!("{text}{}", String::from_utf8_lossy(&out.stderr));
+        assert!(out.status.success());
+        assert!(text.contains("28 servos up, torque on"), "{text}");
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+        v["fidelity"]["joint_rms_deg"].as_f64().unwrap()
+    };
+    let calibrated = play(&path, &port, &dir.join("calibrated.json"));
     let _ = served.kill();
     let _ = served.wait();
+    let stock = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml");
+    let (mut served, port) = serve_with(&stock, 60, &[]);
+    let usual = play(&stock, &port, &dir.join("usual.json"));
+    let _ = served.kill();
+    let _ = served.wait();
+    println!("source → present RMS: {calibrated:.3}° calibrated, {usual:.3}° on a rig as the profile says");
+    assert!(calibrated <= usual + 0.05, "{calibrated}° against {usual}°");
 }
 
 #[test]
@@ -219,12 +230,7 @@ fn calibrate_stopped_by_the_operator_leaves_the_profile_unchanged_and_torque_off
     let truth = miscalibration(SEED, profile.servos.len());
     let mut bus = open(Wire::Port(port), &profile.bus, profile.servos.len()).unwrap();
     for (s, (horn, _, homing)) in profile.servos.iter().zip(&truth) {
-        assert_eq!(
-            read(bus.as_mut(), s.id, addr::TORQUE_ENABLE, 1),
-            0,
-            "{}",
-            s.name
-        );
+        assert_eq!(read(bus.as_mut(), s.id, addr::TORQUE_ENABLE, 1), 0, "{}", s.name);
         assert_eq!(
             read(bus.as_mut(), s.id, addr::HOMING_OFFSET, 4) as i32,
             *homing,
@@ -267,5 +273,130 @@ fn a_zero_near_the_seam_gets_a_homing_offset_that_centres_the_range() {
                 }
             }
         }
+    }
+}
+
+/// The operator of a virtual rig who knows how it is really mounted (the seed's truth): says
+/// which way a joint turned, and turns one by hand the positive way (its horn moves by the
+/// true direction).
+struct KnowingOperator {
+    rig: marionette::bus::virtual_chain::VirtualRig,
+    ids: Vec<u8>,
+    truth: Vec<(i32, i8, i32)>,
+}
+
+impl KnowingOperator {
+    fn direction(&self, id: u8) -> i8 {
+        self.truth[self.ids.iter().position(|&i| i == id).unwrap()].1
+    }
+}
+
+impl marionette::calibrate::Operator for KnowingOperator {
+    fn hold_reference_pose(&mut self, _: &str) -> Result<(), marionette::calibrate::CalibrationError> {
+        Ok(())
+    }
+    fn turned_positive(
+        &mut self,
+        servo: &marionette::profile::ServoSpec,
+        _: &str,
+    ) -> Result<bool, marionette::calibrate::CalibrationError> {
+        Ok(self.direction(servo.id) > 0)
+    }
+    fn turn_by_hand(
+        &mut self,
+        servo: &marionette::profile::ServoSpec,
+        _: &str,
+    ) -> Result<(), marionette::calibrate::CalibrationError> {
+        // A few degrees (40 ticks) the positive way: the horn turns as the servo is mounted.
+        let d = f64::from(self.direction(servo.id)) * 40.0;
+        self.rig.with(|t| {
+            let s = t.chain_mut().servo_mut(servo.id).unwrap();
+            let at = s.present_tick();
+            s.set_position(f64::from(at) + d);
+        });
+        Ok(())
+    }
+}
+
+/// The chain's own time passes while a servo moves.
+struct ChainTime(marionette::bus::virtual_chain::VirtualRig);
+
+impl marionette::calibrate::Wait for ChainTime {
+    fn wait(&mut self, d: std::time::Duration) {
+        self.0.with(|t| t.advance(d));
+    }
+}
+
+/// 100 seeded rigs of each shipped profile, every servo mounted unknown to the profile (its
+/// horn anywhere in the turn, either direction, some with a Homing Offset left in them),
+/// calibrated in the chain's own time: every horn to the tick, every direction right, by the
+/// watched move and (one rig in ten) by hand; afterwards every servo reads its new zero (plus
+/// where the hand turned it).
+#[test]
+fn calibrate_recovers_a_hundred_seeded_rigs_of_both_profiles() {
+    use marionette::bus::virtual_chain::{chain_for, miscalibrate, VirtualRig};
+    use marionette::calibrate::{calibrate, Directions};
+    for name in ["cmu-puppet.toml", "robotis-op3.toml"] {
+        let profile = Profile::load(
+            &PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("firmware-profile")
+                .join(name),
+        )
+        .unwrap();
+        let ids = profile.ids();
+        let (mut offsets, mut by_hand) = (0, 0);
+        for seed in 0..100u64 {
+            let truth = miscalibration(seed, ids.len());
+            let mut chain = chain_for(profile.bus_section(), |_| 2048);
+            miscalibrate(&mut chain, &ids, &truth);
+            let rig = VirtualRig::new(chain, profile.bus.baud, std::time::Duration::from_millis(5));
+            let mut operator = KnowingOperator {
+                rig: rig.clone(),
+                ids: ids.clone(),
+                truth: truth.clone(),
+            };
+            let how = if seed % 10 == 9 {
+                by_hand += 1;
+                Directions::ByHand
+            } else {
+                Directions::Step
+            };
+            let mut bus = rig.clone();
+            let done = calibrate(
+                &mut bus,
+                &profile,
+                how,
+                &mut operator,
+                &mut ChainTime(rig.clone()),
+            )
+            .unwrap_or_else(|e| panic!("{name} seed {seed}: {e}"));
+            for (c, (horn, direction, _)) in done.iter().zip(&truth) {
+                assert!(
+                    (c.horn - horn).abs() <= 1,
+                    "{name} seed {seed} {}: horn {} for {horn}",
+                    c.name,
+                    c.horn
+                );
+                assert_eq!(c.direction, *direction, "{name} seed {seed} {}", c.name);
+                assert_eq!(c.zero - c.homing_offset, c.horn);
+                offsets += usize::from(c.homing_offset != 0);
+                // Back at the reference pose after a watched move; where the hand left it (40
+                // ticks the positive way) after one by hand.
+                let moved = if how == Directions::ByHand {
+                    40 * i32::from(*direction)
+                } else {
+                    0
+                };
+                let at = read(&mut bus, c.id, addr::PRESENT_POSITION, 4) as i32;
+                assert!(
+                    (at - c.zero - moved).abs() <= 1,
+                    "{name} seed {seed} {}: at {at}, zero {}",
+                    c.name,
+                    c.zero
+                );
+            }
+        }
+        println!("{name}: 100 rigs, {by_hand} by hand, {offsets} Homing Offsets");
+        assert!(offsets > 0);
     }
 }

@@ -141,15 +141,16 @@ fn calibrate_cmd(
         profile.bus.baud,
         profile.servos.len()
     )?;
-    let done = calibrate::calibrate(bus.as_mut(), &profile, how, operator).map_err(|e| match e {
-        CalibrationError::Bus(source) => CliError::Bus {
-            port: path.clone(),
-            source,
-        },
-        e => CliError::Usage(format!(
-            "calibration stopped, the profile is unchanged, torque is off: {e}"
-        )),
-    })?;
+    let done = calibrate::calibrate(bus.as_mut(), &profile, how, operator, &mut calibrate::WallClock)
+        .map_err(|e| match e {
+            CalibrationError::Bus(source) => CliError::Bus {
+                port: path.clone(),
+                source,
+            },
+            e => CliError::Usage(format!(
+                "calibration stopped, the profile is unchanged, torque is off: {e}"
+            )),
+        })?;
     writeln!(out)?;
     writeln!(
         out,
