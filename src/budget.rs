@@ -14,10 +14,11 @@
 //! one more return delay), and a Fast read as one more Fast Bulk Read entry (request
 //! `10 + 5·(N + 1)`, its block `4 + b` in the one reply).
 //!
-//! The loop's health watch ([`crate::control::health`]) adds, every few cycles, a Read of
-//! one servo's voltage and temperature (request 14, reply `11 + 3`) or its Hardware Error
-//! Status (reply `11 + 1`): a return delay and a USB latency more. Those cycles are the worst,
-//! and the asked rate must fit them too.
+//! The loop's health watch ([`crate::control::health`]) reads, every few cycles, one servo's
+//! voltage and temperature (a Read: request 14, reply `11 + 3`) or its Hardware Error Status
+//! (reply `11 + 1`), with its return delay and a USB latency. A pipelined loop sends it in the
+//! position read's slot (that cycle: the Sync Write and the Read); otherwise it comes on top of
+//! the cycle. The worst cycle must fit the asked period too.
 
 use serde::Serialize;
 
@@ -113,7 +114,13 @@ pub fn plan_with_board(
     let health_read_us = f64::from(HEALTH_READ_BYTES) * f64::from(BITS_PER_BYTE) * 1e6 / f64::from(bus.baud)
         + f64::from(bus.return_delay_us)
         + f64::from(bus.usb_latency_us);
-    let worst_cycle_us = cycle_time_us + health_read_us;
+    // Pipelined, the health Read takes a position read's slot; otherwise it comes on top.
+    let write_us = f64::from(write_bytes) * f64::from(BITS_PER_BYTE) * 1e6 / f64::from(bus.baud);
+    let worst_cycle_us = if bus.pipeline {
+        cycle_time_us.max(write_us + health_read_us)
+    } else {
+        cycle_time_us + health_read_us
+    };
     Budget {
         servos,
         baud: bus.baud,
@@ -180,7 +187,7 @@ impl std::fmt::Display for Budget {
         )?;
         writeln!(
             f,
-            "  + health read              {:>9.1} µs  on one cycle in a few ({:.1} µs then)",
+            "  health read              {:>9.1} µs  one cycle in a few, in the read's slot when pipelined (worst cycle {:.1} µs)",
             self.health_read_us, self.worst_cycle_us
         )?;
         if let (Some(r), Some(u)) = (self.requested_rate_hz, self.utilisation) {

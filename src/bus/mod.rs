@@ -321,6 +321,27 @@ pub trait ServoBus {
         self.read_positions(ids, out)
     }
 
+    /// Sends a Read of `len` bytes at `address` of `id` and returns without waiting, in the
+    /// slot of a position read ([`ServoBus::request_positions`]): [`ServoBus::collect_read`]
+    /// takes the reply next tick. Buses that cannot split a read do nothing here and read in
+    /// full when collecting.
+    ///
+    /// # Errors
+    /// [`BusError`].
+    fn request_read(&mut self, id: u8, address: u16, len: u16) -> Result<(), BusError> {
+        let _ = (id, address, len);
+        Ok(())
+    }
+
+    /// The reply to the last [`ServoBus::request_read`] of the same item, due by its wire
+    /// time and the bus's margin counted from the request; a read now when none is pending.
+    ///
+    /// # Errors
+    /// [`BusError`]; `out` is untouched then.
+    fn collect_read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), BusError> {
+        self.read(id, address, out)
+    }
+
     /// Reads `len` bytes at `address` of device `id` (e.g. the IMU board) in the loop's
     /// position read from now on, as one more entry after the servos': of a Bulk Read (as
     /// ROBOTIS's OP3 framework reads its OpenCR), or of a Fast Bulk Read where the bus reads

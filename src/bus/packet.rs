@@ -63,6 +63,8 @@ pub struct PacketBus<T> {
     line_free: Duration,
     /// A read sent by [`ServoBus::request_positions`] whose replies are not collected yet.
     pending: Option<PendingRead>,
+    /// A Read on the wire in a position read's slot: id, address, length, when it left.
+    pending_single: Option<(u8, u16, u16, Duration)>,
     /// A block of another device read with the positions ([`ServoBus::merge_into_reads`]).
     merged: Option<MergedBlock>,
 }
@@ -108,6 +110,7 @@ impl<T: Transport> PacketBus<T> {
             single_margin: margin,
             line_free: Duration::ZERO,
             pending: None,
+            pending_single: None,
             merged: None,
         }
     }
@@ -428,6 +431,14 @@ impl<T: Transport> PacketBus<T> {
     /// Takes the replies of the pending position read (if any) and throws them away: the line
     /// is quiet for the next instruction.
     fn settle(&mut self) {
+        if let Some((id, _, len, sent)) = self.pending_single.take() {
+            if self
+                .status(id, Some(usize::from(len)), sent, self.margin)
+                .is_err()
+            {
+                self.drain();
+            }
+        }
         if let Some(p) = self.pending.take() {
             let mut out = [0i32; crate::servo::MAX_SERVOS];
             let _ = self.take_positions(&p, &mut out);
@@ -727,6 +738,32 @@ impl<T: Transport> ServoBus for PacketBus<T> {
         }
         found.sort_by_key(|f| f.id);
         Ok(found)
+    }
+
+    fn request_read(&mut self, id: u8, address: u16, len: u16) -> Result<(), BusError> {
+        if usize::from(len) >= MAX_PACKET {
+            return Err(invalid_request("read too long"));
+        }
+        let (a, l) = (address.to_le_bytes(), len.to_le_bytes());
+        let sent = self.send(id, instruction::READ, &[a[0], a[1], l[0], l[1]])?;
+        self.pending_single = Some((id, address, len, sent));
+        Ok(())
+    }
+
+    fn collect_read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), BusError> {
+        match self.pending_single {
+            Some((pid, pa, pl, sent)) if (pid, pa, usize::from(pl)) == (id, address, out.len()) => {
+                self.pending_single = None;
+                let r = self.status(id, Some(out.len()), sent, self.margin);
+                if r.is_err() {
+                    self.drain();
+                }
+                r?;
+                out.copy_from_slice(&self.params[1..=out.len()]);
+                Ok(())
+            }
+            _ => self.read(id, address, out),
+        }
     }
 
     fn read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), BusError> {

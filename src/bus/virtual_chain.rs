@@ -867,6 +867,12 @@ impl<P: Plant> super::ServoBus for VirtualRig<P> {
     fn read_positions(&mut self, ids: &[u8], out: &mut [i32]) -> Result<(), super::BusError> {
         self.0.borrow_mut().read_positions(ids, out)
     }
+    fn request_read(&mut self, id: u8, address: u16, len: u16) -> Result<(), super::BusError> {
+        self.0.borrow_mut().request_read(id, address, len)
+    }
+    fn collect_read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), super::BusError> {
+        self.0.borrow_mut().collect_read(id, address, out)
+    }
     fn request_positions(&mut self, ids: &[u8]) -> Result<(), super::BusError> {
         self.0.borrow_mut().request_positions(ids)
     }

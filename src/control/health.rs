@@ -1,6 +1,8 @@
 //! The servos' health, watched from the loop: Present Input Voltage and Present Temperature
 //! (one Read of 3 bytes at 144) and Hardware Error Status (70), one servo at a time, a read
-//! every few ticks in the bus's idle slot (the replies in, the write yet to go). Thresholds
+//! every few ticks. A pipelined loop reads it in the position read's slot — that tick's
+//! request is the health Read, its reply taken next tick, so it costs one tick's positions
+//! and no time; otherwise it is a Read of its own in the bus's idle slot. Thresholds
 //! per model: a warning first; then the run ends, eased to rest and torque off, naming the
 //! servo and why — before the servo's own shutdown drops a limb mid-motion.
 
@@ -23,6 +25,19 @@ pub const WARN_SUPPLY_SAG: f64 = 0.1;
 
 /// The data bytes of the voltage and temperature read (144: 2 bytes of 0.1 V, 146: 1 byte °C).
 const VITALS_BYTES: usize = 3;
+
+/// One read of the watch: a servo's voltage and temperature, or its Hardware Error Status.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HealthItem {
+    /// The servo's place in the watch.
+    pub servo: usize,
+    /// Its id.
+    pub id: u8,
+    /// The address read.
+    pub address: u16,
+    /// Bytes read.
+    pub len: u16,
+}
 
 /// One servo's figures as last read.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -150,31 +165,63 @@ impl HealthWatch {
         self.every
     }
 
-    /// Reads the next item when its tick has come; `true` when a servo's health ends the run.
+    /// Reads the next item when its tick has come (a Read of its own, in the bus's idle slot);
+    /// `true` when a servo's health ends the run.
     pub fn read(&mut self, bus: &mut dyn ServoBus) -> bool {
+        if let Some(item) = self.due() {
+            let mut b = [0u8; VITALS_BYTES];
+            let out = &mut b[..usize::from(item.len)];
+            let got = bus.read(item.id, item.address, out);
+            self.absorb(item, got.map(|()| &*out).ok());
+        }
+        self.stopped.is_some()
+    }
+
+    /// Counts a tick; the item to read when its tick has come (`None` otherwise, and once the
+    /// watch has ended the run).
+    pub fn due(&mut self) -> Option<HealthItem> {
         if self.servos.is_empty() || self.stopped.is_some() {
-            return self.stopped.is_some();
+            return None;
         }
         self.countdown -= 1;
         if self.countdown > 0 {
-            return false;
+            return None;
         }
         self.countdown = self.every;
-        let k = self.next;
-        let id = self.servos[k].id;
-        self.reads += 1;
-        if self.error_next {
-            match bus.read_value(id, addr::HARDWARE_ERROR_STATUS, 1) {
-                Ok(v) => self.judge_error(k, v as u8),
-                Err(_) => self.reads_failed += 1,
+        let id = self.servos[self.next].id;
+        Some(if self.error_next {
+            HealthItem {
+                servo: self.next,
+                id,
+                address: addr::HARDWARE_ERROR_STATUS,
+                len: 1,
             }
-            self.next = (self.next + 1) % self.servos.len();
         } else {
-            let mut b = [0u8; VITALS_BYTES];
-            match bus.read(id, addr::PRESENT_INPUT_VOLTAGE, &mut b) {
-                Ok(()) => self.judge_vitals(k, f64::from(u16::from_le_bytes([b[0], b[1]])) / 10.0, b[2]),
-                Err(_) => self.reads_failed += 1,
+            HealthItem {
+                servo: self.next,
+                id,
+                address: addr::PRESENT_INPUT_VOLTAGE,
+                len: VITALS_BYTES as u16,
             }
+        })
+    }
+
+    /// Judges what `item`'s read gave (`None`: the read failed; tried again at the servo's
+    /// next turn); `true` when a servo's health ends the run.
+    pub fn absorb(&mut self, item: HealthItem, data: Option<&[u8]>) -> bool {
+        let k = item.servo;
+        self.reads += 1;
+        match data {
+            Some(d) if item.address == addr::HARDWARE_ERROR_STATUS && !d.is_empty() => {
+                self.judge_error(k, d[0])
+            }
+            Some(d) if d.len() >= VITALS_BYTES => {
+                self.judge_vitals(k, f64::from(u16::from_le_bytes([d[0], d[1]])) / 10.0, d[2]);
+            }
+            _ => self.reads_failed += 1,
+        }
+        if self.error_next {
+            self.next = (self.next + 1) % self.servos.len();
         }
         self.error_next = !self.error_next;
         self.stopped.is_some()
@@ -216,6 +263,12 @@ impl HealthWatch {
             s.warned = true;
             self.events.push(Event::Sagging { servo: k, volts });
         }
+    }
+
+    /// Whether a servo's health has ended the run.
+    #[must_use]
+    pub fn has_stopped(&self) -> bool {
+        self.stopped.is_some()
     }
 
     /// The hottest servo read so far: (id, °C).

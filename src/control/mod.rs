@@ -285,6 +285,8 @@ pub struct Controller {
     balance: Option<Box<balance::Balance>>,
     /// The servos' temperature, supply and hardware errors, read at a low rate.
     health: Option<Box<health::HealthWatch>>,
+    /// The health read on the wire in the position read's slot (pipelined).
+    health_in_flight: Option<health::HealthItem>,
     /// Where the ramp to rest ends, radians per servo (rig order); `None`: every angle 0.
     rest_pose: Option<Vec<f64>>,
     have_input: bool,
@@ -403,6 +405,7 @@ impl Controller {
             retarget: None,
             balance: None,
             health: None,
+            health_in_flight: None,
             rest_pose: None,
             have_input: false,
             clip_time: f64::NAN,
@@ -612,10 +615,13 @@ impl Controller {
         }
         let mut unhealthy = false;
         if let Some(h) = &mut self.health {
-            // The same idle slot, one item every few ticks.
-            let t0 = clock.now_ns();
-            unhealthy = h.read(bus);
-            replies.1 += clock.now_ns() - t0;
+            if !self.config.pipelined {
+                // Without a pipelined read: the same idle slot, one item every few ticks.
+                let t0 = clock.now_ns();
+                h.read(bus);
+                replies.1 += clock.now_ns() - t0;
+            }
+            unhealthy = h.has_stopped();
         }
         let t_solve = clock.now_ns();
         let dt = self.period_ns as f64 * 1e-9 * (1 + tick.skipped) as f64;

@@ -76,6 +76,26 @@ impl Controller {
         bus: &mut dyn ServoBus,
         clock: &mut dyn Clock,
     ) -> Result<(Option<Absorbed>, u64), RunEnd> {
+        if let Some(item) = self.health_in_flight.take() {
+            // Last tick's read was the health watch's: its reply, and no positions this tick.
+            let t0 = clock.now_ns();
+            let mut buf = [0u8; 4];
+            let out = &mut buf[..usize::from(item.len).min(4)];
+            let got = bus.collect_read(item.id, item.address, out);
+            let t1 = clock.now_ns();
+            if let Some(why) = got.as_ref().err().and_then(BusError::port_failure) {
+                self.port_error = Some(why);
+                self.stats.torque_off_acknowledged = Some(torque_off(bus, &self.ids).acknowledged);
+                return Err(RunEnd::PortLost);
+            }
+            if let Err(e) = &got {
+                self.stats.bus_error(e.kind());
+            }
+            if let Some(h) = &mut self.health {
+                h.absorb(item, got.ok().map(|()| &*out));
+            }
+            return Ok((None, t1 - t0));
+        }
         let Some(context) = self.reads.in_flight.take() else {
             return Ok((None, 0));
         };
@@ -248,12 +268,21 @@ impl Controller {
         let mut end = None;
         let t_after;
         if self.config.pipelined {
-            let requested = bus.request_positions(&self.ids);
+            // Every few ticks the health watch's Read takes the position read's slot.
+            let health = self.health.as_mut().and_then(|h| h.due());
+            let requested = match health {
+                Some(item) => bus.request_read(item.id, item.address, item.len),
+                None => bus.request_positions(&self.ids),
+            };
             t_after = clock.now_ns();
             let request_ok = requested.is_ok();
-            match requested {
-                Ok(()) => self.reads.in_flight = Some(context),
-                Err(e) => {
+            match (requested, health) {
+                (Ok(()), Some(item)) => self.health_in_flight = Some(item),
+                (Ok(()), None) => self.reads.in_flight = Some(context),
+                (Err(e), _) => {
+                    if let (Some(item), Some(h)) = (health, &mut self.health) {
+                        h.absorb(item, None);
+                    }
                     let (r, l) = self.absorb_read(Err(e), t_after, &context, bus);
                     (end, lost) = (r.end, lost.or(l));
                 }
