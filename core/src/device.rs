@@ -142,7 +142,7 @@ impl VirtualServo {
     }
 
     /// Sets the motor's temperature, °C (a servo warm from an earlier run); it heats and cools
-    /// from there ([`VirtualServo::heat`]). A value that is not finite is ignored.
+    /// from there (a first-order thermal model: [`THERMAL_TIME_CONSTANT_S`]). A value that is not finite is ignored.
     pub fn set_temperature(&mut self, celsius: Real) {
         if celsius.is_finite() {
             self.temperature_c = celsius;
