@@ -1125,6 +1125,44 @@ fn a_silent_servo_costs_at_most_its_own_tick() {
     }
 }
 
+/// The OP3's profile on an in-process line-timed chain with its IMU board reading `imu`, the
+/// host reading as `mode` says, every servo at the profile's Return Delay Time, the board's IMU
+/// merged into the position reads.
+fn op3_with_imu(
+    p: &marionette::profile::Profile,
+    mode: marionette::profile::ReadMode,
+    imu: &marionette::sensor_board::ImuReading,
+) -> PacketBus<InProcess> {
+    use marionette::sensor_board::{board_addr, IMU_BYTES};
+    let mut chain = chain_for(p.bus_section(), |_| 2048);
+    chain.board_mut().unwrap().set_imu(imu);
+    let link = InProcess::new(chain, p.bus.baud)
+        .with_usb_latency(Duration::from_micros(u64::from(p.bus.usb_latency_us)));
+    let margin = marionette::bus::reply_margin(&p.bus, p.servos.len());
+    let mut bus = PacketBus::new(link, margin).with_read_mode(mode);
+    for id in p.ids() {
+        bus.write(id, addr::RETURN_DELAY_TIME, &[(p.bus.return_delay_us / 2) as u8])
+            .unwrap();
+    }
+    assert!(bus.merge_into_reads(200, board_addr::GYRO, IMU_BYTES as u16));
+    bus
+}
+
+/// Ten cycles (the goals' Sync Write, the read with the board's block): their mean, µs of the
+/// line's time, each taking a fresh block into `block`.
+fn merged_cycles(bus: &mut PacketBus<InProcess>, ids: &[u8], present: &mut [i32], block: &mut [u8]) -> f64 {
+    let mut total = 0.0;
+    for _ in 0..10 {
+        let t0 = bus.link().now();
+        bus.write_goals(ids, present).unwrap();
+        bus.read_positions(ids, present).unwrap();
+        total += (bus.link().now() - t0).as_secs_f64() * 1e6;
+        assert_eq!(bus.take_merged(block), Some(true));
+        assert_eq!(bus.take_merged(block), None, "taken once");
+    }
+    total / 10.0
+}
+
 /// The OP3's IMU board read in the servos' position read (one Bulk Read, its block last): in
 /// virtual time on the line-timed chain a cycle (Sync Write, the read) takes what the
 /// planner says with the board counted; a board that does not answer costs its block, not
@@ -1138,104 +1176,53 @@ fn the_imu_board_read_with_the_positions_costs_what_the_planner_says() {
     let p = profile("robotis-op3.toml");
     let ids = p.ids();
     let n = ids.len();
-    let mut chain = chain_for(p.bus_section(), |_| 2048);
-    chain.board_mut().unwrap().set_imu(&ImuReading {
-        gyro_dps: [1.0, -2.0, 3.0],
-        acc_g: [0.0, 0.0, 1.0],
-        rpy_deg: [0.5, -0.5, 10.0],
-    });
-    let link = InProcess::new(chain, p.bus.baud)
-        .with_usb_latency(Duration::from_micros(u64::from(p.bus.usb_latency_us)));
-    let margin = marionette::bus::reply_margin(&p.bus, n);
-    let mut bus = PacketBus::new(link, margin);
-    for id in &ids {
-        bus.write(*id, addr::RETURN_DELAY_TIME, &[(p.bus.return_delay_us / 2) as u8])
-            .unwrap();
-    }
-    assert!(bus.merge_into_reads(200, board_addr::GYRO, IMU_BYTES as u16));
-    let mut present = vec![0; n];
-    let mut block = [0u8; IMU_BYTES];
-    assert_eq!(bus.take_merged(&mut block), None, "nothing read yet");
-    let planned = plan_with_board(&p.bus, n, None, Some(IMU_BYTES as u32));
-    let mut cycles = Vec::new();
-    for _ in 0..10 {
-        let t0 = bus.link().now();
-        bus.write_goals(&ids, &present).unwrap();
+    for (mode, imu) in [
+        (
+            ReadMode::Sync,
+            ImuReading {
+                gyro_dps: [1.0, -2.0, 3.0],
+                acc_g: [0.0, 0.0, 1.0],
+                rpy_deg: [0.5, -0.5, 10.0],
+            },
+        ),
+        (
+            ReadMode::FastSync,
+            ImuReading {
+                gyro_dps: [4.0, 5.0, -6.0],
+                acc_g: [0.0, 0.0, 1.0],
+                rpy_deg: [1.5, 0.0, -20.0],
+            },
+        ),
+    ] {
+        let mut bus = op3_with_imu(&p, mode, &imu);
+        let mut present = vec![0; n];
+        let mut block = [0u8; IMU_BYTES];
+        assert_eq!(bus.take_merged(&mut block), None, "nothing read yet");
+        let mut config = p.bus.clone();
+        config.read = mode;
+        let planned = plan_with_board(&config, n, None, Some(IMU_BYTES as u32));
+        assert_eq!(planned.board_merged, Some(true));
+        let mean = merged_cycles(&mut bus, &ids, &mut present, &mut block);
+        let r = ImuReading::decode(&block).unwrap();
+        assert!(
+            (r.gyro_dps[2] - imu.gyro_dps[2]).abs() < 0.1 && (r.rpy_deg[2] - imu.rpy_deg[2]).abs() < 0.1,
+            "{r:?}"
+        );
+        assert!(present.iter().all(|t| *t == 2048), "{present:?}");
+        println!(
+            "OP3 cycle with the IMU merged ({mode:?}): {mean:.0} µs measured, {:.0} µs planned",
+            planned.cycle_time_us
+        );
+        assert!(
+            (mean - planned.cycle_time_us).abs() <= 0.02 * planned.cycle_time_us,
+            "{mean} µs against {} planned",
+            planned.cycle_time_us
+        );
+        // A board that does not answer: the positions come, its block does not.
+        assert!(bus.merge_into_reads(201, board_addr::GYRO, IMU_BYTES as u16));
+        present.fill(0);
         bus.read_positions(&ids, &mut present).unwrap();
-        cycles.push((bus.link().now() - t0).as_secs_f64() * 1e6);
-        assert_eq!(bus.take_merged(&mut block), Some(true));
-        assert_eq!(bus.take_merged(&mut block), None, "taken once");
+        assert!(present.iter().all(|t| *t == 2048), "{present:?}");
+        assert_eq!(bus.take_merged(&mut block), Some(false));
     }
-    let r = ImuReading::decode(&block).unwrap();
-    assert!(
-        (r.gyro_dps[1] + 2.0).abs() < 0.1 && (r.rpy_deg[2] - 10.0).abs() < 0.1,
-        "{r:?}"
-    );
-    assert!(present.iter().all(|t| *t == 2048), "{present:?}");
-    let mean = cycles.iter().sum::<f64>() / cycles.len() as f64;
-    println!(
-        "OP3 cycle with the IMU merged: {mean:.0} µs measured, {:.0} µs planned",
-        planned.cycle_time_us
-    );
-    assert!(
-        (mean - planned.cycle_time_us).abs() <= 0.02 * planned.cycle_time_us,
-        "{mean} µs against {} planned",
-        planned.cycle_time_us
-    );
-    // A board that does not answer: the positions come, its block does not.
-    assert!(bus.merge_into_reads(201, board_addr::GYRO, IMU_BYTES as u16));
-    present.fill(0);
-    bus.read_positions(&ids, &mut present).unwrap();
-    assert!(present.iter().all(|t| *t == 2048), "{present:?}");
-    assert_eq!(bus.take_merged(&mut block), Some(false));
-    // A Fast read merges it too: one Fast Bulk Read, the board's block last in the one reply,
-    // at the planner's cost for the profile read fast.
-    let mut chain = chain_for(p.bus_section(), |_| 2048);
-    chain.board_mut().unwrap().set_imu(&ImuReading {
-        gyro_dps: [4.0, 5.0, -6.0],
-        acc_g: [0.0, 0.0, 1.0],
-        rpy_deg: [1.5, 0.0, -20.0],
-    });
-    let link = InProcess::new(chain, p.bus.baud)
-        .with_usb_latency(Duration::from_micros(u64::from(p.bus.usb_latency_us)));
-    let mut fast = PacketBus::new(link, margin).with_read_mode(ReadMode::FastSync);
-    for id in &ids {
-        fast.write(*id, addr::RETURN_DELAY_TIME, &[(p.bus.return_delay_us / 2) as u8])
-            .unwrap();
-    }
-    assert!(fast.merge_into_reads(200, board_addr::GYRO, IMU_BYTES as u16));
-    let mut fast_bus = p.bus.clone();
-    fast_bus.read = ReadMode::FastSync;
-    let planned = plan_with_board(&fast_bus, n, None, Some(IMU_BYTES as u32));
-    assert_eq!(planned.board_merged, Some(true));
-    let mut cycles = Vec::new();
-    for _ in 0..10 {
-        let t0 = fast.link().now();
-        fast.write_goals(&ids, &present).unwrap();
-        fast.read_positions(&ids, &mut present).unwrap();
-        cycles.push((fast.link().now() - t0).as_secs_f64() * 1e6);
-        assert_eq!(fast.take_merged(&mut block), Some(true));
-    }
-    let r = ImuReading::decode(&block).unwrap();
-    assert!(
-        (r.gyro_dps[2] + 6.0).abs() < 0.1 && (r.rpy_deg[2] + 20.0).abs() < 0.1,
-        "{r:?}"
-    );
-    assert!(present.iter().all(|t| *t == 2048), "{present:?}");
-    let mean = cycles.iter().sum::<f64>() / cycles.len() as f64;
-    println!(
-        "OP3 cycle with the IMU in a Fast Bulk Read: {mean:.0} µs measured, {:.0} µs planned",
-        planned.cycle_time_us
-    );
-    assert!(
-        (mean - planned.cycle_time_us).abs() <= 0.02 * planned.cycle_time_us,
-        "{mean} µs against {} planned",
-        planned.cycle_time_us
-    );
-    // A silent board costs its block only, here too.
-    assert!(fast.merge_into_reads(201, board_addr::GYRO, IMU_BYTES as u16));
-    present.fill(0);
-    fast.read_positions(&ids, &mut present).unwrap();
-    assert!(present.iter().all(|t| *t == 2048), "{present:?}");
-    assert_eq!(fast.take_merged(&mut block), Some(false));
 }

@@ -64,6 +64,20 @@ fn read(bus: &mut dyn ServoBus, id: u8, address: u16, size: usize) -> u32 {
     panic!("id {id}, address {address}: {last:?}");
 }
 
+/// `doctor PROFILE --port PORT`: exit code and report.
+fn doctor(profile: &Path, port: &str) -> (Option<i32>, String) {
+    let out = common::bin()
+        .arg("doctor")
+        .arg(profile)
+        .args(["--port", port])
+        .output()
+        .unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+    )
+}
+
 fn calibrate(profile: &Path, port: &str, answers: &str, extra: &[&str]) -> std::process::Output {
     let mut child = common::bin()
         .arg("calibrate")
@@ -89,14 +103,8 @@ fn calibrate_recovers_the_zeros_and_directions_of_a_miscalibrated_rig_and_the_re
 
     // As it was, the profile does not fit the rig: doctor says which servos stand outside
     // their range and the rig cannot run it.
-    let doctor = common::bin()
-        .arg("doctor")
-        .arg(&path)
-        .args(["--port", &port])
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&doctor.stdout);
-    assert_eq!(doctor.status.code(), Some(1), "{text}");
+    let (code, text) = doctor(&path, &port);
+    assert_eq!(code, Some(1), "{text}");
     assert!(
         text.contains("outside its") && text.contains("marionette calibrate"),
         "{text}"
@@ -163,14 +171,8 @@ fn calibrate_recovers_the_zeros_and_directions_of_a_miscalibrated_rig_and_the_re
     }
 
     // The calibrated profile passes doctor and plays the walk on the rig.
-    let doctor = common::bin()
-        .arg("doctor")
-        .arg(&path)
-        .args(["--port", &port])
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&doctor.stdout);
-    assert_eq!(doctor.status.code(), Some(0), "{text}");
+    let (code, text) = doctor(&path, &port);
+    assert_eq!(code, Some(0), "{text}");
     assert!(!text.contains("Homing Offset"), "{text}");
     // The walk, whole, on the calibrated rig and on a rig as the stock profile says: the same
     // fidelity (source against present).
