@@ -16,7 +16,7 @@
 
 use std::time::Duration;
 
-use crate::bus::{BusError, ServoBus};
+use crate::bus::{retried, BusError, Registers, ServoBus};
 use crate::profile::{Drive, Profile, ServoSpec};
 use crate::servo::{addr, MAX_TICK, TICKS_PER_TURN};
 
@@ -37,9 +37,6 @@ const STEP_SETTLE: Duration = Duration::from_millis(1000);
 
 /// How often a move is looked at while it settles.
 const SETTLE_POLL: Duration = Duration::from_millis(20);
-
-/// How many times a read or write is tried on a busy line.
-const TRIES: usize = 3;
 
 /// How calibration lets time pass while a servo moves: the wall clock on a rig
 /// ([`WallClock`]); a virtual chain's own time in a test.
@@ -217,30 +214,19 @@ pub fn wrap_safe_zero(servo: &ServoSpec, horn: i32, direction: f64) -> Result<(i
     Ok((zero - horn, zero))
 }
 
-fn tried<T>(mut f: impl FnMut() -> Result<T, BusError>) -> Result<T, BusError> {
-    let mut r = f();
-    for _ in 1..TRIES {
-        match r {
-            Err(BusError::Servo { .. }) | Ok(_) => break,
-            Err(_) => r = f(),
-        }
-    }
-    r
-}
-
 fn read_i32(bus: &mut dyn ServoBus, id: u8, address: u16) -> Result<i32, BusError> {
-    tried(|| bus.read_value(id, address, 4)).map(|v| v as i32)
+    retried(|| bus.read_value(id, address, 4)).map(|v| v as i32)
 }
 
 fn write(bus: &mut dyn ServoBus, id: u8, address: u16, data: &[u8]) -> Result<(), BusError> {
-    tried(|| bus.write(id, address, data))
+    retried(|| bus.write(id, address, data))
 }
 
 /// Torque off on every profiled servo (each tried on a busy line; the first error returned).
 fn all_torque_off(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(), BusError> {
     let mut first = None;
     for s in &profile.servos {
-        if let Err(e) = tried(|| bus.set_torque(s.id, false)) {
+        if let Err(e) = retried(|| bus.set_torque(s.id, false)) {
             first.get_or_insert(e);
         }
     }
@@ -290,15 +276,17 @@ fn run(
     saved: &mut Vec<Saved>,
 ) -> Result<Vec<Calibrated>, CalibrationError> {
     for s in &profile.servos {
-        tried(|| bus.ping(s.id))?;
+        retried(|| bus.ping(s.id))?;
     }
     all_torque_off(bus, profile)?;
     for s in &profile.servos {
+        // In one read: a late reply to one 4-byte read would pass for the next one's.
+        let r = Registers::read(bus, s.id)?;
         saved.push((
             s.id,
-            read_i32(bus, s.id, addr::HOMING_OFFSET)?,
-            read_i32(bus, s.id, addr::MAX_POSITION_LIMIT)?,
-            read_i32(bus, s.id, addr::MIN_POSITION_LIMIT)?,
+            r.signed(addr::HOMING_OFFSET),
+            r.signed(addr::MAX_POSITION_LIMIT),
+            r.signed(addr::MIN_POSITION_LIMIT),
         ));
     }
     operator.hold_reference_pose(&reference_pose(profile))?;
@@ -379,7 +367,7 @@ fn step_direction(
             addr::PROFILE_VELOCITY,
             &STEP_PROFILE_VELOCITY.to_le_bytes(),
         )?;
-        tried(|| bus.set_torque(s.id, true))?;
+        retried(|| bus.set_torque(s.id, true))?;
         write(bus, s.id, addr::GOAL_POSITION, &(start + step).to_le_bytes())?;
         let there = settle(bus, clock, s.id, start + step)?;
         Ok(there - start)
@@ -387,7 +375,7 @@ fn step_direction(
     // Back, whatever happened, then torque off and the speed as it was.
     let back = write(bus, s.id, addr::GOAL_POSITION, &start.to_le_bytes())
         .and_then(|()| settle(bus, clock, s.id, start).map(drop));
-    tried(|| bus.set_torque(s.id, false))?;
+    retried(|| bus.set_torque(s.id, false))?;
     write(bus, s.id, addr::PROFILE_VELOCITY, &velocity_before.to_le_bytes())?;
     let moved = moved?;
     back?;

@@ -14,7 +14,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::budget;
-use crate::bus::{BusError, PingInfo, ServoBus};
+use crate::bus::{BusError, PingInfo, Registers, ServoBus, TRIES};
 use crate::profile::{BusConfig, Profile, ServoSpec};
 use crate::servo::addr;
 
@@ -66,6 +66,20 @@ pub struct Finding {
     /// The write that would.
     #[serde(skip)]
     pub fix: Option<Fix>,
+    /// For a profiled servo that does not answer at the profile's baud: whether it was found
+    /// at another.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unreachable: Option<Unreachable>,
+}
+
+/// A profiled servo that does not answer at the profile's baud.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Unreachable {
+    /// Not found (at the profile's baud, or at any baud searched).
+    Silent,
+    /// Found answering at this baud.
+    AtBaud(u32),
 }
 
 /// The whole check.
@@ -103,7 +117,28 @@ impl Report {
             todo: todo.to_string(),
             fixable: fix.is_some(),
             fix,
+            unreachable: None,
         });
+    }
+
+    /// Whether any profiled servo is silent at every baud looked at.
+    #[must_use]
+    pub fn has_silent(&self) -> bool {
+        self.findings
+            .iter()
+            .any(|f| f.unreachable == Some(Unreachable::Silent))
+    }
+
+    /// How many profiled servos do not answer at the profile's baud.
+    #[must_use]
+    pub fn unreachable(&self) -> usize {
+        self.findings.iter().filter(|f| f.unreachable.is_some()).count()
+    }
+
+    fn mark_last(&mut self, unreachable: Unreachable) {
+        if let Some(f) = self.findings.last_mut() {
+            f.unreachable = Some(unreachable);
+        }
     }
 }
 
@@ -115,9 +150,6 @@ const FULL_PWM: u32 = 885;
 
 /// How far below its limit a servo's temperature is worth a warning, °C.
 const TEMPERATURE_MARGIN_C: u32 = 10;
-
-/// Tries of each register read before the servo counts as unreadable.
-const READ_TRIES: usize = 3;
 
 /// Loop cycles timed for the measured cycle.
 const TIMED_CYCLES: usize = 40;
@@ -156,13 +188,16 @@ pub fn examine(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Report, BusE
     let mut present = Vec::new();
     for s in &profile.servos {
         match found.iter().find(|p| p.id == s.id) {
-            None => report.push(
-                Level::Fault,
-                Some(s),
-                format!("id {} does not answer at {} bit/s", s.id, profile.bus.baud),
-                "check its cable and power; it may be at another baud or id (`marionette scan --port PORT --baud B`)",
-                None,
-            ),
+            None => {
+                report.push(
+                    Level::Fault,
+                    Some(s),
+                    format!("id {} does not answer at {} bit/s", s.id, profile.bus.baud),
+                    "check its cable and power; it may be at another baud or id (`marionette scan --port PORT --baud B`)",
+                    None,
+                );
+                report.mark_last(Unreachable::Silent);
+            }
             Some(p) if p.model_number != s.model.model_number => report.push(
                 Level::Fault,
                 Some(s),
@@ -194,6 +229,7 @@ pub fn examine(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Report, BusE
                 todo: "add it to the profile, or give it an id the bus does not use".into(),
                 fixable: false,
                 fix: None,
+                unreachable: None,
             });
         }
     }
@@ -213,7 +249,7 @@ pub fn examine(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Report, BusE
             report.push(
                 Level::Fault,
                 Some(s),
-                format!("its registers could not be read ({e}, {READ_TRIES} tries each)"),
+                format!("its registers could not be read ({e}, {TRIES} tries)"),
                 "check the cable and the adapter; `marionette scan` shows what answers",
                 None,
             );
@@ -264,17 +300,9 @@ fn check_servo(
 ) -> Result<(), BusError> {
     let id = s.id;
     let m = s.model;
-    // A busy line or host loses a reply now and then: each read is tried again.
-    let read = |bus: &mut dyn ServoBus, a: u16, n: usize| {
-        let mut result = bus.read_value(id, a, n);
-        for _ in 1..READ_TRIES {
-            if result.is_ok() {
-                break;
-            }
-            result = bus.read_value(id, a, n);
-        }
-        result
-    };
+    // The whole table in one read (each tried again on a busy line).
+    let registers = Registers::read(bus, id)?;
+    let read = |address: u16, n: usize| registers.value(address, n);
     let le = |v: u32, n: usize| v.to_le_bytes()[..n].to_vec();
     let fix = |address: u16, data: Vec<u8>| {
         Some(Fix {
@@ -285,7 +313,7 @@ fn check_servo(
         })
     };
 
-    let hw = read(bus, addr::HARDWARE_ERROR_STATUS, 1)? as u8;
+    let hw = read(addr::HARDWARE_ERROR_STATUS, 1) as u8;
     if hw != 0 {
         report.push(
             Level::Fault,
@@ -295,7 +323,7 @@ fn check_servo(
             None,
         );
     }
-    let rdt_us = read(bus, addr::RETURN_DELAY_TIME, 1)? * 2;
+    let rdt_us = read(addr::RETURN_DELAY_TIME, 1) * 2;
     if rdt_us > profile.bus.return_delay_us {
         report.push(
             Level::Warn,
@@ -311,7 +339,7 @@ fn check_servo(
             ),
         );
     }
-    let srl = read(bus, addr::STATUS_RETURN_LEVEL, 1)?;
+    let srl = read(addr::STATUS_RETURN_LEVEL, 1);
     if srl != 2 {
         report.push(
             Level::Warn,
@@ -321,7 +349,7 @@ fn check_servo(
             fix(addr::STATUS_RETURN_LEVEL, vec![2]),
         );
     }
-    let mode = read(bus, addr::OPERATING_MODE, 1)?;
+    let mode = read(addr::OPERATING_MODE, 1);
     if mode != 3 {
         report.push(
             Level::Fault,
@@ -331,7 +359,7 @@ fn check_servo(
             fix(addr::OPERATING_MODE, vec![3]),
         );
     }
-    let homing = read(bus, addr::HOMING_OFFSET, 4)? as i32;
+    let homing = read(addr::HOMING_OFFSET, 4) as i32;
     match s.homing_offset {
         Some(want) if homing != want => report.push(
             Level::Fault,
@@ -352,7 +380,7 @@ fn check_servo(
         _ => {}
     }
     let (lo, hi) = s.tick_limits();
-    let at = read(bus, addr::PRESENT_POSITION, 4)? as i32;
+    let at = read(addr::PRESENT_POSITION, 4) as i32;
     if at < lo || at > hi {
         report.push(
             Level::Fault,
@@ -367,8 +395,8 @@ fn check_servo(
             None,
         );
     }
-    let max = read(bus, addr::MAX_POSITION_LIMIT, 4)? as i32;
-    let min = read(bus, addr::MIN_POSITION_LIMIT, 4)? as i32;
+    let max = read(addr::MAX_POSITION_LIMIT, 4) as i32;
+    let min = read(addr::MIN_POSITION_LIMIT, 4) as i32;
     if min > lo || max < hi {
         let mut data = le(hi as u32, 4);
         data.extend(le(lo as u32, 4));
@@ -380,7 +408,7 @@ fn check_servo(
             fix(addr::MAX_POSITION_LIMIT, data),
         );
     }
-    let velocity = read(bus, addr::VELOCITY_LIMIT, 4)?;
+    let velocity = read(addr::VELOCITY_LIMIT, 4);
     let wanted = (s.max_velocity_dps / 6.0 / VELOCITY_UNIT_RPM).ceil() as u32;
     if velocity < wanted {
         let to = wanted.min(u32::from(m.velocity_limit.1));
@@ -397,7 +425,7 @@ fn check_servo(
         );
     }
     if m.current_limit > 0 {
-        let current = read(bus, addr::CURRENT_LIMIT, 2)?;
+        let current = read(addr::CURRENT_LIMIT, 2);
         if current < u32::from(m.current_limit) {
             report.push(
                 Level::Warn,
@@ -411,7 +439,7 @@ fn check_servo(
             );
         }
     }
-    let pwm = read(bus, addr::PWM_LIMIT, 2)?;
+    let pwm = read(addr::PWM_LIMIT, 2);
     if pwm < FULL_PWM {
         report.push(
             Level::Warn,
@@ -421,7 +449,7 @@ fn check_servo(
             fix(addr::PWM_LIMIT, le(FULL_PWM, 2)),
         );
     }
-    let temperature_limit = read(bus, 31, 1)?;
+    let temperature_limit = read(31, 1);
     if temperature_limit != u32::from(m.temperature_limit) {
         report.push(
             Level::Warn,
@@ -434,7 +462,7 @@ fn check_servo(
             fix(31, vec![m.temperature_limit]),
         );
     }
-    let (vmax, vmin) = (read(bus, 32, 2)?, read(bus, 34, 2)?);
+    let (vmax, vmin) = (read(32, 2), read(34, 2));
     if (vmax, vmin) != (u32::from(m.voltage_limits.0), u32::from(m.voltage_limits.1)) {
         let mut data = le(u32::from(m.voltage_limits.0), 2);
         data.extend(le(u32::from(m.voltage_limits.1), 2));
@@ -452,7 +480,7 @@ fn check_servo(
             fix(32, data),
         );
     }
-    let volts = f64::from(read(bus, addr::PRESENT_INPUT_VOLTAGE, 2)?) / 10.0;
+    let volts = f64::from(read(addr::PRESENT_INPUT_VOLTAGE, 2)) / 10.0;
     if volts < m.min_v || volts > m.max_v {
         report.push(
             Level::Fault,
@@ -476,7 +504,7 @@ fn check_servo(
             None,
         );
     }
-    let celsius = read(bus, addr::PRESENT_TEMPERATURE, 1)?;
+    let celsius = read(addr::PRESENT_TEMPERATURE, 1);
     let limit = temperature_limit.min(u32::from(m.temperature_limit));
     if celsius >= limit {
         report.push(
@@ -594,7 +622,7 @@ pub fn search_bauds(port: &str, profile: &Profile, report: &mut Report) -> Resul
     let mut missing: Vec<u8> = report
         .findings
         .iter()
-        .filter(|f| f.level == Level::Fault && f.what.contains("does not answer"))
+        .filter(|f| f.unreachable == Some(Unreachable::Silent))
         .filter_map(|f| f.id)
         .collect();
     let mut tried = Vec::new();
@@ -626,7 +654,7 @@ pub fn search_bauds(port: &str, profile: &Profile, report: &mut Report) -> Resul
             missing.retain(|&m| m != p.id);
             report
                 .findings
-                .retain(|f| !(f.id == Some(p.id) && f.what.contains("does not answer")));
+                .retain(|f| !(f.id == Some(p.id) && f.unreachable.is_some()));
             report.push(
                 Level::Fault,
                 Some(s),
@@ -643,6 +671,7 @@ pub fn search_bauds(port: &str, profile: &Profile, report: &mut Report) -> Resul
                     at_baud: Some(baud),
                 }),
             );
+            report.mark_last(Unreachable::AtBaud(baud));
         }
     }
     Ok(tried)

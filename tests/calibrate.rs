@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
 
 use marionette::bus::virtual_chain::miscalibration;
-use marionette::bus::{open, ServoBus, Wire};
+use marionette::bus::{open, Registers, ServoBus, Wire};
 use marionette::calibrate::wrap_safe_zero;
 use marionette::profile::Profile;
 use marionette::servo::addr;
@@ -51,17 +51,18 @@ fn serve_with(profile: &Path, seconds: u32, extra: &[&str]) -> (Child, String) {
     (child, path)
 }
 
-/// A register of servo `id`, each read tried again on a busy machine (the served chain is
-/// another process).
-fn read(bus: &mut dyn ServoBus, id: u8, address: u16, size: usize) -> u32 {
+/// Servo `id`'s control table in one read, tried again on a busy machine (the served chain is
+/// another process). One read for all the items looked at: a late reply to a 4-byte read
+/// would pass for the next 4-byte read's.
+fn registers(bus: &mut dyn ServoBus, id: u8) -> Registers {
     let mut last = None;
     for _ in 0..10 {
-        match bus.read_value(id, address, size) {
-            Ok(v) => return v,
+        match Registers::read(bus, id) {
+            Ok(r) => return r,
             Err(e) => last = Some(e),
         }
     }
-    panic!("id {id}, address {address}: {last:?}");
+    panic!("id {id}: {last:?}");
 }
 
 /// `doctor PROFILE --port PORT`: exit code and report.
@@ -157,15 +158,16 @@ fn calibrate_recovers_the_zeros_and_directions_of_a_miscalibrated_rig_and_the_re
     {
         let mut bus = open(Wire::Port(port.clone()), &after.bus, after.servos.len()).unwrap();
         for s in &after.servos {
-            let at = read(bus.as_mut(), s.id, addr::PRESENT_POSITION, 4) as i32;
+            let r = registers(bus.as_mut(), s.id);
+            let at = r.signed(addr::PRESENT_POSITION);
             assert!(
                 (at - s.zero as i32).abs() <= 3,
                 "{}: at {at}, zero {}",
                 s.name,
                 s.zero
             );
-            assert_eq!(read(bus.as_mut(), s.id, addr::TORQUE_ENABLE, 1), 0, "{}", s.name);
-            let homing = read(bus.as_mut(), s.id, addr::HOMING_OFFSET, 4) as i32;
+            assert_eq!(r.value(addr::TORQUE_ENABLE, 1), 0, "{}", s.name);
+            let homing = r.signed(addr::HOMING_OFFSET);
             assert_eq!(homing, s.homing_offset.unwrap_or(0), "{}", s.name);
         }
     }
@@ -235,14 +237,10 @@ fn calibrate_stopped_by_the_operator_leaves_the_profile_unchanged_and_torque_off
     let truth = miscalibration(SEED, profile.servos.len());
     let mut bus = open(Wire::Port(port), &profile.bus, profile.servos.len()).unwrap();
     for (s, (horn, _, homing)) in profile.servos.iter().zip(&truth) {
-        assert_eq!(read(bus.as_mut(), s.id, addr::TORQUE_ENABLE, 1), 0, "{}", s.name);
-        assert_eq!(
-            read(bus.as_mut(), s.id, addr::HOMING_OFFSET, 4) as i32,
-            *homing,
-            "{}",
-            s.name
-        );
-        let at = read(bus.as_mut(), s.id, addr::PRESENT_POSITION, 4) as i32;
+        let r = registers(bus.as_mut(), s.id);
+        assert_eq!(r.value(addr::TORQUE_ENABLE, 1), 0, "{}", s.name);
+        assert_eq!(r.signed(addr::HOMING_OFFSET), *homing, "{}", s.name);
+        let at = r.signed(addr::PRESENT_POSITION);
         assert!((at - homing - horn).abs() <= 3, "{}: at {at}", s.name);
     }
     let _ = served.kill();
@@ -410,7 +408,7 @@ fn calibrate_recovers_a_hundred_seeded_rigs_of_both_profiles() {
                 } else {
                     0
                 };
-                let at = read(&mut bus, c.id, addr::PRESENT_POSITION, 4) as i32;
+                let at = registers(&mut bus, c.id).signed(addr::PRESENT_POSITION);
                 assert!(
                     (at - c.zero - moved).abs() <= 1,
                     "{name} seed {seed} {}: at {at}, zero {}",

@@ -422,7 +422,7 @@ pub enum StartupError {
 /// Homing Offset (when it gives one), the position limits, the profile's Position P Gain (when it gives one); read present positions and copy
 /// them into the goals; only then torque on — so no servo jumps; last, the Bus Watchdog on all
 /// servos at once (the caller's first command must follow within it). Each transaction that
-/// meets a busy line or host is tried again ([`STARTUP_TRIES`] in all).
+/// meets a busy line or host is tried again ([`TRIES`] in all).
 ///
 /// # Errors
 /// [`StartupError`]; torque stays off on every servo.
@@ -572,17 +572,20 @@ pub fn hardware_error_names(bits: u8) -> String {
     }
 }
 
-/// How many times start-up tries each of its transactions.
-pub const STARTUP_TRIES: usize = 3;
+/// How many times an idempotent transaction is tried on a busy line ([`retried`]).
+pub const TRIES: usize = 3;
 
-/// Start-up's transactions are idempotent (reads, and writes of fixed values): one that meets a
-/// busy line or host — no reply in time, a bad CRC, the late reply of the one before (another
-/// servo's, or the same servo's to another instruction: a write's empty status taken for a
-/// read's) — is tried again, [`STARTUP_TRIES`] times in all, before it fails the start-up. A
-/// servo's own error answer is not retried.
-fn retried<T>(mut transaction: impl FnMut() -> Result<T, BusError>) -> Result<T, BusError> {
+/// Runs an idempotent transaction (a read, or a write of a fixed value), and again when it
+/// meets a busy line or host — no reply in time, a bad CRC, the late reply of the one before
+/// (another servo's, or the same servo's to another instruction: a write's empty status taken
+/// for a read's) — [`TRIES`] times in all. A servo's own error answer is not retried. Start-up,
+/// `doctor` and `calibrate` run their transactions through it.
+///
+/// # Errors
+/// The last attempt's [`BusError`].
+pub fn retried<T>(mut transaction: impl FnMut() -> Result<T, BusError>) -> Result<T, BusError> {
     let mut outcome = transaction();
-    for _ in 1..STARTUP_TRIES {
+    for _ in 1..TRIES {
         match outcome {
             Err(
                 BusError::Timeout { .. }
@@ -596,6 +599,46 @@ fn retried<T>(mut transaction: impl FnMut() -> Result<T, BusError>) -> Result<T,
         }
     }
     outcome
+}
+
+/// Bytes of control table [`Registers`] holds: addresses 0…147, Model Number to Present
+/// Temperature (X series, and MX on Protocol 2.0).
+pub const REGISTERS_LEN: usize = 148;
+
+/// A snapshot of one servo's control table from address 0, read in one transaction. A
+/// status packet does not say which address it answers, so a late reply to one 4-byte read
+/// passes for the next one's; reading the items together leaves no next one. Reserved bytes
+/// inside the table read as data (what X-series firmware answers).
+#[derive(Clone, Debug)]
+pub struct Registers {
+    bytes: [u8; REGISTERS_LEN],
+}
+
+impl Registers {
+    /// Reads servo `id`'s addresses 0…147 ([`retried`]).
+    ///
+    /// # Errors
+    /// [`BusError`].
+    pub fn read(bus: &mut dyn ServoBus, id: u8) -> Result<Registers, BusError> {
+        let mut bytes = [0u8; REGISTERS_LEN];
+        retried(|| bus.read(id, 0, &mut bytes))?;
+        Ok(Registers { bytes })
+    }
+
+    /// The `size`-byte (at most 4) little-endian item at `address`; bytes past the snapshot
+    /// read 0.
+    #[must_use]
+    pub fn value(&self, address: u16, size: usize) -> u32 {
+        let a = usize::from(address).min(REGISTERS_LEN);
+        let b = &self.bytes[a..(a + size.min(4)).min(REGISTERS_LEN)];
+        b.iter().rev().fold(0, |v, &x| (v << 8) | u32::from(x))
+    }
+
+    /// The 4-byte signed item at `address`.
+    #[must_use]
+    pub fn signed(&self, address: u16) -> i32 {
+        self.value(address, 4) as i32
+    }
 }
 
 /// Torque off on every profiled servo (all are tried, each write again on a busy line; the
@@ -695,7 +738,24 @@ pub fn latency_timer_ms(port: &str) -> Option<u32> {
 
 #[cfg(test)]
 mod tests {
-    use super::{retried, BusError, STARTUP_TRIES};
+    use super::{retried, BusError, Registers, REGISTERS_LEN, TRIES};
+    use crate::servo::addr;
+
+    /// Items come out of the snapshot little-endian, signed where asked, 0 past its end.
+    #[test]
+    fn registers_give_each_item_from_its_address() {
+        let mut bytes = [0u8; REGISTERS_LEN];
+        bytes[usize::from(addr::HOMING_OFFSET)..][..4].copy_from_slice(&(-913i32).to_le_bytes());
+        bytes[usize::from(addr::PRESENT_POSITION)..][..4].copy_from_slice(&2630i32.to_le_bytes());
+        bytes[usize::from(addr::PRESENT_TEMPERATURE)] = 41;
+        let r = Registers { bytes };
+        assert_eq!(r.signed(addr::HOMING_OFFSET), -913);
+        assert_eq!(r.signed(addr::PRESENT_POSITION), 2630);
+        assert_eq!(r.value(addr::PRESENT_TEMPERATURE, 1), 41);
+        assert_eq!(r.value(addr::PRESENT_TEMPERATURE, 4), 41);
+        assert_eq!(r.value(addr::TORQUE_ENABLE, 1), 0);
+        assert_eq!(r.value(600, 4), 0);
+    }
 
     /// What a busy line does to a transaction is tried again; what a servo answers is not.
     #[test]
@@ -725,7 +785,7 @@ mod tests {
             Err(BusError::Timeout { id: 4 })
         });
         assert!(matches!(got, Err(BusError::Timeout { id: 4 })));
-        assert_eq!(calls, STARTUP_TRIES);
+        assert_eq!(calls, TRIES);
         let mut calls = 0;
         let got: Result<(), BusError> = retried(|| {
             calls += 1;

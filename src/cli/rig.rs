@@ -632,7 +632,7 @@ fn doctor_cmd(a: &DoctorArgs, out: &mut dyn Write) -> Result<(), CliError> {
     let mut report = doctor::examine(open()?.as_mut(), &profile).map_err(at_port)?;
     // Servos that did not answer may be at another baud: the port is opened at each in turn.
     let search = |report: &mut doctor::Report| -> Result<(), CliError> {
-        if report.findings.iter().any(|f| f.what.contains("does not answer")) {
+        if report.has_silent() {
             doctor::search_bauds(&path, &profile, report).map_err(at_port)?;
         }
         if a.port.is_some() {
@@ -716,15 +716,7 @@ fn doctor_cmd(a: &DoctorArgs, out: &mut dyn Write) -> Result<(), CliError> {
             writeln!(out, "{level} {who}{}{todo}", f.what)?;
         }
         let warnings = report.at(Level::Warn).count();
-        let answering = profile.servos.len()
-            - report
-                .findings
-                .iter()
-                .filter(|f| {
-                    f.level == Level::Fault
-                        && (f.what.contains("does not answer") || f.what.starts_with("answers at"))
-                })
-                .count();
+        let answering = profile.servos.len() - report.unreachable();
         writeln!(
             out,
             "{answering} of {} servos answer at {} bit/s; {faults} fault(s), {warnings} warning(s): {}",

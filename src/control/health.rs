@@ -129,6 +129,8 @@ pub struct HealthWatch {
     /// The warnings (room for one of each kind per servo).
     events: Vec<Event>,
     stopped: Option<Event>,
+    /// The hottest servo's (id, °C) by the last readings, kept as they arrive.
+    hottest: Option<(u8, u8)>,
     /// Per servo: warned of heat, of the supply.
     warned: Vec<(bool, bool)>,
 }
@@ -145,6 +147,7 @@ impl HealthWatch {
             next: 0,
             error_next: false,
             retrying: false,
+            hottest: None,
             limits: servos.iter().map(|(_, _, m, v)| Thresholds::of(m, *v)).collect(),
             servos: servos
                 .iter()
@@ -253,6 +256,14 @@ impl HealthWatch {
         s.temperature_c = Some(celsius);
         s.hottest_c = Some(s.hottest_c.map_or(celsius, |h| h.max(celsius)));
         s.lowest_v = Some(s.lowest_v.map_or(volts, |l| l.min(volts)));
+        // Once per reading, not per tick: the hottest may be this one, or, when it cooled,
+        // another.
+        self.hottest = self
+            .servos
+            .iter()
+            .filter_map(|s| s.temperature_c.map(|t| (s.id, t)))
+            .max_by_key(|&(_, t)| t);
+        let s = &mut self.servos[k];
         if celsius >= t.stop_c {
             s.warned = true;
             self.stopped = Some(Event::Hot { servo: k, celsius });
@@ -285,10 +296,7 @@ impl HealthWatch {
     /// The hottest servo read so far: (id, °C).
     #[must_use]
     pub fn hottest(&self) -> Option<(u8, u8)> {
-        self.servos
-            .iter()
-            .filter_map(|s| s.temperature_c.map(|t| (s.id, t)))
-            .max_by_key(|&(_, t)| t)
+        self.hottest
     }
 
     /// Why the watch ended the run, in words, when it did.
