@@ -32,9 +32,10 @@
 //!   polygon of the planted feet with a margin; the arms keep following.
 //!
 //! Joint limits clamp each joint on its own: a joint at its limit does not move its neighbours.
-//! Every choice between solutions is made from the current frame (smallest joint angles, or the
-//! smaller error), so a clip gives the same joints wherever it starts, apart from where planted
-//! feet were locked and the arms' branch memory, which both end with the next step.
+//! A leg takes, of its two ankle and two hip solutions, the one nearest its previous frame (a
+//! leg whose foot is out of reach would otherwise flip hip and ankle for a frame); the arms keep
+//! a branch memory; planted feet are locked where they landed. All three settle within a step,
+//! so a clip gives the same joints wherever it starts once its feet have stepped.
 
 use crate::math::{real, Real, RealMat3, RealQuat, RealVec2, RealVec3};
 
@@ -1652,7 +1653,8 @@ impl Retargeter {
             return q;
         }
         let mut aim = ankle;
-        let mut q = self.solve_leg_closed(side, rot, aim);
+        let prev = self.leg_prev[side];
+        let mut q = self.solve_leg_closed(side, rot, aim, prev);
         for _ in 0..LEG_CORRECTIONS {
             let s = &g.joints;
             let reached = s[0].apply(
@@ -1664,7 +1666,7 @@ impl Retargeter {
                 break;
             }
             aim += miss;
-            q = self.solve_leg_closed(side, rot, aim);
+            q = self.solve_leg_closed(side, rot, aim, prev);
         }
         let mut out = [0.0; 6];
         for k in 0..6 {
@@ -1740,7 +1742,7 @@ impl Retargeter {
     }
 
     /// The closed form (see the module's notes), unclamped.
-    fn solve_leg_closed(&self, side: usize, rot: RealQuat, ankle: RealVec3) -> [Real; 6] {
+    fn solve_leg_closed(&self, side: usize, rot: RealQuat, ankle: RealVec3, prev: [Real; 6]) -> [Real; 6] {
         let g = &self.legs[side];
         let s = &g.joints;
         // g = e1·…·e6 as a rigid motion: rotation rg, and the ankle centre carried to `ankle`.
@@ -1768,28 +1770,37 @@ impl Retargeter {
         let target = k.apply(-q4, g.hip);
         let (a5, a6) = (s[4], s[5]);
         let c56 = angles_about_two(a5.axis, a6.axis, p - g.ankle, target - g.ankle);
-        let small = |(a, b): (Real, Real)| a.abs() + b.abs();
-        let (q5, q6) = if small(c56[0]) <= small(c56[1]) {
-            c56[0]
-        } else {
-            c56[1]
+        // Of the two ankle and two hip solutions, the one nearest the leg's previous frame
+        // (`prev`), a joint's way past its limit counting double: a leg that changes branch
+        // where a foot is out of reach flips its hip and ankle in one frame.
+        let cost = |q: &[Real; 6]| {
+            (0..6)
+                .map(|k| {
+                    let past = s[k]
+                        .range
+                        .map_or(0.0, |(lo, hi)| (lo - q[k]).max(q[k] - hi).max(0.0));
+                    (q[k] - prev[k]).abs() + 2.0 * past
+                })
+                .sum::<Real>()
         };
-        // Hip: e1·e2·e3 = rg·(e4·e5·e6)⁻¹.
-        let r456 = k.rot(q4) * a5.rot(q5) * a6.rot(q6);
-        let r_hip = rg * r456.inverse();
-        let (a1, a2, a3) = (s[0], s[1], s[2]);
-        let c12 = angles_about_two(a1.axis, a2.axis, a3.axis, r_hip * a3.axis);
-        let probe = a3.axis.any_orthonormal_vector();
-        let mut best = ([0.0; 3], Real::INFINITY);
-        for (q1, q2) in c12 {
-            let r12 = a1.rot(q1) * a2.rot(q2);
-            let q3 = angle_about(a3.axis, probe, r12.inverse() * r_hip * probe);
-            let cost = q1.abs() + q2.abs() + q3.abs();
-            if cost < best.1 {
-                best = ([q1, q2, q3], cost);
+        let probe = s[2].axis.any_orthonormal_vector();
+        let mut best = ([0.0; 6], Real::INFINITY);
+        for (q5, q6) in c56 {
+            // Hip: e1·e2·e3 = rg·(e4·e5·e6)⁻¹.
+            let r456 = k.rot(q4) * a5.rot(q5) * a6.rot(q6);
+            let r_hip = rg * r456.inverse();
+            let (a1, a2, a3) = (s[0], s[1], s[2]);
+            for (q1, q2) in angles_about_two(a1.axis, a2.axis, a3.axis, r_hip * a3.axis) {
+                let r12 = a1.rot(q1) * a2.rot(q2);
+                let q3 = angle_about(a3.axis, probe, r12.inverse() * r_hip * probe);
+                let q = [q1, q2, q3, q4, q5, q6];
+                let c = cost(&q);
+                if c < best.1 {
+                    best = (q, c);
+                }
             }
         }
-        [best.0[0], best.0[1], best.0[2], q4, q5, q6]
+        best.0
     }
 
     /// The arm in a stream, `dt` after the previous frame: the solution continuing the previous
