@@ -212,6 +212,42 @@ fn op3_run(seconds: f64, script: impl Fn(f64, &str) -> f64) -> (SimBus, Profile,
     (bus, profile, trace)
 }
 
+/// The simulated robot is held until the controller first turns a torque on (as a real one is
+/// held while its controller starts): two seconds of limp servos leave it where it stood; with
+/// torque on it stands on its servos; torque off again, it folds.
+#[test]
+fn a_simulated_robot_is_held_until_the_first_torque_on() {
+    let profile = Profile::load(&repo("firmware-profile/robotis-op3.toml")).unwrap();
+    let rig = profile.rig(None).unwrap();
+    let world = World::from_file(&repo("sim/models/robotis_op3/scene.xml")).unwrap();
+    let mut bus = sim_bus(world, &profile, &rig).unwrap();
+    let torso = bus.with(|t| t.plant().world().site("torso").unwrap());
+    let height = |bus: &SimBus| bus.with(|t| t.plant().world().site_position(torso)[2]);
+    let stood = height(&bus);
+    let now = bus.now_ns();
+    bus.wait_until(now + 2_000_000_000);
+    assert_eq!(height(&bus), stood, "limp servos before any torque-on: held");
+    start_up(&mut bus, profile.bus_section()).unwrap();
+    let now = bus.now_ns();
+    bus.wait_until(now + 1_000_000_000);
+    let standing = height(&bus);
+    // It settles from where the model places it onto the floor, on straight legs.
+    assert!(
+        (standing - stood).abs() < 0.03,
+        "on its servos: {stood} → {standing} m"
+    );
+    for id in profile.ids() {
+        bus.set_torque(id, false).unwrap();
+    }
+    let now = bus.now_ns();
+    bus.wait_until(now + 2_000_000_000);
+    let folded = height(&bus);
+    assert!(
+        folded < standing - 0.05,
+        "limp after torque off: {standing} → {folded} m"
+    );
+}
+
 #[test]
 fn op3_stands_upright_for_5_seconds() {
     let (_, _, trace) = op3_run(5.0, |_, _| 0.0);

@@ -12,7 +12,7 @@ use std::path::Path;
 use marionette_sim::World;
 
 use crate::bus::virtual_chain::{chain_for, Plant, VirtualRig};
-use crate::device::Chain;
+use crate::device::{Chain, VirtualServo};
 use crate::profile::Profile;
 use crate::retarget::{convex_hull, polygon_margin};
 use crate::rig::{Rig, ServoMap};
@@ -187,6 +187,8 @@ pub struct SimPlant {
     imu: Option<(usize, usize, usize)>,
     /// What the IMU's reading is made worse by, if anything.
     imu_errors: Option<ImuErrors>,
+    /// No torque has been on yet: the world stands still.
+    held: bool,
 }
 
 impl std::fmt::Debug for SimPlant {
@@ -281,6 +283,7 @@ impl SimPlant {
             samples: Vec::new(),
             imu,
             imu_errors: None,
+            held: true,
             push: None,
         })
     }
@@ -471,7 +474,14 @@ impl SimPlant {
 
 impl Plant for SimPlant {
     fn advance(&mut self, chain: &mut Chain, dt: f64) {
-        self.pending += dt;
+        // Held until the controller first turns a torque on, as a robot is held (or hangs on its
+        // stand) while the controller starts: limp servos would let it fold where it stands in
+        // the real time a client takes to connect and configure them. The servos' own clocks
+        // run on.
+        self.held = self.held && !chain.servos().iter().any(VirtualServo::torque_on);
+        if !self.held {
+            self.pending += dt;
+        }
         let h = self.world.timestep();
         // Whole physics steps only: the same bus traffic gives the same steps, every run.
         while self.pending >= h * (1.0 - 1e-9) {
