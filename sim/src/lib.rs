@@ -94,6 +94,12 @@ impl World {
         self.data.time()
     }
 
+    /// Lets `dt` seconds of simulated time pass with nothing moving (the world held).
+    pub fn pass_time(&mut self, dt: f64) {
+        let t = self.data.time();
+        self.data.set_time(t + dt);
+    }
+
     /// One physics step.
     pub fn step(&mut self) {
         self.data.step();

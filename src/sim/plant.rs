@@ -476,10 +476,12 @@ impl Plant for SimPlant {
     fn advance(&mut self, chain: &mut Chain, dt: f64) {
         // Held until the controller first turns a torque on, as a robot is held (or hangs on its
         // stand) while the controller starts: limp servos would let it fold where it stands in
-        // the real time a client takes to connect and configure them. The servos' own clocks
-        // run on.
+        // the real time a client takes to connect and configure them. Time runs on (the
+        // servos' clocks, the simulated time the loop's ticks are matched with).
         self.held = self.held && !chain.servos().iter().any(VirtualServo::torque_on);
-        if !self.held {
+        if self.held {
+            self.world.pass_time(dt);
+        } else {
             self.pending += dt;
         }
         let h = self.world.timestep();
