@@ -1,9 +1,9 @@
-//! One whole control-loop tick (issue 6): newest input → 4-limb analytic IK (windowed swivel
+//! One whole control-loop tick: newest input → 4-limb analytic IK (windowed swivel
 //! search) + FK → rig mapping → command limits → Sync Write packet encoded (CRC, stuffing) →
 //! present positions read back, on a bus that only encodes (no I/O), so the figure is the
 //! loop's own work. Also the AMC playback tick. `cargo bench --bench control`
 //!
-//! With the look-ahead (issue 17) the same ticks plan every servo's goal path; `lookahead`
+//! With the look-ahead the same ticks plan every servo's goal path; `lookahead`
 //! times the planning of the puppet's 28 servos alone.
 //!
 //! The jitter comparison with a naive `thread::sleep` loop is `cargo bench --bench jitter`.

@@ -1,4 +1,4 @@
-//! IK benches (issue 4): `limb_ik` — the analytic arm solver with the swivel search, with a
+//! IK benches: `limb_ik` — the analytic arm solver with the swivel search, with a
 //! fixed swivel, warm-started along the bundled walk's wrist path, and along it with the
 //! windowed search the loop uses (`windowed_stream`) — and `numeric_ik` — each
 //! numerical method on the same arm targets from the rest pose (100-iteration cap), plus a

@@ -1,4 +1,4 @@
-//! Loop jitter (issue 6): the control loop's schedule (absolute deadlines, sleep then spin) and
+//! Loop jitter: the control loop's schedule (absolute deadlines, sleep then spin) and
 //! a naive `thread::sleep(period)` loop, run one after the other in the same process at the same
 //! rate with the same work per tick, and their timing printed side by side:
 //!

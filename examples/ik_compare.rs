@@ -1,4 +1,4 @@
-//! The IK method comparison of issue 4 (the IK assignment's report): seeded random reachable
+//! The IK method comparison (the IK assignment's report): seeded random reachable
 //! targets — FK of random angles inside the ASF limits — for a CMU arm (lhumerus + lradius) and
 //! leg (lfemur + ltibia), each solved from the rest pose by the analytic limb solver, CCD,
 //! Jacobian transpose, pseudoinverse, damped least squares, conjugate gradient, and the `k`

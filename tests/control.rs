@@ -947,7 +947,7 @@ fn a_lockstep_run_beyond_the_wire_still_plays_every_sample_and_ends() {
     assert!(fidelity.samples > 0);
 }
 
-/// Issue 17: planning the goal path over a preview of the clip follows the source closer than
+/// Planning the goal path over a preview of the clip follows the source closer than
 /// the greedy limiter on the same servos — smaller error end to end and a shorter lag — two
 /// runs on virtual time are identical, and led by the virtual servos' lag the walk at 500 Hz
 /// stays within 0.5° RMS.
@@ -979,7 +979,7 @@ fn the_lookahead_follows_the_clip_closer_than_the_greedy_limiter() {
     assert!(led.joint_rms_deg <= 0.5, "{led:?}");
 }
 
-/// Issue 20: targets taken ahead of their time are solved one effector a tick (a fast loop's
+/// Targets taken ahead of their time are solved one effector a tick (a fast loop's
 /// ticks share a slower input's solve), and every tick's source is the same, bit for bit, as
 /// when each input is solved whole in the tick it comes due.
 #[test]

@@ -16,6 +16,8 @@
 //! length (u32) and bytes; at the end `u32::MAX` and the stack's deepest use (u32, bytes) —
 //! or, after a panic, `0xFFFF_FFFE`, the length and bytes of a torque-off Sync Write.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -177,19 +179,22 @@ fn execute(image: &Path, machine: Option<&str>, input: &[u8], name: &str) -> (bo
     std::fs::write(dir.join("firmware-in.bin"), input).unwrap();
     let _ = std::fs::remove_file(dir.join("firmware-out.bin"));
     let out = match machine {
-        Some(machine) => Command::new("qemu-system-arm")
-            .args(["-M", machine, "-nographic", "-monitor", "none", "-serial", "none"])
-            .args([
-                "-semihosting-config",
-                "enable=on,target=native",
-                "-icount",
-                "shift=0",
-            ])
-            .arg("-kernel")
-            .arg(image)
-            .current_dir(&dir)
-            .output()
-            .expect("qemu-system-arm runs (Debian: apt-get install qemu-system-arm; .ci/run installs it)"),
+        Some(machine) => {
+            common::needs_program("qemu-system-arm", "qemu-system-arm");
+            Command::new("qemu-system-arm")
+                .args(["-M", machine, "-nographic", "-monitor", "none", "-serial", "none"])
+                .args([
+                    "-semihosting-config",
+                    "enable=on,target=native",
+                    "-icount",
+                    "shift=0",
+                ])
+                .arg("-kernel")
+                .arg(image)
+                .current_dir(&dir)
+                .output()
+                .expect("qemu-system-arm runs")
+        }
         None => Command::new(image)
             .current_dir(&dir)
             .output()
@@ -487,7 +492,7 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
 
     // The Cortex-M4 (MPS2 AN386), f32: bit for bit the same image code on the host.
     let m4_image = image(None, Precision::Single);
-    // Issue 21's budget, with capacity for 64 bones and 32 servos compiled in: 64 KiB of
+    // The image's budget, with capacity for 64 bones and 32 servos compiled in: 64 KiB of
     // flash, 16 KiB of static RAM (the sizes are the linker's, the same on every machine).
     let (flash, ram, _) = footprint(&std::fs::read(&m4_image).unwrap());
     assert!(

@@ -344,7 +344,7 @@ fn limb_never_returns_nan() {
 
 /// Each numerical method reaches random reachable targets (arm: humerus + radius, leg: femur +
 /// tibia, 4 DOFs each) from the rest pose within 100 iterations, restarts included; limits are
-/// respected in every result. DLS and CG must reach 99.5 % (issue 4); the full 10,000-target
+/// respected in every result. DLS and CG must reach 99.5 %; the full 10,000-target
 /// table is `cargo run --release --example ik_compare`.
 #[test]
 fn numerical_methods_reach_random_targets() {

@@ -151,7 +151,7 @@ fn matching_finds_the_global_minimum_for_every_metric() {
     }
 }
 
-/// Issue 17: `connect` with both methods and both matchings on every pair of bundled clips
+/// `connect` with both methods and both matchings on every pair of bundled clips
 /// (the walk, the playground, the generated squat and weight shift, each with itself too):
 /// no bone, and not the root, moves per frame across the seam more than 1.5× its own
 /// 99th-percentile speed in the inputs + 1° — measured again here from the output.

@@ -1,4 +1,4 @@
-//! Retargeting onto the ROBOTIS OP3 (issue 16): the profile's map and its errors, the closed-form
+//! Retargeting onto the ROBOTIS OP3: the profile's map and its errors, the closed-form
 //! legs against the model's kinematics, the bundled clips kinematically (feet, floor, balance,
 //! continuity, start independence, ASF against BVH), the `retarget` command, and `play` on the
 //! virtual chain retargeting inside an allocation-free tick.

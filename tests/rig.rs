@@ -675,7 +675,7 @@ fn budget_measures_cycles_on_the_line_timed_chain_and_serve_serves_it() {
     assert_eq!(out.status.code(), Some(2));
 }
 
-/// The inverse mapping (issue 17's effector fidelity): servo angles back to a skeleton frame.
+/// The inverse mapping (the effector fidelity): servo angles back to a skeleton frame.
 /// For every frame of the walk on the puppet (direct channels and re-decomposed bones), the
 /// frame the servos' angles stand for poses every bone the servos move exactly as the source.
 #[test]
@@ -711,7 +711,7 @@ fn servo_angles_map_back_to_the_frame_they_came_from() {
     assert!(worst < 1e-9, "tips moved by {worst} units");
 }
 
-/// Issue 17: the look-ahead's plans through the command stage under 10⁶ random source angles —
+/// The look-ahead's plans through the command stage under 10⁶ random source angles —
 /// a random walk, jumps, NaN, infinities, ±1e300 and angles far outside the limits, with and
 /// without extrapolation, leads from none to 100 ms, at 500 Hz and 1 kHz (each servo replanned
 /// every second tick, and every fourth or, with the default 0.19 s window, every eighth, going

@@ -36,6 +36,7 @@ struct Run {
 /// `follow --targets ros2` for 10 s at 250 Hz with the peer publishing the walk's paths
 /// (`pose`: as PoseStamped, with the captured directions of the hands and feet).
 fn run_with_peer(pose: bool) -> Run {
+    common::needs_python("cyclonedds", "cyclonedds==11.0.1");
     let _one = ONE_AT_A_TIME
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
@@ -69,9 +70,7 @@ fn run_with_peer(pose: bool) -> Run {
     if pose {
         peer.arg("--pose");
     }
-    let mut peer = peer
-        .spawn()
-        .expect("python3 with cyclonedds (pip install cyclonedds==11.0.1; .ci/run installs it)");
+    let mut peer = peer.spawn().expect("python3 runs");
     let o = common::bin()
         .args([
             "follow",

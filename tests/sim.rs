@@ -379,7 +379,7 @@ fn play_bus_sim_writes_the_report_and_the_picture() {
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["servos"].as_array().unwrap().len(), 28);
     assert!(v["rms_deg"].as_f64().unwrap() <= 3.0);
-    // Issue 17: the loop's end-to-end figures per servo, beside the simulator's own.
+    // The loop's end-to-end figures per servo, beside the simulator's own.
     for servo in v["servos"].as_array().unwrap() {
         let rms = servo["source_rms_deg"].as_f64().expect("source_rms_deg");
         assert!(
@@ -391,7 +391,7 @@ fn play_bus_sim_writes_the_report_and_the_picture() {
     assert!(picture.contains("ltibia_rx") && picture.contains("RMS tracking error per servo"));
     assert!(
         picture.contains("source (the clip through the rig)"),
-        "issue 17: the source curve"
+        "the source curve"
     );
     // A profile of robot joints with a model it does not fit: a one-line error, exit 1.
     let bad = common::bin()
@@ -410,7 +410,7 @@ fn play_bus_sim_writes_the_report_and_the_picture() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The OP3's kinematic tree read from its MJCF (issue 16): every body's frame and the centre
+/// The OP3's kinematic tree read from its MJCF: every body's frame and the centre
 /// of mass equal MuJoCo's own kinematics to 1e-6 m on random joint angles (scene.xml, through
 /// its include), the floating base where the model puts it.
 #[test]
@@ -575,7 +575,7 @@ fn op3_upper_body_on_the_floor_does_not_fall() {
     }
 }
 
-/// Issue 16: the whole body on the floor through slow motions — a squat and a weight shift —
+/// The whole body on the floor through slow motions — a squat and a weight shift —
 /// without falling, the centre of mass inside the support polygon throughout.
 #[test]
 fn op3_whole_body_squats_and_shifts_its_weight_on_the_floor() {
@@ -593,7 +593,7 @@ fn op3_whole_body_squats_and_shifts_its_weight_on_the_floor() {
     }
 }
 
-/// Issue 16: every standing stretch of the playground clip (both feet planted for a second or
+/// Every standing stretch of the playground clip (both feet planted for a second or
 /// more, as `retarget` lists them: the crouches before the jumps), whole body on the floor,
 /// eased in over 0.5 s from the standing robot and held at the end: no fall, the centre of mass
 /// inside the support polygon throughout.
@@ -935,7 +935,7 @@ fn walk_fidelity_in_mujoco(extra: &[&str]) -> serde_json::Value {
     s["fidelity"].clone()
 }
 
-/// Issue 17: source → present on the simulated puppet at 120 Hz, with the look-ahead and the
+/// Source → present on the simulated puppet at 120 Hz, with the look-ahead and the
 /// profile's identified lags: joint RMS ≤ 1.5°, best-aligned lag ≤ 10 ms either way, effector
 /// RMS ≤ 10 mm — better than the greedy limiter on every figure — and two runs identical.
 #[test]
@@ -967,7 +967,7 @@ fn the_walk_in_mujoco_follows_the_source_within_the_fidelity_targets() {
     );
 }
 
-/// Issue 17: `identify` on the simulated puppet finds each servo's lag over the band of human
+/// `identify` on the simulated puppet finds each servo's lag over the band of human
 /// motion — the values the shipped profile carries — and a bandwidth; the same every run.
 #[test]
 fn identify_in_mujoco_reproduces_the_profiles_lags() {
@@ -1026,7 +1026,7 @@ fn identify_in_mujoco_reproduces_the_profiles_lags() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Issue 17: `sim size` on the walk. With the puppet's knees and ankles on XL430-W250s (the
+/// `sim size` on the walk. With the puppet's knees and ankles on XL430-W250s (the
 /// profile before its fix) those four saturate; on XM430-W210s at 12 V the right knee still
 /// does; on the shipped XM430-W210s at 14.8 V none does.
 #[test]

@@ -459,6 +459,9 @@ fn the_api_reaches_random_targets_with_every_method_and_refuses_bad_requests() {
 /// `target/DIR_NAME` for its screenshots; asserts that it passed and returns the JSON of its
 /// last line and DIR.
 fn browser(script: &str, url: &str, dir_name: &str) -> (Value, std::path::PathBuf) {
+    common::needs_python("selenium", "selenium==4.35.0");
+    common::needs_program("chromium", "chromium");
+    common::needs_program("chromedriver", "chromium-driver");
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = root.join("target").join(dir_name);
     std::fs::create_dir_all(&dir).unwrap();
@@ -467,7 +470,7 @@ fn browser(script: &str, url: &str, dir_name: &str) -> (Value, std::path::PathBu
         .arg(url)
         .arg(&dir)
         .output()
-        .expect("python3 (with selenium, chromium and chromium-driver: see .ci/run)");
+        .expect("python3 runs");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     println!("{stdout}{stderr}");

@@ -1,5 +1,9 @@
 //! marionette's core: everything a control tick needs, `no_std`, without a heap.
 //!
+//! Equation numbers ("eq. 16") are those of *the help note*: Steve Lin, "Help note for
+//! assignment 2" (ASF/AMC, motion editing and inverse kinematics), April 2010; the numerical
+//! solvers follow the IK assignment that goes with it (`docs/references.md` lists both).
+//!
 //! Modules are layers, listed here from the bottom up; each imports only modules above it in
 //! this list (checked by `tests/layers.rs`):
 //!

@@ -1,4 +1,4 @@
-//! Fixed-rate scheduling on absolute deadlines (issue 6): tick `k` is due at
+//! Fixed-rate scheduling on absolute deadlines: tick `k` is due at
 //! `start + k·period`, computed from integers in nanoseconds, so lateness never accumulates
 //! into drift. Time comes from a [`Clock`], so the loop runs on a fake clock in tests.
 

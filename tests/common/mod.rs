@@ -38,3 +38,27 @@ pub fn tempdir(name: &str) -> PathBuf {
     std::fs::create_dir_all(&d).unwrap();
     d
 }
+
+/// Fails the test with one line when `python3` cannot import `module` (the PyPI package `pip`):
+/// `scripts/test` installs it, and every other tool the tests need, then runs them all.
+pub fn needs_python(module: &str, pip: &str) {
+    let ok = std::process::Command::new("python3")
+        .args(["-c", &format!("import {module}")])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        ok,
+        "this test needs {pip} for python3: run scripts/test, which installs it"
+    );
+}
+
+/// Fails the test with one line when `program` is not on the PATH (Debian's `package`).
+pub fn needs_program(program: &str, package: &str) {
+    let found = std::env::var_os("PATH")
+        .is_some_and(|p| std::env::split_paths(&p).any(|d| d.join(program).is_file()));
+    assert!(
+        found,
+        "this test needs {program} (Debian: {package}): run scripts/test, which installs it"
+    );
+}
