@@ -213,7 +213,7 @@ fn puppet_shoulders_follow_the_walk() {
                 .iter()
                 .fold(0.0f64, |m, x| m.max(x.abs())),
         );
-        // Frames 0–1 of 16_15 are a left-arm dropout (all zeros, see README "BVH"): the
+        // Frames 0–1 of 16_15 are a left-arm dropout (all zeros; docs/motion-and-ik.md, BVH): the
         // capture itself jumps into frame 2, so steps are measured from frame 3 on.
         if let (Some(p), true) = (&previous, f >= 3) {
             for &k in &shoulder {

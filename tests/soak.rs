@@ -1,5 +1,5 @@
 //! The fault soak (`marionette soak`): a short one here, every fault kind through the whole
-//! loop; the million-fault figures come from the command (README, "Fault soak").
+//! loop; the million-fault figures come from the command (docs/robustness.md).
 
 mod common;
 
