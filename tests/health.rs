@@ -86,13 +86,17 @@ fn a_servo_near_its_temperature_limit_ends_the_run_eased_to_rest_naming_it() {
 
 #[test]
 fn a_warm_servo_warns_and_the_run_goes_on() {
-    // lowerback_rz, an XH540-W270 (80 °C): warned from 65 °C, eased to rest from 75 °C.
-    let (code, out, err, stats) = play_on("temp=3:68", &["--duration", "2"]);
+    // lowerback_rz, an XH540-W270 (80 °C): warned from 65 °C, eased to rest from 75 °C. Idle
+    // with torque on it cools about 0.4 °C a second before its first read, which a loaded
+    // machine makes later: 70 °C leaves room for that.
+    let (code, out, err, stats) = play_on("temp=3:70", &["--duration", "2"]);
     assert_eq!(code, Some(0), "{out}{err}");
-    assert!(
-        out.contains("health warning: id 3 lowerback_rz: 68 °C, warm (it eases to rest at 75 °C)"),
-        "{out}"
-    );
+    let warned = out
+        .split("health warning: id 3 lowerback_rz: ")
+        .nth(1)
+        .and_then(|rest| rest.split(" °C, warm (it eases to rest at 75 °C)").next())
+        .and_then(|c| c.parse::<u32>().ok());
+    assert!(warned.is_some_and(|c| (65..=70).contains(&c)), "{out}");
     assert_eq!(stats["end"], "duration reached");
     let servos = stats["health"]["servos"].as_array().unwrap();
     assert_eq!(servos[2]["warned"], true);
