@@ -14,7 +14,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::budget;
-use crate::bus::{BusError, PingInfo, Registers, ServoBus, TRIES};
+use crate::bus::{retried, BusError, PingInfo, Registers, ServoBus, TRIES};
 use crate::profile::{BusConfig, Profile, ServoSpec};
 use crate::servo::addr;
 
@@ -256,7 +256,17 @@ pub fn examine(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Report, BusE
         }
     }
     if report.can_run() {
-        report.measured_cycle_us = measure_cycle(bus, profile)?;
+        let (measured, failed) = measure_cycle(bus, profile)?;
+        report.measured_cycle_us = measured;
+        if failed > 0 {
+            report.push(
+                if measured.is_some() { Level::Warn } else { Level::Fault },
+                None,
+                format!("{failed} of the {TIMED_CYCLES} timed cycles lost their read (a reply late, garbled or missing)"),
+                "the loop holds after a lost read and stops after several: check the cable, the power and the adapter; `marionette budget PROFILE --measure N` counts them",
+                None,
+            );
+        }
         if let Some(m) = report.measured_cycle_us {
             let ratio = m / plan.cycle_time_us.max(1.0);
             if ratio > 1.25 {
@@ -554,22 +564,36 @@ pub fn check_adapter(port: &str, report: &mut Report) {
 
 /// The loop's cycle on `bus`, µs (median of [`TIMED_CYCLES`]): the goal Sync Write of every
 /// servo's present position (torque off: nothing moves) and the profile's position read.
-fn measure_cycle(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Option<f64>, BusError> {
+/// The loop's cycle on `bus` — a Sync Write of the goals (where the servos stand) and the
+/// profile's read — timed [`TIMED_CYCLES`] times: the median of the cycles whose read came
+/// back (`None` when none did), and how many did not. A busy host or a noisy line loses a read
+/// now and then; that is counted, not taken for a broken bus.
+///
+/// # Errors
+/// [`BusError::Io`] when the port itself fails, or the servos' positions cannot be read to
+/// start with.
+fn measure_cycle(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(Option<f64>, usize), BusError> {
     let ids = profile.ids();
     if ids.is_empty() {
-        return Ok(None);
+        return Ok((None, 0));
     }
     let mut present = vec![0i32; ids.len()];
-    bus.read_positions(&ids, &mut present)?;
+    retried(|| bus.read_positions(&ids, &mut present))?;
     let mut times = Vec::with_capacity(TIMED_CYCLES);
+    let mut failed = 0;
     for _ in 0..TIMED_CYCLES {
         let t0 = Instant::now();
-        bus.write_goals(&ids, &present)?;
-        bus.read_positions(&ids, &mut present)?;
-        times.push(t0.elapsed().as_secs_f64() * 1e6);
+        let cycle = bus
+            .write_goals(&ids, &present)
+            .and_then(|()| bus.read_positions(&ids, &mut present));
+        match cycle {
+            Ok(()) => times.push(t0.elapsed().as_secs_f64() * 1e6),
+            Err(e @ BusError::Io(_)) => return Err(e),
+            Err(_) => failed += 1,
+        }
     }
     times.sort_by(f64::total_cmp);
-    Ok(Some(times[times.len() / 2]))
+    Ok((times.get(times.len() / 2).copied(), failed))
 }
 
 /// Makes every fixable finding's write, torque off first on the servos written (EEPROM items
