@@ -8,7 +8,6 @@ mod common;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -269,14 +268,12 @@ fn the_commands_in_the_readme_and_the_guides_work_as_written() {
             skipped.push(format!("{}:{} ({why})", d.file, d.line));
             continue;
         }
-        let started = Instant::now();
         let out = common::bin()
             .args(&d.args)
             .current_dir(&scratch)
             .stdin(std::process::Stdio::null())
             .output()
             .unwrap();
-        let took = started.elapsed();
         assert!(
             out.status.success(),
             "{}:{}: `{}` exited {:?}:\n{}",
@@ -286,7 +283,6 @@ fn the_commands_in_the_readme_and_the_guides_work_as_written() {
             out.status.code(),
             String::from_utf8_lossy(&out.stderr)
         );
-        assert!(took < Duration::from_secs(600));
         ran += 1;
     }
     println!(
