@@ -1,8 +1,9 @@
-//! The commands in the README and the guides (`docs/*.md`), so the documentation cannot rot:
-//! every `marionette` command in a shell block names a command that exists, only options its
-//! `--help` lists and files the repository has; the ones that need no hardware, no network and
-//! no terminal are run, from a scratch directory that sees the repository's data, and must
-//! exit 0.
+//! The commands in the README, the guides (`docs/*.md`) and BENCHMARKS.md, so the documentation
+//! cannot rot: every `marionette` command in a shell block names a command that exists, only
+//! options its `--help` lists and files the repository has; the ones in the README and the
+//! guides that need no hardware, no network and no terminal are run, from a scratch directory
+//! that sees the repository's data, and must exit 0. The rig profile reference lists exactly the
+//! keys the profile loader reads.
 
 mod common;
 
@@ -147,6 +148,7 @@ fn documented() -> Vec<Documented> {
         .collect();
     guides.sort();
     files.extend(guides);
+    files.push(root().join("BENCHMARKS.md"));
     files.iter().flat_map(|f| documented_in(f)).collect()
 }
 
@@ -180,6 +182,9 @@ fn help_of(args: &[String], cache: &mut HashMap<Vec<String>, String>) -> (Vec<St
 
 /// Why a documented command is not run here, if it is not.
 fn not_run(d: &Documented) -> Option<&'static str> {
+    if d.file == "BENCHMARKS.md" {
+        return Some("a measurement: checked, not run");
+    }
     let a = |s: &str| d.args.iter().any(|x| x == s || x.starts_with(&format!("{s}=")));
     let joined = d.args.join(" ");
     if joined.contains("PROFILE") || joined.contains('[') || joined.contains("/dev/pts/N") {
@@ -321,4 +326,87 @@ fn documented_commands_are_read_as_a_shell_reads_them() {
     );
     assert_eq!(found[0].line, 4);
     assert_eq!(found[1].features, vec!["sim".to_string()]);
+}
+
+/// The keys `src/profile.rs` reads into `struct RawNAME { … }`, in order.
+fn keys_of_struct(source: &str, name: &str) -> Vec<String> {
+    let start = source
+        .find(&format!("struct {name} {{"))
+        .unwrap_or_else(|| panic!("no struct {name} in src/profile.rs"));
+    let body = &source[start..];
+    let body = &body[body.find('{').unwrap() + 1..body.find("\n}").unwrap()];
+    body.lines()
+        .map(str::trim)
+        .filter(|l| !l.starts_with('#') && !l.starts_with("//"))
+        .filter_map(|l| l.split_once(':').map(|(k, _)| k.trim().to_string()))
+        .collect()
+}
+
+/// The rig profile reference lists exactly the keys the loader reads, section by section, and
+/// its complete example loads.
+#[test]
+fn the_rig_profile_reference_lists_every_key_the_loader_reads() {
+    let source = std::fs::read_to_string(root().join("src/profile.rs")).unwrap();
+    let guide = std::fs::read_to_string(root().join("docs/rig-profile.md")).unwrap();
+    // Each section's table: the keys in its first column.
+    let mut documented: HashMap<String, Vec<String>> = HashMap::new();
+    let mut section = String::new();
+    for line in guide.lines() {
+        if let Some(h) = line.strip_prefix("## ").or_else(|| line.strip_prefix("### ")) {
+            section = h.split('`').nth(1).unwrap_or(h).to_string();
+        } else if let Some(cell) = line.strip_prefix("| `") {
+            let key = cell.split('`').next().unwrap().to_string();
+            documented.entry(section.clone()).or_default().push(key);
+        }
+    }
+    let sections = [
+        ("[rig]", "RawRig"),
+        ("[bus]", "RawBus"),
+        ("[[bone]]", "RawBone"),
+        ("[[servo]]", "RawServo"),
+        ("[retarget]", "RawRetarget"),
+        ("[retarget.left_arm]", "RawChain"),
+    ];
+    let mut problems = Vec::new();
+    for (section, raw) in sections {
+        let mut read = keys_of_struct(&source, raw);
+        if raw == "RawRetarget" {
+            // Its subtables have sections of their own.
+            read.retain(|k| {
+                !["names", "left_arm", "right_arm", "left_leg", "right_leg", "head"].contains(&k.as_str())
+            });
+        }
+        let listed = documented.get(section).cloned().unwrap_or_default();
+        for k in &read {
+            if !listed.contains(k) {
+                problems.push(format!("{section} `{k}` is read but not in docs/rig-profile.md"));
+            }
+        }
+        for k in &listed {
+            if !read.contains(k) {
+                problems.push(format!("{section} `{k}` is documented but not read"));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+
+    // The complete example loads, and uses every key outside the retarget map.
+    let example = guide
+        .split("```toml\n")
+        .nth(1)
+        .and_then(|s| s.split("```").next())
+        .expect("a ```toml block in docs/rig-profile.md");
+    let profile = marionette::profile::Profile::parse(example, Path::new("docs/rig-profile.md"))
+        .unwrap_or_else(|e| panic!("the example profile does not load: {e}"));
+    assert_eq!(profile.servos.len(), 2);
+    for (_, raw) in &sections[..4] {
+        for k in keys_of_struct(&source, raw) {
+            assert!(
+                example
+                    .lines()
+                    .any(|l| l.trim_start().starts_with(&format!("{k} ="))),
+                "the example leaves out `{k}`"
+            );
+        }
+    }
 }
