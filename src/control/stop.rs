@@ -220,7 +220,9 @@ pub struct TorqueOff {
 }
 
 /// Torque off on every servo: one Sync Write (no replies needed, so it gets through a bus whose
-/// reads fail), then each servo on its own (acknowledged) — unless the port itself failed.
+/// reads fail), then each servo on its own, acknowledged: asked again as
+/// [`crate::bus::retried`] does when the acknowledgement is lost or late on a busy line. Not
+/// when the port itself failed.
 pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> TorqueOff {
     let zeros = [0u8; MAX_SERVOS];
     let n = ids.len().min(MAX_SERVOS);
@@ -230,7 +232,7 @@ pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> TorqueOff {
     let mut acknowledged = 0;
     if error.as_ref().and_then(BusError::port_failure).is_none() {
         for &id in &ids[..n] {
-            match bus.set_torque(id, false) {
+            match crate::bus::retried(|| bus.set_torque(id, false)) {
                 Ok(()) => acknowledged += 1,
                 Err(e) => {
                     error.get_or_insert(e);
@@ -239,4 +241,61 @@ pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> TorqueOff {
         }
     }
     TorqueOff { acknowledged, error }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::PingInfo;
+
+    /// A bus whose servo 5 loses its first acknowledgement, and whose servo 9 never answers.
+    #[derive(Default)]
+    struct LossyBus {
+        writes: Vec<u8>,
+    }
+
+    impl ServoBus for LossyBus {
+        fn ping(&mut self, id: u8) -> Result<PingInfo, BusError> {
+            Err(BusError::Timeout { id })
+        }
+        fn scan(&mut self) -> Result<Vec<PingInfo>, BusError> {
+            Ok(Vec::new())
+        }
+        fn read(&mut self, id: u8, _: u16, _: &mut [u8]) -> Result<(), BusError> {
+            Err(BusError::Timeout { id })
+        }
+        fn write(&mut self, id: u8, _: u16, _: &[u8]) -> Result<(), BusError> {
+            self.writes.push(id);
+            let tries = self.writes.iter().filter(|&&w| w == id).count();
+            match id {
+                5 if tries == 1 => Err(BusError::Timeout { id }),
+                9 => Err(BusError::Timeout { id }),
+                _ => Ok(()),
+            }
+        }
+        fn sync_write(&mut self, _: u16, _: u16, _: &[u8], _: &[u8]) -> Result<(), BusError> {
+            Ok(())
+        }
+        fn sync_read(&mut self, _: u16, _: u16, ids: &[u8], _: &mut [u8]) -> Result<(), BusError> {
+            Err(BusError::Timeout { id: ids[0] })
+        }
+        fn reboot(&mut self, _: u8) -> Result<(), BusError> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_lost_torque_off_acknowledgement_is_asked_for_again() {
+        let mut bus = LossyBus::default();
+        let done = torque_off(&mut bus, &[1, 5, 7]);
+        assert_eq!(done.acknowledged, 3, "{done:?}");
+        assert_eq!(bus.writes, vec![1, 5, 5, 7]);
+
+        // A servo that never answers is asked a bounded number of times and reported.
+        let mut bus = LossyBus::default();
+        let done = torque_off(&mut bus, &[9, 1]);
+        assert_eq!(done.acknowledged, 1);
+        assert!(matches!(done.error, Some(BusError::Timeout { id: 9 })));
+        assert_eq!(bus.writes.iter().filter(|&&w| w == 9).count(), crate::bus::TRIES);
+    }
 }
