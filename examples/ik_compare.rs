@@ -14,8 +14,11 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::time::Instant;
 
+#[path = "../benches/support/k_model.rs"]
+mod k_model;
+
 use glam::DVec3;
-use k::nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use k::nalgebra::Isometry3;
 use marionette::bus::faults::Rng;
 use marionette::fk::{fk64, Pose64};
 use marionette::formats::asf;
@@ -78,77 +81,6 @@ fn within_limits(skel: &Skeleton, bones: &[usize], channels: &[f64]) -> bool {
     })
 }
 
-fn na_iso(rotation: glam::DMat3, translation: DVec3) -> Isometry3<f64> {
-    let q = glam::DQuat::from_mat3(&rotation).normalize();
-    Isometry3::from_parts(
-        Translation3::new(translation.x, translation.y, translation.z),
-        UnitQuaternion::new_normalize(k::nalgebra::Quaternion::new(q.w, q.x, q.y, q.z)),
-    )
-}
-
-/// The same chain as a `k` serial chain: a fixed node at the upper bone's start with the rest
-/// frame `W_parent·C_upper`, the upper bone's DOFs (the last Euler factor first, as
-/// `C·Rₙ…R₁` composes), a fixed node `C_upperᵀ·C_lower` at the lower bone's start, its DOFs,
-/// and the tip.
-fn k_chain(skel: &Skeleton, upper: usize, lower: usize) -> (k::SerialChain<f64>, Vec<(usize, usize)>) {
-    let mut rest = Pose64::default();
-    fk64(skel, &vec![0.0; skel.channel_count()], &mut rest);
-    let c = |b: usize| {
-        glam::DMat3::from_quat(
-            glam::DQuat::from_mat3(&skel.bones()[b].axis_rotation().as_dmat3()).normalize(),
-        )
-    };
-    let parent = skel.bones()[upper].parent().expect("a limb bone has a parent");
-    let mut nodes: Vec<k::Node<f64>> = Vec::new();
-    let mut channels = Vec::new();
-    let base = k::NodeBuilder::new()
-        .name("base")
-        .joint_type(k::JointType::Fixed)
-        .origin(na_iso(rest.world[parent] * c(upper), rest.start[upper]))
-        .into_node();
-    nodes.push(base);
-    let mut joints = |b: usize, nodes: &mut Vec<k::Node<f64>>, first: Isometry3<f64>| {
-        let bone = &skel.bones()[b];
-        let mut origin = first;
-        for (kk, d) in bone.dofs().iter().enumerate().rev() {
-            let axis = match d {
-                marionette::skeleton::Dof::Rx => Vector3::x_axis(),
-                marionette::skeleton::Dof::Ry => Vector3::y_axis(),
-                marionette::skeleton::Dof::Rz => Vector3::z_axis(),
-                _ => continue,
-            };
-            let l = bone.limits()[kk];
-            let node = k::NodeBuilder::new()
-                .name(&format!("{}_{kk}", bone.name()))
-                .joint_type(k::JointType::Rotational { axis })
-                .limits(Some(k::joint::Range::new(f64::from(l.min), f64::from(l.max))))
-                .origin(origin)
-                .into_node();
-            origin = Isometry3::identity();
-            node.set_parent(nodes.last().unwrap());
-            nodes.push(node);
-            channels.push((b, bone.first_channel() + kk));
-        }
-    };
-    joints(upper, &mut nodes, Isometry3::identity());
-    let cu = c(upper);
-    let hu = cu.transpose()
-        * skel.bones()[upper].direction().as_dvec3().normalize()
-        * f64::from(skel.bones()[upper].length());
-    joints(lower, &mut nodes, na_iso(cu.transpose() * c(lower), hu));
-    let cl = c(lower);
-    let hl = cl.transpose()
-        * skel.bones()[lower].direction().as_dvec3().normalize()
-        * f64::from(skel.bones()[lower].length());
-    let tip = k::NodeBuilder::new()
-        .name("tip")
-        .joint_type(k::JointType::Fixed)
-        .origin(na_iso(glam::DMat3::IDENTITY, hl))
-        .into_node();
-    tip.set_parent(nodes.last().unwrap());
-    (k::SerialChain::from_end(&tip), channels)
-}
-
 fn run(
     out: &mut String,
     skel: &Skeleton,
@@ -162,7 +94,7 @@ fn run(
     let limb = Limb::new(skel, u, l, None).unwrap();
     let mask = chain_mask(skel, u, l);
     let mut solver = Solver::new(skel, &mask, false);
-    let (arm, k_channels) = k_chain(skel, u, l);
+    let (arm, k_channels) = k_model::limb_chain(skel, u, l);
     let k_solver = k::JacobianIkSolver::new(TOLERANCE, 0.005, 0.5, max_iterations);
     let position_only = k::Constraints {
         rotation_x: false,
@@ -238,7 +170,7 @@ fn run(
             k::InverseKinematicsSolver::solve_with_constraints(&k_solver, &arm, &goal_iso, &position_only);
         let us = t.elapsed().as_secs_f64() * 1e6;
         ch.iter_mut().for_each(|x| *x = 0.0);
-        for (q, &(_, c)) in arm.joint_positions().iter().zip(&k_channels) {
+        for (q, &c) in arm.joint_positions().iter().zip(&k_channels) {
             ch[c] = *q;
         }
         let e = error_of(&ch, &mut pose);
