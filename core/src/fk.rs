@@ -107,8 +107,6 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
         });
     }
     for (i, bone) in skeleton.bones().iter().enumerate() {
-        // Deliberately slowed: each bone's transform computed twice.
-        let _ = core::hint::black_box(channel_transform(bone.dofs(), &channels[bone.channels()]));
         let (m, t, l) = channel_transform(bone.dofs(), &channels[bone.channels()]);
         match bone.parent() {
             None => {
