@@ -11,9 +11,7 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use marionette::bus::{BusError, PingInfo, ServoBus};
 use marionette::clock::SystemClock;
-use marionette::command::CommandStage;
 use marionette::control::input::{input_channel, Input, Payload};
-use marionette::control::lookahead::{Lookahead, LookaheadSettings, Preview, SourceSample};
 use marionette::control::sources::{clip_track, ClipPlayer, TrackFrame};
 use marionette::control::{Follower, Solve};
 use marionette::formats::{amc, asf};
@@ -25,6 +23,9 @@ use marionette::session::{self, Lead, RigDrive, SessionSpec};
 use marionette::skeleton::MAX_CHANNELS;
 use std::path::Path;
 use std::sync::Arc;
+
+#[path = "support/planner.rs"]
+mod planner;
 
 /// Encodes every Sync Write into a packet and answers reads with the last goals written.
 struct EncodeBus {
@@ -185,31 +186,7 @@ fn bench(c: &mut Criterion) {
     g.finish();
 
     // The planner alone: 28 servos over a full preview of the walk.
-    let mut preview = Preview::new(256);
-    let mut frame_angles = vec![0.0; rig.len()];
-    let mut player = ClipPlayer::new(Arc::clone(&skel), Arc::clone(&motion), 500.0, true);
-    let mut buf = [0.0; MAX_CHANNELS];
-    let n = skel.channel_count();
-    for k in 0..200u64 {
-        player.next_sample(&mut buf[..n]).unwrap();
-        rig.joint_angles(&skel, &buf[..n], &[], &mut frame_angles);
-        let mut sample = SourceSample {
-            due_ns: k * 2_000_000,
-            ..SourceSample::default()
-        };
-        sample.angles[..rig.len()].copy_from_slice(&frame_angles);
-        preview.push(sample);
-    }
-    preview.advance(1_000_000);
-    preview.live = false;
-    let leads: Vec<f64> = profile
-        .servos
-        .iter()
-        .map(|s| s.lag_ms.unwrap_or(0.0) * 1e-3 + 0.002)
-        .collect();
-    let mut look = Lookahead::new(&rig, 500.0, &leads, LookaheadSettings::default());
-    let mut stage = CommandStage::new(rig.len());
-    stage.start_from(&rig, &present);
+    let (mut look, mut stage, preview) = planner::walk_planner(&skel, &motion, &profile, &rig);
     // Following the walk: each iteration is the next tick, its targets commanded (every 100
     // ticks the time starts over, the stage where it was).
     let mut tick = 0u64;

@@ -20,8 +20,7 @@ use gungraun::{library_benchmark, library_benchmark_group, main};
 use k::nalgebra::Isometry3;
 use marionette::bus::faults::Rng;
 use marionette::command::CommandStage;
-use marionette::control::lookahead::{Lookahead, LookaheadSettings, Preview, SourceSample};
-use marionette::control::sources::ClipPlayer;
+use marionette::control::lookahead::{Lookahead, Preview};
 use marionette::fk::{fk64, forward_kinematics, Pose, Pose64};
 use marionette::formats::{amc, asf};
 use marionette::ik::{Limb, Swivel};
@@ -29,12 +28,14 @@ use marionette::motion::frame_to_radians;
 use marionette::profile::Profile;
 use marionette::protocol::{encode, instruction, BROADCAST_ID};
 use marionette::retarget::{floor_of_clip, Options, RetargetFrame, Retargeter, Setup};
-use marionette::rig::{Rig, ServoMap};
+use marionette::rig::Rig;
 use marionette::skeleton::{Skeleton, MAX_CHANNELS};
 use std::sync::Arc;
 
 #[path = "support/k_model.rs"]
 mod k_model;
+#[path = "support/planner.rs"]
+mod planner;
 
 fn path(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -338,32 +339,7 @@ fn plan_input() -> PlanInput {
     let motion = Arc::new(amc::load(&skel, &path("data/cmu/16_15.amc")).unwrap());
     let profile = Profile::load(&path("firmware-profile/cmu-puppet.toml")).unwrap();
     let rig = profile.rig(Some(&skel)).unwrap();
-    let present: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
-    let mut preview = Preview::new(256);
-    let mut angles = vec![0.0; rig.len()];
-    let mut player = ClipPlayer::new(Arc::clone(&skel), Arc::clone(&motion), 500.0, true);
-    let mut buf = [0.0; MAX_CHANNELS];
-    let n = skel.channel_count();
-    for k in 0..200u64 {
-        player.next_sample(&mut buf[..n]).unwrap();
-        rig.joint_angles(&skel, &buf[..n], &[], &mut angles);
-        let mut sample = SourceSample {
-            due_ns: k * 2_000_000,
-            ..SourceSample::default()
-        };
-        sample.angles[..rig.len()].copy_from_slice(&angles);
-        preview.push(sample);
-    }
-    preview.advance(1_000_000);
-    preview.live = false;
-    let leads: Vec<f64> = profile
-        .servos
-        .iter()
-        .map(|s| s.lag_ms.unwrap_or(0.0) * 1e-3 + 0.002)
-        .collect();
-    let look = Lookahead::new(&rig, 500.0, &leads, LookaheadSettings::default());
-    let mut stage = CommandStage::new(rig.len());
-    stage.start_from(&rig, &present);
+    let (look, stage, preview) = planner::walk_planner(&skel, &motion, &profile, &rig);
     PlanInput {
         rig,
         look,
