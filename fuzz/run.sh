@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Coverage-guided fuzzing (cargo fuzz, libFuzzer) of marionette's readers, wire and the
 # studio's requests.
-#   fuzz/run.sh [SECONDS] [TARGET...]     default: 600 s for each of the eight targets
+#   fuzz/run.sh [SECONDS] [TARGET...]     default: 600 s for each of the eight targets, as many
+#                                         at once as there are cores (FUZZ_JOBS)
 # Seeds come from the bundled data (data/cmu, firmware-profile, a clip's targets, the real
 # traffic of each bus transaction, the studio's requests and a page's messages); libFuzzer keeps what it finds in fuzz/corpus/TARGET and a
 # crashing input in fuzz/artifacts/TARGET. Prints one line per target: executions, corpus size,
@@ -57,22 +58,38 @@ done
 
 cd fuzz
 cargo +nightly fuzz build -O
-status=0
-for t in "${targets[@]}"; do
+# Each libFuzzer run is one single-threaded process: as many run at once as there are cores
+# (FUZZ_JOBS to choose), each for the same fixed time.
+parallel=${FUZZ_JOBS:-$(nproc)}
+logs=$(mktemp -d)
+trap 'rm -rf "$logs"' EXIT
+fuzz_one() {
+    local t=$1
     mkdir -p "corpus/$t"
-    log=$(mktemp)
     if cargo +nightly fuzz run -O "$t" "corpus/$t" "seeds/$t" -- \
         -max_total_time="$seconds" -seed=1 -timeout=10 -max_len=16384 -rss_limit_mb=4096 \
-        -print_final_stats=1 >"$log" 2>&1; then
-        crashes=0
+        -print_final_stats=1 >"$logs/$t.log" 2>&1; then
+        echo 0 >"$logs/$t.crashes"
     else
-        crashes=1
-        status=1
-        tail -n 40 "$log"
+        echo 1 >"$logs/$t.crashes"
     fi
-    runs=$(awk '/stat::number_of_executed_units:/ { print $2 }' "$log")
+}
+for t in "${targets[@]}"; do
+    while (($(jobs -rp | wc -l) >= parallel)); do
+        wait -n || true
+    done
+    fuzz_one "$t" &
+done
+wait
+status=0
+for t in "${targets[@]}"; do
+    crashes=$(cat "$logs/$t.crashes")
+    if [ "$crashes" != 0 ]; then
+        status=1
+        tail -n 40 "$logs/$t.log"
+    fi
+    runs=$(awk '/stat::number_of_executed_units:/ { print $2 }' "$logs/$t.log")
     corpus=$(find "corpus/$t" -type f | wc -l)
     printf 'fuzz %-12s %6s s  %12s executions  corpus %6s  crashes %s\n' "$t" "$seconds" "${runs:-?}" "$corpus" "$crashes"
-    rm -f "$log"
 done
 exit $status
