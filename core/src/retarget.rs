@@ -591,8 +591,22 @@ impl ArmGeometry {
                 a3.cross(hand - p3),
             );
             let jt = j.transpose();
-            let jtj = jt * j;
-            let jtr = jt * (hand - target);
+            let mut jtj = jt * j;
+            let mut jtr = jt * (hand - target);
+            // A joint at a limit that the step would push past is held there: the others
+            // converge on the limit's face instead of crawling along it.
+            for (i, s) in [s1, s2, s3].iter().enumerate() {
+                if let Some((lo, hi)) = s.range {
+                    if (q[i] <= lo && jtr[i] > 0.0) || (q[i] >= hi && jtr[i] < 0.0) {
+                        jtr[i] = 0.0;
+                        for k in 0..3 {
+                            jtj.col_mut(i)[k] = 0.0;
+                            jtj.col_mut(k)[i] = 0.0;
+                        }
+                        jtj.col_mut(i)[i] = 1.0;
+                    }
+                }
+            }
             let mut improved = false;
             for _ in 0..8 {
                 let diag =
@@ -606,7 +620,7 @@ impl ArmGeometry {
                 let h = self.hand(trial);
                 let c = (h - target).length_squared();
                 if c < cost {
-                    improved = cost - c > 1e-16;
+                    improved = cost - c > 1e-16 + 1e-6 * cost;
                     (q, hand, cost) = (trial, h, c);
                     lambda = (lambda * 0.3).max(1e-9);
                     break;
