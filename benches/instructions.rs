@@ -10,7 +10,9 @@
 //! `benches/instructions-baseline.json`.
 //!
 //! Each benchmark does a fixed batch of work (16 frames, 100 targets, …) prepared outside the
-//! measured function; nothing inside it reads a file or a clock.
+//! measured function; nothing inside it reads a file or a clock (the control ticks read a
+//! stepped clock, and accumulate the fidelity in the tick as a lockstep run does: no second
+//! thread).
 
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
@@ -31,9 +33,13 @@ use marionette::retarget::{floor_of_clip, Options, RetargetFrame, Retargeter, Se
 use marionette::rig::Rig;
 use marionette::skeleton::{Skeleton, MAX_CHANNELS};
 use std::sync::Arc;
+use marionette::control::input::Input;
+use tick_support::{Kind, TickBench};
 
 #[path = "support/k_model.rs"]
 mod k_model;
+#[path = "support/tick.rs"]
+mod tick_support;
 #[path = "support/planner.rs"]
 mod planner;
 
@@ -463,4 +469,46 @@ fn retarget(mut input: RetargetInput) -> RetargetInput {
 
 library_benchmark_group!(name = retargeting; benchmarks = retarget);
 
-main!(library_benchmark_groups = fk, ik, command, retargeting);
+// --- The control loop's tick -----------------------------------------------------------------
+
+struct TickInput {
+    bench: TickBench,
+    inputs: Vec<Input>,
+}
+
+/// The puppet's tick at 500 Hz after 300 ticks of the walk (the look-ahead's preview full, the
+/// swivel windows and the command stage under way), and the next 10 ticks' inputs.
+fn tick_input(kind: Kind, lookahead: bool) -> TickInput {
+    let mut bench = TickBench::new(kind, lookahead, false);
+    let warm = bench.take_inputs(300);
+    bench.run_stepped(warm);
+    let inputs = bench.take_inputs(10);
+    TickInput { bench, inputs }
+}
+
+fn play_input() -> TickInput {
+    tick_input(Kind::Play, false)
+}
+fn play_lookahead_input() -> TickInput {
+    tick_input(Kind::Play, true)
+}
+fn follow_input() -> TickInput {
+    tick_input(Kind::Follow, false)
+}
+fn follow_lookahead_input() -> TickInput {
+    tick_input(Kind::Follow, true)
+}
+
+#[library_benchmark]
+#[bench::play_10_ticks(setup = play_input)]
+#[bench::play_lookahead_10_ticks(setup = play_lookahead_input)]
+#[bench::follow_4_limbs_10_ticks(setup = follow_input)]
+#[bench::follow_4_limbs_lookahead_10_ticks(setup = follow_lookahead_input)]
+fn control_tick(mut input: TickInput) -> TickBench {
+    input.bench.run_stepped(black_box(input.inputs));
+    input.bench
+}
+
+library_benchmark_group!(name = tick; benchmarks = control_tick);
+
+main!(library_benchmark_groups = fk, ik, command, retargeting, tick);

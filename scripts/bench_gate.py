@@ -4,8 +4,9 @@ Usage: bench_gate.py RUN.jsonl BASELINE.json UPDATE(true|false) RUSTC_VERSION
 
 Prints a table of every benchmark: the baseline's instructions, this run's, the change, and its
 L1 and LL misses and estimated cycles; exits 1 when a benchmark's instructions grew by more than
-the tolerance (BENCH_GATE_TOLERANCE percent, 2 by default), or when a benchmark of the baseline
-is missing from the run (`k`'s benchmarks are shown for the ratios, not gated). With UPDATE true it writes the run's figures as the new baseline.
+the tolerance (BENCH_GATE_TOLERANCE percent, 2 by default), when a benchmark of the baseline is
+missing from the run, or when one of the run has no baseline (`k`'s benchmarks are shown for the
+ratios, not gated). With UPDATE true it writes the run's figures as the new baseline.
 Also prints the project's instruction ratios against `k` on the same inputs.
 """
 
@@ -71,7 +72,7 @@ def main():
 
     print(f"| benchmark | baseline | now | change | L1 misses | LL misses | estimated cycles |")
     print("|---|---|---|---|---|---|---|")
-    grown, missing = [], []
+    grown, missing, unbased = [], [], []
     for name in sorted(set(base) | set(run)):
         b = base.get(name, {}).get("instructions")
         r = run.get(name)
@@ -89,6 +90,7 @@ def main():
             ch = f"{change:+.2f} %{mark}"
         else:
             ch = "new"
+            unbased.append(name)
         fmt = lambda v: "" if v is None else f"{int(v):,}"
         print(f"| {name} | {fmt(b)} | {n:,} | {ch} | {fmt(r['l1_misses'])} | {fmt(r['ll_misses'])} | {fmt(r['estimated_cycles'])} |")
 
@@ -115,6 +117,11 @@ def main():
         return
     if missing:
         sys.exit(f"bench-gate: in the baseline but not run: {', '.join(missing)}")
+    if unbased:
+        sys.exit(
+            f"bench-gate: run but not in the baseline: {', '.join(unbased)} "
+            "(scripts/bench-gate --update adds them, in the commit that adds the benchmark)"
+        )
     if grown:
         sys.exit(
             f"bench-gate: {len(grown)} benchmark(s) grew by more than {tolerance} %: {', '.join(grown)} "
