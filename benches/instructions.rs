@@ -476,12 +476,19 @@ struct TickInput {
     inputs: Vec<Input>,
 }
 
-/// The puppet's tick at 500 Hz after 300 ticks of the walk (the look-ahead's preview full, the
-/// swivel windows and the command stage under way), and the next 10 ticks' inputs.
+/// A tick after 300 ticks of the walk (the look-ahead's preview full, the swivel windows and
+/// the command stage under way), and the next 10 ticks' inputs: the puppet at 500 Hz, the OP3
+/// walking on its plan at 125 Hz.
 fn tick_input(kind: Kind, lookahead: bool) -> TickInput {
     let mut bench = TickBench::new(kind, lookahead, false);
     let warm = bench.take_inputs(300);
     bench.run_stepped(warm);
+    assert!(bench.bus.bytes > 0, "the ticks wrote goals");
+    if let Kind::Op3Walk = kind {
+        let imu = bench.controller.imu_report().expect("the OP3 walk reads its IMU");
+        assert!(imu.reads_ok >= 299 && imu.reads_failed == 0, "{imu:?}");
+        assert!(imu.max_rate_dps > 0.0, "{imu:?}");
+    }
     let inputs = bench.take_inputs(10);
     TickInput { bench, inputs }
 }
@@ -498,12 +505,16 @@ fn follow_input() -> TickInput {
 fn follow_lookahead_input() -> TickInput {
     tick_input(Kind::Follow, true)
 }
+fn op3_walk_input() -> TickInput {
+    tick_input(Kind::Op3Walk, false)
+}
 
 #[library_benchmark]
 #[bench::play_10_ticks(setup = play_input)]
 #[bench::play_lookahead_10_ticks(setup = play_lookahead_input)]
 #[bench::follow_4_limbs_10_ticks(setup = follow_input)]
 #[bench::follow_4_limbs_lookahead_10_ticks(setup = follow_lookahead_input)]
+#[bench::op3_walk_imu_feedback_10_ticks(setup = op3_walk_input)]
 fn control_tick(mut input: TickInput) -> TickBench {
     input.bench.run_stepped(black_box(input.inputs));
     input.bench

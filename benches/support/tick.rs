@@ -1,7 +1,8 @@
 //! One whole control-loop tick set up for the benches (`benches/control.rs`,
 //! `benches/instructions.rs`): the CMU puppet's 28 servos at 500 Hz playing the bundled walk
-//! (its frames) or following it (its four limb targets), with or without the look-ahead, on a
-//! bus that only encodes (no I/O), so that what is measured is the loop's own work.
+//! (its frames) or following it (its four limb targets), with or without the look-ahead, and
+//! the OP3 walking the same clip on its plan at 125 Hz with its IMU's gyro fed back to the legs;
+//! on a bus that only encodes (no I/O), so that what is measured is the loop's own work.
 
 #![allow(dead_code)]
 
@@ -17,7 +18,7 @@ use marionette::profile::Profile;
 use marionette::protocol::{encode, instruction, BROADCAST_ID};
 use marionette::rig::ServoMap;
 use marionette::schedule::{Clock, Tick};
-use marionette::session::{self, Lead, RigDrive, SessionSpec};
+use marionette::session::{self, ImuUse, Lead, RigDrive, SessionSpec};
 use marionette::skeleton::MAX_CHANNELS;
 
 /// Encodes every Sync Write into a packet and answers reads with the last goals written.
@@ -47,8 +48,11 @@ impl ServoBus for EncodeBus {
     fn scan(&mut self) -> Result<Vec<PingInfo>, BusError> {
         Ok(Vec::new())
     }
-    fn read(&mut self, _: u8, _: u16, out: &mut [u8]) -> Result<(), BusError> {
-        out.fill(0);
+    fn read(&mut self, id: u8, _: u16, out: &mut [u8]) -> Result<(), BusError> {
+        // The IMU board's block: a body turning slowly, tilted a little.
+        for (k, b) in out.iter_mut().enumerate() {
+            *b = if id == IMU_BOARD && k % 2 == 0 { 17 + 9 * k as u8 } else { 0 };
+        }
         Ok(())
     }
     fn write(&mut self, _: u8, _: u16, _: &[u8]) -> Result<(), BusError> {
@@ -106,11 +110,17 @@ impl Clock for SteppedClock {
 /// What the loop does each tick.
 #[derive(Clone, Copy, Debug)]
 pub enum Kind {
-    /// AMC frames: FK and the rig's mapping.
+    /// AMC frames on the puppet: FK and the rig's mapping.
     Play,
-    /// The four limbs' targets: limb IK with the windowed swivel search.
+    /// The four limbs' targets on the puppet: limb IK with the windowed swivel search.
     Follow,
+    /// AMC frames on the OP3, walking on its plan (`marionette play --walk --imu feedback`):
+    /// the plan's frames interpolated, the IMU board read, its gyro fed back to the legs.
+    Op3Walk,
 }
+
+/// The OP3's IMU board (its OpenCR) on the bus.
+const IMU_BOARD: u8 = 200;
 
 /// A controller ready to tick, its bus, the sender of its inputs and one input per tick (the
 /// walk over and over).
@@ -121,10 +131,8 @@ pub struct TickBench {
     pub inputs: Vec<Input>,
     next: usize,
     index: u64,
+    period_ns: u64,
 }
-
-const RATE_HZ: f64 = 500.0;
-const PERIOD_NS: u64 = 2_000_000;
 
 impl TickBench {
     /// `lookahead`: every servo led by the profile's lags. `real_time`: the fidelity on a
@@ -133,9 +141,10 @@ impl TickBench {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let skel = Arc::new(asf::load(&root.join("data/cmu/16.asf")).unwrap().skeleton);
         let motion = Arc::new(amc::load(&skel, &root.join("data/cmu/16_15.amc")).unwrap());
-        let profile = Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
-        let rig = profile.rig(Some(&skel)).unwrap();
-        let present: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
+        let walk = matches!(kind, Kind::Op3Walk);
+        let rate_hz = if walk { 125.0 } else { 500.0 };
+        let profile_file = if walk { "robotis-op3.toml" } else { "cmu-puppet.toml" };
+        let profile = Profile::load(&root.join("firmware-profile").join(profile_file)).unwrap();
         let names: Vec<String> = ["lradius", "rradius", "ltibia", "rtibia"]
             .iter()
             .map(|s| (*s).to_string())
@@ -143,26 +152,22 @@ impl TickBench {
         let (sender, port) = input_channel(4);
         let solve = match kind {
             Kind::Follow => Solve::Follow(Box::new(Follower::new(&skel, &names).unwrap())),
-            Kind::Play => Solve::Frames,
+            Kind::Play | Kind::Op3Walk => Solve::Frames,
         };
         let spec = SessionSpec {
-            rate_hz: RATE_HZ,
+            rate_hz,
             lead: if lookahead { Lead::Profile } else { Lead::Off },
+            walk,
+            imu: if walk { ImuUse::Feedback } else { ImuUse::Off },
             // No effector errors in metres: the tick's own work.
             scale: 0.0,
             ..SessionSpec::default()
         };
-        let drive = RigDrive {
-            skeleton: Arc::clone(&skel),
-            rig,
-            retarget: None,
-            balance: None,
-            rest_pose: None,
-            start_pose: None,
-        };
+        let drive = RigDrive::new(&spec, &profile, Arc::clone(&skel), Some(&motion), &mut std::io::sink()).unwrap();
+        let present: Vec<i32> = drive.rig.servos.iter().map(ServoMap::rest_tick).collect();
         let controller = session::controller(&spec, &profile, drive, &present, port, solve, real_time);
         let track = clip_track(&skel, &motion, &names, TrackFrame::Limb).unwrap();
-        let mut player = ClipPlayer::new(Arc::clone(&skel), Arc::clone(&motion), RATE_HZ, true);
+        let mut player = ClipPlayer::new(Arc::clone(&skel), Arc::clone(&motion), rate_hz, true);
         let n = skel.channel_count();
         let mut buf = [0.0; MAX_CHANNELS];
         let inputs = (0..1000u64)
@@ -176,7 +181,7 @@ impl TickBench {
                         payload: Payload::Targets(t.clone()),
                     }
                 }
-                Kind::Play => {
+                Kind::Play | Kind::Op3Walk => {
                     let t = player.next_sample(&mut buf[..n]).unwrap();
                     Input::frame(k, 0, 0, &buf[..n], t)
                 }
@@ -189,6 +194,7 @@ impl TickBench {
             inputs,
             next: 0,
             index: 0,
+            period_ns: (1e9 / rate_hz) as u64,
         }
     }
 
@@ -215,7 +221,7 @@ impl TickBench {
     /// A stepped clock at this bench's next deadline.
     pub fn stepped_clock(&self) -> SteppedClock {
         SteppedClock {
-            now_ns: self.index * PERIOD_NS,
+            now_ns: self.index * self.period_ns,
         }
     }
 

@@ -544,6 +544,12 @@ impl Controller {
         self.balance = Some(Box::new(balance));
     }
 
+    /// The IMU board's reads so far, when it is read.
+    #[must_use]
+    pub fn imu_report(&self) -> Option<balance::ImuReport> {
+        self.balance.as_ref().map(|b| b.report())
+    }
+
     /// Publishes each tick's goals, present angles and timing in `view` (for the studio).
     pub fn set_live_view(&mut self, view: Arc<LiveView>) {
         self.sinks.live = Some(view);
