@@ -22,6 +22,7 @@ use gungraun::{library_benchmark, library_benchmark_group, main};
 use k::nalgebra::Isometry3;
 use marionette::bus::faults::Rng;
 use marionette::command::CommandStage;
+use marionette::control::input::Input;
 use marionette::control::lookahead::{Lookahead, Preview};
 use marionette::fk::{fk64, forward_kinematics, Pose, Pose64};
 use marionette::formats::{amc, asf};
@@ -33,15 +34,14 @@ use marionette::retarget::{floor_of_clip, Options, RetargetFrame, Retargeter, Se
 use marionette::rig::Rig;
 use marionette::skeleton::{Skeleton, MAX_CHANNELS};
 use std::sync::Arc;
-use marionette::control::input::Input;
 use tick_support::{Kind, TickBench};
 
 #[path = "support/k_model.rs"]
 mod k_model;
-#[path = "support/tick.rs"]
-mod tick_support;
 #[path = "support/planner.rs"]
 mod planner;
+#[path = "support/tick.rs"]
+mod tick_support;
 
 fn path(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)

@@ -51,7 +51,11 @@ impl ServoBus for EncodeBus {
     fn read(&mut self, id: u8, _: u16, out: &mut [u8]) -> Result<(), BusError> {
         // The IMU board's block: a body turning slowly, tilted a little.
         for (k, b) in out.iter_mut().enumerate() {
-            *b = if id == IMU_BOARD && k % 2 == 0 { 17 + 9 * k as u8 } else { 0 };
+            *b = if id == IMU_BOARD && k % 2 == 0 {
+                17 + 9 * k as u8
+            } else {
+                0
+            };
         }
         Ok(())
     }
@@ -143,7 +147,11 @@ impl TickBench {
         let motion = Arc::new(amc::load(&skel, &root.join("data/cmu/16_15.amc")).unwrap());
         let walk = matches!(kind, Kind::Op3Walk);
         let rate_hz = if walk { 125.0 } else { 500.0 };
-        let profile_file = if walk { "robotis-op3.toml" } else { "cmu-puppet.toml" };
+        let profile_file = if walk {
+            "robotis-op3.toml"
+        } else {
+            "cmu-puppet.toml"
+        };
         let profile = Profile::load(&root.join("firmware-profile").join(profile_file)).unwrap();
         let names: Vec<String> = ["lradius", "rradius", "ltibia", "rtibia"]
             .iter()
@@ -163,7 +171,14 @@ impl TickBench {
             scale: 0.0,
             ..SessionSpec::default()
         };
-        let drive = RigDrive::new(&spec, &profile, Arc::clone(&skel), Some(&motion), &mut std::io::sink()).unwrap();
+        let drive = RigDrive::new(
+            &spec,
+            &profile,
+            Arc::clone(&skel),
+            Some(&motion),
+            &mut std::io::sink(),
+        )
+        .unwrap();
         let present: Vec<i32> = drive.rig.servos.iter().map(ServoMap::rest_tick).collect();
         let controller = session::controller(&spec, &profile, drive, &present, port, solve, real_time);
         let track = clip_track(&skel, &motion, &names, TrackFrame::Limb).unwrap();
