@@ -82,9 +82,9 @@ pub fn channel_transform(dofs: &[Dof], values: &[f32]) -> (Mat3, Vec3, f32) {
     let mut l = 0.0;
     for (d, &v) in dofs.iter().zip(values) {
         match d {
-            Dof::Rx => m = Mat3::from_rotation_x(v) * m,
-            Dof::Ry => m = Mat3::from_rotation_y(v) * m,
-            Dof::Rz => m = Mat3::from_rotation_z(v) * m,
+            Dof::Rx => rotate_about_f32(&mut m, Axis::X, v),
+            Dof::Ry => rotate_about_f32(&mut m, Axis::Y, v),
+            Dof::Rz => rotate_about_f32(&mut m, Axis::Z, v),
             Dof::Tx => t.x = v,
             Dof::Ty => t.y = v,
             Dof::Tz => t.z = v,
@@ -92,6 +92,26 @@ pub fn channel_transform(dofs: &[Dof], values: &[f32]) -> (Mat3, Vec3, f32) {
         }
     }
     (m, t, l)
+}
+
+/// `m ← R_axis(a)·m` in f32 (one factor of eq. 2): only the two rows across the axis change; a
+/// zero angle leaves `m` as it is.
+#[inline]
+fn rotate_about_f32(m: &mut Mat3, axis: Axis, a: f32) {
+    if a == 0.0 {
+        return;
+    }
+    let (s, c) = libm::sincosf(a);
+    let (i, j) = match axis {
+        Axis::X => (1, 2),
+        Axis::Y => (2, 0),
+        Axis::Z => (0, 1),
+    };
+    for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
+        let (u, v) = (col[i], col[j]);
+        col[i] = c * u - s * v;
+        col[j] = s * u + c * v;
+    }
 }
 
 /// Computes every bone's start, tip and orientation for one frame vector (radians, file
@@ -119,11 +139,18 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
             }
             Some(p) => {
                 let c = bone.axis_rotation();
-                let parent_axes = pose.world[p] * c;
-                let f = parent_axes * m;
+                let parent_world = pose.world[p];
+                let parent_axes = parent_world * c;
                 let start = pose.tip[p] + parent_axes * t;
+                // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
+                let (f, world) = if m == Mat3::IDENTITY {
+                    (parent_axes, parent_world)
+                } else {
+                    let f = parent_axes * m;
+                    (f, f * c.transpose())
+                };
                 pose.frame[i] = f;
-                pose.world[i] = f * c.transpose();
+                pose.world[i] = world;
                 pose.start[i] = start;
                 pose.tip[i] = start + f * (bone.local_direction() * (bone.length() + l));
             }
