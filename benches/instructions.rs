@@ -69,7 +69,7 @@ struct FkInput {
     pose64: Box<Pose64>,
 }
 
-fn fk_input() -> FkInput {
+fn fk_input_value() -> FkInput {
     let skel = walk_skeleton();
     let frames64 = walk_frames(&skel, 16);
     let frames32 = frames64
@@ -93,7 +93,7 @@ fn fk_input() -> FkInput {
 
 #[library_benchmark]
 #[bench::walk_16_frames(setup = fk_input)]
-fn fk_f32(mut input: FkInput) -> FkInput {
+fn fk_f32(mut input: Box<FkInput>) -> Box<FkInput> {
     for f in &input.frames32 {
         forward_kinematics(&input.skel, black_box(f), &mut input.pose).unwrap();
     }
@@ -102,7 +102,7 @@ fn fk_f32(mut input: FkInput) -> FkInput {
 
 #[library_benchmark]
 #[bench::walk_16_frames(setup = fk_input)]
-fn fk_f64(mut input: FkInput) -> FkInput {
+fn fk_f64(mut input: Box<FkInput>) -> Box<FkInput> {
     for f in &input.frames64 {
         fk64(&input.skel, black_box(f), &mut input.pose64);
     }
@@ -115,7 +115,7 @@ struct KFkInput {
 }
 
 /// The walk's 16 frames as `k`'s joint positions, the chain checked against `fk64`.
-fn k_fk_input() -> KFkInput {
+fn k_fk_input_value() -> KFkInput {
     let skel = walk_skeleton();
     let frames = walk_frames(&skel, 16);
     let (chain, channels, tips) = k_model::skeleton_chain(&skel);
@@ -143,7 +143,7 @@ fn k_fk_input() -> KFkInput {
 
 #[library_benchmark]
 #[bench::walk_16_frames(setup = k_fk_input)]
-fn fk_k(input: KFkInput) -> KFkInput {
+fn fk_k(input: Box<KFkInput>) -> Box<KFkInput> {
     for q in &input.positions {
         input.chain.set_joint_positions_unchecked(black_box(q));
         black_box(input.chain.update_transforms());
@@ -197,18 +197,18 @@ fn limb_input(upper: &str, lower: &str, seed: u64) -> LimbInput {
     }
 }
 
-fn arm_input() -> LimbInput {
+fn arm_input_value() -> LimbInput {
     limb_input("lhumerus", "lradius", 2026)
 }
 
-fn leg_input() -> LimbInput {
+fn leg_input_value() -> LimbInput {
     limb_input("lfemur", "ltibia", 2027)
 }
 
 #[library_benchmark]
 #[bench::arm_100_targets(setup = arm_input)]
 #[bench::leg_100_targets(setup = leg_input)]
-fn limb_ik(mut input: LimbInput) -> LimbInput {
+fn limb_ik(mut input: Box<LimbInput>) -> Box<LimbInput> {
     for t in &input.targets {
         input.channels.iter_mut().for_each(|x| *x = 0.0);
         black_box(input.limb.solve(
@@ -243,18 +243,18 @@ fn k_limb_input(input: &LimbInput) -> KLimbInput {
     }
 }
 
-fn k_arm_input() -> KLimbInput {
+fn k_arm_input_value() -> KLimbInput {
     k_limb_input(&arm_input())
 }
 
-fn k_leg_input() -> KLimbInput {
+fn k_leg_input_value() -> KLimbInput {
     k_limb_input(&leg_input())
 }
 
 #[library_benchmark]
 #[bench::arm_100_targets(setup = k_arm_input)]
 #[bench::leg_100_targets(setup = k_leg_input)]
-fn limb_ik_k(input: KLimbInput) -> KLimbInput {
+fn limb_ik_k(input: Box<KLimbInput>) -> Box<KLimbInput> {
     let position_only = k::Constraints {
         rotation_x: false,
         rotation_y: false,
@@ -283,7 +283,7 @@ struct StreamInput {
 
 /// 100 frames of the walk's left wrist path, the swivel searched within 40° of the last one as
 /// the loop does; the first solve (the whole circle) is made in the setup.
-fn stream_input() -> StreamInput {
+fn stream_input_value() -> StreamInput {
     let skel = walk_skeleton();
     let (u, l) = (skel.find("lhumerus").unwrap(), skel.find("lradius").unwrap());
     let limb = Limb::new(&skel, u, l, None).unwrap();
@@ -311,7 +311,7 @@ fn stream_input() -> StreamInput {
 
 #[library_benchmark]
 #[bench::walk_wrist_100_frames(setup = stream_input)]
-fn windowed_stream(mut input: StreamInput) -> StreamInput {
+fn windowed_stream(mut input: Box<StreamInput>) -> Box<StreamInput> {
     for (frame, target) in &input.path[1..] {
         input.frame.copy_from_slice(frame);
         let s = input.limb.solve(
@@ -340,7 +340,7 @@ struct PlanInput {
 }
 
 /// The CMU puppet's 28 servos following the walk at 500 Hz, a full preview ahead.
-fn plan_input() -> PlanInput {
+fn plan_input_value() -> PlanInput {
     let skel = Arc::new(walk_skeleton());
     let motion = Arc::new(amc::load(&skel, &path("data/cmu/16_15.amc")).unwrap());
     let profile = Profile::load(&path("firmware-profile/cmu-puppet.toml")).unwrap();
@@ -356,7 +356,7 @@ fn plan_input() -> PlanInput {
 
 #[library_benchmark]
 #[bench::puppet_28_servos_10_ticks(setup = plan_input)]
-fn plan(mut input: PlanInput) -> PlanInput {
+fn plan(mut input: Box<PlanInput>) -> Box<PlanInput> {
     for tick in 1..=10u64 {
         let targets = input.look.targets(
             &input.rig,
@@ -377,7 +377,7 @@ struct SyncWriteInput {
 }
 
 /// The parameters of a Sync Write of 28 servos' Goal Position (116, 4 bytes each).
-fn sync_write_input() -> SyncWriteInput {
+fn sync_write_input_value() -> SyncWriteInput {
     let mut params = vec![116, 0, 4, 0];
     for id in 1..=28u8 {
         params.push(id);
@@ -391,7 +391,7 @@ fn sync_write_input() -> SyncWriteInput {
 
 #[library_benchmark]
 #[bench::goal_positions_28_servos(setup = sync_write_input)]
-fn sync_write(mut input: SyncWriteInput) -> SyncWriteInput {
+fn sync_write(mut input: Box<SyncWriteInput>) -> Box<SyncWriteInput> {
     black_box(
         encode(
             BROADCAST_ID,
@@ -447,18 +447,18 @@ fn retarget_input(upper_body: bool) -> RetargetInput {
     }
 }
 
-fn whole_body() -> RetargetInput {
+fn whole_body_value() -> RetargetInput {
     retarget_input(false)
 }
 
-fn upper_body() -> RetargetInput {
+fn upper_body_value() -> RetargetInput {
     retarget_input(true)
 }
 
 #[library_benchmark]
 #[bench::whole_body_16_frames(setup = whole_body)]
 #[bench::upper_body_16_frames(setup = upper_body)]
-fn retarget(mut input: RetargetInput) -> RetargetInput {
+fn retarget(mut input: Box<RetargetInput>) -> Box<RetargetInput> {
     for p in &input.poses {
         input
             .retargeter
@@ -493,19 +493,19 @@ fn tick_input(kind: Kind, lookahead: bool) -> TickInput {
     TickInput { bench, inputs }
 }
 
-fn play_input() -> TickInput {
+fn play_input_value() -> TickInput {
     tick_input(Kind::Play, false)
 }
-fn play_lookahead_input() -> TickInput {
+fn play_lookahead_input_value() -> TickInput {
     tick_input(Kind::Play, true)
 }
-fn follow_input() -> TickInput {
+fn follow_input_value() -> TickInput {
     tick_input(Kind::Follow, false)
 }
-fn follow_lookahead_input() -> TickInput {
+fn follow_lookahead_input_value() -> TickInput {
     tick_input(Kind::Follow, true)
 }
-fn op3_walk_input() -> TickInput {
+fn op3_walk_input_value() -> TickInput {
     tick_input(Kind::Op3Walk, false)
 }
 
@@ -515,11 +515,63 @@ fn op3_walk_input() -> TickInput {
 #[bench::follow_4_limbs_10_ticks(setup = follow_input)]
 #[bench::follow_4_limbs_lookahead_10_ticks(setup = follow_lookahead_input)]
 #[bench::op3_walk_imu_feedback_10_ticks(setup = op3_walk_input)]
-fn control_tick(mut input: TickInput) -> TickBench {
-    input.bench.run_stepped(black_box(input.inputs));
-    input.bench
+fn control_tick(mut input: Box<TickInput>) -> Box<TickInput> {
+    let inputs = std::mem::take(&mut input.inputs);
+    input.bench.run_stepped(black_box(inputs));
+    input
 }
 
 library_benchmark_group!(name = tick; benchmarks = control_tick);
+
+// Each benchmark's input is boxed: moving it in and out of the measured function then costs
+// a pointer, not a copy of the skeleton or the controller.
+fn arm_input() -> Box<LimbInput> {
+    Box::new(arm_input_value())
+}
+fn fk_input() -> Box<FkInput> {
+    Box::new(fk_input_value())
+}
+fn follow_input() -> Box<TickInput> {
+    Box::new(follow_input_value())
+}
+fn follow_lookahead_input() -> Box<TickInput> {
+    Box::new(follow_lookahead_input_value())
+}
+fn k_arm_input() -> Box<KLimbInput> {
+    Box::new(k_arm_input_value())
+}
+fn k_fk_input() -> Box<KFkInput> {
+    Box::new(k_fk_input_value())
+}
+fn k_leg_input() -> Box<KLimbInput> {
+    Box::new(k_leg_input_value())
+}
+fn leg_input() -> Box<LimbInput> {
+    Box::new(leg_input_value())
+}
+fn op3_walk_input() -> Box<TickInput> {
+    Box::new(op3_walk_input_value())
+}
+fn plan_input() -> Box<PlanInput> {
+    Box::new(plan_input_value())
+}
+fn play_input() -> Box<TickInput> {
+    Box::new(play_input_value())
+}
+fn play_lookahead_input() -> Box<TickInput> {
+    Box::new(play_lookahead_input_value())
+}
+fn stream_input() -> Box<StreamInput> {
+    Box::new(stream_input_value())
+}
+fn sync_write_input() -> Box<SyncWriteInput> {
+    Box::new(sync_write_input_value())
+}
+fn upper_body() -> Box<RetargetInput> {
+    Box::new(upper_body_value())
+}
+fn whole_body() -> Box<RetargetInput> {
+    Box::new(whole_body_value())
+}
 
 main!(library_benchmark_groups = fk, ik, command, retargeting, tick);
