@@ -9,8 +9,14 @@
 //! `scripts/bench-gate` runs this and compares every benchmark's instructions with
 //! `benches/instructions-baseline.json`.
 //!
+//! The groups: `fk` (the 31-bone skeleton in f32 and f64, and `k`'s), `ik` (limb IK with the
+//! swivel search on arm and leg targets, `k`'s on the same, the windowed stream solve),
+//! `command` (the look-ahead planner, a Sync Write encoded), `retargeting` (the OP3, whole and
+//! upper body) and `tick` (whole control-loop ticks of `play` and `follow`, with and without the
+//! look-ahead, and of the OP3 walking with its IMU fed back).
+//!
 //! Each benchmark does a fixed batch of work (16 frames, 100 targets, …) prepared outside the
-//! measured function; nothing inside it reads a file or a clock (the control ticks read a
+//! measured function, its input boxed so that passing it in and out copies nothing; nothing inside it reads a file or a clock (the control ticks read a
 //! stepped clock, and accumulate the fidelity in the tick as a lockstep run does: no second
 //! thread).
 
