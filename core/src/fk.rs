@@ -17,7 +17,7 @@
 use crate::math::Axis;
 use crate::math::{Real, RealMat3, RealVec3, ToReal};
 use crate::skeleton::{rotate_about, Bone, Dof, Skeleton, MAX_BONES};
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Mat3A, Vec3, Vec3A};
 
 /// Global state of every bone for one frame.
 #[derive(Clone, Debug)]
@@ -77,7 +77,14 @@ impl core::error::Error for ShortFrame {}
 #[inline]
 #[must_use]
 pub fn channel_transform(dofs: &[Dof], values: &[f32]) -> (Mat3, Vec3, f32) {
-    let mut m = Mat3::IDENTITY;
+    let (m, t, l) = channel_transform_aligned(dofs, values);
+    (Mat3::from(m), t, l)
+}
+
+/// [`channel_transform`] in glam's aligned matrix, as [`forward_kinematics`] multiplies it.
+#[inline]
+fn channel_transform_aligned(dofs: &[Dof], values: &[f32]) -> (Mat3A, Vec3, f32) {
+    let mut m = Mat3A::IDENTITY;
     let mut t = Vec3::ZERO;
     let mut l = 0.0;
     for (d, &v) in dofs.iter().zip(values) {
@@ -97,7 +104,7 @@ pub fn channel_transform(dofs: &[Dof], values: &[f32]) -> (Mat3, Vec3, f32) {
 /// `m ← R_axis(a)·m` in f32 (one factor of eq. 2): only the two rows across the axis change; a
 /// zero angle leaves `m` as it is.
 #[inline]
-fn rotate_about_f32(m: &mut Mat3, axis: Axis, a: f32) {
+fn rotate_about_f32(m: &mut Mat3A, axis: Axis, a: f32) {
     if a == 0.0 {
         return;
     }
@@ -127,10 +134,10 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
         });
     }
     for (i, bone) in skeleton.bones().iter().enumerate() {
-        let (m, t, l) = channel_transform(bone.dofs(), &channels[bone.channels()]);
+        let (m, t, l) = channel_transform_aligned(bone.dofs(), &channels[bone.channels()]);
         match bone.parent() {
             None => {
-                let w = bone.axis_rotation() * m;
+                let w = Mat3::from(Mat3A::from(bone.axis_rotation()) * m);
                 let p = skeleton.root().position + t;
                 pose.frame[i] = w;
                 pose.world[i] = w;
@@ -138,21 +145,23 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
                 pose.tip[i] = p;
             }
             Some(p) => {
-                let c = bone.axis_rotation();
-                let parent_world = pose.world[p];
+                // The products in glam's aligned (SIMD where the target has it) matrices.
+                let c = Mat3A::from(bone.axis_rotation());
+                let parent_world = Mat3A::from(pose.world[p]);
                 let parent_axes = parent_world * c;
-                let start = pose.tip[p] + parent_axes * t;
+                let start = Vec3A::from(pose.tip[p]) + parent_axes * Vec3A::from(t);
                 // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
-                let (f, world) = if m == Mat3::IDENTITY {
+                let (f, world) = if m == Mat3A::IDENTITY {
                     (parent_axes, parent_world)
                 } else {
                     let f = parent_axes * m;
                     (f, f * c.transpose())
                 };
-                pose.frame[i] = f;
-                pose.world[i] = world;
-                pose.start[i] = start;
-                pose.tip[i] = start + f * (bone.local_direction() * (bone.length() + l));
+                pose.frame[i] = Mat3::from(f);
+                pose.world[i] = Mat3::from(world);
+                pose.start[i] = Vec3::from(start);
+                pose.tip[i] =
+                    Vec3::from(start + f * Vec3A::from(bone.local_direction() * (bone.length() + l)));
             }
         }
     }
