@@ -109,11 +109,7 @@ fn rotate_about_f32(m: &mut Mat3A, axis: Axis, a: f32) {
         return;
     }
     let (s, c) = libm::sincosf(a);
-    let (i, j) = match axis {
-        Axis::X => (1, 2),
-        Axis::Y => (2, 0),
-        Axis::Z => (0, 1),
-    };
+    let (i, j) = axis.across();
     for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
         let (u, v) = (col[i], col[j]);
         col[i] = c * u - s * v;

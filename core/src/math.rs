@@ -477,6 +477,18 @@ pub enum Axis {
 }
 
 impl Axis {
+    /// The two coordinates a turn about this axis mixes, in the turn's order: `(y, z)`,
+    /// `(z, x)`, `(x, y)`.
+    #[inline]
+    #[must_use]
+    pub const fn across(self) -> (usize, usize) {
+        match self {
+            Axis::X => (1, 2),
+            Axis::Y => (2, 0),
+            Axis::Z => (0, 1),
+        }
+    }
+
     /// 0, 1 or 2.
     #[inline]
     #[must_use]

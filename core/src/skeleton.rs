@@ -200,11 +200,7 @@ pub fn rotate_about(m: &mut RealMat3, axis: crate::math::Axis, a: Real) {
         return;
     }
     let (s, c) = real::sincos(a);
-    let (i, j) = match axis {
-        crate::math::Axis::X => (1, 2),
-        crate::math::Axis::Y => (2, 0),
-        crate::math::Axis::Z => (0, 1),
-    };
+    let (i, j) = axis.across();
     for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
         let (u, v) = (col[i], col[j]);
         col[i] = c * u - s * v;
