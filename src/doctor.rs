@@ -14,7 +14,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::budget;
-use crate::bus::{retried, BusError, PingInfo, Registers, ServoBus, TRIES};
+use crate::bus::{retried, BusError, PingInfo, Registers, ServoBus, PATIENCE};
 use crate::profile::{BusConfig, Profile, ServoSpec};
 use crate::servo::addr;
 
@@ -249,7 +249,10 @@ pub fn examine(bus: &mut dyn ServoBus, profile: &Profile) -> Result<Report, BusE
             report.push(
                 Level::Fault,
                 Some(s),
-                format!("its registers could not be read ({e}, {TRIES} tries)"),
+                format!(
+                    "its registers could not be read ({e}; tried again for {} ms)",
+                    PATIENCE.as_millis()
+                ),
                 "check the cable and the adapter; `marionette scan` shows what answers",
                 None,
             );

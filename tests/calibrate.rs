@@ -27,6 +27,13 @@ fn puppet_copy(dir: &Path) -> PathBuf {
     path
 }
 
+/// One served chain at a time: each keeps line time, and two on a two-core machine beside
+/// the seeded rigs' test starve each other.
+fn one_served() -> std::sync::MutexGuard<'static, ()> {
+    static SERVED: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    SERVED.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// `serve PROFILE --miscalibrate SEED` and its device path.
 fn serve(profile: &Path, seconds: u32) -> (Child, String) {
     serve_with(profile, seconds, &["--miscalibrate", &SEED.to_string()])
@@ -96,6 +103,7 @@ fn calibrate(profile: &Path, port: &str, answers: &str, extra: &[&str]) -> std::
 
 #[test]
 fn calibrate_recovers_the_zeros_and_directions_of_a_miscalibrated_rig_and_the_result_drives_it() {
+    let _one = one_served();
     let dir = common::tempdir("calibrate");
     let path = puppet_copy(&dir);
     let before = Profile::load(&path).unwrap();
@@ -213,6 +221,7 @@ fn calibrate_recovers_the_zeros_and_directions_of_a_miscalibrated_rig_and_the_re
 
 #[test]
 fn calibrate_stopped_by_the_operator_leaves_the_profile_unchanged_and_torque_off() {
+    let _one = one_served();
     let dir = common::tempdir("calibrate-stop");
     let path = puppet_copy(&dir);
     let text_before = std::fs::read_to_string(&path).unwrap();

@@ -13,9 +13,16 @@ fn puppet() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml")
 }
 
+/// One served chain and its run at a time: each pair keeps line time, and two pairs on a
+/// two-core machine starve each other.
+static SERVED: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// `serve --misconfigure SPEC`, then `play` of the bundled walk there: (exit code, stdout,
-/// stderr, the stats JSON).
+/// stderr, the stats JSON). The run turns torque off after a second without a valid read,
+/// not the default 100 ms: a loaded machine pauses the serving process longer than that, and
+/// what is tested here is the health watch.
 fn play_on(spec: &str, extra: &[&str]) -> (Option<i32>, String, String, serde_json::Value) {
+    let _one = SERVED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let mut served = common::bin()
         .arg("serve")
         .arg(puppet())
@@ -34,7 +41,8 @@ fn play_on(spec: &str, extra: &[&str]) -> (Option<i32>, String, String, serde_js
         .arg(puppet())
         .arg(common::data("16.asf"))
         .arg(common::data("16_15.amc"))
-        .args(["--bus", &port, "--rate", "120", "-q", "--stats-json"])
+        .args(["--bus", &port, "--rate", "120", "--torque-off-after", "1000"])
+        .args(["-q", "--stats-json"])
         .arg(&json)
         .args(extra)
         .stdin(Stdio::null())
@@ -42,19 +50,25 @@ fn play_on(spec: &str, extra: &[&str]) -> (Option<i32>, String, String, serde_js
         .unwrap();
     let _ = served.kill();
     let _ = served.wait();
-    let stats = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    (
-        out.status.code(),
+    let (stdout, stderr) = (
         String::from_utf8_lossy(&out.stdout).into_owned(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
-        stats,
-    )
+    );
+    let text = std::fs::read_to_string(&json).unwrap_or_else(|e| {
+        panic!(
+            "no stats JSON ({e}); play exited {:?}:\n{stdout}{stderr}",
+            out.status
+        )
+    });
+    let stats = serde_json::from_str(&text).unwrap();
+    (out.status.code(), stdout, stderr, stats)
 }
 
 #[test]
 fn a_servo_near_its_temperature_limit_ends_the_run_eased_to_rest_naming_it() {
     // lowerneck_ry, an XM430-W350 (Temperature Limit 80 °C), at 79 °C.
-    let (code, out, err, stats) = play_on("temp=5:79", &[]);
+    // Looped: a read that fails on a loaded machine leaves the servo to the next round.
+    let (code, out, err, stats) = play_on("temp=5:79", &["--loop", "--duration", "30"]);
     println!("{out}{err}");
     assert_eq!(code, Some(1));
     // It cools a little (idle, torque on) during the move to the first pose before its read.
@@ -74,13 +88,16 @@ fn a_servo_near_its_temperature_limit_ends_the_run_eased_to_rest_naming_it() {
         .as_str()
         .unwrap()
         .starts_with("id 5 lowerneck_ry"));
-    // It stopped at the servo's first read (its turn comes after four servos' two reads), or
-    // a little later when a read on a busy machine failed (each is read once more at once).
+    // It stopped at the servo's first read: its turn comes after four servos' two reads. (A
+    // read that failed on a busy machine is tried once more at once, or, failed again, leaves
+    // its servo to the next round; the count then depends on which failed.)
     let (reads, failed) = (
         health["reads"].as_u64().unwrap(),
         health["reads_failed"].as_u64().unwrap(),
     );
-    assert_eq!(reads, 9 + failed, "{health}");
+    if failed == 0 {
+        assert_eq!(reads, 9, "{health}");
+    }
     assert_eq!(stats["allocations_in_tick"], 0, "{stats}");
 }
 
@@ -88,8 +105,9 @@ fn a_servo_near_its_temperature_limit_ends_the_run_eased_to_rest_naming_it() {
 fn a_warm_servo_warns_and_the_run_goes_on() {
     // lowerback_rz, an XH540-W270 (80 °C): warned from 65 °C, eased to rest from 75 °C. Idle
     // with torque on it cools about 0.4 °C a second before its first read, which a loaded
-    // machine makes later: 70 °C leaves room for that.
-    let (code, out, err, stats) = play_on("temp=3:70", &["--duration", "2"]);
+    // machine makes later: 70 °C leaves room for that. Longer than a round of reads (5.6 s
+    // at 120 Hz), as a read that fails on a loaded machine leaves the servo to the next.
+    let (code, out, err, stats) = play_on("temp=3:70", &["--loop", "--duration", "7"]);
     assert_eq!(code, Some(0), "{out}{err}");
     let warned = out
         .split("health warning: id 3 lowerback_rz: ")
@@ -111,7 +129,7 @@ fn a_warm_servo_warns_and_the_run_goes_on() {
 
 #[test]
 fn a_supply_off_the_models_range_ends_the_run() {
-    let (code, _, err, stats) = play_on("supply=2:9.2", &[]);
+    let (code, _, err, stats) = play_on("supply=2:9.2", &["--loop", "--duration", "30"]);
     assert_eq!(code, Some(1), "{err}");
     assert!(
         err.contains("id 2 lowerback_ry: supply 9.2 V, outside the model's 10…14.8 V"),

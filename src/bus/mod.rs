@@ -422,7 +422,7 @@ pub enum StartupError {
 /// Homing Offset (when it gives one), the position limits, the profile's Position P Gain (when it gives one); read present positions and copy
 /// them into the goals; only then torque on — so no servo jumps; last, the Bus Watchdog on all
 /// servos at once (the caller's first command must follow within it). Each transaction that
-/// meets a busy line or host is tried again ([`TRIES`] in all).
+/// meets a busy line or host is tried again, as [`retried`] does.
 ///
 /// # Errors
 /// [`StartupError`]; torque stays off on every servo.
@@ -430,10 +430,10 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: BusSection<'_>) -> Result<Vec<i
     let mut found = bus.scan()?;
     // A broadcast ping's replies come back to back; one that arrives after the scan's window
     // (a loaded host, a USB adapter's latency timer) is not a missing servo: a profiled id the
-    // scan did not see is pinged on its own, twice, before it counts as missing.
+    // scan did not see is pinged on its own, as [`retried`] does, before it counts as missing.
     for s in profile.servos {
         if !found.iter().any(|p| p.id == s.id) {
-            if let Some(p) = (0..2).find_map(|_| bus.ping(s.id).ok()) {
+            if let Ok(p) = retried(|| bus.ping(s.id)) {
                 found.push(p);
             }
         }
@@ -572,20 +572,48 @@ pub fn hardware_error_names(bits: u8) -> String {
     }
 }
 
-/// How many times an idempotent transaction is tried on a busy line ([`retried`]).
+/// How many times, at the least, an idempotent transaction is tried on a busy line
+/// ([`retried`]).
 pub const TRIES: usize = 3;
+
+/// How long [`retried`] goes on trying a transaction that meets a busy line: a host paused by
+/// its scheduler (ours, or the one serving a chain on a loaded machine) answers late for a
+/// while, and three replies 34 ms late are only a tenth of a second.
+pub const PATIENCE: std::time::Duration = std::time::Duration::from_millis(300);
+
+/// The most tries [`retried`] makes, however fast the faults come back.
+const MAX_TRIES: usize = 16;
 
 /// Runs an idempotent transaction (a read, or a write of a fixed value), and again when it
 /// meets a busy line or host — no reply in time, a bad CRC, the late reply of the one before
 /// (another servo's, or the same servo's to another instruction: a write's empty status taken
-/// for a read's) — [`TRIES`] times in all. A servo's own error answer is not retried. Start-up,
-/// `doctor` and `calibrate` run their transactions through it.
+/// for a read's) — [`TRIES`] times in all and on until [`PATIENCE`] has passed since the first
+/// try. A servo's own error answer is not retried. Start-up, `doctor` and `calibrate` run their
+/// transactions through it; a stop, which must reach every servo soon, uses [`retried_quickly`].
 ///
 /// # Errors
 /// The last attempt's [`BusError`].
-pub fn retried<T>(mut transaction: impl FnMut() -> Result<T, BusError>) -> Result<T, BusError> {
+pub fn retried<T>(transaction: impl FnMut() -> Result<T, BusError>) -> Result<T, BusError> {
+    retried_within(PATIENCE, transaction)
+}
+
+/// [`retried`] without the patience: [`TRIES`] tries in all, so a silent servo costs about
+/// a tenth of a second.
+///
+/// # Errors
+/// The last attempt's [`BusError`].
+pub fn retried_quickly<T>(transaction: impl FnMut() -> Result<T, BusError>) -> Result<T, BusError> {
+    retried_within(std::time::Duration::ZERO, transaction)
+}
+
+fn retried_within<T>(
+    patience: std::time::Duration,
+    mut transaction: impl FnMut() -> Result<T, BusError>,
+) -> Result<T, BusError> {
+    let first = std::time::Instant::now();
     let mut outcome = transaction();
-    for _ in 1..TRIES {
+    let mut tries = 1;
+    while tries < MAX_TRIES && (tries < TRIES || first.elapsed() < patience) {
         match outcome {
             Err(
                 BusError::Timeout { .. }
@@ -594,6 +622,7 @@ pub fn retried<T>(mut transaction: impl FnMut() -> Result<T, BusError>) -> Resul
                 | BusError::Malformed { .. },
             ) => {
                 outcome = transaction();
+                tries += 1;
             }
             _ => break,
         }
@@ -649,7 +678,7 @@ impl Registers {
 pub fn shut_down(bus: &mut dyn ServoBus, profile: BusSection<'_>) -> Result<(), BusError> {
     let mut first = None;
     for s in profile.servos {
-        if let Err(e) = retried(|| bus.set_torque(s.id, false)) {
+        if let Err(e) = retried_quickly(|| bus.set_torque(s.id, false)) {
             first.get_or_insert(e);
         }
     }
@@ -738,8 +767,9 @@ pub fn latency_timer_ms(port: &str) -> Option<u32> {
 
 #[cfg(test)]
 mod tests {
-    use super::{retried, BusError, Registers, REGISTERS_LEN, TRIES};
+    use super::{retried, retried_quickly, BusError, Registers, REGISTERS_LEN, TRIES};
     use crate::servo::addr;
+    use std::time::{Duration, Instant};
 
     /// Items come out of the snapshot little-endian, signed where asked, 0 past its end.
     #[test]
@@ -780,12 +810,20 @@ mod tests {
             assert_eq!(calls, 2);
         }
         let mut calls = 0;
-        let got: Result<(), BusError> = retried(|| {
+        let got: Result<(), BusError> = retried_quickly(|| {
             calls += 1;
             Err(BusError::Timeout { id: 4 })
         });
         assert!(matches!(got, Err(BusError::Timeout { id: 4 })));
         assert_eq!(calls, TRIES);
+        // Faults that come back at once are not tried without end.
+        let mut calls = 0;
+        let got: Result<(), BusError> = retried(|| {
+            calls += 1;
+            Err(BusError::Crc { id: 4 })
+        });
+        assert!(matches!(got, Err(BusError::Crc { id: 4 })));
+        assert!((TRIES..=16).contains(&calls), "{calls}");
         let mut calls = 0;
         let got: Result<(), BusError> = retried(|| {
             calls += 1;
@@ -793,5 +831,24 @@ mod tests {
         });
         assert!(matches!(got, Err(BusError::Servo { id: 4, error: 7 })));
         assert_eq!(calls, 1);
+    }
+
+    /// A host that pauses for 150 ms (every reply in that time missing, each try waiting
+    /// its 34 ms) does not fail a patient transaction.
+    #[test]
+    fn a_transaction_outlasts_a_paused_host() {
+        let paused = Instant::now();
+        let mut calls = 0;
+        let got = retried(|| {
+            calls += 1;
+            if paused.elapsed() < Duration::from_millis(150) {
+                std::thread::sleep(Duration::from_millis(34));
+                Err(BusError::Timeout { id: 4 })
+            } else {
+                Ok(7)
+            }
+        });
+        assert_eq!(got.ok(), Some(7), "{calls} tries");
+        assert!(calls > 1);
     }
 }

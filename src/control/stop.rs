@@ -221,7 +221,7 @@ pub struct TorqueOff {
 
 /// Torque off on every servo: one Sync Write (no replies needed, so it gets through a bus whose
 /// reads fail), then each servo on its own, acknowledged: asked again as
-/// [`crate::bus::retried`] does when the acknowledgement is lost or late on a busy line. Not
+/// [`crate::bus::retried_quickly`] does when the acknowledgement is lost or late on a busy line. Not
 /// when the port itself failed.
 pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> TorqueOff {
     let zeros = [0u8; MAX_SERVOS];
@@ -232,7 +232,7 @@ pub fn torque_off(bus: &mut dyn ServoBus, ids: &[u8]) -> TorqueOff {
     let mut acknowledged = 0;
     if error.as_ref().and_then(BusError::port_failure).is_none() {
         for &id in &ids[..n] {
-            match crate::bus::retried(|| bus.set_torque(id, false)) {
+            match crate::bus::retried_quickly(|| bus.set_torque(id, false)) {
                 Ok(()) => acknowledged += 1,
                 Err(e) => {
                     error.get_or_insert(e);
