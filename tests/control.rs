@@ -991,7 +991,7 @@ fn targets_taken_ahead_are_solved_over_ticks_with_the_same_result() {
     // 30 Hz targets at 250 Hz: about eight ticks an input.
     let inputs: Vec<_> = track.samples.iter().step_by(4).cloned().collect();
     let rate = 250.0;
-    let follow = |ahead: bool| {
+    let follow = |ahead: bool, rehearse: bool| {
         let follower = Follower::new(&s.skel, &names).unwrap();
         let (mut c, tx) = controller(&s, Solve::Follow(Box::new(follower)), config(rate), 4096);
         let leads = vec![0.02; s.rig.len()];
@@ -1027,6 +1027,9 @@ fn targets_taken_ahead_are_solved_over_ticks_with_the_same_result() {
             if next == inputs.len() {
                 tx = None;
             }
+            if rehearse {
+                c.rehearse();
+            }
             let tick = schedule.wait(&mut clock);
             end = c.tick(&tick, &mut vr, &mut clock);
             if end.is_some() {
@@ -1038,10 +1041,28 @@ fn targets_taken_ahead_are_solved_over_ticks_with_the_same_result() {
         assert_eq!(c.stats.unreachable, 0);
         // Times from the first deadline (the two runs share the virtual clock).
         let log: Vec<_> = c.source_log().iter().map(|(d, a)| (d - start, *a)).collect();
-        (c.stats.inputs_spread, log)
+        let goals: Vec<i32> = vr.with(|t| t.chain().servos().iter().map(|v| v.goal_tick()).collect());
+        if rehearse {
+            assert!(
+                c.stats.solves_rehearsed > c.stats.inputs_used,
+                "{}",
+                c.stats.solves_rehearsed
+            );
+        }
+        (c.stats.inputs_spread, log, goals)
     };
-    let (spread, sliced) = follow(true);
-    let (whole, at_once) = follow(false);
+    let (spread, sliced, goals) = follow(true, false);
+    let (whole, at_once, _) = follow(false, false);
+    // Each solve made ahead on a copy, as a real-time run does before each deadline, changes
+    // nothing: the same sources, bit for bit, and the servos end where they did.
+    let (rehearsed_spread, rehearsed, rehearsed_goals) = follow(true, true);
+    assert_eq!(rehearsed_spread, spread);
+    assert_eq!(rehearsed.len(), sliced.len());
+    assert!(rehearsed
+        .iter()
+        .zip(&sliced)
+        .all(|((d, a), (e, b))| d == e && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())));
+    assert_eq!(rehearsed_goals, goals);
     println!(
         "{} inputs: {spread} solved over several ticks when taken ahead, {whole} when taken as they come due",
         inputs.len()

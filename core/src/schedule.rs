@@ -64,6 +64,13 @@ impl Schedule {
         self.start_ns.saturating_add(k.saturating_mul(self.period_ns))
     }
 
+    /// The deadline of the next tick [`Schedule::wait`] waits for, unless the caller is a
+    /// whole period behind by then.
+    #[must_use]
+    pub fn next_deadline(&self) -> u64 {
+        self.deadline(self.next)
+    }
+
     /// Waits for the next tick. When the caller overran one or more whole periods, the
     /// deadlines already past are skipped (counted in [`Tick::skipped`]) rather than run back
     /// to back; the grid stays `start + k·period` either way.

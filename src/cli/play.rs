@@ -208,6 +208,11 @@ pub struct LoopArgs {
     /// plans the goal that far, and a period, ahead of the source, so the horn arrives on time).
     #[arg(long)]
     pub lead_ms: Option<f64>,
+    /// Do not make the next tick's limb solve ahead while the loop waits for its deadline
+    /// (by default it is, on a copy of the pose, so that the tick finds the solve's code and
+    /// data in the caches: about half the solve's time in the tick, for one solve's CPU a tick).
+    #[arg(long)]
+    pub no_rehearsal: bool,
     /// The virtual chain answers as soon as it can instead of keeping line time (the wire's
     /// baud, return delays, the adapter's latency): for loop rates beyond what the bus allows.
     #[arg(long)]
@@ -348,6 +353,7 @@ impl LoopArgs {
             },
             walk: self.walk,
             load_compensation: !self.no_load_compensation,
+            rehearse: !self.no_rehearsal,
             health: !self.no_health,
             imu: match self.imu {
                 ImuArg::Off => ImuUse::Off,

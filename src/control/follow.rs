@@ -205,6 +205,28 @@ impl Follower {
     /// Solves the effectors in `which` that have a target, in place on `channels`, counting
     /// unreachable ones and residuals in `stats`. An input's effectors may be solved a few at
     /// a time, in order, on the same channels: the result is the same.
+    /// Solves effector `k`'s present target on `scratch` (a copy of the pose, changed) and
+    /// keeps nothing: the solve the next tick makes, made ahead while the loop waits, so that
+    /// its code and data are in the caches when the tick comes. A limb only; returns whether
+    /// it solved.
+    pub(super) fn rehearse(&self, skeleton: &Skeleton, scratch: &mut [f64], k: usize) -> bool {
+        let (Some(e), Some(Some(t))) = (self.effectors.get(k), self.targets.get(k)) else {
+            return false;
+        };
+        if let EffectorSolver::Limb(limb) = &e.solver {
+            let swivel = match e.swivel {
+                Some(previous) => Swivel::Track {
+                    previous,
+                    window: SWIVEL_WINDOW,
+                },
+                None => Swivel::Auto { previous: None },
+            };
+            std::hint::black_box(limb.solve(skeleton, scratch, t.position, swivel));
+            return true;
+        }
+        false
+    }
+
     pub(super) fn solve_some(
         &mut self,
         skeleton: &Skeleton,

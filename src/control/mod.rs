@@ -107,6 +107,9 @@ pub struct LoopConfig {
     /// Accumulate the fidelity on a thread of its own ([`fidelity::FidelityWorker`]; real-time
     /// runs), not in the tick (lockstep runs, whose results must not depend on timing).
     pub fidelity_worker: bool,
+    /// Make the next tick's limb solve ahead, just before its deadline ([`Controller::rehearse`]):
+    /// real-time runs, whose sleep leaves the caches cold.
+    pub rehearse: bool,
 }
 
 impl Default for LoopConfig {
@@ -122,6 +125,7 @@ impl Default for LoopConfig {
             effector_metres_per_unit: 0.0,
             pipelined: false,
             fidelity_worker: false,
+            rehearse: false,
         }
     }
 }
@@ -274,6 +278,8 @@ pub struct Controller {
     input: InputPort,
     solve: Solve,
     channels: [f64; MAX_CHANNELS],
+    /// The pose a rehearsed solve works on ([`Controller::rehearse`]).
+    rehearsal: [f64; MAX_CHANNELS],
     angles: Vec<f64>,
     pose: Box<Pose64>,
     watch: [Option<usize>; 4],
@@ -398,6 +404,7 @@ impl Controller {
             input,
             solve,
             channels: [0.0; MAX_CHANNELS],
+            rehearsal: [0.0; MAX_CHANNELS],
             angles: angles.clone(),
             pose: Box::default(),
             watch,
@@ -601,6 +608,24 @@ impl Controller {
     #[must_use]
     pub fn input_finished(&self) -> bool {
         self.input.finished()
+    }
+
+    /// Makes the next tick's limb solve ahead, on a copy of the pose, keeping nothing: called
+    /// just before the tick's deadline, it leaves the solve's code and data in the caches,
+    /// which the wait (a sleep: the kernel, other processes) has evicted. Allocates nothing
+    /// (counted with the ticks' allocations).
+    pub fn rehearse(&mut self) {
+        let Solve::Follow(f) = &self.solve else { return };
+        let allocs = self.config.allocations.map(|f| f());
+        let k = self.solving.map_or(0, |p| p.next_effector);
+        let n = self.skeleton.channel_count();
+        self.rehearsal[..n].copy_from_slice(&self.channels[..n]);
+        if f.rehearse(&self.skeleton, &mut self.rehearsal[..n], k) {
+            self.stats.solves_rehearsed += 1;
+        }
+        if let (Some(f), Some(before)) = (self.config.allocations, allocs) {
+            *self.stats.allocations_in_tick.get_or_insert(0) += f().saturating_sub(before);
+        }
     }
 
     /// One tick at `tick` (from [`crate::schedule::Schedule::wait`]), in its phases (`control/tick.rs`): the

@@ -80,6 +80,9 @@ pub struct LoopStats {
     pub inputs_used: u64,
     /// Inputs taken ahead whose solve was spread over several ticks.
     pub inputs_spread: u64,
+    /// Limb solves made ahead of their tick, on a copy of the pose, to warm the caches
+    /// ([`super::Controller::rehearse`]).
+    pub solves_rehearsed: u64,
     /// Ticks without a new input (the last one used again).
     pub inputs_stale: u64,
     /// Inputs refused (non-finite values, wrong size, unsolvable).
@@ -225,6 +228,7 @@ impl LoopStats {
             reads_ok: self.reads_ok,
             inputs_used: self.inputs_used,
             inputs_spread: self.inputs_spread,
+            solves_rehearsed: self.solves_rehearsed,
             inputs_stale: self.inputs_stale,
             inputs_rejected: self.inputs_rejected,
             commands_refused: self.commands_refused,
@@ -304,6 +308,8 @@ pub struct Report {
     pub inputs_used: u64,
     /// Inputs whose solve was spread over several ticks.
     pub inputs_spread: u64,
+    /// Limb solves made ahead of their tick to warm the caches.
+    pub solves_rehearsed: u64,
     /// Ticks without a new input.
     pub inputs_stale: u64,
     /// Inputs refused.
@@ -441,6 +447,13 @@ impl fmt::Display for LoopStats {
             "inputs used     {}  stale ticks {}  rejected {}  solved over several ticks {}",
             self.inputs_used, self.inputs_stale, self.inputs_rejected, self.inputs_spread
         )?;
+        if self.solves_rehearsed > 0 {
+            writeln!(
+                f,
+                "solves rehearsed {} (ahead of their ticks, to warm the caches)",
+                self.solves_rehearsed
+            )?;
+        }
         if self.ik_error_n > 0 {
             writeln!(
                 f,

@@ -10,6 +10,9 @@ use crate::servo::{addr, MAX_SERVOS};
 /// swing for 0.14–0.6 s).
 pub const FINISH_STEP_S: f64 = 1.0;
 
+/// How long before a tick's deadline its solve is rehearsed, ns.
+const REHEARSAL_LEAD_NS: u64 = 40_000;
+
 impl Controller {
     /// Runs ticks on `schedule` until the input ends, `max_ticks` pass, a stop is requested,
     /// reads fail for the torque-off time or the port fails; then (except after a fault) ramps
@@ -24,6 +27,10 @@ impl Controller {
         let why = loop {
             if stop.made() > 0 {
                 break RunEnd::Interrupted;
+            }
+            if self.config.rehearse {
+                clock.wait_until(schedule.next_deadline().saturating_sub(REHEARSAL_LEAD_NS));
+                self.rehearse();
             }
             let tick = schedule.wait(clock);
             if stop.made() > 0 {

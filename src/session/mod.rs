@@ -232,6 +232,10 @@ pub struct SessionSpec {
     /// pose's static load (its stiffness from its model and Position P Gain), so that the
     /// horn ends on the angle. Off for a robot on a stand.
     pub load_compensation: bool,
+    /// In a real-time run, make the next tick's limb solve ahead while the loop waits for its
+    /// deadline ([`crate::control::Controller::rehearse`]), so that the tick finds its code and
+    /// data in the caches.
+    pub rehearse: bool,
     /// Watch the servos' temperature, supply and hardware errors from the loop
     /// ([`crate::control::health`]).
     pub health: bool,
@@ -272,6 +276,7 @@ impl Default for SessionSpec {
             walk: false,
             imu: ImuUse::Off,
             load_compensation: true,
+            rehearse: true,
             health: true,
             scale: 0.3,
             real_time: RealTime::default(),
@@ -350,6 +355,7 @@ impl SessionSpec {
             // reads.
             pipelined: profile.bus.pipeline,
             fidelity_worker: real_time,
+            rehearse: real_time && self.rehearse,
             allocations: if real_time { self.allocations } else { None },
         }
     }
