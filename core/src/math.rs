@@ -71,11 +71,23 @@ pub mod real {
     real_fns! {
         atan / atanf (x) -> Real;
         atan2 / atan2f (y, x) -> Real;
-        fabs / fabsf (x) -> Real;
-        copysign / copysignf (x, y) -> Real;
         fmod / fmodf (x, y) -> Real;
         hypot / hypotf (x, y) -> Real;
         remainder / remainderf (x, y) -> Real;
+    }
+
+    /// `|x|`: the sign bit cleared (core's; one instruction, where libm's is a call).
+    #[inline]
+    #[must_use]
+    pub fn fabs(x: Real) -> Real {
+        x.abs()
+    }
+
+    /// `x` with the sign of `y` (core's; a bit operation, where libm's is a call).
+    #[inline]
+    #[must_use]
+    pub fn copysign(x: Real, y: Real) -> Real {
+        x.copysign(y)
     }
 
     /// The nearest integer, halves away from zero: libm's in f64; in f32, [`super::round_f32`]
