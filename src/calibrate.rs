@@ -16,7 +16,7 @@
 
 use std::time::Duration;
 
-use crate::bus::{retried, BusError, Registers, ServoBus};
+use crate::bus::{retried, retried_quickly, BusError, Registers, ServoBus};
 use crate::profile::{Drive, Profile, ServoSpec};
 use crate::servo::{addr, MAX_TICK, TICKS_PER_TURN};
 
@@ -222,11 +222,13 @@ fn write(bus: &mut dyn ServoBus, id: u8, address: u16, data: &[u8]) -> Result<()
     retried(|| bus.write(id, address, data))
 }
 
-/// Torque off on every profiled servo (each tried on a busy line; the first error returned).
+/// Torque off on every profiled servo (each tried three times on a busy line, as a stop does,
+/// so that a rig gone silent is not waited for [`crate::bus::PATIENCE`] a servo; the first
+/// error returned).
 fn all_torque_off(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(), BusError> {
     let mut first = None;
     for s in &profile.servos {
-        if let Err(e) = retried(|| bus.set_torque(s.id, false)) {
+        if let Err(e) = retried_quickly(|| bus.set_torque(s.id, false)) {
             first.get_or_insert(e);
         }
     }
