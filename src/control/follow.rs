@@ -32,6 +32,19 @@ pub struct Effector {
     pointer: Option<(usize, Option<Box<Solver>>)>,
 }
 
+/// The swivel a limb's next solve searches after `previous` (its last solve's): the first
+/// the whole circle, later ones a window around the previous swivel (no elbow flips, a quarter
+/// of the work).
+fn next_swivel(previous: Option<f64>) -> Swivel {
+    match previous {
+        Some(previous) => Swivel::Track {
+            previous,
+            window: SWIVEL_WINDOW,
+        },
+        None => Swivel::Auto { previous: None },
+    }
+}
+
 /// Why a follower cannot be set up.
 #[derive(Debug, thiserror::Error)]
 pub enum FollowError {
@@ -202,9 +215,6 @@ impl Follower {
         self.effectors.iter().map(|e| e.name.as_str())
     }
 
-    /// Solves the effectors in `which` that have a target, in place on `channels`, counting
-    /// unreachable ones and residuals in `stats`. An input's effectors may be solved a few at
-    /// a time, in order, on the same channels: the result is the same.
     /// Solves effector `k`'s present target on `scratch` (a copy of the pose, changed) and
     /// keeps nothing: the solve the next tick makes, made ahead while the loop waits, so that
     /// its code and data are in the caches when the tick comes. A limb only; returns whether
@@ -214,19 +224,15 @@ impl Follower {
             return false;
         };
         if let EffectorSolver::Limb(limb) = &e.solver {
-            let swivel = match e.swivel {
-                Some(previous) => Swivel::Track {
-                    previous,
-                    window: SWIVEL_WINDOW,
-                },
-                None => Swivel::Auto { previous: None },
-            };
-            std::hint::black_box(limb.solve(skeleton, scratch, t.position, swivel));
+            std::hint::black_box(limb.solve(skeleton, scratch, t.position, next_swivel(e.swivel)));
             return true;
         }
         false
     }
 
+    /// Solves the effectors in `which` that have a target, in place on `channels`, counting
+    /// unreachable ones and residuals in `stats`. An input's effectors may be solved a few at
+    /// a time, in order, on the same channels: the result is the same.
     pub(super) fn solve_some(
         &mut self,
         skeleton: &Skeleton,
@@ -243,17 +249,9 @@ impl Follower {
             .skip(which.start)
         {
             let Some(t) = self.targets[k] else { continue };
+            let swivel = next_swivel(e.swivel);
             let residual = match &mut e.solver {
                 EffectorSolver::Limb(limb) => {
-                    // The first solve searches the whole swivel circle, later ones a window
-                    // around the previous swivel (no elbow flips, a quarter of the work).
-                    let swivel = match e.swivel {
-                        Some(previous) => Swivel::Track {
-                            previous,
-                            window: SWIVEL_WINDOW,
-                        },
-                        None => Swivel::Auto { previous: None },
-                    };
                     let s = limb.solve(skeleton, channels, t.position, swivel);
                     e.swivel = Some(s.swivel);
                     if !s.reachable {

@@ -623,7 +623,13 @@ impl Controller {
         if f.rehearse(&self.skeleton, &mut self.rehearsal[..n], k) {
             self.stats.solves_rehearsed += 1;
         }
-        if let (Some(f), Some(before)) = (self.config.allocations, allocs) {
+        self.count_allocations_since(allocs);
+    }
+
+    /// Adds the allocations made since `before` (the counter's reading, when counting) to
+    /// the ticks'.
+    fn count_allocations_since(&mut self, before: Option<u64>) {
+        if let (Some(f), Some(before)) = (self.config.allocations, before) {
             *self.stats.allocations_in_tick.get_or_insert(0) += f().saturating_sub(before);
         }
     }
@@ -670,9 +676,7 @@ impl Controller {
         };
         let done_bus = self.exchange(tick, bus, clock, &command, &current, replies);
         self.report(tick, start, clock.now_ns(), &command, &current, &done_bus);
-        if let (Some(f), Some(before)) = (self.config.allocations, allocs) {
-            *self.stats.allocations_in_tick.get_or_insert(0) += f().saturating_sub(before);
-        }
+        self.count_allocations_since(allocs);
         let mut end = done_bus.end;
         if end.is_none() && unhealthy {
             end = Some(RunEnd::Health);
