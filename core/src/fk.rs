@@ -14,9 +14,10 @@
 //! [`forward_kinematics`] works in f32 on file frames (the display and the f32 pose);
 //! [`fk64`] in f64 on channel vectors in radians (what IK and the control loop use).
 
+use crate::math::sincos_f32;
 use crate::math::Axis;
 use crate::math::{Real, RealMat3, RealVec3, ToReal};
-use crate::skeleton::{rotate_about, Bone, Dof, Skeleton, MAX_BONES};
+use crate::skeleton::{turn_columns, Bone, Dof, Skeleton, MAX_BONES};
 use glam::{Mat3, Mat3A, Vec3, Vec3A};
 
 /// Global state of every bone for one frame.
@@ -74,51 +75,54 @@ impl core::error::Error for ShortFrame {}
 
 /// The rotation of a bone's channels, `M = R(last)·…·R(first)`, and its translation and
 /// length channels.
-#[inline]
 #[must_use]
 pub fn channel_transform(dofs: &[Dof], values: &[f32]) -> (Mat3, Vec3, f32) {
-    let (m, t, l) = channel_transform_aligned(dofs, values);
-    (Mat3::from(m), t, l)
-}
-
-/// [`channel_transform`] in glam's aligned matrix, as [`forward_kinematics`] multiplies it.
-#[inline]
-fn channel_transform_aligned(dofs: &[Dof], values: &[f32]) -> (Mat3A, Vec3, f32) {
     let mut m = Mat3A::IDENTITY;
     let mut t = Vec3::ZERO;
     let mut l = 0.0;
-    for (d, &v) in dofs.iter().zip(values) {
+    for (d, &v) in dofs.iter().zip(values).rev() {
         match d {
-            Dof::Rx => rotate_about_f32(&mut m, Axis::X, v),
-            Dof::Ry => rotate_about_f32(&mut m, Axis::Y, v),
-            Dof::Rz => rotate_about_f32(&mut m, Axis::Z, v),
+            Dof::Rx => {
+                turn_columns_f32(&mut m, Axis::X, v);
+            }
+            Dof::Ry => {
+                turn_columns_f32(&mut m, Axis::Y, v);
+            }
+            Dof::Rz => {
+                turn_columns_f32(&mut m, Axis::Z, v);
+            }
             Dof::Tx => t.x = v,
             Dof::Ty => t.y = v,
             Dof::Tz => t.z = v,
             Dof::L => l = v,
         }
     }
-    (m, t, l)
+    (Mat3::from(m), t, l)
 }
 
-/// `m ← R_axis(a)·m` in f32 (one factor of eq. 2): only the two rows across the axis change; a
-/// zero angle leaves `m` as it is.
+/// `m ← m·R_axis(a)` in f32, one factor of eq. (2) taken from the right: only the two columns
+/// across the axis change (four vector products in glam's aligned columns). A zero angle leaves
+/// `m` as it is; the result says whether it turned.
 #[inline]
-fn rotate_about_f32(m: &mut Mat3A, axis: Axis, a: f32) {
+fn turn_columns_f32(m: &mut Mat3A, axis: Axis, a: f32) -> bool {
     if a == 0.0 {
-        return;
+        return false;
     }
-    let (s, c) = libm::sincosf(a);
+    let (s, c) = sincos_f32(a);
     let (i, j) = axis.across();
-    for col in [&mut m.x_axis, &mut m.y_axis, &mut m.z_axis] {
-        let (u, v) = (col[i], col[j]);
-        col[i] = c * u - s * v;
-        col[j] = s * u + c * v;
-    }
+    let (u, v) = (m.col(i), m.col(j));
+    *m.col_mut(i) = c * u + s * v;
+    *m.col_mut(j) = c * v - s * u;
+    true
 }
 
 /// Computes every bone's start, tip and orientation for one frame vector (radians, file
 /// units), eq. (1)–(5).
+///
+/// The channel rotations are taken into the frame from the right, `F = (Wₚ·C)·R(last)·…·R(first)`,
+/// two columns at a time, rather than built into `M` and multiplied: per bone one product for
+/// `Wₚ·C`, one for `W = F·Cᵀ` (neither where `C` is the identity) and a pair of column updates
+/// per rotation channel.
 ///
 /// # Errors
 /// [`ShortFrame`] when `channels` is shorter than [`Skeleton::channel_count`].
@@ -130,28 +134,50 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
         });
     }
     for (i, bone) in skeleton.bones().iter().enumerate() {
-        let (m, t, l) = channel_transform_aligned(bone.dofs(), &channels[bone.channels()]);
-        match bone.parent() {
+        let c = Mat3A::from(bone.axis_rotation());
+        let parent = bone
+            .parent()
+            .map(|p| (Mat3A::from(pose.world[p]), Vec3A::from(pose.tip[p])));
+        // The parent's axes, `Wₚ·C` (the root: the `:root orientation` `O`).
+        let axes = match parent {
+            None => c,
+            Some((parent_world, _)) if bone.axis_is_identity() => parent_world,
+            Some((parent_world, _)) => parent_world * c,
+        };
+        let mut f = axes;
+        let mut t = Vec3A::ZERO;
+        let mut l = 0.0;
+        let mut turned = false;
+        for (d, &v) in bone.dofs().iter().zip(&channels[bone.channels()]).rev() {
+            match d {
+                Dof::Rx => turned |= turn_columns_f32(&mut f, Axis::X, v),
+                Dof::Ry => turned |= turn_columns_f32(&mut f, Axis::Y, v),
+                Dof::Rz => turned |= turn_columns_f32(&mut f, Axis::Z, v),
+                Dof::Tx => t.x = v,
+                Dof::Ty => t.y = v,
+                Dof::Tz => t.z = v,
+                Dof::L => l = v,
+            }
+        }
+        match parent {
             None => {
-                let w = Mat3::from(Mat3A::from(bone.axis_rotation()) * m);
-                let p = skeleton.root().position + t;
-                pose.frame[i] = w;
-                pose.world[i] = w;
+                let p = skeleton.root().position + Vec3::from(t);
+                pose.frame[i] = Mat3::from(f);
+                pose.world[i] = Mat3::from(f);
                 pose.start[i] = p;
                 pose.tip[i] = p;
             }
-            Some(p) => {
-                // The products in glam's aligned (SIMD where the target has it) matrices.
-                let c = Mat3A::from(bone.axis_rotation());
-                let parent_world = Mat3A::from(pose.world[p]);
-                let parent_axes = parent_world * c;
-                let start = Vec3A::from(pose.tip[p]) + parent_axes * Vec3A::from(t);
-                // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
-                let (f, world) = if m == Mat3A::IDENTITY {
-                    (parent_axes, parent_world)
+            Some((parent_world, parent_tip)) => {
+                let start = if t == Vec3A::ZERO {
+                    parent_tip
                 } else {
-                    let f = parent_axes * m;
-                    (f, f * c.transpose())
+                    parent_tip + axes * t
+                };
+                // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
+                let world = match (turned, bone.axis_is_identity()) {
+                    (false, _) => parent_world,
+                    (true, true) => f,
+                    (true, false) => f * c.transpose(),
                 };
                 pose.frame[i] = Mat3::from(f);
                 pose.world[i] = Mat3::from(world);
@@ -217,7 +243,8 @@ pub fn ancestors(skeleton: &Skeleton, bone: usize) -> heapless::Vec<usize, MAX_B
 }
 
 /// One bone's pose in f64 from its parent's world rotation and tip (`None` for the root):
-/// `(frame, world, start, tip)` as in [`Pose64`], eq. (1)–(5).
+/// `(frame, world, start, tip)` as in [`Pose64`], eq. (1)–(5). The channel rotations are taken
+/// into the frame from the right, as [`forward_kinematics`] does.
 #[must_use]
 pub fn fk64_step(
     skeleton: &Skeleton,
@@ -225,41 +252,59 @@ pub fn fk64_step(
     i: usize,
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> (RealMat3, RealMat3, RealVec3, RealVec3) {
+    step(skeleton, channels, i, parent)
+}
+
+/// [`fk64_step`], inlined where [`fk64`] stores its results straight into the pose.
+#[inline(always)]
+fn step(
+    skeleton: &Skeleton,
+    channels: &[Real],
+    i: usize,
+    parent: Option<(&RealMat3, RealVec3)>,
+) -> (RealMat3, RealMat3, RealVec3, RealVec3) {
     let bone = &skeleton.bones()[i];
-    // One pass over the DOFs: the rotations into `M` (eq. 2), the translations and the
-    // length change apart.
-    let mut m = RealMat3::IDENTITY;
+    let c = bone.axis_rotation_f64();
+    let axes = match parent {
+        None => c,
+        Some((parent_world, _)) if bone.axis_is_identity() => *parent_world,
+        Some((parent_world, _)) => *parent_world * c,
+    };
+    // One pass over the DOFs, last first: `F = axes·R(last)·…·R(first)` (eq. 2), the
+    // translations and the length change apart.
+    let mut f = axes;
     let mut t = RealVec3::ZERO;
     let mut l = 0.0;
+    let mut turned = false;
     let first = bone.first_channel();
-    for (k, d) in bone.dofs().iter().enumerate() {
+    for (k, d) in bone.dofs().iter().enumerate().rev() {
         let v = channels.get(first + k).copied().unwrap_or(0.0);
         match d {
             Dof::Tx => t.x = v,
             Dof::Ty => t.y = v,
             Dof::Tz => t.z = v,
             Dof::L => l = v,
-            Dof::Rx => rotate_about(&mut m, Axis::X, v),
-            Dof::Ry => rotate_about(&mut m, Axis::Y, v),
-            Dof::Rz => rotate_about(&mut m, Axis::Z, v),
+            Dof::Rx => turned |= turn_columns(&mut f, Axis::X, v),
+            Dof::Ry => turned |= turn_columns(&mut f, Axis::Y, v),
+            Dof::Rz => turned |= turn_columns(&mut f, Axis::Z, v),
         }
     }
-    let c = bone.axis_rotation_f64();
     match parent {
         None => {
-            let w = c * m;
             let p = skeleton.root().position.to_real() + t;
-            (w, w, p, p)
+            (f, f, p, p)
         }
         Some((parent_world, parent_tip)) => {
-            let axes = *parent_world * c;
-            let start = parent_tip + axes * t;
-            // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
-            let (f, world) = if m == RealMat3::IDENTITY {
-                (axes, *parent_world)
+            let start = if t == RealVec3::ZERO {
+                parent_tip
             } else {
-                let f = axes * m;
-                (f, f * c.transpose())
+                parent_tip + axes * t
+            };
+            // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
+            let world = match (turned, bone.axis_is_identity()) {
+                (false, _) => *parent_world,
+                (true, true) => f,
+                (true, false) => f * c.transpose(),
             };
             let tip = start + world * (bone.direction_f64() * ((bone.length() as Real) + l));
             (f, world, start, tip)
@@ -327,7 +372,7 @@ fn fk64_bone(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64, i: usize
     let parent = skeleton.bones()[i]
         .parent()
         .map(|p| (&pose.world[p], pose.tip[p]));
-    let (frame, world, start, tip) = fk64_step(skeleton, channels, i, parent);
+    let (frame, world, start, tip) = step(skeleton, channels, i, parent);
     pose.frame[i] = frame;
     pose.world[i] = world;
     pose.start[i] = start;

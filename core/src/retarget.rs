@@ -411,7 +411,7 @@ pub fn angles_about_two(a1: RealVec3, a2: RealVec3, v: RealVec3, t: RealVec3) ->
     let mut out = [(0.0, 0.0); 2];
     for (o, q2) in out.iter_mut().zip([phi + delta, phi - delta]) {
         let q2 = wrap(q2);
-        let v2 = RealQuat::from_axis_angle(a2, q2) * v;
+        let v2 = crate::math::quat_from_axis_angle(a2, q2) * v;
         *o = (angle_about(a1, v2, t), q2);
     }
     out
@@ -484,7 +484,7 @@ struct Screw {
 
 impl Screw {
     fn rot(&self, q: Real) -> RealQuat {
-        RealQuat::from_axis_angle(self.axis, q)
+        crate::math::quat_from_axis_angle(self.axis, q)
     }
 
     /// Moves a point by this joint turned by `q`.

@@ -281,7 +281,7 @@ impl Robot {
                 let joint = &self.joints[j];
                 let angle = q.get(j).copied().unwrap_or(0.0);
                 let anchor = pos + rot * joint.anchor;
-                rot *= RealQuat::from_axis_angle(joint.axis, angle);
+                rot *= crate::math::quat_from_axis_angle(joint.axis, angle);
                 pos = anchor - rot * joint.anchor;
             }
             pose.pos[i] = pos;

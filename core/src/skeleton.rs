@@ -208,6 +208,38 @@ pub fn rotate_about(m: &mut RealMat3, axis: crate::math::Axis, a: Real) {
     }
 }
 
+/// `m ← m·R_axis(a)` (one factor of eq. 2 taken from the right): only the two columns across
+/// the axis change. A zero angle leaves `m` as it is; the result says whether it turned.
+#[inline]
+pub fn turn_columns(m: &mut RealMat3, axis: crate::math::Axis, a: Real) -> bool {
+    if a == 0.0 {
+        return false;
+    }
+    let (s, c) = real::sincos(a);
+    let (i, j) = axis.across();
+    let (u, v) = (m.col(i), m.col(j));
+    *m.col_mut(i) = c * u + s * v;
+    *m.col_mut(j) = c * v - s * u;
+    true
+}
+
+/// `const` tests that a matrix's columns (`to_cols_array`) are exactly the identity's.
+macro_rules! identity_test {
+    ($($name:ident: $t:ty),*) => {$(
+        const fn $name(e: [$t; 9]) -> bool {
+            let mut i = 0;
+            while i < 9 {
+                if e[i] != if i % 4 == 0 { 1.0 } else { 0.0 } {
+                    return false;
+                }
+                i += 1;
+            }
+            true
+        }
+    )*};
+}
+identity_test!(is_identity: f32, is_identity_real: Real);
+
 /// `c` in f64, re-orthonormalised through a quaternion.
 fn orthonormal_f64(c: Mat3) -> RealMat3 {
     RealMat3::from_quat(RealQuat::from_mat3(&c.to_real()).normalize())
@@ -337,6 +369,8 @@ pub struct Bone {
     axis_rotation_f64: RealMat3,
     /// The rest direction in f64, unit length (zero for a zero direction).
     direction_f64: RealVec3,
+    /// Whether `C` is the identity (an ASF `axis 0 0 0`): FK skips its products.
+    axis_is_identity: bool,
 }
 
 impl Bone {
@@ -359,6 +393,8 @@ impl Bone {
             let _ = axis_rotation;
             axis_rotation_f64
         };
+        let axis_is_identity =
+            is_identity(axis_rotation.to_cols_array()) && is_identity_real(axis_rotation_f64.to_cols_array());
         Bone {
             spec,
             parent,
@@ -368,7 +404,14 @@ impl Bone {
             #[cfg(not(feature = "f32"))]
             axis_rotation_f64,
             direction_f64,
+            axis_is_identity,
         }
+    }
+
+    /// Whether the rest frame `C` is the identity (in both precisions), so that `W·C = W`.
+    #[must_use]
+    pub fn axis_is_identity(&self) -> bool {
+        self.axis_is_identity
     }
 
     /// The bone's name.
