@@ -763,7 +763,7 @@ fn planned_commands_keep_every_limit(
     let look = Lookahead::new(&rig, rate, &[0.0, 0.02, 0.1], settings);
     let ahead = look.preview_ns() / period + 1;
     let mut look = look;
-    let mut preview = Preview::new(ahead as usize + 8);
+    let mut preview = Preview::new(ahead as usize + 8, rig.len(), 0);
     let mut stage = CommandStage::new(3);
     let rest: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
     stage.start_from(&rig, &rest);
@@ -793,7 +793,7 @@ fn planned_commands_keep_every_limit(
                 *w = 0.0;
             }
         }
-        preview.push(sample);
+        preview.push(&sample);
         preview.advance(k * period + period / 2);
         preview.live = k % 3 == 0;
         let targets = look

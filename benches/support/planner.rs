@@ -20,7 +20,7 @@ pub fn walk_planner(
     rig: &Rig,
 ) -> (Lookahead, CommandStage, Preview) {
     let present: Vec<i32> = rig.servos.iter().map(ServoMap::rest_tick).collect();
-    let mut preview = Preview::new(256);
+    let mut preview = Preview::new(256, rig.len(), skel.channel_count());
     let mut angles = vec![0.0; rig.len()];
     let mut player = ClipPlayer::new(Arc::clone(skel), Arc::clone(motion), 500.0, true);
     let mut buf = [0.0; MAX_CHANNELS];
@@ -33,7 +33,7 @@ pub fn walk_planner(
             ..SourceSample::default()
         };
         sample.angles[..rig.len()].copy_from_slice(&angles);
-        preview.push(sample);
+        preview.push(&sample);
     }
     preview.advance(1_000_000);
     preview.live = false;

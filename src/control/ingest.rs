@@ -215,7 +215,7 @@ impl Controller {
             if let Some(r) = &mut self.retarget {
                 r.load_offsets(&self.rig, &mut sample.load_offset[..len]);
             }
-            self.preview.push(sample);
+            self.preview.push(&sample);
         }
     }
 }

@@ -60,11 +60,65 @@ impl Default for SourceSample {
     }
 }
 
+/// A sample in the [`Preview`]: what it keeps of a [`SourceSample`], the per-servo and
+/// per-channel values borrowed from its compact tables.
+#[derive(Clone, Copy, Debug)]
+pub struct Sample<'a> {
+    /// Loop-clock time it stands for, ns.
+    pub due_ns: u64,
+    /// Clip time (play), seconds; NaN for targets.
+    pub clip_time: f64,
+    /// Loop-clock time the input behind it was made, ns (0 when unknown).
+    pub made_ns: u64,
+    /// Joint angle per servo of the rig, radians.
+    pub angles: &'a [f64],
+    /// Per servo of the rig, its load compensation, radians.
+    pub load_offset: &'a [f64],
+    /// The pose's channels, as many as the skeleton has.
+    pub channels: &'a [f64],
+    /// Tips of the watched bones (root frame, file units).
+    pub tips: [DVec3; 4],
+    /// Robot effectors at the source (retargeting), metres.
+    pub effectors: [DVec3; 4],
+    /// Where the retargeting placed the robot's base.
+    pub base: (DVec3, DQuat),
+    /// Which feet (left, right) bear weight at the source.
+    pub contact: [bool; 2],
+}
+
+/// What the preview keeps of a sample besides its tables' rows, and which row is its.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    due_ns: u64,
+    clip_time: f64,
+    made_ns: u64,
+    tips: [DVec3; 4],
+    effectors: [DVec3; 4],
+    base: (DVec3, DQuat),
+    contact: [bool; 2],
+    row: usize,
+}
+
 /// Samples in time order: a little history (for extrapolation), the current one and the
 /// future ones taken ahead. Fixed capacity: when full, the oldest goes.
+///
+/// The values are kept as compactly as the rig and the skeleton allow: each sample's angles and
+/// load offsets (two per servo of the rig) in one row of one table, its channels (as many as
+/// the skeleton has) in a row of another, rows taken in turn. A [`SourceSample`] is sized for
+/// the largest rig and skeleton (4.6 KB); a preview of them spread each sample over its own
+/// pages, and the loop touched a page per sample it planned over.
 #[derive(Debug)]
 pub struct Preview {
-    samples: VecDeque<SourceSample>,
+    entries: VecDeque<Entry>,
+    /// Per row: the servos' angles, then their load offsets.
+    servo_rows: Vec<f64>,
+    /// Per row: the channels.
+    channel_rows: Vec<f64>,
+    servos: usize,
+    channels: usize,
+    /// The row the next sample takes (rows are taken in turn and let go oldest first, so the
+    /// oldest entry's row is the next one when the preview is full).
+    next_row: usize,
     capacity: usize,
     /// Index of the current sample, when there is one.
     current: Option<usize>,
@@ -77,76 +131,141 @@ pub struct Preview {
 const HISTORY: usize = 2;
 
 impl Preview {
-    /// Room for `capacity` samples (at least four).
+    /// Room for `capacity` samples (at least four) of `servos` servos (at most
+    /// [`MAX_SERVOS`]) and `channels` channels (at most [`MAX_CHANNELS`]).
     #[must_use]
-    pub fn new(capacity: usize) -> Preview {
+    pub fn new(capacity: usize, servos: usize, channels: usize) -> Preview {
         let capacity = capacity.max(HISTORY + 2);
+        let (servos, channels) = (servos.min(MAX_SERVOS), channels.min(MAX_CHANNELS));
         Preview {
-            samples: VecDeque::with_capacity(capacity),
+            entries: VecDeque::with_capacity(capacity),
+            servo_rows: vec![0.0; capacity * 2 * servos],
+            channel_rows: vec![0.0; capacity * channels],
+            servos,
+            channels,
+            next_row: 0,
             capacity,
             current: None,
             live: true,
         }
     }
 
-    /// Adds the newest sample. A sample older than the newest (a producer that started over)
+    /// Adds the newest sample (its first `servos` angles and load offsets, its first
+    /// `channels` channels). A sample older than the newest (a producer that started over)
     /// starts the preview anew. Never grows the storage.
-    pub fn push(&mut self, sample: SourceSample) {
-        if self.samples.back().is_some_and(|b| sample.due_ns < b.due_ns) {
+    pub fn push(&mut self, sample: &SourceSample) {
+        if self.entries.back().is_some_and(|b| sample.due_ns < b.due_ns) {
             self.clear();
         }
-        if self.samples.len() == self.capacity {
-            self.samples.pop_front();
+        if self.entries.len() == self.capacity {
+            self.entries.pop_front();
             self.current = self.current.and_then(|c| c.checked_sub(1));
         }
-        self.samples.push_back(sample);
+        let row = self.next_row;
+        self.next_row = (row + 1) % self.capacity;
+        let n = self.servos;
+        let servo_row = &mut self.servo_rows[row * 2 * n..(row + 1) * 2 * n];
+        servo_row[..n].copy_from_slice(&sample.angles[..n]);
+        servo_row[n..].copy_from_slice(&sample.load_offset[..n]);
+        let c = self.channels;
+        self.channel_rows[row * c..(row + 1) * c].copy_from_slice(&sample.channels[..c]);
+        self.entries.push_back(Entry {
+            due_ns: sample.due_ns,
+            clip_time: sample.clip_time,
+            made_ns: sample.made_ns,
+            tips: sample.tips,
+            effectors: sample.effectors,
+            base: sample.base,
+            contact: sample.contact,
+            row,
+        });
     }
 
     /// Makes the newest sample due by `due_by` current; returns whether it is a new one.
     /// Samples older than the history are let go.
     pub fn advance(&mut self, due_by: u64) -> bool {
-        let newest_due = self.samples.iter().rposition(|s| s.due_ns <= due_by);
+        let newest_due = self.entries.iter().rposition(|s| s.due_ns <= due_by);
         let fresh = newest_due.is_some() && newest_due != self.current;
         if let Some(c) = newest_due {
             let drop = c.saturating_sub(HISTORY);
-            self.samples.drain(..drop);
+            self.entries.drain(..drop);
             self.current = Some(c - drop);
         }
         fresh
     }
 
+    /// The sample an entry stands for.
+    fn sample(&self, e: &Entry) -> Sample<'_> {
+        let (n, c) = (self.servos, self.channels);
+        let servo_row = &self.servo_rows[e.row * 2 * n..(e.row + 1) * 2 * n];
+        Sample {
+            due_ns: e.due_ns,
+            clip_time: e.clip_time,
+            made_ns: e.made_ns,
+            angles: &servo_row[..n],
+            load_offset: &servo_row[n..],
+            channels: &self.channel_rows[e.row * c..(e.row + 1) * c],
+            tips: e.tips,
+            effectors: e.effectors,
+            base: e.base,
+            contact: e.contact,
+        }
+    }
+
     /// The current sample.
     #[must_use]
-    pub fn current(&self) -> Option<&SourceSample> {
-        self.current.and_then(|c| self.samples.get(c))
+    pub fn current(&self) -> Option<Sample<'_>> {
+        self.current
+            .and_then(|c| self.entries.get(c))
+            .map(|e| self.sample(e))
     }
 
     /// The sample due at `due_ns`, searched from the oldest kept (the current one is at most
     /// two from the front).
     #[must_use]
-    pub fn find(&self, due_ns: u64) -> Option<&SourceSample> {
-        self.samples
+    pub fn find(&self, due_ns: u64) -> Option<Sample<'_>> {
+        self.entries
             .iter()
             .take_while(|s| s.due_ns <= due_ns)
             .find(|s| s.due_ns == due_ns)
+            .map(|e| self.sample(e))
     }
 
     /// Whether samples after the current one wait.
     #[must_use]
     pub fn has_future(&self) -> bool {
-        self.samples.len() > self.current.map_or(0, |c| c + 1)
+        self.entries.len() > self.current.map_or(0, |c| c + 1)
     }
 
     /// Forgets everything (a restart).
     pub fn clear(&mut self) {
-        self.samples.clear();
+        self.entries.clear();
         self.current = None;
+        self.next_row = 0;
     }
 
     /// The newest sample.
     #[must_use]
-    pub fn newest(&self) -> Option<&SourceSample> {
-        self.samples.back()
+    pub fn newest(&self) -> Option<Sample<'_>> {
+        self.entries.back().map(|e| self.sample(e))
+    }
+
+    /// Servo `k`'s commanded angle (its angle and its load offset) in entry `i`; NaN for a
+    /// servo the preview was not made for.
+    fn command(&self, i: usize, k: usize) -> f64 {
+        let Some(e) = self.entries.get(i) else {
+            return f64::NAN;
+        };
+        let row = e.row * 2 * self.servos;
+        match (k < self.servos).then(|| {
+            (
+                self.servo_rows.get(row + k),
+                self.servo_rows.get(row + self.servos + k),
+            )
+        }) {
+            Some((Some(a), Some(o))) => a + o,
+            _ => f64::NAN,
+        }
     }
 
     /// Servo `k`'s source angle at `t_ns`: interpolated between samples; before the first,
@@ -161,8 +280,8 @@ impl Preview {
     /// Where `t_ns` falls, searching forward from sample `cursor` (updated) — for times in
     /// increasing order.
     fn locate(&self, t_ns: u64, cursor: &mut usize) -> Place {
-        let n = self.samples.len();
-        let Some(last) = self.samples.back() else {
+        let n = self.entries.len();
+        let Some(last) = self.entries.back() else {
             return Place::Empty;
         };
         if t_ns >= last.due_ns {
@@ -170,17 +289,17 @@ impl Preview {
         }
         // The first sample at or after t.
         let mut i = (*cursor).min(n - 1);
-        if i > 0 && self.samples[i - 1].due_ns >= t_ns {
-            i = self.samples.partition_point(|s| s.due_ns < t_ns);
+        if i > 0 && self.entries[i - 1].due_ns >= t_ns {
+            i = self.entries.partition_point(|s| s.due_ns < t_ns);
         }
-        while self.samples[i].due_ns < t_ns {
+        while self.entries[i].due_ns < t_ns {
             i += 1;
         }
         *cursor = i;
         if i == 0 {
             return Place::Between(0, 0.0);
         }
-        let (a, b) = (&self.samples[i - 1], &self.samples[i]);
+        let (a, b) = (&self.entries[i - 1], &self.entries[i]);
         Place::Between(
             i - 1,
             (t_ns - a.due_ns) as f64 / (b.due_ns - a.due_ns).max(1) as f64,
@@ -190,30 +309,29 @@ impl Preview {
     /// Servo `k`'s commanded angle (its angle and its load offset) at `place`
     /// ([`Preview::angle_at`]).
     fn angle(&self, k: usize, place: Place, extrapolate_ns: u64, max_rate: f64) -> f64 {
-        let n = self.samples.len();
-        let command = |s: &SourceSample| s.angles[k] + s.load_offset[k];
+        let n = self.entries.len();
         match place {
             Place::Empty => f64::NAN,
             Place::Between(i, f) => {
-                let a = command(&self.samples[i]);
+                let a = self.command(i, k);
                 if f == 0.0 {
                     a
                 } else {
-                    a + f * (command(&self.samples[i + 1]) - a)
+                    a + f * (self.command(i + 1, k) - a)
                 }
             }
             Place::Past(beyond) => {
-                let last = &self.samples[n - 1];
-                let a = command(last);
+                let a = self.command(n - 1, k);
                 if extrapolate_ns == 0 || n < 2 {
                     return a;
                 }
-                let before = &self.samples[n - 2];
-                let span = last.due_ns.saturating_sub(before.due_ns);
+                let span = self.entries[n - 1]
+                    .due_ns
+                    .saturating_sub(self.entries[n - 2].due_ns);
                 if span == 0 {
                     return a;
                 }
-                let rate = ((a - command(before)) / (span as f64 * 1e-9)).clamp(-max_rate, max_rate);
+                let rate = ((a - self.command(n - 2, k)) / (span as f64 * 1e-9)).clamp(-max_rate, max_rate);
                 a + rate * beyond.min(extrapolate_ns) as f64 * 1e-9
             }
         }
@@ -438,14 +556,17 @@ mod tests {
             ..SourceSample::default()
         };
         s.angles[0] = a;
+        s.angles[27] = a;
+        s.load_offset[27] = -a;
+        s.channels[61] = a;
         s
     }
 
     #[test]
     fn the_preview_interpolates_and_extrapolates_within_bounds() {
-        let mut p = Preview::new(8);
+        let mut p = Preview::new(8, 28, 62);
         for i in 0..5u64 {
-            p.push(sample(i * 10, i as f64));
+            p.push(&sample(i * 10, i as f64));
         }
         assert!(p.advance(12));
         assert_eq!(p.current().unwrap().due_ns, 10);
@@ -458,15 +579,36 @@ mod tests {
         assert!((p.angle_at(0, 60, 5, 1e9) - 4.5).abs() < 1e-9);
         assert!((p.angle_at(0, 60, 5, 1e6) - (4.0 + 1e6 * 5e-9)).abs() < 1e-12);
         // Full: the oldest goes, the storage does not grow.
-        let room = p.samples.capacity();
+        let room = (
+            p.entries.capacity(),
+            p.servo_rows.capacity(),
+            p.channel_rows.capacity(),
+        );
         for i in 5..20u64 {
-            p.push(sample(i * 10, i as f64));
+            p.push(&sample(i * 10, i as f64));
         }
-        assert_eq!(p.samples.len(), 8);
-        assert_eq!(p.samples.capacity(), room);
+        assert_eq!(p.entries.len(), 8);
+        assert_eq!(
+            (
+                p.entries.capacity(),
+                p.servo_rows.capacity(),
+                p.channel_rows.capacity()
+            ),
+            room
+        );
+        // Each kept sample reads back its own values from its rows.
+        for (i, e) in p.entries.iter().enumerate() {
+            let s = p.sample(e);
+            assert_eq!(s.angles.len(), 28);
+            assert_eq!(s.channels.len(), 62);
+            assert_eq!(s.angles[0], (e.due_ns / 10) as f64);
+            assert_eq!(s.channels[61], (e.due_ns / 10) as f64);
+            assert_eq!(s.load_offset[27], -((e.due_ns / 10) as f64));
+            assert_eq!(p.command(i, 27), 0.0);
+        }
         // A producer that starts over starts the preview anew.
         p.advance(150);
-        p.push(sample(5, -1.0));
+        p.push(&sample(5, -1.0));
         assert_eq!(p.newest().unwrap().angles[0], -1.0);
         assert!(p.current().is_none());
         assert!(p.advance(5));

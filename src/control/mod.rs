@@ -374,6 +374,7 @@ impl Controller {
         // Bones are stored parents first, so ascending indices are a valid FK order.
         let watched_chains = (0..skeleton.bones().len()).filter(|&b| on_chain[b]).collect();
         let n = rig.len();
+        let channel_count = skeleton.channel_count();
         let period_ns = (1e9 / config.rate_hz).round().max(1.0) as u64;
         // The joint angles of the present positions: the reference for Euler re-decomposition.
         let angles: Vec<f64> = rig
@@ -416,7 +417,7 @@ impl Controller {
             rest_pose: None,
             have_input: false,
             clip_time: f64::NAN,
-            preview: Preview::new(8),
+            preview: Preview::new(8, angles.len(), channel_count),
             preview_ns: 0,
             lookahead: None,
             last_due: None,
@@ -499,7 +500,11 @@ impl Controller {
     pub fn set_lookahead(&mut self, lookahead: Lookahead) {
         self.preview_ns = lookahead.preview_ns();
         let ticks = (self.preview_ns / self.period_ns.max(1)) as usize;
-        self.preview = Preview::new(ticks + MAX_INGEST + 8);
+        self.preview = Preview::new(
+            ticks + MAX_INGEST + 8,
+            self.ids.len(),
+            self.skeleton.channel_count(),
+        );
         self.lookahead = Some(Box::new(lookahead));
         if let Some(r) = &mut self.retarget {
             r.reserve(ticks + MAX_INGEST + 8);

@@ -196,7 +196,7 @@ impl Controller {
         } else {
             self.angles.copy_from_slice(&self.measure.source_angles);
             if let Some(c) = self.preview.current() {
-                for (a, o) in self.angles.iter_mut().zip(&c.load_offset) {
+                for (a, o) in self.angles.iter_mut().zip(c.load_offset) {
                     *a += o;
                 }
             }
