@@ -252,20 +252,21 @@ impl Preview {
 
     /// Servo `k`'s commanded angle (its angle and its load offset) in entry `i`; NaN for a
     /// servo the preview was not made for.
+    #[inline]
     fn command(&self, i: usize, k: usize) -> f64 {
-        let Some(e) = self.entries.get(i) else {
+        let n = self.servos;
+        if k >= n {
             return f64::NAN;
-        };
-        let row = e.row * 2 * self.servos;
-        match (k < self.servos).then(|| {
-            (
-                self.servo_rows.get(row + k),
-                self.servo_rows.get(row + self.servos + k),
-            )
-        }) {
-            Some((Some(a), Some(o))) => a + o,
-            _ => f64::NAN,
         }
+        // Rows are taken in turn, so entry `i`'s is `i` after the oldest's, which is `len` before
+        // the next one: found without reading the entry.
+        let mut row = self.next_row + self.capacity - self.entries.len() + i;
+        if row >= self.capacity {
+            row -= self.capacity;
+        }
+        debug_assert_eq!(Some(row), self.entries.get(i).map(|e| e.row));
+        let at = row * 2 * n + k;
+        self.servo_rows[at] + self.servo_rows[at + n]
     }
 
     /// Servo `k`'s source angle at `t_ns`: interpolated between samples; before the first,
