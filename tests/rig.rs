@@ -740,7 +740,7 @@ fn planned_commands_keep_every_limit(
     settings: marionette::control::lookahead::LookaheadSettings,
     angles: usize,
 ) {
-    use marionette::control::lookahead::{Lookahead, Preview, SourceSample};
+    use marionette::control::lookahead::{Lookahead, Preview, SampleHead};
     let mut rng = marionette::bus::faults::Rng::new(17);
     let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
     let limited = |direction: f64, gear: f64, lo: i32, hi: i32, v: f64, a: f64| ServoMap {
@@ -773,10 +773,11 @@ fn planned_commands_keep_every_limit(
     let mut commands = 0u64;
     let (mut at_limit, mut fastest) = (0u64, [0.0f64; 3]);
     for k in 0..inputs as u64 {
-        let mut sample = SourceSample {
+        let head = SampleHead {
             due_ns: (k + ahead) * period,
-            ..SourceSample::default()
+            ..SampleHead::default()
         };
+        let mut angles = [0.0; 3];
         for (s, w) in walk.iter_mut().enumerate() {
             *w = match (rng_pick(&mut uniform), k % 5000 < 2500) {
                 (p, _) if p < 0.01 => f64::NAN,
@@ -788,12 +789,12 @@ fn planned_commands_keep_every_limit(
                 (_, false) => 0.6 * (k as f64 * 0.01 + s as f64).sin(),
             };
             // Non-finite values stay in the sample; the walk goes on from a finite one.
-            sample.angles[s] = *w;
+            angles[s] = *w;
             if !w.is_finite() || w.abs() > 10.0 {
                 *w = 0.0;
             }
         }
-        preview.push(&sample);
+        preview.push(head, &angles, &[], &[]);
         preview.advance(k * period + period / 2);
         preview.live = k % 3 == 0;
         let targets = look

@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use marionette::command::CommandStage;
-use marionette::control::lookahead::{Lookahead, LookaheadSettings, Preview, SourceSample};
+use marionette::control::lookahead::{Lookahead, LookaheadSettings, Preview, SampleHead};
 use marionette::control::sources::ClipPlayer;
 use marionette::motion::Motion;
 use marionette::profile::Profile;
@@ -28,12 +28,11 @@ pub fn walk_planner(
     for k in 0..200u64 {
         player.next_sample(&mut buf[..n]).unwrap();
         rig.joint_angles(skel, &buf[..n], &[], &mut angles);
-        let mut sample = SourceSample {
+        let head = SampleHead {
             due_ns: k * 2_000_000,
-            ..SourceSample::default()
+            ..SampleHead::default()
         };
-        sample.angles[..rig.len()].copy_from_slice(&angles);
-        preview.push(&sample);
+        preview.push(head, &angles, &[], &buf[..n]);
     }
     preview.advance(1_000_000);
     preview.live = false;

@@ -2,6 +2,8 @@
 //! (help note §IV) where the effector ends one, damped least squares up the chain elsewhere,
 //! and a pointing bone for a direction target.
 
+use glam::DVec3;
+
 use super::input::{Target, MAX_EFFECTORS};
 use super::stats::LoopStats;
 use super::SWIVEL_WINDOW;
@@ -215,16 +217,26 @@ impl Follower {
         self.effectors.iter().map(|e| e.name.as_str())
     }
 
-    /// Solves effector `k`'s present target on `scratch` (a copy of the pose, changed) and
-    /// keeps nothing: the solve the next tick makes, made ahead while the loop waits, so that
-    /// its code and data are in the caches when the tick comes. A limb only; returns whether
-    /// it solved.
-    pub(super) fn rehearse(&self, skeleton: &Skeleton, scratch: &mut [f64], k: usize) -> bool {
-        let (Some(e), Some(Some(t))) = (self.effectors.get(k), self.targets.get(k)) else {
+    /// Solves effector `k` for `target` (its present one when `None`) on `scratch` (a copy of
+    /// the pose, changed) and keeps nothing: the solve the next tick makes, made ahead while
+    /// the loop waits, so that its code and data are in the caches when the tick comes. A limb
+    /// only; returns whether it solved.
+    pub(super) fn rehearse(
+        &self,
+        skeleton: &Skeleton,
+        scratch: &mut [f64],
+        k: usize,
+        target: Option<DVec3>,
+    ) -> bool {
+        let Some(e) = self.effectors.get(k) else {
+            return false;
+        };
+        let Some(target) = target.or_else(|| self.targets.get(k).copied().flatten().map(|t| t.position))
+        else {
             return false;
         };
         if let EffectorSolver::Limb(limb) = &e.solver {
-            std::hint::black_box(limb.solve(skeleton, scratch, t.position, next_swivel(e.swivel)));
+            std::hint::black_box(limb.solve(skeleton, scratch, target, next_swivel(e.swivel)));
             return true;
         }
         false

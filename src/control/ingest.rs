@@ -2,10 +2,11 @@
 //! played), retargeted and mapped through the rig into the preview's source samples.
 
 use super::input::Payload;
-use super::lookahead::SourceSample;
+use super::lookahead::SampleHead;
 use super::stats::Stage;
 use super::{Controller, Solve};
 use crate::fk::{fk64, fk64_bones};
+use crate::servo::MAX_SERVOS;
 
 /// Most inputs turned into source samples in one tick (a look-ahead's preview fills over a few
 /// ticks at the start rather than in one long tick).
@@ -83,15 +84,35 @@ impl Controller {
         }
     }
 
+    /// The forward kinematics of the pose solved (or played) into the controller's pose: the
+    /// whole pose when a retargeting reads it, otherwise only the watched chains.
+    pub(super) fn sample_kinematics(&mut self) {
+        let n = self.skeleton.channel_count();
+        if self.retarget.is_some() {
+            fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
+        } else {
+            fk64_bones(
+                &self.skeleton,
+                &self.channels[..n],
+                &mut self.pose,
+                &self.watched_chains,
+            );
+        }
+    }
+
     /// The next input due by `horizon`, checked and put in place (a frame's channels, the
     /// follower's targets).
     fn take_input(&mut self, due_now: u64, horizon: u64, now: u64) -> Taken {
         let n = self.skeleton.channel_count();
         {
-            let Some(msg) = self.input.next_due(horizon) else {
+            let Some(due_ns) = self.input.next_due(horizon).map(|m| m.due_ns) else {
                 return Taken::Nothing;
             };
-            if msg.due_ns <= due_now && self.input.next_is_due(due_now) {
+            let superseded = due_ns <= due_now && self.input.next_is_due(due_now);
+            let Some(msg) = self.input.current() else {
+                return Taken::Nothing;
+            };
+            if superseded {
                 // Not solved, but its targets stand: a newer message may name other effectors
                 // (live sources send one effector a line or a topic).
                 if let (Payload::Targets(targets), Solve::Follow(f)) = (&msg.payload, &mut self.solve) {
@@ -165,25 +186,14 @@ impl Controller {
             ..
         } = p;
         {
-            // The retargeting reads the whole pose; otherwise only the watched tips are used.
-            if self.retarget.is_some() {
-                fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
-            } else {
-                fk64_bones(
-                    &self.skeleton,
-                    &self.channels[..n],
-                    &mut self.pose,
-                    &self.watched_chains,
-                );
-            }
-            let mut sample = SourceSample {
+            self.sample_kinematics();
+            let mut head = SampleHead {
                 due_ns: due,
                 clip_time,
                 made_ns,
-                ..SourceSample::default()
+                ..SampleHead::default()
             };
-            sample.channels[..n].copy_from_slice(&self.channels[..n]);
-            for (t, w) in sample.tips.iter_mut().zip(self.watch) {
+            for (t, w) in head.tips.iter_mut().zip(self.watch) {
                 if let Some(b) = w {
                     *t = self.pose.tip[b];
                 }
@@ -194,9 +204,9 @@ impl Controller {
                     _ => tick_dt,
                 };
                 r.step(&self.pose, clip_time, dt, due);
-                sample.effectors = r.frame.effectors;
-                sample.base = (r.frame.base_pos, r.frame.base_rot);
-                sample.contact = r.frame.planted;
+                head.effectors = r.frame.effectors;
+                head.base = (r.frame.base_pos, r.frame.base_rot);
+                head.contact = r.frame.planted;
             }
             self.last_due = Some(due);
             let joints: &[f64] = match &self.retarget {
@@ -211,11 +221,12 @@ impl Controller {
                 return;
             }
             let len = self.angles.len();
-            sample.angles[..len].copy_from_slice(&self.angles);
+            let mut load_offsets = [0.0; MAX_SERVOS];
             if let Some(r) = &mut self.retarget {
-                r.load_offsets(&self.rig, &mut sample.load_offset[..len]);
+                r.load_offsets(&self.rig, &mut load_offsets[..len]);
             }
-            self.preview.push(&sample);
+            self.preview
+                .push(head, &self.angles, &load_offsets[..len], &self.channels[..n]);
         }
     }
 }

@@ -16,23 +16,16 @@ use crate::servo::MotionLimits;
 use crate::servo::MAX_SERVOS;
 use crate::skeleton::MAX_CHANNELS;
 
-/// One input, ready for the servos: what a perfect rig would do at `due_ns`.
+/// What a source sample is besides its per-servo and per-channel values: when it is due, where
+/// it came from, the tips and effectors the fidelity and the retargeting read.
 #[derive(Clone, Copy, Debug)]
-pub struct SourceSample {
+pub struct SampleHead {
     /// Loop-clock time it stands for, ns.
     pub due_ns: u64,
     /// Clip time (play), seconds; NaN for targets.
     pub clip_time: f64,
     /// Loop-clock time the input behind it was made, ns (0 when unknown).
     pub made_ns: u64,
-    /// Joint angle per servo, radians (rig order).
-    pub angles: [f64; MAX_SERVOS],
-    /// Per servo, what its command adds to the angle so that the horn, sagging under the
-    /// pose's static load, ends on it (radians; 0 without load compensation).
-    pub load_offset: [f64; MAX_SERVOS],
-    /// The pose's channels (rotations in radians): what the servos do not drive comes from
-    /// here when the present angles are put back into a pose.
-    pub channels: [f64; MAX_CHANNELS],
     /// Tips of the watched bones (root frame, file units).
     pub tips: [DVec3; 4],
     /// Robot effectors at the source (retargeting), metres.
@@ -43,15 +36,12 @@ pub struct SourceSample {
     pub contact: [bool; 2],
 }
 
-impl Default for SourceSample {
+impl Default for SampleHead {
     fn default() -> Self {
-        SourceSample {
+        SampleHead {
             due_ns: 0,
             clip_time: f64::NAN,
             made_ns: 0,
-            angles: [f64::NAN; MAX_SERVOS],
-            load_offset: [0.0; MAX_SERVOS],
-            channels: [0.0; MAX_CHANNELS],
             tips: [DVec3::NAN; 4],
             effectors: [DVec3::NAN; 4],
             base: (DVec3::ZERO, DQuat::IDENTITY),
@@ -60,8 +50,8 @@ impl Default for SourceSample {
     }
 }
 
-/// A sample in the [`Preview`]: what it keeps of a [`SourceSample`], the per-servo and
-/// per-channel values borrowed from its compact tables.
+/// A sample in the [`Preview`]: one input ready for the servos (what a perfect rig would do at
+/// `due_ns`), its per-servo and per-channel values borrowed from the preview's tables.
 #[derive(Clone, Copy, Debug)]
 pub struct Sample<'a> {
     /// Loop-clock time it stands for, ns.
@@ -72,9 +62,11 @@ pub struct Sample<'a> {
     pub made_ns: u64,
     /// Joint angle per servo of the rig, radians.
     pub angles: &'a [f64],
-    /// Per servo of the rig, its load compensation, radians.
+    /// Per servo of the rig, what its command adds to the angle so that the horn, sagging
+    /// under the pose's static load, ends on it (radians; 0 without load compensation).
     pub load_offset: &'a [f64],
-    /// The pose's channels, as many as the skeleton has.
+    /// The pose's channels (rotations in radians), as many as the skeleton has: what the
+    /// servos do not drive comes from here when the present angles are put back into a pose.
     pub channels: &'a [f64],
     /// Tips of the watched bones (root frame, file units).
     pub tips: [DVec3; 4],
@@ -86,30 +78,17 @@ pub struct Sample<'a> {
     pub contact: [bool; 2],
 }
 
-/// What the preview keeps of a sample besides its tables' rows, and which row is its.
-#[derive(Clone, Copy, Debug)]
-struct Entry {
-    due_ns: u64,
-    clip_time: f64,
-    made_ns: u64,
-    tips: [DVec3; 4],
-    effectors: [DVec3; 4],
-    base: (DVec3, DQuat),
-    contact: [bool; 2],
-    row: usize,
-}
-
 /// Samples in time order: a little history (for extrapolation), the current one and the
 /// future ones taken ahead. Fixed capacity: when full, the oldest goes.
 ///
 /// The values are kept as compactly as the rig and the skeleton allow: each sample's angles and
 /// load offsets (two per servo of the rig) in one row of one table, its channels (as many as
-/// the skeleton has) in a row of another, rows taken in turn. A [`SourceSample`] is sized for
-/// the largest rig and skeleton (4.6 KB); a preview of them spread each sample over its own
-/// pages, and the loop touched a page per sample it planned over.
+/// the skeleton has) in a row of another, rows taken in turn, so that the `i`th sample kept has
+/// the `i`th row after the oldest's. A sample sized for the largest rig and skeleton would take
+/// 4.6 KB, and the loop would touch a page per sample it planned over.
 #[derive(Debug)]
 pub struct Preview {
-    entries: VecDeque<Entry>,
+    entries: VecDeque<SampleHead>,
     /// Per row: the servos' angles, then their load offsets.
     servo_rows: Vec<f64>,
     /// Per row: the channels.
@@ -117,7 +96,7 @@ pub struct Preview {
     servos: usize,
     channels: usize,
     /// The row the next sample takes (rows are taken in turn and let go oldest first, so the
-    /// oldest entry's row is the next one when the preview is full).
+    /// oldest sample's row is the next one when the preview is full).
     next_row: usize,
     capacity: usize,
     /// Index of the current sample, when there is one.
@@ -125,6 +104,13 @@ pub struct Preview {
     /// Whether more input may come after the newest sample (a live source: the reference
     /// past it is extrapolated); false once the input has ended (held).
     pub live: bool,
+}
+
+/// Copies `from` into `to` as far as both go, and `missing` into the rest of `to`.
+fn fill_from(to: &mut [f64], from: &[f64], missing: f64) {
+    let n = from.len().min(to.len());
+    to[..n].copy_from_slice(&from[..n]);
+    to[n..].fill(missing);
 }
 
 /// Past samples kept behind the current one.
@@ -150,11 +136,12 @@ impl Preview {
         }
     }
 
-    /// Adds the newest sample (its first `servos` angles and load offsets, its first
-    /// `channels` channels). A sample older than the newest (a producer that started over)
-    /// starts the preview anew. Never grows the storage.
-    pub fn push(&mut self, sample: &SourceSample) {
-        if self.entries.back().is_some_and(|b| sample.due_ns < b.due_ns) {
+    /// Adds the newest sample: `head`, and per servo its angle and load offset, per channel its
+    /// value (as many as the preview was made for; missing angles are NaN, missing offsets and
+    /// channels 0). A sample older than the newest (a producer that started over) starts the
+    /// preview anew. Never grows the storage.
+    pub fn push(&mut self, head: SampleHead, angles: &[f64], load_offset: &[f64], channels: &[f64]) {
+        if self.entries.back().is_some_and(|b| head.due_ns < b.due_ns) {
             self.clear();
         }
         if self.entries.len() == self.capacity {
@@ -164,21 +151,12 @@ impl Preview {
         let row = self.next_row;
         self.next_row = (row + 1) % self.capacity;
         let n = self.servos;
-        let servo_row = &mut self.servo_rows[row * 2 * n..(row + 1) * 2 * n];
-        servo_row[..n].copy_from_slice(&sample.angles[..n]);
-        servo_row[n..].copy_from_slice(&sample.load_offset[..n]);
+        let (row_angles, row_offsets) = self.servo_rows[row * 2 * n..(row + 1) * 2 * n].split_at_mut(n);
+        fill_from(row_angles, angles, f64::NAN);
+        fill_from(row_offsets, load_offset, 0.0);
         let c = self.channels;
-        self.channel_rows[row * c..(row + 1) * c].copy_from_slice(&sample.channels[..c]);
-        self.entries.push_back(Entry {
-            due_ns: sample.due_ns,
-            clip_time: sample.clip_time,
-            made_ns: sample.made_ns,
-            tips: sample.tips,
-            effectors: sample.effectors,
-            base: sample.base,
-            contact: sample.contact,
-            row,
-        });
+        fill_from(&mut self.channel_rows[row * c..(row + 1) * c], channels, 0.0);
+        self.entries.push_back(head);
     }
 
     /// Makes the newest sample due by `due_by` current; returns whether it is a new one.
@@ -194,17 +172,29 @@ impl Preview {
         fresh
     }
 
-    /// The sample an entry stands for.
-    fn sample(&self, e: &Entry) -> Sample<'_> {
-        let (n, c) = (self.servos, self.channels);
-        let servo_row = &self.servo_rows[e.row * 2 * n..(e.row + 1) * 2 * n];
+    /// The row of the `i`th sample kept: rows are taken in turn, so it is `i` after the
+    /// oldest's, which is `len` before the next one.
+    #[inline]
+    fn row(&self, i: usize) -> usize {
+        let row = self.next_row + self.capacity - self.entries.len() + i;
+        if row >= self.capacity {
+            row - self.capacity
+        } else {
+            row
+        }
+    }
+
+    /// The `i`th sample kept, `e` its head.
+    fn sample(&self, i: usize, e: &SampleHead) -> Sample<'_> {
+        let (n, c, row) = (self.servos, self.channels, self.row(i));
+        let servo_row = &self.servo_rows[row * 2 * n..(row + 1) * 2 * n];
         Sample {
             due_ns: e.due_ns,
             clip_time: e.clip_time,
             made_ns: e.made_ns,
             angles: &servo_row[..n],
             load_offset: &servo_row[n..],
-            channels: &self.channel_rows[e.row * c..(e.row + 1) * c],
+            channels: &self.channel_rows[row * c..(row + 1) * c],
             tips: e.tips,
             effectors: e.effectors,
             base: e.base,
@@ -216,8 +206,8 @@ impl Preview {
     #[must_use]
     pub fn current(&self) -> Option<Sample<'_>> {
         self.current
-            .and_then(|c| self.entries.get(c))
-            .map(|e| self.sample(e))
+            .and_then(|c| Some((c, self.entries.get(c)?)))
+            .map(|(c, e)| self.sample(c, e))
     }
 
     /// The sample due at `due_ns`, searched from the oldest kept (the current one is at most
@@ -226,9 +216,10 @@ impl Preview {
     pub fn find(&self, due_ns: u64) -> Option<Sample<'_>> {
         self.entries
             .iter()
-            .take_while(|s| s.due_ns <= due_ns)
-            .find(|s| s.due_ns == due_ns)
-            .map(|e| self.sample(e))
+            .enumerate()
+            .take_while(|(_, s)| s.due_ns <= due_ns)
+            .find(|(_, s)| s.due_ns == due_ns)
+            .map(|(i, e)| self.sample(i, e))
     }
 
     /// Whether samples after the current one wait.
@@ -247,7 +238,8 @@ impl Preview {
     /// The newest sample.
     #[must_use]
     pub fn newest(&self) -> Option<Sample<'_>> {
-        self.entries.back().map(|e| self.sample(e))
+        let last = self.entries.len().checked_sub(1)?;
+        Some(self.sample(last, &self.entries[last]))
     }
 
     /// Servo `k`'s commanded angle (its angle and its load offset) in entry `i`; NaN for a
@@ -258,14 +250,7 @@ impl Preview {
         if k >= n {
             return f64::NAN;
         }
-        // Rows are taken in turn, so entry `i`'s is `i` after the oldest's, which is `len` before
-        // the next one: found without reading the entry.
-        let mut row = self.next_row + self.capacity - self.entries.len() + i;
-        if row >= self.capacity {
-            row -= self.capacity;
-        }
-        debug_assert_eq!(Some(row), self.entries.get(i).map(|e| e.row));
-        let at = row * 2 * n + k;
+        let at = self.row(i) * 2 * n + k;
         self.servo_rows[at] + self.servo_rows[at + n]
     }
 
@@ -551,23 +536,23 @@ impl Lookahead {
 mod tests {
     use super::*;
 
-    fn sample(due_ns: u64, a: f64) -> SourceSample {
-        let mut s = SourceSample {
+    /// A sample of 28 servos and 62 channels due at `due_ns`: servos 0 and 27 at `a`, 27's
+    /// load offset `-a`, channel 61 `a`; the rest 0.
+    fn push(p: &mut Preview, due_ns: u64, a: f64) {
+        let (mut angles, mut offsets, mut channels) = ([0.0; 28], [0.0; 28], [0.0; 62]);
+        (angles[0], angles[27], offsets[27], channels[61]) = (a, a, -a, a);
+        let head = SampleHead {
             due_ns,
-            ..SourceSample::default()
+            ..SampleHead::default()
         };
-        s.angles[0] = a;
-        s.angles[27] = a;
-        s.load_offset[27] = -a;
-        s.channels[61] = a;
-        s
+        p.push(head, &angles, &offsets, &channels);
     }
 
     #[test]
     fn the_preview_interpolates_and_extrapolates_within_bounds() {
         let mut p = Preview::new(8, 28, 62);
         for i in 0..5u64 {
-            p.push(&sample(i * 10, i as f64));
+            push(&mut p, i * 10, i as f64);
         }
         assert!(p.advance(12));
         assert_eq!(p.current().unwrap().due_ns, 10);
@@ -586,7 +571,7 @@ mod tests {
             p.channel_rows.capacity(),
         );
         for i in 5..20u64 {
-            p.push(&sample(i * 10, i as f64));
+            push(&mut p, i * 10, i as f64);
         }
         assert_eq!(p.entries.len(), 8);
         assert_eq!(
@@ -599,7 +584,7 @@ mod tests {
         );
         // Each kept sample reads back its own values from its rows.
         for (i, e) in p.entries.iter().enumerate() {
-            let s = p.sample(e);
+            let s = p.sample(i, e);
             assert_eq!(s.angles.len(), 28);
             assert_eq!(s.channels.len(), 62);
             assert_eq!(s.angles[0], (e.due_ns / 10) as f64);
@@ -609,9 +594,23 @@ mod tests {
         }
         // A producer that starts over starts the preview anew.
         p.advance(150);
-        p.push(&sample(5, -1.0));
+        push(&mut p, 5, -1.0);
         assert_eq!(p.newest().unwrap().angles[0], -1.0);
         assert!(p.current().is_none());
         assert!(p.advance(5));
+        // Values a sample does not give: angles NaN, load offsets and channels 0.
+        p.push(
+            SampleHead {
+                due_ns: 6,
+                ..SampleHead::default()
+            },
+            &[1.0],
+            &[],
+            &[],
+        );
+        let s = p.newest().unwrap();
+        assert_eq!((s.angles[0], s.load_offset[0], s.channels[0]), (1.0, 0.0, 0.0));
+        assert!(s.angles[1..].iter().all(|a| a.is_nan()));
+        assert!(s.load_offset.iter().chain(s.channels).all(|&v| v == 0.0));
     }
 }

@@ -48,7 +48,7 @@ use crate::rig::Rig;
 use crate::schedule::{Clock, Tick};
 use crate::servo::MAX_SERVOS;
 use crate::skeleton::{Skeleton, MAX_BONES, MAX_CHANNELS};
-use input::InputPort;
+use input::{InputPort, Payload};
 use live::LiveView;
 use lookahead::{Lookahead, Preview};
 use stats::{LoopStats, Stage};
@@ -615,20 +615,58 @@ impl Controller {
         self.input.finished()
     }
 
-    /// Makes the next tick's limb solve ahead, on a copy of the pose, keeping nothing: called
-    /// just before the tick's deadline, it leaves the solve's code and data in the caches,
-    /// which the wait (a sleep: the kernel, other processes) has evicted. Allocates nothing
-    /// (counted with the ticks' allocations).
+    /// Makes the next tick's step ahead, keeping nothing: called just before the tick's
+    /// deadline, it leaves the step's code and data in the caches, which the wait (a sleep: the
+    /// kernel, other processes) has evicted. The step is the next limb of the input being
+    /// solved (on a copy of the pose); once every limb is solved, the sample's forward
+    /// kinematics and the rig's angles ([`Controller::rehearse_sample`]); with no input being solved, the
+    /// first limb of the next input waiting (its target read, the input left in place). The
+    /// input's next messages are received ahead ([`InputPort::prefetch`]).
+    /// Allocates nothing (counted with the ticks' allocations).
     pub fn rehearse(&mut self) {
         let Solve::Follow(f) = &self.solve else { return };
         let allocs = self.config.allocations.map(|f| f());
-        let k = self.solving.map_or(0, |p| p.next_effector);
+        self.input.prefetch();
         let n = self.skeleton.channel_count();
+        let (k, target) = match self.solving {
+            Some(p) if p.next_effector >= f.effectors.len() => {
+                self.rehearse_sample();
+                self.count_allocations_since(allocs);
+                return;
+            }
+            Some(p) => (p.next_effector, None),
+            None => {
+                let next = self.input.peek().and_then(|m| match &m.payload {
+                    Payload::Targets(t) => t
+                        .iter()
+                        .find(|t| t.effector == 0 && f.accepts(t))
+                        .map(|t| t.position),
+                    Payload::Frame { .. } => None,
+                });
+                (0, next)
+            }
+        };
         self.rehearsal[..n].copy_from_slice(&self.channels[..n]);
-        if f.rehearse(&self.skeleton, &mut self.rehearsal[..n], k) {
+        if f.rehearse(&self.skeleton, &mut self.rehearsal[..n], k, target) {
             self.stats.solves_rehearsed += 1;
         }
         self.count_allocations_since(allocs);
+    }
+
+    /// The sample step's forward kinematics (into the pose, which the step computes again from
+    /// the same channels) and the rig's angles (on a copy of the last ones, which the rig reads
+    /// to choose among equivalent angles).
+    fn rehearse_sample(&mut self) {
+        self.sample_kinematics();
+        let (n, len) = (self.skeleton.channel_count(), self.angles.len());
+        let joints = self.retarget.as_ref().map_or(&[][..], |r| &r.frame.q[..]);
+        self.rehearsal[..len].copy_from_slice(&self.angles);
+        self.rig.joint_angles(
+            &self.skeleton,
+            &self.channels[..n],
+            joints,
+            &mut self.rehearsal[..len],
+        );
     }
 
     /// Adds the allocations made since `before` (the counter's reading, when counting) to
