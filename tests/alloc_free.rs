@@ -289,7 +289,7 @@ fn control_loop_ticks_allocate_nothing() {
             let Some(msg) = msg else { break };
             tx.send_newest(msg).unwrap();
             // As a real-time run does before each deadline.
-            c.rehearse();
+            c.rehearse(schedule.next_deadline());
             let tick = schedule.wait(&mut clock);
             if k % 13 == 0 {
                 let held = live.read();

@@ -1028,7 +1028,7 @@ fn targets_taken_ahead_are_solved_over_ticks_with_the_same_result() {
                 tx = None;
             }
             if rehearse {
-                c.rehearse();
+                c.rehearse(schedule.next_deadline());
             }
             let tick = schedule.wait(&mut clock);
             end = c.tick(&tick, &mut vr, &mut clock);

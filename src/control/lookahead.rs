@@ -11,7 +11,7 @@ use glam::{DQuat, DVec3};
 
 use crate::command::CommandStage;
 use crate::plan::{ServoPlan, Window, MAX_KNOTS};
-use crate::rig::Rig;
+use crate::rig::{Rig, ServoMap};
 use crate::servo::MotionLimits;
 use crate::servo::MAX_SERVOS;
 use crate::skeleton::MAX_CHANNELS;
@@ -477,7 +477,6 @@ impl Lookahead {
         dt: f64,
         ease: Option<EaseIn<'_>>,
     ) -> &[f64] {
-        let live = preview.live;
         let h = self.window.spacing_s();
         let h_ns = (h * 1e9).round() as u64;
         let dt_ns = (dt * 1e9).round() as u64;
@@ -491,6 +490,7 @@ impl Lookahead {
         }
         self.last_now_ns = Some(now_ns);
         self.tick = self.tick.wrapping_add(1);
+        let knot_times = KnotTimes { t0, h_ns, knots };
         let mut placed: Option<u64> = None;
         for (k, servo) in rig.servos.iter().enumerate() {
             let state = stage.state(k);
@@ -500,35 +500,97 @@ impl Lookahead {
                 continue;
             }
             let lead = self.leads_ns[k];
-            let tpr = servo.ticks_per_radian().abs().max(1e-12);
-            let max_rate = if servo.max_velocity > 0.0 {
-                servo.max_velocity / tpr
-            } else {
-                f64::INFINITY
-            };
-            let extrapolate = if live { lead.min(100_000_000) } else { 0 };
-            if placed != Some(lead) {
-                let mut cursor = 0;
-                for (j, place) in self.places.iter_mut().enumerate().take(knots) {
-                    *place = preview.locate(t0 + (j as u64 + 1) * h_ns + lead, &mut cursor);
-                }
-                placed = Some(lead);
-            }
-            for j in 0..knots {
-                let t = t0 + (j as u64 + 1) * h_ns;
-                let mut a = preview.angle(k, self.places[j], extrapolate, max_rate);
-                if let Some(e) = &ease {
-                    if let Some(from) = e.from.get(k) {
-                        a = from + e.weight(t) * (a - from);
-                    }
-                }
-                self.reference[j] = servo.angle_to_ticks_exact(a);
-            }
+            let located = placed == Some(lead);
+            placed = Some(lead);
+            reference_at_knots(
+                (preview, ease.as_ref()),
+                (k, servo, lead),
+                knot_times,
+                (&mut self.places, located),
+                &mut self.reference,
+            );
             let (x0, v0) = state.unwrap_or((self.reference[0], 0.0));
             self.targets[k] = self.plans[k].plan(&self.window, x0, v0, &self.reference[..knots], dt);
             self.planned[k] = state.is_some();
         }
         &self.targets
+    }
+
+    /// Makes ahead, on a copy of its planner, and keeps nothing, the plan of the first servo
+    /// whose turn the next tick (at `now_ns`, `dt` after the one before) is: called while the
+    /// loop waits for that tick, it leaves the planner's code and the preview's rows the tick
+    /// reads in the caches. Allocates nothing.
+    pub fn rehearse(&self, rig: &Rig, stage: &CommandStage, preview: &Preview, now_ns: u64, dt: f64) {
+        let tick = self.tick.wrapping_add(1);
+        let Some((k, servo)) = rig
+            .servos
+            .iter()
+            .enumerate()
+            .find(|&(k, _)| (tick + k as u64) % self.ticks_per_knot == 0)
+        else {
+            return;
+        };
+        let knots = self.window.knots();
+        let dt_ns = (dt * 1e9).round() as u64;
+        let knot_times = KnotTimes {
+            t0: now_ns.saturating_sub(dt_ns),
+            h_ns: (self.window.spacing_s() * 1e9).round() as u64,
+            knots,
+        };
+        let (mut places, mut reference) = ([Place::Empty; MAX_KNOTS], [0.0; MAX_KNOTS]);
+        reference_at_knots(
+            (preview, None),
+            (k, servo, self.leads_ns[k]),
+            knot_times,
+            (&mut places, false),
+            &mut reference,
+        );
+        let (x0, v0) = stage.state(k).unwrap_or((reference[0], 0.0));
+        let mut plan = self.plans[k].clone();
+        std::hint::black_box(plan.plan(&self.window, x0, v0, &reference[..knots], dt));
+    }
+}
+
+/// The knots' times: the `j`th at `t0 + (j + 1)·h_ns`, `knots` of them.
+#[derive(Clone, Copy, Debug)]
+struct KnotTimes {
+    t0: u64,
+    h_ns: u64,
+    knots: usize,
+}
+
+/// Servo `k`'s reference at the knots (ticks, into `reference`): the preview's angle at each
+/// knot's time led by `lead` (its place found into `places`, unless `located` says they hold
+/// it for this lead already), extrapolated while the preview is live, blended by the ease-in.
+fn reference_at_knots(
+    (preview, ease): (&Preview, Option<&EaseIn<'_>>),
+    (k, servo, lead): (usize, &ServoMap, u64),
+    KnotTimes { t0, h_ns, knots }: KnotTimes,
+    (places, located): (&mut [Place; MAX_KNOTS], bool),
+    reference: &mut [f64; MAX_KNOTS],
+) {
+    let tpr = servo.ticks_per_radian().abs().max(1e-12);
+    let max_rate = if servo.max_velocity > 0.0 {
+        servo.max_velocity / tpr
+    } else {
+        f64::INFINITY
+    };
+    let extrapolate = if preview.live { lead.min(100_000_000) } else { 0 };
+    if !located {
+        let mut cursor = 0;
+        for (j, place) in places.iter_mut().enumerate().take(knots) {
+            *place = preview.locate(t0 + (j as u64 + 1) * h_ns + lead, &mut cursor);
+        }
+    }
+    for j in 0..knots {
+        let t = t0 + (j as u64 + 1) * h_ns;
+        let mut a = preview.angle(k, places[j], extrapolate, max_rate);
+        if let Some(e) = ease {
+            if let Some(from) = e.from.get(k) {
+                a = from + e.weight(t) * (a - from);
+            }
+        }
+        reference[j] = servo.angle_to_ticks_exact(a);
     }
 }
 

@@ -615,26 +615,23 @@ impl Controller {
         self.input.finished()
     }
 
-    /// Makes the next tick's step ahead, keeping nothing: called just before the tick's
-    /// deadline, it leaves the step's code and data in the caches, which the wait (a sleep: the
-    /// kernel, other processes) has evicted. The step is the next limb of the input being
-    /// solved (on a copy of the pose); once every limb is solved, the sample's forward
-    /// kinematics and the rig's angles ([`Controller::rehearse_sample`]); with no input being solved, the
-    /// first limb of the next input waiting (its target read, the input left in place). The
-    /// input's next messages are received ahead ([`InputPort::prefetch`]).
-    /// Allocates nothing (counted with the ticks' allocations).
-    pub fn rehearse(&mut self) {
+    /// Makes the next tick's work ahead, keeping nothing: called just before the tick's
+    /// deadline (`deadline_ns`), it leaves the tick's code and data in the caches, which the
+    /// wait (a sleep: the kernel, other processes) has evicted. The solve's step is the next
+    /// limb of the input being solved (on a copy of the pose); once every limb is solved, the
+    /// sample's forward kinematics and the rig's angles ([`Controller::rehearse_sample`]);
+    /// with no input being solved, the first limb of the next input waiting (its target read,
+    /// the input left in place). The input's next messages are received ahead
+    /// ([`InputPort::prefetch`]), and the look-ahead plans one servo of the tick on a copy
+    /// ([`Lookahead::rehearse`]). Allocates nothing (counted with the ticks' allocations).
+    pub fn rehearse(&mut self, deadline_ns: u64) {
         let Solve::Follow(f) = &self.solve else { return };
         let allocs = self.config.allocations.map(|f| f());
         self.input.prefetch();
         let n = self.skeleton.channel_count();
-        let (k, target) = match self.solving {
-            Some(p) if p.next_effector >= f.effectors.len() => {
-                self.rehearse_sample();
-                self.count_allocations_since(allocs);
-                return;
-            }
-            Some(p) => (p.next_effector, None),
+        let limb = match self.solving {
+            Some(p) if p.next_effector >= f.effectors.len() => None,
+            Some(p) => Some((p.next_effector, None)),
             None => {
                 let next = self.input.peek().and_then(|m| match &m.payload {
                     Payload::Targets(t) => t
@@ -643,12 +640,20 @@ impl Controller {
                         .map(|t| t.position),
                     Payload::Frame { .. } => None,
                 });
-                (0, next)
+                Some((0, next))
             }
         };
-        self.rehearsal[..n].copy_from_slice(&self.channels[..n]);
-        if f.rehearse(&self.skeleton, &mut self.rehearsal[..n], k, target) {
-            self.stats.solves_rehearsed += 1;
+        if let Some((k, target)) = limb {
+            self.rehearsal[..n].copy_from_slice(&self.channels[..n]);
+            if f.rehearse(&self.skeleton, &mut self.rehearsal[..n], k, target) {
+                self.stats.solves_rehearsed += 1;
+            }
+        } else {
+            self.rehearse_sample();
+        }
+        if let (Some(la), true) = (&self.lookahead, self.have_input) {
+            let dt = self.period_ns as f64 * 1e-9;
+            la.rehearse(&self.rig, &self.stage, &self.preview, deadline_ns, dt);
         }
         self.count_allocations_since(allocs);
     }

@@ -29,8 +29,9 @@ impl Controller {
                 break RunEnd::Interrupted;
             }
             if self.config.rehearse {
-                clock.wait_until(schedule.next_deadline().saturating_sub(REHEARSAL_LEAD_NS));
-                self.rehearse();
+                let deadline = schedule.next_deadline();
+                clock.wait_until(deadline.saturating_sub(REHEARSAL_LEAD_NS));
+                self.rehearse(deadline);
             }
             let tick = schedule.wait(clock);
             if stop.made() > 0 {
