@@ -619,11 +619,11 @@ impl Controller {
     /// deadline (`deadline_ns`), it leaves the tick's code and data in the caches, which the
     /// wait (a sleep: the kernel, other processes) has evicted. The solve's step is the next
     /// limb of the input being solved (on a copy of the pose); once every limb is solved, the
-    /// sample's forward kinematics and the rig's angles ([`Controller::rehearse_sample`]);
-    /// with no input being solved, the first limb of the next input waiting (its target read,
-    /// the input left in place). The input's next messages are received ahead
-    /// ([`InputPort::prefetch`]), and the look-ahead plans one servo of the tick on a copy
-    /// ([`Lookahead::rehearse`]). Allocates nothing (counted with the ticks' allocations).
+    /// sample's forward kinematics and the rig's angles; with no input being solved, the first
+    /// limb of the next input waiting (its target read, the input left in place). The input's
+    /// next messages are received ahead ([`InputPort::prefetch`]), and the look-ahead plans
+    /// one servo of the tick on a copy ([`Lookahead::rehearse`]). Allocates nothing (counted
+    /// with the ticks' allocations).
     pub fn rehearse(&mut self, deadline_ns: u64) {
         let Solve::Follow(f) = &self.solve else { return };
         let allocs = self.config.allocations.map(|f| f());
