@@ -16,17 +16,22 @@
 //!   beat the best end are skipped; inside a piece, Newton's method on the slope kept inside its
 //!   bracket).
 //!
-//! The distance uses [`crate::math::acos_abs_fast`] (error below 1e-7 rad per corner): the
-//! choice of swivel may differ from the exact optimum by that much in eq. 30's value; any swivel
-//! reaches the target exactly.
+//! The eight terms and their slopes are evaluated together in f32 lanes, four corners to a vector
+//! instruction, with a polynomial arccosine ([`crate::math::atan_ratio_lanes`]): each term within
+//! about 3e-7 rad, except where a corner is almost touched (`|d| → 1`, where acos's slope is
+//! unbounded and f32's rounding of `d` counts most). The choice of swivel may differ from the
+//! exact optimum by that much in eq. 30's value; any swivel reaches the target exactly, and
+//! whether it is legal is decided in f64.
 
 use crate::math::consts::{PI, TAU};
 
 use crate::math::{precision, real, Real, RealQuat};
 
 use crate::math::{
-    acos_abs_fast, acos_fast, atan2_fast, atan_ratio_fast, sort_by_real, AngleOf, Element, EulerOrder,
+    acos_abs_fast, acos_fast, atan2_fast, atan_ratio_lanes, sincos_f32, sort_by_real, AngleOf, Element,
+    EulerOrder,
 };
+use glam::Vec4;
 
 /// Arcs of the circle, `(start, length)`: start in `[−π, π)`, length in `(0, 2π]`.
 pub type Arcs = heapless::Vec<(Real, Real), 8>;
@@ -36,9 +41,12 @@ const MARGIN: Real = precision(1e-6, 4e-6);
 /// How far rounding may leave a value past a bound it meets exactly: 1e-12 in f64, 1e-6 in
 /// f32 (its step at 2π is 4.8e-7).
 const ROUNDING: Real = precision(1e-12, 1e-6);
-/// Newton's step on the swivel at which it stops, radians (1e-8: eq. 30 is flat there to
-/// ~1e-16; in f32, 1e-6, two steps of f32 at 2π).
-const NEWTON_STOP: Real = precision(1e-8, 1e-6);
+/// Newton's step on the swivel at which it stops, radians: 1e-6, two steps of f32 at 2π (the
+/// slopes are f32, [`CornerLanes`]); the step taken last leaves the zero nearer still.
+const NEWTON_STOP: Real = 1e-6;
+/// How far eq. 30's value in f32 lanes may be off: eight terms, each within 1e-7 rad of its
+/// arccosine plus f32's rounding.
+const VALUE_ROUNDING: Real = 1e-5;
 
 /// `a + b·cos ψ + c·sin ψ`.
 type Lin = [Real; 3];
@@ -193,9 +201,86 @@ pub struct SwivelCircle {
     /// `(aᵢ, bᵢ)` of each limit corner.
     ab: [(Real, Real); 8],
     corners: usize,
+    /// The same in f32 lanes, for eq. 30's terms and slopes.
+    lanes: CornerLanes,
     /// `P` and `Q`.
     p: RealQuat,
     q: RealQuat,
+}
+
+/// The corners' `aᵢ`, `bᵢ` in f32, four to a lane vector (glam's `Vec4`: SSE2 on x86-64,
+/// scalar on a microcontroller), so that eq. 30's eight terms and slopes at a swivel take a few
+/// vector instructions each. An unused slot has `a = b = 0`: no slope, no curvature, and its
+/// term is masked.
+#[derive(Clone, Debug)]
+struct CornerLanes {
+    a: [Vec4; 2],
+    b: [Vec4; 2],
+    /// `max(1 − aᵢ² − bᵢ², 0)`, the curvature's factor.
+    flat: [Vec4; 2],
+    /// 1 on a corner, 0 on an unused slot.
+    used: [Vec4; 2],
+}
+
+impl CornerLanes {
+    fn new(ab: &[(Real, Real); 8], corners: usize) -> CornerLanes {
+        let (mut a, mut b, mut flat, mut used) = ([0.0f32; 8], [0.0f32; 8], [0.0f32; 8], [0.0f32; 8]);
+        for (k, &(x, y)) in ab.iter().enumerate().take(corners) {
+            (a[k], b[k]) = (real::to_f32(x), real::to_f32(y));
+            flat[k] = real::to_f32(real::max(1.0 - x * x - y * y, 0.0));
+            used[k] = 1.0;
+        }
+        let lanes = |v: [f32; 8]| [Vec4::from_slice(&v[..4]), Vec4::from_slice(&v[4..])];
+        CornerLanes {
+            a: lanes(a),
+            b: lanes(b),
+            flat: lanes(flat),
+            used: lanes(used),
+        }
+    }
+
+    /// Each corner's dot product `dᵢ = aᵢ·cos(ψ/2) + bᵢ·sin(ψ/2)` and its slope in `ψ`,
+    /// `½(bᵢ·cos(ψ/2) − aᵢ·sin(ψ/2))`, given `(sin, cos)` of `ψ/2`.
+    #[inline]
+    fn dots(&self, h: usize, s: Vec4, c: Vec4) -> (Vec4, Vec4) {
+        let (a, b) = (self.a[h], self.b[h]);
+        (a * c + b * s, 0.5 * (b * c - a * s))
+    }
+
+    /// Eq. 30's corner terms `acos|dᵢ|` (0 on unused slots) and their slopes in `ψ`, each
+    /// `−sign(dᵢ)·ḋᵢ/√(1 − dᵢ²)` (0 where `|dᵢ| = 1`, the term's corner-touching minimum).
+    fn terms_and_slopes(&self, (s, c): (Real, Real)) -> ([Vec4; 2], [Vec4; 2]) {
+        let (s, c) = (Vec4::splat(real::to_f32(s)), Vec4::splat(real::to_f32(c)));
+        let (mut terms, mut slopes) = ([Vec4::ZERO; 2], [Vec4::ZERO; 2]);
+        for h in 0..2 {
+            let (d, dd) = self.dots(h, s, c);
+            let w = d.abs().min(Vec4::ONE);
+            let root = ((Vec4::ONE - w) * (Vec4::ONE + w)).sqrt();
+            terms[h] = atan_ratio_lanes(root, w) * self.used[h];
+            slopes[h] = Vec4::select(
+                root.cmpgt(Vec4::ZERO),
+                -(Vec4::ONE.copysign(d) * dd) / root,
+                Vec4::ZERO,
+            );
+        }
+        (terms, slopes)
+    }
+
+    /// The corner terms' summed slope and curvature in `ψ`; the curvature of `acos|d|` is
+    /// `|d|·(1 − r²)/(4(1 − d²)^{3/2}) ≥ 0` (`r² = a² + b²`).
+    fn slope_and_curvature(&self, (s, c): (Real, Real)) -> (Real, Real) {
+        let (s, c) = (Vec4::splat(real::to_f32(s)), Vec4::splat(real::to_f32(c)));
+        let (mut g, mut k) = (Vec4::ZERO, Vec4::ZERO);
+        for h in 0..2 {
+            let (d, dd) = self.dots(h, s, c);
+            let one = (Vec4::ONE - d) * (Vec4::ONE + d);
+            let live = one.cmpgt(Vec4::ZERO);
+            let root = one.max(Vec4::splat(f32::MIN_POSITIVE)).sqrt();
+            g -= Vec4::select(live, Vec4::ONE.copysign(d) * dd / root, Vec4::ZERO);
+            k += Vec4::select(live, d.abs() * self.flat[h] / (4.0 * one * root), Vec4::ZERO);
+        }
+        (real::from_f32(g.element_sum()), real::from_f32(k.element_sum()))
+    }
 }
 
 /// `M₀`, `M₁`, `M₂` of `M(ψ) = M₀ + M₁·cos ψ + M₂·sin ψ`, row-major.
@@ -225,7 +310,10 @@ impl CircleMatrices {
 /// Eq. 30 (plus the continuity term), its terms and its slope at one swivel.
 struct Probe {
     total: Real,
-    terms: [Real; 9],
+    /// The corner terms, in [`CornerLanes`]' order.
+    terms: [Vec4; 2],
+    /// The continuity term.
+    keep_term: Real,
     /// The slope; at a kink, without the kinked term.
     slope: Real,
     /// At a kink: the kinked term's slope is `−jump` just after it, `+jump` just before.
@@ -240,9 +328,11 @@ impl SwivelCircle {
         for (slot, c) in ab.iter_mut().zip(corners) {
             *slot = (p.dot(*c), q.dot(*c));
         }
+        let corners = corners.len().min(8);
         SwivelCircle {
             ab,
-            corners: corners.len().min(8),
+            corners,
+            lanes: CornerLanes::new(&ab, corners),
             p,
             q,
         }
@@ -253,26 +343,24 @@ impl SwivelCircle {
     /// 8 for the continuity term, whose kink lies at `psi`) the slope jumps: the slope without
     /// that term and the size of its one-sided slope are returned apart.
     fn probe_at(&self, psi: Real, keep: Option<Real>, kink: Option<usize>) -> Probe {
-        let (s, c) = real::sincos(0.5 * psi);
-        let mut terms = [0.0; 9];
-        let mut slope = 0.0;
+        let half = half_turn(psi);
+        let (terms, slopes) = self.lanes.terms_and_slopes(half);
+        let mut slope = real::from_f32((slopes[0] + slopes[1]).element_sum());
         let mut jump = 0.0;
-        for (k, (t, &(a, b))) in terms.iter_mut().zip(&self.ab[..self.corners]).enumerate() {
+        if let Some(k) = kink.filter(|&k| k < 8) {
+            // The kinked term's slope left out; past its zero the dot product takes the sign
+            // of its slope.
+            slope -= real::from_f32(slopes[k / 4].to_array()[k % 4]);
+            let (s, c) = half;
+            let (a, b) = self.ab[k];
             let d = a * c + b * s;
-            let w = real::min(d.abs(), 1.0);
-            let root = real::sqrt((1.0 - w) * (1.0 + w));
-            *t = atan_ratio_fast(root, w);
-            let dd = 0.5 * (b * c - a * s);
-            if kink == Some(k) {
-                // Past its zero the dot product takes the sign of its slope.
-                jump = dd.abs() / real::max(root, Real::MIN_POSITIVE);
-            } else if root > 1e-15 {
-                slope -= real::copysign(1.0, d) * dd / root;
-            }
+            let root = real::sqrt(real::max((1.0 - d) * (1.0 + d), 0.0));
+            jump = real::fabs(0.5 * (b * c - a * s)) / real::max(root, Real::MIN_POSITIVE);
         }
+        let mut keep_term = 0.0;
         if let Some(k) = keep {
             let d = wrap(psi - k);
-            terms[8] = 0.5 * d * d;
+            keep_term = 0.5 * d * d;
             if kink == Some(8) {
                 jump = PI;
             } else {
@@ -280,8 +368,9 @@ impl SwivelCircle {
             }
         }
         Probe {
-            total: terms.iter().sum(),
+            total: real::from_f32((terms[0] + terms[1]).element_sum()) + keep_term,
             terms,
+            keep_term,
             slope,
             jump,
         }
@@ -294,26 +383,16 @@ impl SwivelCircle {
 
     /// The slope and curvature of [`SwivelCircle::value`] at `psi` (inside a piece).
     fn slope(&self, psi: Real, keep: Option<Real>) -> (Real, Real) {
-        self.slope_at(real::sincos(0.5 * psi), psi, keep)
+        self.slope_at(half_turn(psi), psi, keep)
     }
 
     /// [`SwivelCircle::slope`] with `(sin, cos)` of `ψ/2` given.
-    fn slope_at(&self, (s, c): (Real, Real), psi: Real, keep: Option<Real>) -> (Real, Real) {
-        let (mut g, mut h) = keep.map_or((0.0, 0.0), |k| (wrap(psi - k), 1.0));
-        for &(a, b) in &self.ab[..self.corners] {
-            let d = a * c + b * s;
-            let dd = 0.5 * (b * c - a * s);
-            let one = (1.0 - d) * (1.0 + d);
-            if one <= 1e-30 {
-                continue;
-            }
-            let root = real::sqrt(one);
-            // d/dψ acos|d| and its second derivative |d|(1 − r²)/(4(1 − d²)^{3/2}) ≥ 0.
-            g -= real::copysign(1.0, d) * dd / root;
-            let r2 = a * a + b * b;
-            h += d.abs() * real::max(1.0 - r2, 0.0) / (4.0 * one * root);
+    fn slope_at(&self, half: (Real, Real), psi: Real, keep: Option<Real>) -> (Real, Real) {
+        let (g, h) = self.lanes.slope_and_curvature(half);
+        match keep {
+            Some(k) => (g + wrap(psi - k), h + 1.0),
+            None => (g, h),
         }
-        (g, h)
     }
 
     /// The legal swivels under `limits` (a limb's Euler limits, [`LimitForms`]): the union
@@ -390,7 +469,7 @@ impl SwivelCircle {
         if let [(l, length)] = allowed[..] {
             let h = l + length;
             let keep_kink_outside = keep.is_none_or(|k| !contains(allowed, wrap(k + PI)));
-            let ends = (real::sincos(0.5 * l), real::sincos(0.5 * h));
+            let ends = (half_turn(l), half_turn(h));
             if length < TAU && keep_kink_outside && self.kink_free(ends) {
                 let (gl, gh) = (self.slope_at(ends.0, l, keep).0, self.slope_at(ends.1, h, keep).0);
                 // (Slopes that are not numbers: the general search below decides.)
@@ -485,6 +564,7 @@ impl SwivelCircle {
             }
             // Each term is convex here: its minimum is its floor when its centre lies inside,
             // else the lower end value.
+            let lower = [0, 1].map(|h| pa.terms[h].min(pb.terms[h]).to_array());
             let mut bound = 0.0;
             for k in 0..9 {
                 let c = centres[k];
@@ -494,15 +574,17 @@ impl SwivelCircle {
                     } else {
                         acos_abs_fast(radii[k])
                     }
+                } else if k == 8 {
+                    real::min(pa.keep_term, pb.keep_term)
                 } else {
-                    real::min(pa.terms[k], pb.terms[k])
+                    real::from_f32(lower[k / 4][k % 4])
                 };
             }
             pieces.push((bound, l, h, ga, gb)).ok()?;
         }
         sort_by_real(&mut pieces, |p| p.0);
         for &(bound, l, h, gl, gh) in &pieces {
-            if bound >= best.0 - ROUNDING {
+            if bound >= best.0 - VALUE_ROUNDING {
                 break;
             }
             let x = self.slope_zero(l, h, gl, gh, keep);
@@ -559,6 +641,14 @@ impl SwivelCircle {
         }
         x
     }
+}
+
+/// `(sin, cos)` of `ψ/2` for [`CornerLanes`], in f32 ([`sincos_f32`]): the lanes take them
+/// in f32.
+#[inline]
+fn half_turn(psi: Real) -> (Real, Real) {
+    let (s, c) = sincos_f32(real::to_f32(0.5 * psi));
+    (real::from_f32(s), real::from_f32(c))
 }
 
 /// `x` in `[0, 2π)` (for `x` within a few turns).
@@ -694,7 +784,7 @@ mod tests {
     }
 
     #[test]
-    fn slope_matches_finite_differences() {
+    fn terms_slope_and_curvature_match_f64_and_finite_differences() {
         let p = RealQuat::from_xyzw(0.1, 0.7, -0.3, 0.5).normalize();
         let mut q = RealQuat::from_xyzw(0.4, -0.2, 0.6, 0.1);
         q = (q - p * p.dot(q)).normalize();
@@ -702,25 +792,39 @@ mod tests {
             RealQuat::from_xyzw(0.3 * k as Real - 1.0, 0.5, 0.2 - 0.1 * k as Real, 0.9).normalize()
         });
         let circle = SwivelCircle::new(p, q, &corners);
+        // Eq. 30 in f64 with libm's arccosine, from the corners themselves.
+        let exact = |x: Real, keep: Option<Real>| -> Real {
+            let (s, c) = real::sincos(0.5 * x);
+            let r = p * c + q * s;
+            let terms: Real = corners
+                .iter()
+                .map(|k| real::acos(real::min(r.dot(*k).abs(), 1.0)))
+                .sum();
+            terms + keep.map_or(0.0, |k| 0.5 * wrap(x - k) * wrap(x - k))
+        };
+        let (mut worst_value, mut worst_slope, mut worst_curvature): (Real, Real, Real) = (0.0, 0.0, 0.0);
         for keep in [None, Some(0.3)] {
             for k in 0..50 {
                 let x = -3.0 + 0.12 * (k as Real);
-                let h = 1e-6;
-                let fd = (circle.probe(x + h, keep).total - circle.probe(x - h, keep).total) / (2.0 * h);
-                let (g, _) = circle.slope(x, keep);
-                assert!((circle.probe(x, keep).slope - g).abs() < 1e-9);
+                let probe = circle.probe(x, keep);
+                worst_value = worst_value.max((probe.total - exact(x, keep)).abs());
+                let h = 1e-5;
+                let fd = (exact(x + h, keep) - exact(x - h, keep)) / (2.0 * h);
+                let (g, c) = circle.slope(x, keep);
+                assert!(
+                    (probe.slope - g).abs() < 1e-5 * (1.0 + g.abs()),
+                    "{} against {g}",
+                    probe.slope
+                );
+                worst_slope = worst_slope.max((g - fd).abs() / (1.0 + g.abs()));
+                let h = 1e-3;
                 let fd2 = (circle.slope(x + h, keep).0 - circle.slope(x - h, keep).0) / (2.0 * h);
-                let (_, c) = circle.slope(x, keep);
-                assert!(
-                    (g - fd).abs() < 1e-5 * (1.0 + g.abs()),
-                    "slope at {x}: {g} vs {fd}"
-                );
-                assert!(
-                    (c - fd2).abs() < 1e-4 * (1.0 + c.abs()),
-                    "curvature at {x}: {c} vs {fd2}"
-                );
+                worst_curvature = worst_curvature.max((c - fd2).abs() / (1.0 + c.abs()));
                 assert!(c >= 0.0, "convex between kinks");
             }
         }
+        assert!(worst_value < 8.0 * 3e-7, "eq. 30 off by {worst_value:e}");
+        assert!(worst_slope < 1e-5, "slope off by {worst_slope:e}");
+        assert!(worst_curvature < 1e-3, "curvature off by {worst_curvature:e}");
     }
 }
