@@ -41,6 +41,10 @@ const MARGIN: Real = precision(1e-6, 4e-6);
 /// How far rounding may leave a value past a bound it meets exactly: 1e-12 in f64, 1e-6 in
 /// f32 (its step at 2π is 4.8e-7).
 const ROUNDING: Real = precision(1e-12, 1e-6);
+/// How close to the end of the middle Euler angle's range a limit counts as that end, radians:
+/// the ASF's limits are f32 degrees (a step of 1.3e-7 rad at 90°), so a limit of ±90° allows a
+/// sliver of 4.4e-8 rad past it, in the gimbal lock.
+const LIMIT_SLIVER: Real = 1e-6;
 /// Newton's step on the swivel at which it stops, radians: 1e-6, two steps of f32 at 2π (the
 /// slopes are f32, [`CornerLanes`]); the step taken last leaves the zero nearer still.
 const NEWTON_STOP: Real = 1e-6;
@@ -402,7 +406,7 @@ impl SwivelCircle {
     pub fn legal_arcs(&self, limits: &LimitForms) -> Option<Arcs> {
         let m = CircleMatrices::new(self.p, self.q);
         let mut legal = Arcs::new();
-        for solution in &limits.0 {
+        for solution in &limits.solutions[..limits.possible] {
             let mut set = full();
             for angle in solution {
                 let cond = match *angle {
@@ -688,16 +692,26 @@ enum AngleLimit {
 
 /// A limb's Euler limits as conditions on the swivel circle's matrix, per Euler solution
 /// (`[a, b, c]` and `[a + π, π − b, c + π]`, or `−b` for proper orders), computed once per limb.
+/// Only the solutions the limits allow at all are kept: one whose middle angle the limits leave
+/// no room for is dropped, and a middle angle allowed over its whole range is no condition.
 #[derive(Clone, Copy, Debug)]
-pub struct LimitForms([[AngleLimit; 3]; 2]);
+pub struct LimitForms {
+    solutions: [[AngleLimit; 3]; 2],
+    possible: usize,
+}
 
 impl LimitForms {
     /// The conditions of `limits` (one per angle, radians, either end infinite) in `order`.
     #[must_use]
     pub fn new(order: EulerOrder, limits: &[(Real, Real); 3]) -> LimitForms {
         let forms = order.angle_forms();
-        let mut out = [[AngleLimit::Free; 3]; 2];
-        for (s, solution) in out.iter_mut().enumerate() {
+        let mut out = LimitForms {
+            solutions: [[AngleLimit::Free; 3]; 2],
+            possible: 0,
+        };
+        for s in 0..2 {
+            let solution = &mut out.solutions[out.possible];
+            *solution = [AngleLimit::Free; 3];
             let second = s == 1;
             for (k, form) in forms.iter().enumerate() {
                 let (lo, hi) = limits[k];
@@ -727,8 +741,14 @@ impl LimitForms {
                     }
                 };
             }
+            let never = solution
+                .iter()
+                .any(|a| matches!(a, AngleLimit::Middle { count: 0, .. }));
+            if !never {
+                out.possible += 1;
+            }
         }
-        LimitForms(out)
+        out
     }
 }
 
@@ -740,8 +760,14 @@ fn middle(e: Element, lo: Real, hi: Real, cosine: bool) -> AngleLimit {
     let mut count = 0;
     for turn in -2..=2 {
         let shift = (turn as Real) * TAU;
+        // (Within `LIMIT_SLIVER` of the range's ends counts as the end, and a narrower stretch
+        // as none: limits of ±90° read as f32 come out 4.4e-8 past π/2.)
         let (l, h) = ((lo + shift).max(first), (hi + shift).min(last));
-        if h <= l || count == stretches.len() {
+        let (l, h) = (
+            if l <= first + LIMIT_SLIVER { first } else { l },
+            if h >= last - LIMIT_SLIVER { last } else { h },
+        );
+        if h <= l + LIMIT_SLIVER || count == stretches.len() {
             continue;
         }
         let (mut lower, mut upper) = (Real::NEG_INFINITY, Real::INFINITY);
@@ -759,6 +785,10 @@ fn middle(e: Element, lo: Real, hi: Real, cosine: bool) -> AngleLimit {
             if h < last {
                 upper = real::sin(h);
             }
+        }
+        if lower == Real::NEG_INFINITY && upper == Real::INFINITY {
+            // The angle's whole range: no condition.
+            return AngleLimit::Free;
         }
         stretches[count] = (lower, upper);
         count += 1;
