@@ -4,7 +4,7 @@ mod common;
 
 use glam::DVec3;
 use marionette::bus::faults::Rng;
-use marionette::fk::{fk64, Pose64};
+use marionette::fk::{fk64, fk64_tip, Pose64};
 use marionette::fk::{forward_kinematics, Pose};
 use marionette::formats::{amc, asf};
 use marionette::ik::{Limb, Swivel};
@@ -63,6 +63,23 @@ fn fk64_matches_the_f32_fk() {
         }
     }
     assert!(worst < 1e-3, "{worst}");
+}
+
+/// A bone's tip found by turning its vector (`fk64_tip`) is the full step's, on every bone of
+/// the walk, the root's translation included.
+#[test]
+fn fk64_tip_is_the_steps_tip() {
+    let skel = skeleton();
+    let mut pose = Pose64::default();
+    let mut worst = 0.0f64;
+    for f in walk_frames(&skel).iter().step_by(7) {
+        fk64(&skel, f, &mut pose);
+        for (b, bone) in skel.bones().iter().enumerate() {
+            let parent = bone.parent().map(|p| (&pose.world[p], pose.tip[p]));
+            worst = worst.max((fk64_tip(&skel, f, b, parent) - pose.tip[b]).length());
+        }
+    }
+    assert!(worst < 1e-12, "{worst:e}");
 }
 
 /// The analytic Jacobian (eq. 43–47) equals central differences.

@@ -16,7 +16,7 @@
 
 use crate::math::sincos_f32;
 use crate::math::Axis;
-use crate::math::{Real, RealMat3, RealVec3, ToReal};
+use crate::math::{real, Real, RealMat3, RealVec3, ToReal};
 use crate::skeleton::{turn_columns, Bone, Dof, Skeleton, MAX_BONES};
 use glam::{Mat3, Mat3A, Vec3, Vec3A};
 
@@ -310,6 +310,65 @@ fn step(
             (f, world, start, tip)
         }
     }
+}
+
+/// Where bone `i` ends, as [`fk64_step`] has it, without its frame: its rotation channels
+/// turn the bone's vector, `Cᵀ·d·(L + l)` (eq. 5), first channel first, instead of turning a
+/// matrix, and the parent's axes `Wₚ·C` take it to the world (eq. 2).
+#[must_use]
+pub fn fk64_tip(
+    skeleton: &Skeleton,
+    channels: &[Real],
+    i: usize,
+    parent: Option<(&RealMat3, RealVec3)>,
+) -> RealVec3 {
+    let bone = &skeleton.bones()[i];
+    let c = bone.axis_rotation_f64();
+    let mut t = RealVec3::ZERO;
+    let mut l = 0.0;
+    let first = bone.first_channel();
+    for (k, d) in bone.dofs().iter().enumerate() {
+        let v = channels.get(first + k).copied().unwrap_or(0.0);
+        match d {
+            Dof::Tx => t.x = v,
+            Dof::Ty => t.y = v,
+            Dof::Tz => t.z = v,
+            Dof::L => l = v,
+            _ => {}
+        }
+    }
+    let dir = bone.direction_f64();
+    let mut v = RealVec3::new(c.x_axis.dot(dir), c.y_axis.dot(dir), c.z_axis.dot(dir))
+        * ((bone.length() as Real) + l);
+    for (k, d) in bone.dofs().iter().enumerate() {
+        let a = channels.get(first + k).copied().unwrap_or(0.0);
+        let axis = match d {
+            Dof::Rx => Axis::X,
+            Dof::Ry => Axis::Y,
+            Dof::Rz => Axis::Z,
+            _ => continue,
+        };
+        if a != 0.0 {
+            // `R_axis(a)·v`: the two components across the axis turn.
+            let (s, cos) = real::sincos(a);
+            let (i, j) = axis.across();
+            let (x, y) = (v[i], v[j]);
+            v[i] = cos * x - s * y;
+            v[j] = s * x + cos * y;
+        }
+    }
+    let (start, axes) = match parent {
+        None => (skeleton.root().position.to_real() + t, c),
+        Some((parent_world, parent_tip)) => {
+            let axes = if bone.axis_is_identity() {
+                *parent_world
+            } else {
+                *parent_world * c
+            };
+            (parent_tip + axes * t, axes)
+        }
+    };
+    start + axes * v
 }
 
 /// Where bone `i` starts, as [`fk64_step`] has it (its parent's tip, moved by its translation

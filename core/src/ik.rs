@@ -8,13 +8,13 @@
 
 use crate::math::{precision, real, Real, RealMat3, RealQuat, RealVec3, ToReal};
 
-use crate::fk::{ancestors, fk64, fk64_bones, fk64_start, fk64_step, fk64_world_step, Pose64};
+use crate::fk::{ancestors, fk64, fk64_bones, fk64_start, fk64_step, fk64_tip, fk64_world_step, Pose64};
 use crate::math::{
     euler_near, length, normalize, normalize_or_zero, quat_distance_fast, rotation_arc, sort_by_real,
     wrap_near, EulerOrder,
 };
 use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
-use crate::swivel::{self, LimitForms, SwivelCircle};
+use crate::swivel::{self, Corners, LimitForms, SwivelCircle};
 
 /// How far rounding may leave a value past a bound it meets exactly (an angle on its limit, a
 /// cosine at ±1): 1e-12 in f64; in f32, whose step at π is 2.4e-7 rad, 1e-6.
@@ -147,6 +147,8 @@ pub struct Limb {
     l1: Real,
     l2: Real,
     corners: heapless::Vec<RealQuat, 8>,
+    /// The same in f32 lanes, for the swivel circle.
+    corner_lanes: Corners,
     center: [Real; 3],
     limits: [(Real, Real); 3],
     elbow_limit: (Real, Real),
@@ -302,6 +304,7 @@ impl Limb {
             d2,
             l1,
             l2,
+            corner_lanes: Corners::new(&corners),
             corners,
             center,
             limits,
@@ -569,7 +572,7 @@ impl Limb {
         self.set_elbow(skeleton, channels, theta);
         // The ancestors' pose stands: only the limb's two bones moved.
         let (_, upper_world, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
-        let (_, _, _, tip) = fk64_step(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
+        let tip = fk64_tip(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
         let error = length(tip - target);
         LimbSolution {
             reachable: reachable && error.is_finite(),
@@ -811,7 +814,7 @@ impl Limb {
         let n = RealQuat::from_xyzw(axis.x, axis.y, axis.z, 0.0);
         let p = c.conjugate() * base * c;
         let q = c.conjugate() * n * base * c;
-        let circle = SwivelCircle::new(p, q, &self.corners);
+        let circle = SwivelCircle::new(p, q, &self.corner_lanes);
         // The swivel `φ` of `ψ`, the Euler angles there and their violation: legal as the
         // Euler extraction reads it (exact).
         let at = |psi: Real| {

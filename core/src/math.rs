@@ -1030,6 +1030,16 @@ pub fn atan_ratio_lanes(v: Vec4, w: Vec4) -> Vec4 {
     Vec4::select(v.cmple(w), p, Vec4::splat(core::f32::consts::FRAC_PI_2) - p)
 }
 
+/// [`atan2_fast`] on four lanes of f32: `atan2(y, x)` in `[−π, π]`, error below 1e-7 rad plus
+/// f32's rounding.
+#[inline]
+#[must_use]
+pub fn atan2_lanes(y: Vec4, x: Vec4) -> Vec4 {
+    let a = atan_ratio_lanes(y.abs(), x.abs());
+    let a = Vec4::select(x.cmplt(Vec4::ZERO), Vec4::splat(core::f32::consts::PI) - a, a);
+    Vec4::select(y.cmplt(Vec4::ZERO), -a, a)
+}
+
 /// `atan2(y, x)` through [`atan_ratio_fast`] (error below 1e-7 rad), in `[−π, π]`.
 #[inline]
 #[must_use]

@@ -28,7 +28,7 @@ use crate::math::consts::{PI, TAU};
 use crate::math::{precision, real, Real, RealQuat};
 
 use crate::math::{
-    acos_abs_fast, acos_fast, atan2_fast, atan_ratio_lanes, sincos_f32, sort_by_real, AngleOf, Element,
+    acos_fast, atan2_fast, atan2_lanes, atan_ratio_lanes, sincos_f32, sort_by_real, AngleOf, Element,
     EulerOrder,
 };
 use glam::Vec4;
@@ -202,14 +202,46 @@ fn rotation_rows(q: RealQuat) -> [[Real; 3]; 3] {
 /// One limb's swivel circle for one elbow angle.
 #[derive(Clone, Debug)]
 pub struct SwivelCircle {
-    /// `(aᵢ, bᵢ)` of each limit corner.
-    ab: [(Real, Real); 8],
-    corners: usize,
-    /// The same in f32 lanes, for eq. 30's terms and slopes.
+    /// `(aᵢ, bᵢ)` of each limit corner, in f32 lanes.
     lanes: CornerLanes,
+    corners: usize,
     /// `P` and `Q`.
     p: RealQuat,
     q: RealQuat,
+}
+
+/// A limb's limit corners (eq. 30's `qᵢ`, at most eight) in f32 lanes, component by
+/// component, four corners to a lane vector: [`SwivelCircle::new`] takes all their dot products
+/// with `P` and `Q` in a few vector instructions. Unused slots are zero.
+#[derive(Clone, Copy, Debug)]
+pub struct Corners {
+    /// `x`, `y`, `z`, `w` of each corner.
+    parts: [[Vec4; 2]; 4],
+    count: usize,
+}
+
+impl Corners {
+    /// The first eight of `corners`.
+    #[must_use]
+    pub fn new(corners: &[RealQuat]) -> Corners {
+        let mut parts = [[0.0f32; 8]; 4];
+        for (k, c) in corners.iter().take(8).enumerate() {
+            for (part, v) in parts.iter_mut().zip([c.x, c.y, c.z, c.w]) {
+                part[k] = real::to_f32(v);
+            }
+        }
+        Corners {
+            parts: parts.map(|v| [Vec4::from_slice(&v[..4]), Vec4::from_slice(&v[4..])]),
+            count: corners.len().min(8),
+        }
+    }
+
+    /// The 4-D dot product of `r` with each corner.
+    fn dots(&self, r: RealQuat) -> [Vec4; 2] {
+        let [x, y, z, w] = [r.x, r.y, r.z, r.w].map(|v| Vec4::splat(real::to_f32(v)));
+        let p = &self.parts;
+        [0, 1].map(|h| p[0][h] * x + p[1][h] * y + p[2][h] * z + p[3][h] * w)
+    }
 }
 
 /// The corners' `aᵢ`, `bᵢ` in f32, four to a lane vector (glam's `Vec4`: SSE2 on x86-64,
@@ -227,20 +259,26 @@ struct CornerLanes {
 }
 
 impl CornerLanes {
-    fn new(ab: &[(Real, Real); 8], corners: usize) -> CornerLanes {
-        let (mut a, mut b, mut flat, mut used) = ([0.0f32; 8], [0.0f32; 8], [0.0f32; 8], [0.0f32; 8]);
-        for (k, &(x, y)) in ab.iter().enumerate().take(corners) {
-            (a[k], b[k]) = (real::to_f32(x), real::to_f32(y));
-            flat[k] = real::to_f32(real::max(1.0 - x * x - y * y, 0.0));
-            used[k] = 1.0;
-        }
-        let lanes = |v: [f32; 8]| [Vec4::from_slice(&v[..4]), Vec4::from_slice(&v[4..])];
+    /// `aᵢ = P·qᵢ`, `bᵢ = Q·qᵢ`.
+    fn new(p: RealQuat, q: RealQuat, corners: &Corners) -> CornerLanes {
+        let (a, b) = (corners.dots(p), corners.dots(q));
+        let used = [0, 4]
+            .map(|o| Vec4::from_array([0, 1, 2, 3].map(|k| if o + k < corners.count { 1.0 } else { 0.0 })));
         CornerLanes {
-            a: lanes(a),
-            b: lanes(b),
-            flat: lanes(flat),
-            used: lanes(used),
+            a,
+            b,
+            flat: [0, 1].map(|h| (Vec4::ONE - a[h] * a[h] - b[h] * b[h]).max(Vec4::ZERO) * used[h]),
+            used,
         }
+    }
+
+    /// Corner `k`'s `(aₖ, bₖ)`.
+    fn corner(&self, k: usize) -> (Real, Real) {
+        let (h, i) = (k / 4, k % 4);
+        (
+            real::from_f32(self.a[h].to_array()[i]),
+            real::from_f32(self.b[h].to_array()[i]),
+        )
     }
 
     /// Each corner's dot product `dᵢ = aᵢ·cos(ψ/2) + bᵢ·sin(ψ/2)` and its slope in `ψ`,
@@ -268,6 +306,22 @@ impl CornerLanes {
             );
         }
         (terms, slopes)
+    }
+
+    /// Each corner term's centre `2·atan2(bᵢ, aᵢ)` (where it is least; its kink lies opposite),
+    /// its radius `rᵢ = √(aᵢ² + bᵢ²)` and its floor `acos rᵢ` (its least value).
+    fn shapes(&self) -> [[f32; 8]; 3] {
+        let mut out = [[0.0; 8]; 3];
+        for h in 0..2 {
+            let (a, b) = (self.a[h], self.b[h]);
+            let r = (a * a + b * b).sqrt();
+            let w = r.min(Vec4::ONE);
+            let floor = atan_ratio_lanes(((Vec4::ONE - w) * (Vec4::ONE + w)).sqrt(), w);
+            for (slot, v) in out.iter_mut().zip([atan2_lanes(b, a) * 2.0, r, floor]) {
+                slot[4 * h..4 * h + 4].copy_from_slice(&v.to_array());
+            }
+        }
+        out
     }
 
     /// The corner terms' summed slope and curvature in `ψ`; the curvature of `acos|d|` is
@@ -327,16 +381,10 @@ struct Probe {
 impl SwivelCircle {
     /// The circle `q(ψ) = cos(ψ/2)·p + sin(ψ/2)·q` against the limit `corners`.
     #[must_use]
-    pub fn new(p: RealQuat, q: RealQuat, corners: &[RealQuat]) -> SwivelCircle {
-        let mut ab = [(0.0, 0.0); 8];
-        for (slot, c) in ab.iter_mut().zip(corners) {
-            *slot = (p.dot(*c), q.dot(*c));
-        }
-        let corners = corners.len().min(8);
+    pub fn new(p: RealQuat, q: RealQuat, corners: &Corners) -> SwivelCircle {
         SwivelCircle {
-            ab,
-            corners,
-            lanes: CornerLanes::new(&ab, corners),
+            lanes: CornerLanes::new(p, q, corners),
+            corners: corners.count,
             p,
             q,
         }
@@ -356,7 +404,7 @@ impl SwivelCircle {
             // of its slope.
             slope -= real::from_f32(slopes[k / 4].to_array()[k % 4]);
             let (s, c) = half;
-            let (a, b) = self.ab[k];
+            let (a, b) = self.lanes.corner(k);
             let d = a * c + b * s;
             let root = real::sqrt(real::max((1.0 - d) * (1.0 + d), 0.0));
             jump = real::fabs(0.5 * (b * c - a * s)) / real::max(root, Real::MIN_POSITIVE);
@@ -493,14 +541,14 @@ impl SwivelCircle {
         // the term kinked there (9: none).
         let mut points: heapless::Vec<(Real, usize), 48> = heapless::Vec::new();
         let mut centres = [Real::NAN; 9];
-        // Each term's radius; its floor acos(r) is taken only where a bound needs it.
-        let mut radii = [1.0; 9];
+        // Each term's least value (the continuity term's: 0).
+        let mut floors = [0.0; 9];
+        let [lane_centres, radii, lane_floors] = self.lanes.shapes();
         // (A kink outside the allowed arcs only splits a piece that is not allowed: left out.)
-        for (k, &(a, b)) in self.ab[..self.corners].iter().enumerate() {
-            let r = real::sqrt(a * a + b * b);
-            radii[k] = r;
-            if r > ROUNDING {
-                let centre = 2.0 * atan2_fast(b, a);
+        for k in 0..self.corners {
+            floors[k] = real::from_f32(lane_floors[k]);
+            if real::from_f32(radii[k]) > ROUNDING {
+                let centre = real::from_f32(lane_centres[k]);
                 centres[k] = wrap(centre);
                 let kink = wrap(centre + PI);
                 if contains(allowed, kink) {
@@ -573,11 +621,7 @@ impl SwivelCircle {
             for k in 0..9 {
                 let c = centres[k];
                 bound += if c.is_finite() && turn(c - l) <= h - l {
-                    if k == 8 {
-                        0.0
-                    } else {
-                        acos_abs_fast(radii[k])
-                    }
+                    floors[k]
                 } else if k == 8 {
                     real::min(pa.keep_term, pb.keep_term)
                 } else {
@@ -607,10 +651,16 @@ impl SwivelCircle {
     /// `l/2` and `h/2`): each dot product
     /// `aᵢ·cos(ψ/2) + bᵢ·sin(ψ/2)` keeps its sign there (over less than π of `ψ/2` it has
     /// at most one zero, so the ends' signs tell).
-    fn kink_free(&self, ((sl, cl), (sh, ch)): ((Real, Real), (Real, Real))) -> bool {
-        self.ab[..self.corners]
-            .iter()
-            .all(|&(a, b)| (a * cl + b * sl) * (a * ch + b * sh) > 0.0)
+    fn kink_free(&self, ends: ((Real, Real), (Real, Real))) -> bool {
+        let [(sl, cl), (sh, ch)] =
+            [ends.0, ends.1].map(|(s, c)| (Vec4::splat(real::to_f32(s)), Vec4::splat(real::to_f32(c))));
+        (0..2).all(|h| {
+            let ((low, _), (high, _)) = (self.lanes.dots(h, sl, cl), self.lanes.dots(h, sh, ch));
+            // (Unused slots count as kink-free.)
+            Vec4::select(self.lanes.used[h].cmpgt(Vec4::ZERO), low * high, Vec4::ONE)
+                .cmpgt(Vec4::ZERO)
+                .all()
+        })
     }
 
     /// Where the slope of eq. 30 crosses zero in `[l, h]`, a piece where it rises from `gl < 0`
@@ -821,7 +871,7 @@ mod tests {
         let corners: [RealQuat; 8] = core::array::from_fn(|k| {
             RealQuat::from_xyzw(0.3 * k as Real - 1.0, 0.5, 0.2 - 0.1 * k as Real, 0.9).normalize()
         });
-        let circle = SwivelCircle::new(p, q, &corners);
+        let circle = SwivelCircle::new(p, q, &Corners::new(&corners));
         // Eq. 30 in f64 with libm's arccosine, from the corners themselves.
         let exact = |x: Real, keep: Option<Real>| -> Real {
             let (s, c) = real::sincos(0.5 * x);
