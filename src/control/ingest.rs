@@ -220,13 +220,17 @@ impl Controller {
                 self.stats.commands_refused += 1;
                 return;
             }
-            let len = self.angles.len();
-            let mut load_offsets = [0.0; MAX_SERVOS];
+            // Load offsets only with a retargeting (the preview fills missing ones with 0).
+            let channels = &self.channels[..n];
             if let Some(r) = &mut self.retarget {
+                let len = self.angles.len();
+                let mut load_offsets = [0.0; MAX_SERVOS];
                 r.load_offsets(&self.rig, &mut load_offsets[..len]);
+                self.preview
+                    .push(head, &self.angles, &load_offsets[..len], channels);
+            } else {
+                self.preview.push(head, &self.angles, &[], channels);
             }
-            self.preview
-                .push(head, &self.angles, &load_offsets[..len], &self.channels[..n]);
         }
     }
 }

@@ -477,12 +477,9 @@ impl Lookahead {
         dt: f64,
         ease: Option<EaseIn<'_>>,
     ) -> &[f64] {
-        let h = self.window.spacing_s();
-        let h_ns = (h * 1e9).round() as u64;
         let dt_ns = (dt * 1e9).round() as u64;
-        // The previous goal's time: knots lie at t0 + (j+1)·h.
-        let t0 = now_ns.saturating_sub(dt_ns);
-        let knots = self.window.knots();
+        let knot_times = KnotTimes::new(&self.window, now_ns, dt_ns);
+        let knots = knot_times.knots;
         // Ticks in step (not after a skip or a restart): servos go on between their turns.
         let in_step = self.last_now_ns.is_some_and(|t| now_ns == t + dt_ns);
         if !in_step {
@@ -490,7 +487,6 @@ impl Lookahead {
         }
         self.last_now_ns = Some(now_ns);
         self.tick = self.tick.wrapping_add(1);
-        let knot_times = KnotTimes { t0, h_ns, knots };
         let mut placed: Option<u64> = None;
         for (k, servo) in rig.servos.iter().enumerate() {
             let state = stage.state(k);
@@ -530,13 +526,8 @@ impl Lookahead {
         else {
             return;
         };
-        let knots = self.window.knots();
-        let dt_ns = (dt * 1e9).round() as u64;
-        let knot_times = KnotTimes {
-            t0: now_ns.saturating_sub(dt_ns),
-            h_ns: (self.window.spacing_s() * 1e9).round() as u64,
-            knots,
-        };
+        let knot_times = KnotTimes::new(&self.window, now_ns, (dt * 1e9).round() as u64);
+        let knots = knot_times.knots;
         let (mut places, mut reference) = ([Place::Empty; MAX_KNOTS], [0.0; MAX_KNOTS]);
         reference_at_knots(
             (preview, None),
@@ -557,6 +548,18 @@ struct KnotTimes {
     t0: u64,
     h_ns: u64,
     knots: usize,
+}
+
+impl KnotTimes {
+    /// The knots of `window` for the tick at `now_ns`, `dt_ns` after the one before: `t0` is
+    /// the previous goal's time.
+    fn new(window: &Window, now_ns: u64, dt_ns: u64) -> KnotTimes {
+        KnotTimes {
+            t0: now_ns.saturating_sub(dt_ns),
+            h_ns: (window.spacing_s() * 1e9).round() as u64,
+            knots: window.knots(),
+        }
+    }
 }
 
 /// Servo `k`'s reference at the knots (ticks, into `reference`): the preview's angle at each
