@@ -14,7 +14,7 @@ use crate::math::{
     wrap_near, EulerOrder,
 };
 use crate::skeleton::{dof_order, Dof, Skeleton, MAX_BONES};
-use crate::swivel::{self, Corners, LimitForms, SwivelCircle};
+use crate::swivel::{self, LimitForms, SwivelCircle};
 
 /// How far rounding may leave a value past a bound it meets exactly (an angle on its limit, a
 /// cosine at ±1): 1e-12 in f64; in f32, whose step at π is 2.4e-7 rad, 1e-6.
@@ -147,8 +147,6 @@ pub struct Limb {
     l1: Real,
     l2: Real,
     corners: heapless::Vec<RealQuat, 8>,
-    /// The same in f32 lanes, for the swivel circle.
-    corner_lanes: Corners,
     center: [Real; 3],
     limits: [(Real, Real); 3],
     elbow_limit: (Real, Real),
@@ -304,7 +302,6 @@ impl Limb {
             d2,
             l1,
             l2,
-            corner_lanes: Corners::new(&corners),
             corners,
             center,
             limits,
@@ -814,7 +811,7 @@ impl Limb {
         let n = RealQuat::from_xyzw(axis.x, axis.y, axis.z, 0.0);
         let p = c.conjugate() * base * c;
         let q = c.conjugate() * n * base * c;
-        let circle = SwivelCircle::new(p, q, &self.corner_lanes);
+        let circle = SwivelCircle::new(p, q, &self.corners);
         // The swivel `φ` of `ψ`, the Euler angles there and their violation: legal as the
         // Euler extraction reads it (exact).
         let at = |psi: Real| {

@@ -996,8 +996,10 @@ const ATAN_COEFFICIENTS: [Real; 8] = [
 ];
 
 /// `atan2(v, w)` for `v, w ≥ 0` with a polynomial arctangent, error below 1e-7 rad
-/// ([`ATAN_COEFFICIENTS`] on `[0, 1]`; the other octant by `π/2 − atan(1/x)`).
-#[inline]
+/// ([`ATAN_COEFFICIENTS`] on `[0, 1]`; the other octant by `π/2 − atan(1/x)`). One copy in the
+/// f32 build (a firmware image's flash).
+#[cfg_attr(not(feature = "f32"), inline)]
+#[cfg_attr(feature = "f32", inline(never))]
 #[must_use]
 pub fn atan_ratio_fast(v: Real, w: Real) -> Real {
     let c = &ATAN_COEFFICIENTS;
@@ -1021,6 +1023,7 @@ pub fn atan_ratio_fast(v: Real, w: Real) -> Real {
 /// rounding (2.4e-7 at π/2).
 #[inline]
 #[must_use]
+#[cfg(not(feature = "f32"))]
 pub fn atan_ratio_lanes(v: Vec4, w: Vec4) -> Vec4 {
     let c = ATAN_COEFFICIENTS.map(|k| Vec4::splat(real::to_f32(k)));
     let x = v.min(w) / v.max(w).max(Vec4::splat(f32::MIN_POSITIVE));
@@ -1028,6 +1031,41 @@ pub fn atan_ratio_lanes(v: Vec4, w: Vec4) -> Vec4 {
     let p =
         x * (c[0] + z * (c[1] + z * (c[2] + z * (c[3] + z * (c[4] + z * (c[5] + z * (c[6] + z * c[7])))))));
     Vec4::select(v.cmple(w), p, Vec4::splat(core::f32::consts::FRAC_PI_2) - p)
+}
+
+/// [`atan_ratio_lanes`] in the f32 build, whose `Vec4` is four scalars (glam's scalar maths):
+/// [`atan_ratio_fast`] lane by lane, a quarter of the code in a firmware image.
+#[inline]
+#[must_use]
+#[cfg(feature = "f32")]
+pub fn atan_ratio_lanes(v: Vec4, w: Vec4) -> Vec4 {
+    let (v, w) = (v.to_array(), w.to_array());
+    Vec4::from_array(core::array::from_fn(|i| atan_ratio_fast(v[i], w[i])))
+}
+
+/// `√x` on four lanes of f32: glam's (one SSE2 instruction on x86-64); in the f32 build, whose
+/// `Vec4` is four scalars, [`real::sqrt`] lane by lane (glam's scalar `sqrt` is libm's, done
+/// in software on a Cortex-M4).
+#[inline]
+#[must_use]
+pub fn sqrt_lanes(x: Vec4) -> Vec4 {
+    #[cfg(not(feature = "f32"))]
+    {
+        x.sqrt()
+    }
+    #[cfg(feature = "f32")]
+    {
+        Vec4::from_array(x.to_array().map(real::sqrt))
+    }
+}
+
+/// The sum of four lanes, `((x + y) + z) + w`: the same order, so the same bits, with SSE2 and
+/// with glam's scalar maths (glam's `element_sum` adds in a different order on each).
+#[inline]
+#[must_use]
+pub fn sum_lanes(x: Vec4) -> f32 {
+    let [a, b, c, d] = x.to_array();
+    ((a + b) + c) + d
 }
 
 /// [`atan2_fast`] on four lanes of f32: `atan2(y, x)` in `[−π, π]`, error below 1e-7 rad plus

@@ -28,8 +28,8 @@ use crate::math::consts::{PI, TAU};
 use crate::math::{precision, real, Real, RealQuat};
 
 use crate::math::{
-    acos_fast, atan2_fast, atan2_lanes, atan_ratio_lanes, sincos_f32, sort_by_real, AngleOf, Element,
-    EulerOrder,
+    acos_abs_fast, acos_fast, atan2_fast, atan2_lanes, atan_ratio_lanes, sincos_f32, sort_by_real,
+    sqrt_lanes, sum_lanes, AngleOf, Element, EulerOrder,
 };
 use glam::Vec4;
 
@@ -210,40 +210,6 @@ pub struct SwivelCircle {
     q: RealQuat,
 }
 
-/// A limb's limit corners (eq. 30's `qᵢ`, at most eight) in f32 lanes, component by
-/// component, four corners to a lane vector: [`SwivelCircle::new`] takes all their dot products
-/// with `P` and `Q` in a few vector instructions. Unused slots are zero.
-#[derive(Clone, Copy, Debug)]
-pub struct Corners {
-    /// `x`, `y`, `z`, `w` of each corner.
-    parts: [[Vec4; 2]; 4],
-    count: usize,
-}
-
-impl Corners {
-    /// The first eight of `corners`.
-    #[must_use]
-    pub fn new(corners: &[RealQuat]) -> Corners {
-        let mut parts = [[0.0f32; 8]; 4];
-        for (k, c) in corners.iter().take(8).enumerate() {
-            for (part, v) in parts.iter_mut().zip([c.x, c.y, c.z, c.w]) {
-                part[k] = real::to_f32(v);
-            }
-        }
-        Corners {
-            parts: parts.map(|v| [Vec4::from_slice(&v[..4]), Vec4::from_slice(&v[4..])]),
-            count: corners.len().min(8),
-        }
-    }
-
-    /// The 4-D dot product of `r` with each corner.
-    fn dots(&self, r: RealQuat) -> [Vec4; 2] {
-        let [x, y, z, w] = [r.x, r.y, r.z, r.w].map(|v| Vec4::splat(real::to_f32(v)));
-        let p = &self.parts;
-        [0, 1].map(|h| p[0][h] * x + p[1][h] * y + p[2][h] * z + p[3][h] * w)
-    }
-}
-
 /// The corners' `aᵢ`, `bᵢ` in f32, four to a lane vector (glam's `Vec4`: SSE2 on x86-64,
 /// scalar on a microcontroller), so that eq. 30's eight terms and slopes at a swivel take a few
 /// vector instructions each. An unused slot has `a = b = 0`: no slope, no curvature, and its
@@ -259,16 +225,21 @@ struct CornerLanes {
 }
 
 impl CornerLanes {
-    /// `aᵢ = P·qᵢ`, `bᵢ = Q·qᵢ`.
-    fn new(p: RealQuat, q: RealQuat, corners: &Corners) -> CornerLanes {
-        let (a, b) = (corners.dots(p), corners.dots(q));
-        let used = [0, 4]
-            .map(|o| Vec4::from_array([0, 1, 2, 3].map(|k| if o + k < corners.count { 1.0 } else { 0.0 })));
+    /// `aᵢ = P·qᵢ`, `bᵢ = Q·qᵢ` of the first eight `corners`.
+    fn new(p: RealQuat, q: RealQuat, corners: &[RealQuat]) -> CornerLanes {
+        let (mut a, mut b, mut flat, mut used) = ([0.0f32; 8], [0.0f32; 8], [0.0f32; 8], [0.0f32; 8]);
+        for (k, c) in corners.iter().take(8).enumerate() {
+            let (x, y) = (p.dot(*c), q.dot(*c));
+            (a[k], b[k]) = (real::to_f32(x), real::to_f32(y));
+            flat[k] = real::to_f32(real::max(1.0 - x * x - y * y, 0.0));
+            used[k] = 1.0;
+        }
+        let lanes = |v: [f32; 8]| [Vec4::from_slice(&v[..4]), Vec4::from_slice(&v[4..])];
         CornerLanes {
-            a,
-            b,
-            flat: [0, 1].map(|h| (Vec4::ONE - a[h] * a[h] - b[h] * b[h]).max(Vec4::ZERO) * used[h]),
-            used,
+            a: lanes(a),
+            b: lanes(b),
+            flat: lanes(flat),
+            used: lanes(used),
         }
     }
 
@@ -297,7 +268,7 @@ impl CornerLanes {
         for h in 0..2 {
             let (d, dd) = self.dots(h, s, c);
             let w = d.abs().min(Vec4::ONE);
-            let root = ((Vec4::ONE - w) * (Vec4::ONE + w)).sqrt();
+            let root = sqrt_lanes((Vec4::ONE - w) * (Vec4::ONE + w));
             terms[h] = atan_ratio_lanes(root, w) * self.used[h];
             slopes[h] = Vec4::select(
                 root.cmpgt(Vec4::ZERO),
@@ -308,16 +279,16 @@ impl CornerLanes {
         (terms, slopes)
     }
 
-    /// Each corner term's centre `2·atan2(bᵢ, aᵢ)` (where it is least; its kink lies opposite),
-    /// its radius `rᵢ = √(aᵢ² + bᵢ²)` and its floor `acos rᵢ` (its least value).
-    fn shapes(&self) -> [[f32; 8]; 3] {
-        let mut out = [[0.0; 8]; 3];
+    /// Each corner term's centre `2·atan2(bᵢ, aᵢ)` (where it is least, `acos rᵢ`; its kink lies
+    /// opposite) and its radius `rᵢ = √(aᵢ² + bᵢ²)`.
+    fn shapes(&self) -> [[f32; 8]; 2] {
+        let mut out = [[0.0; 8]; 2];
         for h in 0..2 {
             let (a, b) = (self.a[h], self.b[h]);
-            let r = (a * a + b * b).sqrt();
-            let w = r.min(Vec4::ONE);
-            let floor = atan_ratio_lanes(((Vec4::ONE - w) * (Vec4::ONE + w)).sqrt(), w);
-            for (slot, v) in out.iter_mut().zip([atan2_lanes(b, a) * 2.0, r, floor]) {
+            for (slot, v) in out
+                .iter_mut()
+                .zip([atan2_lanes(b, a) * 2.0, sqrt_lanes(a * a + b * b)])
+            {
                 slot[4 * h..4 * h + 4].copy_from_slice(&v.to_array());
             }
         }
@@ -333,11 +304,11 @@ impl CornerLanes {
             let (d, dd) = self.dots(h, s, c);
             let one = (Vec4::ONE - d) * (Vec4::ONE + d);
             let live = one.cmpgt(Vec4::ZERO);
-            let root = one.max(Vec4::splat(f32::MIN_POSITIVE)).sqrt();
+            let root = sqrt_lanes(one.max(Vec4::splat(f32::MIN_POSITIVE)));
             g -= Vec4::select(live, Vec4::ONE.copysign(d) * dd / root, Vec4::ZERO);
             k += Vec4::select(live, d.abs() * self.flat[h] / (4.0 * one * root), Vec4::ZERO);
         }
-        (real::from_f32(g.element_sum()), real::from_f32(k.element_sum()))
+        (real::from_f32(sum_lanes(g)), real::from_f32(sum_lanes(k)))
     }
 }
 
@@ -381,10 +352,10 @@ struct Probe {
 impl SwivelCircle {
     /// The circle `q(ψ) = cos(ψ/2)·p + sin(ψ/2)·q` against the limit `corners`.
     #[must_use]
-    pub fn new(p: RealQuat, q: RealQuat, corners: &Corners) -> SwivelCircle {
+    pub fn new(p: RealQuat, q: RealQuat, corners: &[RealQuat]) -> SwivelCircle {
         SwivelCircle {
             lanes: CornerLanes::new(p, q, corners),
-            corners: corners.count,
+            corners: corners.len().min(8),
             p,
             q,
         }
@@ -397,7 +368,7 @@ impl SwivelCircle {
     fn probe_at(&self, psi: Real, keep: Option<Real>, kink: Option<usize>) -> Probe {
         let half = half_turn(psi);
         let (terms, slopes) = self.lanes.terms_and_slopes(half);
-        let mut slope = real::from_f32((slopes[0] + slopes[1]).element_sum());
+        let mut slope = real::from_f32(sum_lanes(slopes[0] + slopes[1]));
         let mut jump = 0.0;
         if let Some(k) = kink.filter(|&k| k < 8) {
             // The kinked term's slope left out; past its zero the dot product takes the sign
@@ -420,7 +391,7 @@ impl SwivelCircle {
             }
         }
         Probe {
-            total: real::from_f32((terms[0] + terms[1]).element_sum()) + keep_term,
+            total: real::from_f32(sum_lanes(terms[0] + terms[1])) + keep_term,
             terms,
             keep_term,
             slope,
@@ -541,12 +512,10 @@ impl SwivelCircle {
         // the term kinked there (9: none).
         let mut points: heapless::Vec<(Real, usize), 48> = heapless::Vec::new();
         let mut centres = [Real::NAN; 9];
-        // Each term's least value (the continuity term's: 0).
-        let mut floors = [0.0; 9];
-        let [lane_centres, radii, lane_floors] = self.lanes.shapes();
+        // Each term's radius; its floor acos(r) is taken only where a bound needs it.
+        let [lane_centres, radii] = self.lanes.shapes();
         // (A kink outside the allowed arcs only splits a piece that is not allowed: left out.)
         for k in 0..self.corners {
-            floors[k] = real::from_f32(lane_floors[k]);
             if real::from_f32(radii[k]) > ROUNDING {
                 let centre = real::from_f32(lane_centres[k]);
                 centres[k] = wrap(centre);
@@ -621,7 +590,11 @@ impl SwivelCircle {
             for k in 0..9 {
                 let c = centres[k];
                 bound += if c.is_finite() && turn(c - l) <= h - l {
-                    floors[k]
+                    if k == 8 {
+                        0.0
+                    } else {
+                        acos_abs_fast(real::from_f32(radii[k]))
+                    }
                 } else if k == 8 {
                     real::min(pa.keep_term, pb.keep_term)
                 } else {
@@ -871,7 +844,7 @@ mod tests {
         let corners: [RealQuat; 8] = core::array::from_fn(|k| {
             RealQuat::from_xyzw(0.3 * k as Real - 1.0, 0.5, 0.2 - 0.1 * k as Real, 0.9).normalize()
         });
-        let circle = SwivelCircle::new(p, q, &Corners::new(&corners));
+        let circle = SwivelCircle::new(p, q, &corners);
         // Eq. 30 in f64 with libm's arccosine, from the corners themselves.
         let exact = |x: Real, keep: Option<Real>| -> Real {
             let (s, c) = real::sincos(0.5 * x);
