@@ -323,23 +323,12 @@ pub fn fk64_tip(
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> RealVec3 {
     let bone = &skeleton.bones()[i];
-    let c = bone.axis_rotation_f64();
-    let mut t = RealVec3::ZERO;
-    let mut l = 0.0;
-    let first = bone.first_channel();
-    for (k, d) in bone.dofs().iter().enumerate() {
-        let v = channels.get(first + k).copied().unwrap_or(0.0);
-        match d {
-            Dof::Tx => t.x = v,
-            Dof::Ty => t.y = v,
-            Dof::Tz => t.z = v,
-            Dof::L => l = v,
-            _ => {}
-        }
-    }
+    let (start, axes, l) = start_and_axes(skeleton, channels, i, parent);
     let dir = bone.direction_f64();
+    let c = bone.axis_rotation_f64();
     let mut v = RealVec3::new(c.x_axis.dot(dir), c.y_axis.dot(dir), c.z_axis.dot(dir))
         * ((bone.length() as Real) + l);
+    let first = bone.first_channel();
     for (k, d) in bone.dofs().iter().enumerate() {
         let a = channels.get(first + k).copied().unwrap_or(0.0);
         let axis = match d {
@@ -357,18 +346,42 @@ pub fn fk64_tip(
             v[j] = s * x + cos * y;
         }
     }
-    let (start, axes) = match parent {
-        None => (skeleton.root().position.to_real() + t, c),
+    start + axes * v
+}
+
+/// Where bone `i` starts (its parent's tip, moved by its translation channels in the parent's
+/// axes; the root's position plus them), the parent's axes `Wₚ·C` (the root: `C`), and its
+/// length channel. Missing channels count as 0.
+fn start_and_axes(
+    skeleton: &Skeleton,
+    channels: &[Real],
+    i: usize,
+    parent: Option<(&RealMat3, RealVec3)>,
+) -> (RealVec3, RealMat3, Real) {
+    let bone = &skeleton.bones()[i];
+    let c = bone.axis_rotation_f64();
+    let (mut t, mut l) = (RealVec3::ZERO, 0.0);
+    for (d, k) in bone.dofs().iter().zip(bone.channels()) {
+        let v = channels.get(k).copied().unwrap_or(0.0);
+        match d {
+            Dof::Tx => t.x = v,
+            Dof::Ty => t.y = v,
+            Dof::Tz => t.z = v,
+            Dof::L => l = v,
+            _ => {}
+        }
+    }
+    match parent {
+        None => (skeleton.root().position.to_real() + t, c, l),
         Some((parent_world, parent_tip)) => {
             let axes = if bone.axis_is_identity() {
                 *parent_world
             } else {
                 *parent_world * c
             };
-            (parent_tip + axes * t, axes)
+            (parent_tip + axes * t, axes, l)
         }
-    };
-    start + axes * v
+    }
 }
 
 /// Where bone `i` starts, as [`fk64_step`] has it (its parent's tip, moved by its translation
@@ -380,21 +393,7 @@ pub fn fk64_start(
     i: usize,
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> RealVec3 {
-    let bone = &skeleton.bones()[i];
-    let mut t = RealVec3::ZERO;
-    for (d, c) in bone.dofs().iter().zip(bone.channels()) {
-        let v = channels.get(c).copied().unwrap_or(0.0);
-        match d {
-            Dof::Tx => t.x = v,
-            Dof::Ty => t.y = v,
-            Dof::Tz => t.z = v,
-            _ => {}
-        }
-    }
-    match parent {
-        None => skeleton.root().position.to_real() + t,
-        Some((parent_world, parent_tip)) => parent_tip + (*parent_world * bone.axis_rotation_f64()) * t,
-    }
+    start_and_axes(skeleton, channels, i, parent).0
 }
 
 /// [`fk64_step`] without the local frame: `(world, start, tip)`. A bone that does not rotate

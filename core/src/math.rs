@@ -996,7 +996,7 @@ const ATAN_COEFFICIENTS: [Real; 8] = [
 ];
 
 /// `atan2(v, w)` for `v, w ≥ 0` with a polynomial arctangent, error below 1e-7 rad
-/// ([`ATAN_COEFFICIENTS`] on `[0, 1]`; the other octant by `π/2 − atan(1/x)`). One copy in the
+/// (Abramowitz & Stegun 4.4.49 on `[0, 1]`; the other octant by `π/2 − atan(1/x)`). One copy in the
 /// f32 build (a firmware image's flash).
 #[cfg_attr(not(feature = "f32"), inline)]
 #[cfg_attr(feature = "f32", inline(never))]
