@@ -323,9 +323,9 @@ pub fn fk64_tip(
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> RealVec3 {
     let bone = &skeleton.bones()[i];
-    let (start, axes, l) = start_and_axes(skeleton, channels, i, parent);
-    let dir = bone.direction_f64();
     let c = bone.axis_rotation_f64();
+    let (t, l) = translation_and_stretch(bone, channels);
+    let dir = bone.direction_f64();
     let mut v = RealVec3::new(c.x_axis.dot(dir), c.y_axis.dot(dir), c.z_axis.dot(dir))
         * ((bone.length() as Real) + l);
     let first = bone.first_channel();
@@ -346,20 +346,23 @@ pub fn fk64_tip(
             v[j] = s * x + cos * y;
         }
     }
+    let (start, axes) = match parent {
+        None => (skeleton.root().position.to_real() + t, c),
+        Some((parent_world, parent_tip)) => {
+            let axes = if bone.axis_is_identity() {
+                *parent_world
+            } else {
+                *parent_world * c
+            };
+            (parent_tip + axes * t, axes)
+        }
+    };
     start + axes * v
 }
 
-/// Where bone `i` starts (its parent's tip, moved by its translation channels in the parent's
-/// axes; the root's position plus them), the parent's axes `Wₚ·C` (the root: `C`), and its
-/// length channel. Missing channels count as 0.
-fn start_and_axes(
-    skeleton: &Skeleton,
-    channels: &[Real],
-    i: usize,
-    parent: Option<(&RealMat3, RealVec3)>,
-) -> (RealVec3, RealMat3, Real) {
-    let bone = &skeleton.bones()[i];
-    let c = bone.axis_rotation_f64();
+/// A bone's translation channels and its length channel (missing channels count as 0).
+#[inline]
+fn translation_and_stretch(bone: &Bone, channels: &[Real]) -> (RealVec3, Real) {
     let (mut t, mut l) = (RealVec3::ZERO, 0.0);
     for (d, k) in bone.dofs().iter().zip(bone.channels()) {
         let v = channels.get(k).copied().unwrap_or(0.0);
@@ -371,17 +374,7 @@ fn start_and_axes(
             _ => {}
         }
     }
-    match parent {
-        None => (skeleton.root().position.to_real() + t, c, l),
-        Some((parent_world, parent_tip)) => {
-            let axes = if bone.axis_is_identity() {
-                *parent_world
-            } else {
-                *parent_world * c
-            };
-            (parent_tip + axes * t, axes, l)
-        }
-    }
+    (t, l)
 }
 
 /// Where bone `i` starts, as [`fk64_step`] has it (its parent's tip, moved by its translation
@@ -393,7 +386,12 @@ pub fn fk64_start(
     i: usize,
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> RealVec3 {
-    start_and_axes(skeleton, channels, i, parent).0
+    let bone = &skeleton.bones()[i];
+    let (t, _) = translation_and_stretch(bone, channels);
+    match parent {
+        None => skeleton.root().position.to_real() + t,
+        Some((parent_world, parent_tip)) => parent_tip + (*parent_world * bone.axis_rotation_f64()) * t,
+    }
 }
 
 /// [`fk64_step`] without the local frame: `(world, start, tip)`. A bone that does not rotate
