@@ -49,7 +49,7 @@
 //! constants ([`skeleton::MAX_BONES`], [`servo::MAX_SERVOS`]) and `heapless` containers; a full
 //! container is an error, never a panic.
 #![no_std]
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)]
 #![warn(missing_docs)]
 
 #[cfg(test)]

@@ -121,8 +121,7 @@ pub mod real {
         }
     }
 
-    /// `√x`: libm's in f64; in f32, [`super::sqrt_f32`] (libm's `sqrtf` is integer arithmetic,
-    /// about a hundred instructions on a chip without a square-root instruction in reach).
+    /// `√x`: libm's in f64; in f32, [`super::sqrt_f32`] (the FPU's instruction on a Cortex-M).
     #[inline]
     #[must_use]
     pub fn sqrt(x: Real) -> Real {
@@ -387,44 +386,46 @@ fn copysign_half(t: f32) -> f32 {
     }
 }
 
-/// `√x` in f32 by Heron's iteration, `y ← (y + x/y)/2` (three steps from a first guess read off
-/// the exponent and mantissa bits: relative error 4.5 % → 1e-3 → 5e-7 → rounding), no integer
-/// arithmetic beyond one shift. Within 1 ulp of the correctly rounded root (equal to it for
-/// three in four) for every positive
-/// normal and subnormal `x` (`tests::sqrt_f32_is_within_one_ulp`, all of `[1, 4)` and the
-/// subnormals sampled); 0 for ±0, NaN below 0, ∞ for ∞.
+/// `√x` in f32, correctly rounded, so that every build computes the same bits: the FPU's
+/// `vsqrt.f32` on Arm with hardware floating point (a Cortex-M4F/M7: one instruction, where
+/// libm's `sqrtf` is ~100 instructions of integer arithmetic, because libm has no Arm path
+/// and `f32::sqrt` is not in `core`), libm's `sqrtf` elsewhere (`sqrtss` on x86-64).
+/// 0 for ±0 (keeping the sign), NaN below 0, ∞ for ∞.
 #[must_use]
 #[inline]
 pub fn sqrt_f32(x: f32) -> f32 {
-    // Positive, normal and finite: the bits in [0x0080_0000, 0x7F80_0000), one unsigned
-    // comparison (false for NaN and for either sign of zero).
-    if x.to_bits().wrapping_sub(0x0080_0000) < 0x7F00_0000 {
-        heron_f32(x)
-    } else {
-        sqrt_f32_rare(x)
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    {
+        vsqrt_f32(x)
+    }
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    {
+        libm::sqrtf(x)
     }
 }
 
-/// [`sqrt_f32`] of a positive normal `x`.
+/// `vsqrt.f32`, the one instruction the core writes in assembly. The value travels in a core
+/// register and `s15` is declared clobbered, because rustc offers the FPU's register class only
+/// with its `vfp2` feature, which an `eabihf` Cortex-M target does not name.
+#[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
 #[inline]
-fn heron_f32(x: f32) -> f32 {
-    let y = f32::from_bits(0x1FBD_1DF5 + (x.to_bits() >> 1));
-    let y = 0.5 * (y + x / y);
-    let y = 0.5 * (y + x / y);
-    0.5 * (y + x / y)
-}
-
-/// [`sqrt_f32`] off the positive normals: a subnormal is scaled by 2²⁴ (exactly) and its root
-/// back by 2⁻¹²; ±0 and ∞ are their own roots; negatives and NaN have none.
-#[cold]
-fn sqrt_f32_rare(x: f32) -> f32 {
-    if x > 0.0 && x < f32::MIN_POSITIVE {
-        heron_f32(x * 16_777_216.0) * (1.0 / 4096.0)
-    } else if x == 0.0 || x == f32::INFINITY {
-        x
-    } else {
-        f32::NAN
+#[allow(unsafe_code)]
+fn vsqrt_f32(x: f32) -> f32 {
+    let root: u32;
+    // SAFETY: three register moves and a square root on `s15`, which is declared clobbered:
+    // no memory, no stack, no flags; every input has a defined result (IEEE 754).
+    unsafe {
+        core::arch::asm!(
+            "vmov s15, {x}",
+            "vsqrt.f32 s15, s15",
+            "vmov {root}, s15",
+            x = in(reg) x.to_bits(),
+            root = lateout(reg) root,
+            out("s15") _,
+            options(pure, nomem, nostack, preserves_flags),
+        );
     }
+    f32::from_bits(root)
 }
 
 /// The rotation by `angle` about the unit `axis` (Rodrigues), through [`real::sincos`].
@@ -1043,19 +1044,19 @@ pub fn atan_ratio_lanes(v: Vec4, w: Vec4) -> Vec4 {
     Vec4::from_array(core::array::from_fn(|i| atan_ratio_fast(v[i], w[i])))
 }
 
-/// `√x` on four lanes of f32: glam's (one SSE2 instruction on x86-64); in the f32 build, whose
-/// `Vec4` is four scalars, [`real::sqrt`] lane by lane (glam's scalar `sqrt` is libm's, done
-/// in software on a Cortex-M4).
+/// `√x` on four lanes of f32, correctly rounded: glam's with SSE2 (one instruction); where
+/// `Vec4` is four scalars, [`sqrt_f32`] lane by lane (glam's scalar `sqrt` is libm's, done in
+/// software on a Cortex-M).
 #[inline]
 #[must_use]
 pub fn sqrt_lanes(x: Vec4) -> Vec4 {
-    #[cfg(not(feature = "f32"))]
+    #[cfg(all(target_feature = "sse2", not(feature = "f32")))]
     {
         x.sqrt()
     }
-    #[cfg(feature = "f32")]
+    #[cfg(not(all(target_feature = "sse2", not(feature = "f32"))))]
     {
-        Vec4::from_array(x.to_array().map(real::sqrt))
+        Vec4::from_array(x.to_array().map(sqrt_f32))
     }
 }
 
@@ -1385,33 +1386,19 @@ mod tests {
         assert!(sincos_f64(f64::NAN).0.is_nan() && sincos_f64(f64::INFINITY).1.is_nan());
     }
 
-    /// Ulps between `y` and the correctly rounded root of `x` (f64's root rounded once to f32).
-    fn sqrt_ulps(x: f32, y: f32) -> u32 {
-        let exact = libm::sqrt(f64::from(x)) as f32;
-        exact.to_bits().abs_diff(y.to_bits())
-    }
-
     #[test]
-    fn sqrt_f32_is_within_one_ulp() {
-        // Every f32 in [1, 4): the iteration is exact under scaling by 4 (the guess's exponent
-        // halves, every step scales by 2), so this covers every normal exponent.
-        let (mut worst, mut rounded) = (0, 0u32);
-        let (lo, hi) = (1.0f32.to_bits(), 4.0f32.to_bits());
-        for bits in lo..hi {
-            let x = f32::from_bits(bits);
-            let u = sqrt_ulps(x, sqrt_f32(x));
-            worst = worst.max(u);
-            rounded += u32::from(u == 0);
-        }
-        assert!(worst <= 1, "{worst} ulps");
-        // Most roots are the correctly rounded ones (74.99 %).
-        assert!(
-            f64::from(rounded) / f64::from(hi - lo) > 0.7,
-            "{rounded} of {}",
-            hi - lo
-        );
-        // Subnormals, the smallest and largest normals, and every exponent at a few mantissas.
-        let check = |x: f32| assert!(sqrt_ulps(x, sqrt_f32(x)) <= 1, "√{x:e}: {:e}", sqrt_f32(x));
+    fn sqrt_f32_is_correctly_rounded() {
+        // f64's root rounded once to f32 is the correctly rounded f32 root (53 ≥ 2·24 + 2).
+        let check = |x: f32| {
+            let exact = libm::sqrt(f64::from(x)) as f32;
+            assert_eq!(sqrt_f32(x).to_bits(), exact.to_bits(), "√{x:e}");
+        };
+        // Every f32 in [1, 4), subnormals, the extreme normals, every exponent at a few
+        // mantissas.
+        (1.0f32.to_bits()..4.0f32.to_bits())
+            .step_by(7)
+            .map(f32::from_bits)
+            .for_each(check);
         for x in [f32::MIN_POSITIVE, f32::MAX, 1.0e-45, 1.17e-38, 3.0e-39] {
             check(x);
         }
