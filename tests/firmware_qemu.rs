@@ -245,16 +245,23 @@ fn run_image(image: &Path, machine: Option<&str>, input: &[u8], name: &str) -> R
 
 /// Instructions (40 a SysTick count) per tick: p50, p99 and max of the whole tick, and the
 /// p50 of each stage.
-fn instructions(run: &Run) -> String {
-    let pct = |mut v: Vec<u64>, q: usize| {
-        v.sort_unstable();
-        v[(v.len() * q / 100).min(v.len() - 1)]
-    };
-    let total: Vec<u64> = run
-        .counts
+/// The `q`th percentile of `v`.
+fn percentile(mut v: Vec<u64>, q: usize) -> u64 {
+    v.sort_unstable();
+    v[(v.len() * q / 100).min(v.len() - 1)]
+}
+
+/// Each tick's instructions (SysTick counts of 40 instructions each, all stages).
+fn tick_instructions(run: &Run) -> Vec<u64> {
+    run.counts
         .iter()
         .map(|c| c.iter().map(|&x| u64::from(x) * 40).sum())
-        .collect();
+        .collect()
+}
+
+fn instructions(run: &Run) -> String {
+    let pct = percentile;
+    let total = tick_instructions(run);
     let stage = |k: usize| pct(run.counts.iter().map(|c| u64::from(c[k]) * 40).collect(), 50);
     format!(
         "p50 {} p99 {} max {} (p50 of solve {}, mapping {}, command {}, Sync Write {}); stack {} bytes",
@@ -504,6 +511,13 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
         "the M4 image's static RAM, {ram} bytes, fits 16 KiB"
     );
     let m4 = run_both(&m4_image, Some("mps2-an386"), "cortex-m4 f32", &r);
+    // The tick's budget: 50,000 instructions at p50 for four limbs (an instruction count under
+    // `-icount shift=0`, the same on every machine: not a time).
+    let four_limb_p50 = percentile(tick_instructions(&m4.targets), 50);
+    assert!(
+        four_limb_p50 <= 50_000,
+        "the M4's four-limb tick, {four_limb_p50} instructions at p50, fits 50,000"
+    );
     let host_f32 = run_both(&host_image(), None, "host f32", &r);
     assert_equal("cortex-m4 f32 against the host's f32 build", &m4, &host_f32, 0.0);
     // Against the f64 host path: clip frames go through the mapping and the command stage
