@@ -14,10 +14,9 @@
 //! [`forward_kinematics`] works in f32 on file frames (the display and the f32 pose);
 //! [`fk64`] in f64 on channel vectors in radians (what IK and the control loop use).
 
-use crate::math::sincos_f32;
-use crate::math::Axis;
 use crate::math::{real, Real, RealMat3, RealVec3, ToReal};
-use crate::skeleton::{turn_columns, Bone, Dof, Skeleton, MAX_BONES};
+use crate::math::{sincos_f32, sincos_f32_many, Axis};
+use crate::skeleton::{turn_columns_by, Bone, Dof, Skeleton, MAX_BONES};
 use glam::{Mat3, Mat3A, Vec3, Vec3A};
 
 /// Global state of every bone for one frame.
@@ -109,11 +108,62 @@ fn turn_columns_f32(m: &mut Mat3A, axis: Axis, a: f32) -> bool {
         return false;
     }
     let (s, c) = sincos_f32(a);
+    turn_columns_f32_by(m, axis, s, c);
+    true
+}
+
+/// [`turn_columns_f32`] with the angle's sine and cosine given.
+#[inline]
+fn turn_columns_f32_by(m: &mut Mat3A, axis: Axis, s: f32, c: f32) {
     let (i, j) = axis.across();
     let (u, v) = (m.col(i), m.col(j));
     *m.col_mut(i) = c * u + s * v;
     *m.col_mut(j) = c * v - s * u;
-    true
+}
+
+/// How many channels' sines and cosines a [`TrigWindow`] holds.
+const TRIG_WINDOW: usize = 32;
+
+/// The sines and cosines of a frame's channels, computed a window at a time by a branch-free
+/// batch ([`sincos_f32_many`], [`real::sincos_many`]: four or two lanes at once) as the bones
+/// ask for them in order. A channel the frame does not have counts as 0.
+struct TrigWindow<T> {
+    start: usize,
+    end: usize,
+    sin: [T; TRIG_WINDOW],
+    cos: [T; TRIG_WINDOW],
+    fill: fn(&[T], &mut [T], &mut [T]),
+}
+
+impl<T: Copy + From<u8>> TrigWindow<T> {
+    fn new(fill: fn(&[T], &mut [T], &mut [T])) -> TrigWindow<T> {
+        let zero = T::from(0);
+        TrigWindow {
+            start: 0,
+            end: 0,
+            sin: [zero; TRIG_WINDOW],
+            cos: [zero; TRIG_WINDOW],
+            fill,
+        }
+    }
+
+    /// The sines and cosines of a bone's channels `range` (at most [`TRIG_WINDOW`] of them);
+    /// the window moves to start at the bone when the bone's channels are not all in it.
+    #[inline]
+    fn bone(&mut self, channels: &[T], range: core::ops::Range<usize>) -> (&[T], &[T]) {
+        if range.start < self.start || range.end > self.end {
+            self.start = range.start;
+            self.end = self.start + TRIG_WINDOW;
+            let given = channels.get(self.start..).unwrap_or(&[]);
+            let n = given.len().min(TRIG_WINDOW);
+            (self.fill)(&given[..n], &mut self.sin[..n], &mut self.cos[..n]);
+            // Channels the frame does not have count as 0.
+            self.sin[n..].fill(T::from(0));
+            self.cos[n..].fill(T::from(1));
+        }
+        let (from, to) = (range.start - self.start, range.end - self.start);
+        (&self.sin[from..to], &self.cos[from..to])
+    }
 }
 
 /// Computes every bone's start, tip and orientation for one frame vector (radians, file
@@ -133,6 +183,7 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
             given: channels.len(),
         });
     }
+    let mut trig = TrigWindow::new(sincos_f32_many);
     for (i, bone) in skeleton.bones().iter().enumerate() {
         let c = Mat3A::from(bone.axis_rotation());
         let parent = bone
@@ -148,16 +199,44 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
         let mut t = Vec3A::ZERO;
         let mut l = 0.0;
         let mut turned = false;
-        for (d, &v) in bone.dofs().iter().zip(&channels[bone.channels()]).rev() {
-            match d {
-                Dof::Rx => turned |= turn_columns_f32(&mut f, Axis::X, v),
-                Dof::Ry => turned |= turn_columns_f32(&mut f, Axis::Y, v),
-                Dof::Rz => turned |= turn_columns_f32(&mut f, Axis::Z, v),
-                Dof::Tx => t.x = v,
-                Dof::Ty => t.y = v,
-                Dof::Tz => t.z = v,
-                Dof::L => l = v,
+        let (sin, cos) = trig.bone(channels, bone.channels());
+        for (k, (d, &v)) in bone
+            .dofs()
+            .iter()
+            .zip(&channels[bone.channels()])
+            .enumerate()
+            .rev()
+        {
+            let axis = match d {
+                Dof::Tx => {
+                    t.x = v;
+                    continue;
+                }
+                Dof::Ty => {
+                    t.y = v;
+                    continue;
+                }
+                Dof::Tz => {
+                    t.z = v;
+                    continue;
+                }
+                Dof::L => {
+                    l = v;
+                    continue;
+                }
+                _ if v == 0.0 => continue,
+                Dof::Rx => Axis::X,
+                Dof::Ry => Axis::Y,
+                Dof::Rz => Axis::Z,
+            };
+            let (s, c) = (sin[k], cos[k]);
+            // One copy of the column update per axis, its columns known.
+            match axis {
+                Axis::X => turn_columns_f32_by(&mut f, Axis::X, s, c),
+                Axis::Y => turn_columns_f32_by(&mut f, Axis::Y, s, c),
+                Axis::Z => turn_columns_f32_by(&mut f, Axis::Z, s, c),
             }
+            turned = true;
         }
         match parent {
             None => {
@@ -216,16 +295,24 @@ impl Default for Pose64 {
 
 /// Forward kinematics in f64, eq. (1)–(5). Missing channels count as 0.
 pub fn fk64(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64) {
+    let mut trig = TrigWindow::new(real::sincos_many);
     for i in 0..skeleton.bones().len() {
-        fk64_bone(skeleton, channels, pose, i);
+        fk64_bone(skeleton, channels, pose, i, &mut trig);
     }
 }
 
 /// [`fk64`] for the listed bones only (ascending, each after its parent — e.g. from
 /// [`ancestors`]); the other entries of `pose` are left as they were.
+///
+/// The sines and cosines are taken channel by channel: a chain's bones lie far apart in the
+/// frame, and a window of them in lanes would compute many that no listed bone needs.
 pub fn fk64_bones(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64, bones: &[usize]) {
     for &i in bones {
-        fk64_bone(skeleton, channels, pose, i);
+        let parent = skeleton.bones()[i]
+            .parent()
+            .map(|p| (&pose.world[p], pose.tip[p]));
+        let stepped = step(skeleton, channels, i, parent, |k| real::sincos(channels[k]));
+        store(pose, i, stepped);
     }
 }
 
@@ -252,16 +339,19 @@ pub fn fk64_step(
     i: usize,
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> (RealMat3, RealMat3, RealVec3, RealVec3) {
-    step(skeleton, channels, i, parent)
+    step(skeleton, channels, i, parent, |k| real::sincos(channels[k]))
 }
 
-/// [`fk64_step`], inlined where [`fk64`] stores its results straight into the pose.
+/// [`fk64_step`] with each channel's `(sin, cos)` from `trig` (asked only for rotation channels
+/// the frame has, at non-zero angles), inlined where [`fk64`] stores its results straight into
+/// the pose.
 #[inline(always)]
 fn step(
     skeleton: &Skeleton,
     channels: &[Real],
     i: usize,
     parent: Option<(&RealMat3, RealVec3)>,
+    mut trig: impl FnMut(usize) -> (Real, Real),
 ) -> (RealMat3, RealMat3, RealVec3, RealVec3) {
     let bone = &skeleton.bones()[i];
     let c = bone.axis_rotation_f64();
@@ -276,17 +366,33 @@ fn step(
     let mut t = RealVec3::ZERO;
     let mut l = 0.0;
     let mut turned = false;
-    let first = bone.first_channel();
-    for (k, d) in bone.dofs().iter().enumerate().rev() {
-        let v = channels.get(first + k).copied().unwrap_or(0.0);
-        match d {
-            Dof::Tx => t.x = v,
-            Dof::Ty => t.y = v,
-            Dof::Tz => t.z = v,
-            Dof::L => l = v,
-            Dof::Rx => turned |= turn_columns(&mut f, Axis::X, v),
-            Dof::Ry => turned |= turn_columns(&mut f, Axis::Y, v),
-            Dof::Rz => turned |= turn_columns(&mut f, Axis::Z, v),
+    for (d, k) in bone.dofs().iter().zip(bone.channels()).rev() {
+        let v = channels.get(k).copied().unwrap_or(0.0);
+        let axis = match d {
+            Dof::Rx => Axis::X,
+            Dof::Ry => Axis::Y,
+            Dof::Rz => Axis::Z,
+            Dof::Tx => {
+                t.x = v;
+                continue;
+            }
+            Dof::Ty => {
+                t.y = v;
+                continue;
+            }
+            Dof::Tz => {
+                t.z = v;
+                continue;
+            }
+            Dof::L => {
+                l = v;
+                continue;
+            }
+        };
+        if v != 0.0 {
+            let (s, c) = trig(k);
+            turn_columns_by(&mut f, axis, s, c);
+            turned = true;
         }
     }
     match parent {
@@ -424,11 +530,26 @@ pub fn fk64_world_step(
 }
 
 /// One bone of [`fk64`], its parent already computed.
-fn fk64_bone(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64, i: usize) {
-    let parent = skeleton.bones()[i]
-        .parent()
-        .map(|p| (&pose.world[p], pose.tip[p]));
-    let (frame, world, start, tip) = step(skeleton, channels, i, parent);
+fn fk64_bone(
+    skeleton: &Skeleton,
+    channels: &[Real],
+    pose: &mut Pose64,
+    i: usize,
+    trig: &mut TrigWindow<Real>,
+) {
+    let bone = &skeleton.bones()[i];
+    let parent = bone.parent().map(|p| (&pose.world[p], pose.tip[p]));
+    let (sin, cos) = trig.bone(channels, bone.channels());
+    let first = bone.first_channel();
+    let stepped = step(skeleton, channels, i, parent, |k| {
+        (sin[k - first], cos[k - first])
+    });
+    store(pose, i, stepped);
+}
+
+/// Bone `i`'s `(frame, world, start, tip)` into the pose.
+#[inline(always)]
+fn store(pose: &mut Pose64, i: usize, (frame, world, start, tip): (RealMat3, RealMat3, RealVec3, RealVec3)) {
     pose.frame[i] = frame;
     pose.world[i] = world;
     pose.start[i] = start;

@@ -216,11 +216,17 @@ pub fn turn_columns(m: &mut RealMat3, axis: crate::math::Axis, a: Real) -> bool 
         return false;
     }
     let (s, c) = real::sincos(a);
+    turn_columns_by(m, axis, s, c);
+    true
+}
+
+/// [`turn_columns`] with the angle's sine and cosine given.
+#[inline]
+pub fn turn_columns_by(m: &mut RealMat3, axis: crate::math::Axis, s: Real, c: Real) {
     let (i, j) = axis.across();
     let (u, v) = (m.col(i), m.col(j));
     *m.col_mut(i) = c * u + s * v;
     *m.col_mut(j) = c * v - s * u;
-    true
 }
 
 /// `const` tests that a matrix's columns (`to_cols_array`) are exactly the identity's.
