@@ -101,15 +101,13 @@ pub fn channel_transform(dofs: &[Dof], values: &[f32]) -> (Mat3, Vec3, f32) {
 
 /// `m ← m·R_axis(a)` in f32, one factor of eq. (2) taken from the right: only the two columns
 /// across the axis change (four vector products in glam's aligned columns). A zero angle leaves
-/// `m` as it is; the result says whether it turned.
+/// `m` as it is.
 #[inline]
-fn turn_columns_f32(m: &mut Mat3A, axis: Axis, a: f32) -> bool {
-    if a == 0.0 {
-        return false;
+fn turn_columns_f32(m: &mut Mat3A, axis: Axis, a: f32) {
+    if a != 0.0 {
+        let (s, c) = sincos_f32(a);
+        turn_columns_f32_by(m, axis, s, c);
     }
-    let (s, c) = sincos_f32(a);
-    turn_columns_f32_by(m, axis, s, c);
-    true
 }
 
 /// [`turn_columns_f32`] with the angle's sine and cosine given.
@@ -391,7 +389,12 @@ fn step(
         };
         if v != 0.0 {
             let (s, c) = trig(k);
-            turn_columns_by(&mut f, axis, s, c);
+            // One copy of the column update per axis, its columns known.
+            match axis {
+                Axis::X => turn_columns_by(&mut f, Axis::X, s, c),
+                Axis::Y => turn_columns_by(&mut f, Axis::Y, s, c),
+                Axis::Z => turn_columns_by(&mut f, Axis::Z, s, c),
+            }
             turned = true;
         }
     }
@@ -444,12 +447,13 @@ pub fn fk64_tip(
             _ => continue,
         };
         if a != 0.0 {
-            // `R_axis(a)·v`: the two components across the axis turn.
-            let (s, cos) = real::sincos(a);
-            let (i, j) = axis.across();
-            let (x, y) = (v[i], v[j]);
-            v[i] = cos * x - s * y;
-            v[j] = s * x + cos * y;
+            let (s, c) = real::sincos(a);
+            // One copy per axis, its components known.
+            match axis {
+                Axis::X => turn_vector(&mut v, Axis::X, s, c),
+                Axis::Y => turn_vector(&mut v, Axis::Y, s, c),
+                Axis::Z => turn_vector(&mut v, Axis::Z, s, c),
+            }
         }
     }
     let (start, axes) = match parent {
@@ -464,6 +468,15 @@ pub fn fk64_tip(
         }
     };
     start + axes * v
+}
+
+/// `v ← R_axis(a)·v` given `sin a` and `cos a`: the two components across the axis turn.
+#[inline]
+fn turn_vector(v: &mut RealVec3, axis: Axis, s: Real, c: Real) {
+    let (i, j) = axis.across();
+    let (x, y) = (v[i], v[j]);
+    v[i] = c * x - s * y;
+    v[j] = s * x + c * y;
 }
 
 /// A bone's translation channels and its length channel (missing channels count as 0).

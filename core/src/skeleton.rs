@@ -208,19 +208,8 @@ pub fn rotate_about(m: &mut RealMat3, axis: crate::math::Axis, a: Real) {
     }
 }
 
-/// `m ← m·R_axis(a)` (one factor of eq. 2 taken from the right): only the two columns across
-/// the axis change. A zero angle leaves `m` as it is; the result says whether it turned.
-#[inline]
-pub fn turn_columns(m: &mut RealMat3, axis: crate::math::Axis, a: Real) -> bool {
-    if a == 0.0 {
-        return false;
-    }
-    let (s, c) = real::sincos(a);
-    turn_columns_by(m, axis, s, c);
-    true
-}
-
-/// [`turn_columns`] with the angle's sine and cosine given.
+/// `m ← m·R_axis(a)` (one factor of eq. 2 taken from the right) given `sin a` and `cos a`: only
+/// the two columns across the axis change.
 #[inline]
 pub fn turn_columns_by(m: &mut RealMat3, axis: crate::math::Axis, s: Real, c: Real) {
     let (i, j) = axis.across();
