@@ -283,6 +283,8 @@ pub mod real {
 /// a non-finite `x`.
 #[must_use]
 pub fn sincos_f32(x: f32) -> (f32, f32) {
+    // One comparison, true for NaN too.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     if !(x.abs() <= SINCOS_F32_RANGE) {
         return (f32::NAN, f32::NAN);
     }
@@ -358,6 +360,8 @@ pub fn sincos_f32_many(x: &[f32], sin: &mut [f32], cos: &mut [f32]) {
 /// a cold arm solve touched.
 #[must_use]
 pub fn sincos_f64(x: f64) -> (f64, f64) {
+    // One comparison, true for NaN too.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     if !(x.abs() <= SINCOS_F64_REDUCED) {
         return if x.is_finite() {
             libm::sincos(x)
