@@ -76,27 +76,14 @@ impl core::error::Error for ShortFrame {}
 /// length channels.
 #[must_use]
 pub fn channel_transform(dofs: &[Dof], values: &[f32]) -> (Mat3, Vec3, f32) {
-    let mut m = Mat3A::IDENTITY;
-    let mut t = Vec3::ZERO;
-    let mut l = 0.0;
+    let (mut m, mut offset, mut l) = (Mat3A::IDENTITY, [0.0; 3], 0.0);
     for (d, &v) in dofs.iter().zip(values).rev() {
-        match d {
-            Dof::Rx => {
-                turn_columns_f32(&mut m, Axis::X, v);
-            }
-            Dof::Ry => {
-                turn_columns_f32(&mut m, Axis::Y, v);
-            }
-            Dof::Rz => {
-                turn_columns_f32(&mut m, Axis::Z, v);
-            }
-            Dof::Tx => t.x = v,
-            Dof::Ty => t.y = v,
-            Dof::Tz => t.z = v,
-            Dof::L => l = v,
+        match d.rotation_axis() {
+            Some(axis) => turn_columns_f32(&mut m, axis, v),
+            None => d.set_offset(v, &mut offset, &mut l),
         }
     }
-    (Mat3::from(m), t, l)
+    (Mat3::from(m), Vec3::from_array(offset), l)
 }
 
 /// `m ← m·R_axis(a)` in f32, one factor of eq. (2) taken from the right: only the two columns
@@ -113,10 +100,13 @@ fn turn_columns_f32(m: &mut Mat3A, axis: Axis, a: f32) {
 /// [`turn_columns_f32`] with the angle's sine and cosine given.
 #[inline]
 fn turn_columns_f32_by(m: &mut Mat3A, axis: Axis, s: f32, c: f32) {
-    let (i, j) = axis.across();
-    let (u, v) = (m.col(i), m.col(j));
-    *m.col_mut(i) = c * u + s * v;
-    *m.col_mut(j) = c * v - s * u;
+    // One arm per axis, as `turn_columns_by` has.
+    let turn = |u: Vec3A, v: Vec3A| (c * u + s * v, c * v - s * u);
+    match axis {
+        Axis::X => (m.y_axis, m.z_axis) = turn(m.y_axis, m.z_axis),
+        Axis::Y => (m.z_axis, m.x_axis) = turn(m.z_axis, m.x_axis),
+        Axis::Z => (m.x_axis, m.y_axis) = turn(m.x_axis, m.y_axis),
+    }
 }
 
 /// How many channels' sines and cosines a [`TrigWindow`] holds.
@@ -194,10 +184,10 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
             Some((parent_world, _)) => parent_world * c,
         };
         let mut f = axes;
-        let mut t = Vec3A::ZERO;
         let mut l = 0.0;
         let mut turned = false;
         let (sin, cos) = trig.bone(channels, bone.channels());
+        let mut offset = [0.0; 3];
         for (k, (d, &v)) in bone
             .dofs()
             .iter()
@@ -205,37 +195,16 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
             .enumerate()
             .rev()
         {
-            let axis = match d {
-                Dof::Tx => {
-                    t.x = v;
-                    continue;
+            match d.rotation_axis() {
+                None => d.set_offset(v, &mut offset, &mut l),
+                Some(_) if v == 0.0 => {}
+                Some(axis) => {
+                    turn_columns_f32_by(&mut f, axis, sin[k], cos[k]);
+                    turned = true;
                 }
-                Dof::Ty => {
-                    t.y = v;
-                    continue;
-                }
-                Dof::Tz => {
-                    t.z = v;
-                    continue;
-                }
-                Dof::L => {
-                    l = v;
-                    continue;
-                }
-                _ if v == 0.0 => continue,
-                Dof::Rx => Axis::X,
-                Dof::Ry => Axis::Y,
-                Dof::Rz => Axis::Z,
-            };
-            let (s, c) = (sin[k], cos[k]);
-            // One copy of the column update per axis, its columns known.
-            match axis {
-                Axis::X => turn_columns_f32_by(&mut f, Axis::X, s, c),
-                Axis::Y => turn_columns_f32_by(&mut f, Axis::Y, s, c),
-                Axis::Z => turn_columns_f32_by(&mut f, Axis::Z, s, c),
             }
-            turned = true;
         }
+        let t = Vec3A::from_array(offset);
         match parent {
             None => {
                 let p = skeleton.root().position + Vec3::from(t);
@@ -361,9 +330,9 @@ fn step(
     // One pass over the DOFs, last first: `F = axes·R(last)·…·R(first)` (eq. 2), the
     // translations and the length change apart.
     let mut f = axes;
-    let mut t = RealVec3::ZERO;
     let mut l = 0.0;
     let mut turned = false;
+    let mut t = RealVec3::ZERO;
     for (d, k) in bone.dofs().iter().zip(bone.channels()).rev() {
         let v = channels.get(k).copied().unwrap_or(0.0);
         let axis = match d {
@@ -389,12 +358,7 @@ fn step(
         };
         if v != 0.0 {
             let (s, c) = trig(k);
-            // One copy of the column update per axis, its columns known.
-            match axis {
-                Axis::X => turn_columns_by(&mut f, Axis::X, s, c),
-                Axis::Y => turn_columns_by(&mut f, Axis::Y, s, c),
-                Axis::Z => turn_columns_by(&mut f, Axis::Z, s, c),
-            }
+            turn_columns_by(&mut f, axis, s, c);
             turned = true;
         }
     }
@@ -440,20 +404,12 @@ pub fn fk64_tip(
     let first = bone.first_channel();
     for (k, d) in bone.dofs().iter().enumerate() {
         let a = channels.get(first + k).copied().unwrap_or(0.0);
-        let axis = match d {
-            Dof::Rx => Axis::X,
-            Dof::Ry => Axis::Y,
-            Dof::Rz => Axis::Z,
-            _ => continue,
+        let Some(axis) = d.rotation_axis() else {
+            continue;
         };
         if a != 0.0 {
             let (s, c) = real::sincos(a);
-            // One copy per axis, its components known.
-            match axis {
-                Axis::X => turn_vector(&mut v, Axis::X, s, c),
-                Axis::Y => turn_vector(&mut v, Axis::Y, s, c),
-                Axis::Z => turn_vector(&mut v, Axis::Z, s, c),
-            }
+            turn_vector(&mut v, axis, s, c);
         }
     }
     let (start, axes) = match parent {
@@ -473,27 +429,23 @@ pub fn fk64_tip(
 /// `v ← R_axis(a)·v` given `sin a` and `cos a`: the two components across the axis turn.
 #[inline]
 fn turn_vector(v: &mut RealVec3, axis: Axis, s: Real, c: Real) {
-    let (i, j) = axis.across();
-    let (x, y) = (v[i], v[j]);
-    v[i] = c * x - s * y;
-    v[j] = s * x + c * y;
+    // One arm per axis (the pairs of `Axis::across`), its components known.
+    let turn = |x: Real, y: Real| (c * x - s * y, s * x + c * y);
+    match axis {
+        Axis::X => (v.y, v.z) = turn(v.y, v.z),
+        Axis::Y => (v.z, v.x) = turn(v.z, v.x),
+        Axis::Z => (v.x, v.y) = turn(v.x, v.y),
+    }
 }
 
 /// A bone's translation channels and its length channel (missing channels count as 0).
 #[inline]
 fn translation_and_stretch(bone: &Bone, channels: &[Real]) -> (RealVec3, Real) {
-    let (mut t, mut l) = (RealVec3::ZERO, 0.0);
+    let (mut offset, mut l) = ([0.0; 3], 0.0);
     for (d, k) in bone.dofs().iter().zip(bone.channels()) {
-        let v = channels.get(k).copied().unwrap_or(0.0);
-        match d {
-            Dof::Tx => t.x = v,
-            Dof::Ty => t.y = v,
-            Dof::Tz => t.z = v,
-            Dof::L => l = v,
-            _ => {}
-        }
+        d.set_offset(channels.get(k).copied().unwrap_or(0.0), &mut offset, &mut l);
     }
-    (t, l)
+    (RealVec3::from_array(offset), l)
 }
 
 /// Where bone `i` starts, as [`fk64_step`] has it (its parent's tip, moved by its translation

@@ -166,6 +166,30 @@ impl Dof {
         matches!(self, Dof::Rx | Dof::Ry | Dof::Rz)
     }
 
+    /// The axis of a rotation channel (`None` for translation and length channels).
+    #[must_use]
+    pub const fn rotation_axis(self) -> Option<Axis> {
+        match self {
+            Dof::Rx => Some(Axis::X),
+            Dof::Ry => Some(Axis::Y),
+            Dof::Rz => Some(Axis::Z),
+            Dof::Tx | Dof::Ty | Dof::Tz | Dof::L => None,
+        }
+    }
+
+    /// A translation or length channel's value `v` into the offset `t` or the length change
+    /// `l`; a rotation channel changes neither.
+    #[inline]
+    pub fn set_offset<T>(self, v: T, t: &mut [T; 3], l: &mut T) {
+        match self {
+            Dof::Tx => t[0] = v,
+            Dof::Ty => t[1] = v,
+            Dof::Tz => t[2] = v,
+            Dof::L => *l = v,
+            Dof::Rx | Dof::Ry | Dof::Rz => {}
+        }
+    }
+
     /// The axis of a rotation or translation channel (`None` for `l`).
     #[must_use]
     pub const fn axis(self) -> Option<Axis> {
@@ -212,10 +236,14 @@ pub fn rotate_about(m: &mut RealMat3, axis: crate::math::Axis, a: Real) {
 /// the two columns across the axis change.
 #[inline]
 pub fn turn_columns_by(m: &mut RealMat3, axis: crate::math::Axis, s: Real, c: Real) {
-    let (i, j) = axis.across();
-    let (u, v) = (m.col(i), m.col(j));
-    *m.col_mut(i) = c * u + s * v;
-    *m.col_mut(j) = c * v - s * u;
+    // One arm per axis (the pairs of `Axis::across`), so that each inlined copy moves known
+    // columns rather than indexing them.
+    let turn = |u: RealVec3, v: RealVec3| (c * u + s * v, c * v - s * u);
+    match axis {
+        Axis::X => (m.y_axis, m.z_axis) = turn(m.y_axis, m.z_axis),
+        Axis::Y => (m.z_axis, m.x_axis) = turn(m.z_axis, m.x_axis),
+        Axis::Z => (m.x_axis, m.y_axis) = turn(m.x_axis, m.y_axis),
+    }
 }
 
 /// `const` tests that a matrix's columns (`to_cols_array`) are exactly the identity's.
