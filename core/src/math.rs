@@ -278,16 +278,21 @@ pub mod real {
 /// (π/2 split in three parts, Cody–Waite, so `q·part` is exact for `|q| < 2¹⁶`), then minimax
 /// polynomials of degree 7 (sine) and 8 (cosine) on `[−π/4, π/4]` (Cephes' single-precision
 /// coefficients). Error at most 1.2e-7 (9.2e-8 measured) for `|x| ≤ 1000`
-/// (`tests::sincos_f32_stays_within_its_bound`), within an ulp of `x` up to `6·10⁶`; NaN beyond
-/// that (no angle an f32 can tell apart from its neighbours by less than a radian or so) and for
-/// a non-finite `x`.
+/// (`tests::sincos_f32_stays_within_its_bound`), within an ulp of `x` up to `6·10⁶`; beyond that
+/// (where f32 cannot tell angles apart by less than half a radian) after whole turns are taken
+/// off in f32; NaN for a non-finite `x`.
 #[must_use]
 pub fn sincos_f32(x: f32) -> (f32, f32) {
     // One comparison, true for NaN too.
     #[allow(clippy::neg_cmp_op_on_partial_ord)]
-    if !(x.abs() <= SINCOS_F32_RANGE) {
-        return (f32::NAN, f32::NAN);
-    }
+    let x = if !(x.abs() <= SINCOS_F32_RANGE) {
+        match whole_turns_off_f32(x) {
+            Some(r) => r,
+            None => return (f32::NAN, f32::NAN),
+        }
+    } else {
+        x
+    };
     let (s, c, quadrant) = sincos_f32_quarter(x);
     match quadrant & 3 {
         0 => (s, c),
@@ -301,6 +306,21 @@ pub fn sincos_f32(x: f32) -> (f32, f32) {
 /// reach). Past 10⁵ the reduction's products are no longer exact, but its error stays below an
 /// ulp of `x` itself.
 const SINCOS_F32_RANGE: f32 = 6.0e6;
+
+/// A finite `x` beyond [`SINCOS_F32_RANGE`] less whole turns, in f32 (no f64 or libm in a
+/// firmware image): each pass leaves a remainder of a few ulps of what it started from, so two
+/// or three passes bring any finite f32 into range; the result is as meaningful as `x`, whose
+/// ulp is already half a radian or more. `None` for ∞, NaN, or a pass that overflows.
+#[cold]
+fn whole_turns_off_f32(mut x: f32) -> Option<f32> {
+    for _ in 0..4 {
+        if x.abs() <= SINCOS_F32_RANGE {
+            return Some(x);
+        }
+        x -= round_f32(x * (0.5 / core::f32::consts::PI)) * core::f32::consts::TAU;
+    }
+    None
+}
 
 /// [`sincos_f32`]'s reduction and polynomials for `|x| ≤ 6·10⁶`: `(sin r, cos r, k)` where
 /// `x = r + k·π/2`.
@@ -327,8 +347,8 @@ fn sincos_f32_quarter(x: f32) -> (f32, f32, u32) {
 /// `(sin, cos)` of every `x` (as many as the shortest of the three slices), each the same bits
 /// as [`sincos_f32`]'s. The quadrant is applied with integer masks instead of a jump, so the
 /// loop has no branch and the compiler runs it four lanes at a time (SSE2 on x86-64): one
-/// frame's rotation channels at once in forward kinematics. The rare `|x| > 6·10⁶` or NaN are
-/// redone one by one afterwards.
+/// frame's rotation channels at once in forward kinematics. The rare `|x| > 6·10⁶`, ∞ or NaN
+/// are redone one by one afterwards.
 pub fn sincos_f32_many(x: &[f32], sin: &mut [f32], cos: &mut [f32]) {
     let mut reduced = true;
     for ((&x, sin), cos) in x.iter().zip(sin.iter_mut()).zip(cos.iter_mut()) {
@@ -1430,7 +1450,7 @@ mod tests {
         }
         assert!(worst <= 1.2e-7, "{worst:e}");
         assert!(sincos_f32(f32::NAN).0.is_nan() && sincos_f32(f32::INFINITY).1.is_nan());
-        // Beyond 10⁵ within an ulp of `x`; NaN past 6·10⁶.
+        // Beyond 10⁵ within an ulp of `x`.
         for x in [1.000_01e5f32, -2.5e5, 3_141_592.8, -5.9e6] {
             let (s, c) = sincos_f32(x);
             let (es, ec) = libm::sincos(f64::from(x));
@@ -1438,7 +1458,12 @@ mod tests {
             let ulp = f64::from(f32::from_bits(x.abs().to_bits() + 1) - x.abs());
             assert!(wide <= ulp, "{x:e}: {wide:e} against an ulp of {ulp:e}");
         }
-        assert!(sincos_f32(6.1e6).0.is_nan() && sincos_f32(f32::NEG_INFINITY).1.is_nan());
+        // Past 6·10⁶ a sine and cosine of a unit circle, for every finite f32.
+        for x in [6.1e6f32, -1.7e7, 1.0e9, 3.0e20, -1.0e30, f32::MAX, f32::MIN] {
+            let (s, c) = sincos_f32(x);
+            assert!((s * s + c * c - 1.0).abs() < 1e-6, "{x:e}: {s}, {c}");
+        }
+        assert!(sincos_f32(f32::NAN).0.is_nan() && sincos_f32(f32::NEG_INFINITY).1.is_nan());
     }
 
     /// Values around every quadrant boundary, the reductions' ends and what lies past them.
