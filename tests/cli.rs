@@ -79,6 +79,51 @@ fn fk_every_frames_meters_and_json() {
     assert!((root_m - want).abs() < 1e-5, "{root_m} vs {want}");
 }
 
+/// Angles as large as the AMC loader accepts (±10⁹ degrees, where f32 cannot tell angles half a
+/// radian apart) still give finite positions and valid JSON.
+#[test]
+fn fk_of_angles_at_the_loaders_bound_is_finite() {
+    let walk = std::fs::read_to_string("data/cmu/16_15.amc").unwrap();
+    let mut frame = 0;
+    let huge: Vec<String> = walk
+        .lines()
+        .map(|l| {
+            let t = l.trim();
+            if let Ok(n) = t.parse::<u32>() {
+                frame = n;
+            }
+            match (frame, t.split_whitespace().next()) {
+                (1, Some("lhumerus")) => "lhumerus 9e8 -1e9 5.5e8".to_string(),
+                _ => l.to_string(),
+            }
+        })
+        .collect();
+    let amc = common::tempdir("cli").join("huge.amc");
+    std::fs::write(&amc, huge.join("\n")).unwrap();
+    let o = run(&[
+        "fk",
+        "data/cmu/16.asf",
+        amc.to_str().unwrap(),
+        "--frames",
+        "1..1",
+        "--format",
+        "json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("valid JSON");
+    let tips = v["frames"][0]["tips"].as_array().unwrap();
+    assert_eq!(tips.len(), 31);
+    for tip in tips {
+        assert!(
+            tip.as_array()
+                .unwrap()
+                .iter()
+                .all(|c| c.as_f64().is_some_and(f64::is_finite)),
+            "{tip}"
+        );
+    }
+}
+
 #[test]
 fn bad_input_gives_one_line_errors_and_nonzero_exit() {
     one_line_error(&run(&["info", "data/cmu/nope.asf"]), "data/cmu/nope.asf");
