@@ -361,9 +361,9 @@ fn asf_honours_axis_orders_units_and_root_section() {
     assert_eq!(&s.root().order[..], &[Dof::Rz, Dof::Tx, Dof::Ty, Dof::Tz]);
     let m = amc::parse(&s, "1\nroot 90 10 0 0\n").unwrap();
     let p = tips(&s, &m, 0);
-    assert!((p.tip[0] - glam::Vec3::new(11.0, 2.0, 3.0)).length() < 1e-5);
+    assert!((p.tip[0] - glam::Vec3A::new(11.0, 2.0, 3.0)).length() < 1e-5);
     // Bone a points along +y at rest; the root's 90° about z turns it to −x.
-    assert!((p.tip[1] - glam::Vec3::new(9.0, 2.0, 3.0)).length() < 1e-5);
+    assert!((p.tip[1] - glam::Vec3A::new(9.0, 2.0, 3.0)).length() < 1e-5);
 }
 
 fn amc_err(text: &str) -> String {

@@ -23,13 +23,13 @@ use glam::{Mat3, Mat3A, Vec3, Vec3A};
 #[derive(Clone, Debug)]
 pub struct Pose {
     /// Where each bone starts (its joint), file units. The root: its position.
-    pub start: [Vec3; MAX_BONES],
+    pub start: [Vec3A; MAX_BONES],
     /// Where each bone ends, file units. The root: its position.
-    pub tip: [Vec3; MAX_BONES],
+    pub tip: [Vec3A; MAX_BONES],
     /// The orientation of each bone's local frame in global coordinates, `Fᵢ = ⁱ₀R`.
-    pub frame: [Mat3; MAX_BONES],
+    pub frame: [Mat3A; MAX_BONES],
     /// The rotation each bone applies to global rest vectors, `Wᵢ = Fᵢ·Cᵢᵀ`.
-    pub world: [Mat3; MAX_BONES],
+    pub world: [Mat3A; MAX_BONES],
 }
 
 impl Default for Pose {
@@ -43,10 +43,10 @@ impl Pose {
     #[must_use]
     pub const fn new() -> Pose {
         Pose {
-            start: [Vec3::ZERO; MAX_BONES],
-            tip: [Vec3::ZERO; MAX_BONES],
-            frame: [Mat3::IDENTITY; MAX_BONES],
-            world: [Mat3::IDENTITY; MAX_BONES],
+            start: [Vec3A::ZERO; MAX_BONES],
+            tip: [Vec3A::ZERO; MAX_BONES],
+            frame: [Mat3A::IDENTITY; MAX_BONES],
+            world: [Mat3A::IDENTITY; MAX_BONES],
         }
     }
 }
@@ -107,6 +107,36 @@ fn turn_columns_f32_by(m: &mut Mat3A, axis: Axis, s: f32, c: f32) {
         Axis::Y => (m.z_axis, m.x_axis) = turn(m.z_axis, m.x_axis),
         Axis::Z => (m.x_axis, m.y_axis) = turn(m.x_axis, m.y_axis),
     }
+}
+
+/// A bone's translation channels and its length channel from its channel values.
+#[cold]
+fn channel_offsets(dofs: &[Dof], values: &[f32]) -> (Vec3A, f32) {
+    let (mut offset, mut l) = ([0.0; 3], 0.0);
+    for (d, &v) in dofs.iter().zip(values) {
+        d.set_offset(v, &mut offset, &mut l);
+    }
+    (Vec3A::from_array(offset), l)
+}
+
+/// `a·b`, `b` read element by element where it lies (a bone's `C`): each column of the
+/// product is `a`'s columns weighted by one column of `b`.
+#[inline(always)]
+fn mul_by(a: &Mat3A, b: &Mat3) -> Mat3A {
+    let column = |v: Vec3| a.x_axis * v.x + a.y_axis * v.y + a.z_axis * v.z;
+    Mat3A::from_cols(column(b.x_axis), column(b.y_axis), column(b.z_axis))
+}
+
+/// `a·bᵀ` without forming `bᵀ`: column `j` of the product is `a`'s columns weighted by row `j`
+/// of `b`.
+#[inline(always)]
+fn mul_by_transpose(a: &Mat3A, b: &Mat3) -> Mat3A {
+    let column = |x: f32, y: f32, z: f32| a.x_axis * x + a.y_axis * y + a.z_axis * z;
+    Mat3A::from_cols(
+        column(b.x_axis.x, b.y_axis.x, b.z_axis.x),
+        column(b.x_axis.y, b.y_axis.y, b.z_axis.y),
+        column(b.x_axis.z, b.y_axis.z, b.z_axis.z),
+    )
 }
 
 /// How many channels' sines and cosines a [`TrigWindow`] holds.
@@ -173,65 +203,51 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
     }
     let mut trig = TrigWindow::new(sincos_f32_many);
     for (i, bone) in skeleton.bones().iter().enumerate() {
-        let c = Mat3A::from(bone.axis_rotation());
-        let parent = bone
-            .parent()
-            .map(|p| (Mat3A::from(pose.world[p]), Vec3A::from(pose.tip[p])));
+        let parent = bone.parent().map(|p| (pose.world[p], pose.tip[p]));
         // The parent's axes, `Wₚ·C` (the root: the `:root orientation` `O`).
         let axes = match parent {
-            None => c,
             Some((parent_world, _)) if bone.axis_is_identity() => parent_world,
-            Some((parent_world, _)) => parent_world * c,
+            Some((parent_world, _)) => mul_by(&parent_world, &bone.axis_rotation()),
+            None => Mat3A::from(bone.axis_rotation()),
         };
         let mut f = axes;
-        let mut l = 0.0;
-        let mut turned = false;
+        let (mut turned, mut offsets) = (false, false);
         let (sin, cos) = trig.bone(channels, bone.channels());
-        let mut offset = [0.0; 3];
-        for (k, (d, &v)) in bone
-            .dofs()
-            .iter()
-            .zip(&channels[bone.channels()])
-            .enumerate()
-            .rev()
-        {
+        let values = &channels[bone.channels()];
+        for ((d, &v), (&s, &c)) in bone.dofs().iter().zip(values).zip(sin.iter().zip(cos)).rev() {
             match d.rotation_axis() {
-                None => d.set_offset(v, &mut offset, &mut l),
                 Some(_) if v == 0.0 => {}
                 Some(axis) => {
-                    turn_columns_f32_by(&mut f, axis, sin[k], cos[k]);
+                    turn_columns_f32_by(&mut f, axis, s, c);
                     turned = true;
                 }
+                None => offsets = true,
             }
         }
-        let t = Vec3A::from_array(offset);
-        match parent {
-            None => {
-                let p = skeleton.root().position + Vec3::from(t);
-                pose.frame[i] = Mat3::from(f);
-                pose.world[i] = Mat3::from(f);
-                pose.start[i] = p;
-                pose.tip[i] = p;
-            }
+        // Translation and length channels (the root's, as a rule) apart.
+        let (t, l) = if offsets {
+            channel_offsets(bone.dofs(), values)
+        } else {
+            (Vec3A::ZERO, 0.0)
+        };
+        let moved = t != Vec3A::ZERO;
+        let (world, start) = match parent {
+            None => (f, Vec3A::from(skeleton.root().position) + t),
             Some((parent_world, parent_tip)) => {
-                let start = if t == Vec3A::ZERO {
-                    parent_tip
-                } else {
-                    parent_tip + axes * t
-                };
+                let start = if moved { parent_tip + axes * t } else { parent_tip };
                 // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
                 let world = match (turned, bone.axis_is_identity()) {
                     (false, _) => parent_world,
                     (true, true) => f,
-                    (true, false) => f * c.transpose(),
+                    (true, false) => mul_by_transpose(&f, &bone.axis_rotation()),
                 };
-                pose.frame[i] = Mat3::from(f);
-                pose.world[i] = Mat3::from(world);
-                pose.start[i] = Vec3::from(start);
-                pose.tip[i] =
-                    Vec3::from(start + f * Vec3A::from(bone.local_direction() * (bone.length() + l)));
+                (world, start)
             }
-        }
+        };
+        pose.frame[i] = f;
+        pose.world[i] = world;
+        pose.start[i] = start;
+        pose.tip[i] = start + f * (Vec3A::from(bone.local_direction()) * (bone.length() + l));
     }
     Ok(())
 }
