@@ -43,7 +43,7 @@ pub fn dof_axis(skeleton: &Skeleton, pose: &Pose64, bone: usize, k: usize, chann
     }
     let mut after = RealMat3::IDENTITY;
     for j in (k + 1..dofs.len()).rev() {
-        if let (true, Some(a)) = (dofs[j].is_rotation(), dofs[j].axis()) {
+        if let Some(a) = dofs[j].rotation_axis() {
             after *= a.rotation_f64(channels.get(first + j).copied().unwrap_or(0.0));
         }
     }

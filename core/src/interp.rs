@@ -78,7 +78,7 @@ pub fn set_channel_rotation(bone: &Bone, frame: &mut [Real], m: &RealMat3) {
     let mut slots = [0usize; 3];
     let mut n = 0;
     for (d, c) in bone.dofs().iter().zip(bone.channels()) {
-        if let (true, Some(a)) = (d.is_rotation(), d.axis()) {
+        if let Some(a) = d.rotation_axis() {
             axes[n] = a;
             slots[n] = c;
             n += 1;

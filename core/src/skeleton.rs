@@ -209,7 +209,7 @@ impl Dof {
 pub fn dof_rotation(dofs: &[Dof], angles: impl IntoIterator<Item = Real>) -> RealMat3 {
     let mut m = RealMat3::IDENTITY;
     for (d, a) in dofs.iter().zip(angles) {
-        if let (true, Some(axis)) = (d.is_rotation(), d.axis()) {
+        if let Some(axis) = d.rotation_axis() {
             rotate_about(&mut m, axis, a);
         }
     }
