@@ -2,7 +2,7 @@
 
 mod common;
 
-use marionette::fk::{forward_kinematics, Pose};
+use marionette::fk::{fk64, forward_kinematics, Pose, Pose64};
 use marionette::formats::{amc, asf, bvh, FileError};
 use marionette::math::EulerOrder;
 use marionette::motion::Motion;
@@ -364,6 +364,54 @@ fn asf_honours_axis_orders_units_and_root_section() {
     assert!((p.tip[0] - glam::Vec3A::new(11.0, 2.0, 3.0)).length() < 1e-5);
     // Bone a points along +y at rest; the root's 90° about z turns it to −x.
     assert!((p.tip[1] - glam::Vec3A::new(9.0, 2.0, 3.0)).length() < 1e-5);
+}
+
+/// The root is a point: its tip is its position whatever its rotation channels hold, and a
+/// bone's translation and length channels move its start and its tip (eq. 2).
+#[test]
+fn fk_reads_translation_and_length_channels_and_keeps_the_root_a_point() {
+    let stretchy = MINI.replacen(
+        "    dof rx\r\n    limits (0.0 170.0)\r\n",
+        "    dof tx l rz\r\n    limits (-inf inf)\r\n           (-inf inf)\r\n           (-inf inf)\r\n",
+        1,
+    );
+    let s = asf::parse(&stretchy).unwrap().skeleton;
+    assert_eq!(s.bones()[2].dofs(), &[Dof::Tx, Dof::L, Dof::Rz]);
+    let mut c = [0.0f32; MAX_CHANNELS];
+    let mut p = Pose::new();
+    // Root at (1, 2, 3), a at rest (tip (1, 4, 3)); b moved 0.5 along its own x (its `C`, 90°
+    // about z, takes that to the world's y), 1 longer.
+    c[..3].copy_from_slice(&[1.0, 2.0, 3.0]);
+    c[9..12].copy_from_slice(&[0.5, 1.0, 0.0]);
+    forward_kinematics(&s, &c, &mut p).unwrap();
+    assert_eq!(p.start[0], p.tip[0]);
+    assert!((p.tip[1] - glam::Vec3A::new(1.0, 4.0, 3.0)).length() < 1e-6);
+    assert!(
+        (p.start[2] - glam::Vec3A::new(1.0, 4.5, 3.0)).length() < 1e-6,
+        "{}",
+        p.start[2]
+    );
+    // b points along +x, 1.5 + 1 long.
+    assert!(
+        (p.tip[2] - glam::Vec3A::new(3.5, 4.5, 3.0)).length() < 1e-6,
+        "{}",
+        p.tip[2]
+    );
+    // The f64 FK agrees.
+    let c64: Vec<f64> = c[..s.channel_count()].iter().map(|&v| f64::from(v)).collect();
+    let mut p64 = Pose64::default();
+    fk64(&s, &c64, &mut p64);
+    for b in 0..s.len() {
+        let (start, tip) = (p64.start[b].as_vec3(), p64.tip[b].as_vec3());
+        assert!((glam::Vec3A::from(start) - p.start[b]).length() < 1e-6);
+        assert!((glam::Vec3A::from(tip) - p.tip[b]).length() < 1e-6);
+    }
+    // A rotation channel that is not a number spoils the orientation, not the root's point.
+    c[3] = f32::NAN;
+    forward_kinematics(&s, &c, &mut p).unwrap();
+    assert_eq!(p.tip[0], glam::Vec3A::new(1.0, 2.0, 3.0));
+    assert_eq!(p.start[0], p.tip[0]);
+    assert!(p.tip[2].is_nan());
 }
 
 fn amc_err(text: &str) -> String {

@@ -230,24 +230,32 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
         } else {
             (Vec3A::ZERO, 0.0)
         };
-        let moved = t != Vec3A::ZERO;
-        let (world, start) = match parent {
-            None => (f, Vec3A::from(skeleton.root().position) + t),
+        let (world, start, tip) = match parent {
+            None => {
+                // The root is a point: it starts and ends at its position.
+                let p = Vec3A::from(skeleton.root().position) + t;
+                (f, p, p)
+            }
             Some((parent_world, parent_tip)) => {
-                let start = if moved { parent_tip + axes * t } else { parent_tip };
+                let start = if t == Vec3A::ZERO {
+                    parent_tip
+                } else {
+                    parent_tip + axes * t
+                };
                 // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
                 let world = match (turned, bone.axis_is_identity()) {
                     (false, _) => parent_world,
                     (true, true) => f,
                     (true, false) => mul_by_transpose(&f, &bone.axis_rotation()),
                 };
-                (world, start)
+                let direction = Vec3A::from(bone.local_direction()) * (bone.length() + l);
+                (world, start, start + f * direction)
             }
         };
         pose.frame[i] = f;
         pose.world[i] = world;
         pose.start[i] = start;
-        pose.tip[i] = start + f * (Vec3A::from(bone.local_direction()) * (bone.length() + l));
+        pose.tip[i] = tip;
     }
     Ok(())
 }
