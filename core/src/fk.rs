@@ -355,7 +355,7 @@ fn step(
     // translations and the length change apart.
     let mut f = axes;
     let mut l = 0.0;
-    let mut turned = false;
+    let (mut turned, mut moved) = (false, false);
     let mut t = RealVec3::ZERO;
     for (d, k) in bone.dofs().iter().zip(bone.channels()).rev() {
         let v = channels.get(k).copied().unwrap_or(0.0);
@@ -364,15 +364,15 @@ fn step(
             Dof::Ry => Axis::Y,
             Dof::Rz => Axis::Z,
             Dof::Tx => {
-                t.x = v;
+                (t.x, moved) = (v, moved | (v != 0.0));
                 continue;
             }
             Dof::Ty => {
-                t.y = v;
+                (t.y, moved) = (v, moved | (v != 0.0));
                 continue;
             }
             Dof::Tz => {
-                t.z = v;
+                (t.z, moved) = (v, moved | (v != 0.0));
                 continue;
             }
             Dof::L => {
@@ -392,11 +392,7 @@ fn step(
             (f, f, p, p)
         }
         Some((parent_world, parent_tip)) => {
-            let start = if t == RealVec3::ZERO {
-                parent_tip
-            } else {
-                parent_tip + axes * t
-            };
+            let start = if moved { parent_tip + axes * t } else { parent_tip };
             // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
             let world = match (turned, bone.axis_is_identity()) {
                 (false, _) => *parent_world,
