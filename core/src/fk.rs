@@ -352,7 +352,8 @@ fn step(
         Some((parent_world, _)) => *parent_world * c,
     };
     // One pass over the DOFs, last first: `F = axes·R(last)·…·R(first)` (eq. 2), the
-    // translations and the length change apart.
+    // translations and the length change apart. `moved`: a translation channel is not 0 (NaN
+    // included), noted as it is read rather than by comparing `t` after the loop.
     let mut f = axes;
     let mut l = 0.0;
     let (mut turned, mut moved) = (false, false);
