@@ -26,7 +26,8 @@ use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 use glam::DVec3;
-use marionette::clock::SystemClock;
+use marionette::clock::{SystemClock, LOOP_SPIN_NS};
+use marionette::control::REHEARSAL_LEAD_NS;
 use marionette::fk::{fk64, Pose64};
 use marionette::formats::asf;
 use marionette::ik::{Limb, Swivel};
@@ -45,7 +46,7 @@ fn main() {
         kb: 0,
         rate: 1000.0,
         seconds: 0.0,
-        spin_ns: 200_000,
+        spin_ns: LOOP_SPIN_NS,
         rehearse: false,
     };
     let (mut tick_us, mut solves) = (None, false);
@@ -248,9 +249,6 @@ struct TickSettings {
     rehearse: bool,
 }
 
-/// How long before a deadline a rehearsal starts, as the loop's.
-const REHEARSAL_LEAD_NS: u64 = 40_000;
-
 /// Runs ticks of constant work (`unit` repeated to take about `work_us`, and one read of each
 /// line of a `kb` KB buffer) and prints the work's quantiles.
 fn constant_ticks(mut unit: Unit, settings: &TickSettings) {
@@ -278,7 +276,7 @@ fn constant_ticks(mut unit: Unit, settings: &TickSettings) {
     let mut clock = SystemClock::new(settings.spin_ns);
     let period = (1e9 / settings.rate) as u64;
     let mut schedule = Schedule::new(clock.now_ns() + period, period);
-    let ticks = (settings.seconds * settings.rate) as usize;
+    let ticks = ((settings.seconds * settings.rate) as usize).max(1);
     let mut work = Vec::with_capacity(ticks);
     let mut sink = 0.0;
     for _ in 0..ticks {

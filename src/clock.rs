@@ -2,6 +2,9 @@
 
 use crate::schedule::Clock;
 
+/// How long before each deadline the loop's clock stops sleeping and spins, ns.
+pub const LOOP_SPIN_NS: u64 = 200_000;
+
 /// The machine's monotonic clock: sleeps until `spin_ns` before a deadline, then spins, so the
 /// wake-up does not inherit the sleep's granularity (typically 50–100 µs late on Linux).
 #[derive(Clone, Copy, Debug)]

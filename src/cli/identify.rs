@@ -12,7 +12,7 @@ use super::error::CliError;
 use super::play::BusArg;
 use crate::bus::start_up;
 use crate::bus::virtual_chain::{chain_for, VirtualRig};
-use crate::clock::SystemClock;
+use crate::clock::{SystemClock, LOOP_SPIN_NS};
 use crate::control::identify::{identify, Excitation, ServoResponse};
 use crate::control::torque_off;
 use crate::formats::{asf, FileError};
@@ -147,7 +147,7 @@ pub fn identify_cmd(
             let mut bus = session::open_bus(&spec, &profile, &rig, out)?.bus;
             let present = start_up(bus.as_mut(), profile.bus_section())?;
             writeln!(out, "{port}: {} servos up, torque on", present.len())?;
-            let mut clock = SystemClock::new(200_000);
+            let mut clock = SystemClock::new(LOOP_SPIN_NS);
             let r = identify(
                 bus.as_mut(),
                 &mut clock,

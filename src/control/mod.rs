@@ -33,6 +33,7 @@ pub mod source;
 pub mod sources;
 pub mod stats;
 mod stop;
+pub use stop::REHEARSAL_LEAD_NS;
 mod tick;
 
 use std::sync::atomic::{AtomicUsize, Ordering};

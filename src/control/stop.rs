@@ -11,7 +11,7 @@ use crate::servo::{addr, MAX_SERVOS};
 pub const FINISH_STEP_S: f64 = 1.0;
 
 /// How long before a tick's deadline its solve is rehearsed, ns.
-const REHEARSAL_LEAD_NS: u64 = 40_000;
+pub const REHEARSAL_LEAD_NS: u64 = 40_000;
 
 impl Controller {
     /// Runs ticks on `schedule` until the input ends, `max_ticks` pass, a stop is requested,

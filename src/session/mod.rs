@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use crate::budget::plan_with_board;
 use crate::bus::virtual_chain::{chain_for, PtyChain};
 use crate::bus::{start_up, ServoBus, StartupError, Wire};
-use crate::clock::SystemClock;
+use crate::clock::{SystemClock, LOOP_SPIN_NS};
 use crate::control::input::{input_channel, InputPort, InputSender};
 use crate::control::live::LiveView;
 use crate::control::lookahead::{Lookahead, LookaheadSettings};
@@ -918,7 +918,7 @@ impl Run<'_> {
         let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
         let _ = controller.add_telemetry(ttx);
         let period = controller.period_ns();
-        let mut clock = SystemClock::new(200_000);
+        let mut clock = SystemClock::new(LOOP_SPIN_NS);
         let names: Vec<String> = profile.servos.iter().map(|s| s.name.clone()).collect();
         let publishing = ros2::publish(
             spec.sinks.ros2.as_ref().map(|(n, _)| n),
