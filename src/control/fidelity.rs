@@ -7,13 +7,14 @@
 //!
 //! Everything is accumulated in place: the last [`MAX_LAG_TICKS`] source and present angles in
 //! rings, and per servo and candidate lag a sum of squares, so a tick allocates nothing and a run of any
-//! length costs the same memory. A real-time loop hands its records to a [`FidelityWorker`]
-//! (the lag search is ~28 × 129 sums a tick: measurement, not control, so it stays off the tick).
+//! length costs the same memory. A real-time loop hands each sample once and each tick's read
+//! to a [`FidelityWorker`] as [`Message`]s (the lag search is ~28 × 129 sums a tick:
+//! measurement, not control, so it stays off the tick).
 
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-use crossbeam_channel::{Sender, TryRecvError, TrySendError};
+use crossbeam_channel::{Sender, TryRecvError};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -99,7 +100,8 @@ pub struct FidelityReport {
     pub effector_max_mm: Option<f64>,
     /// Per servo.
     pub servos: Vec<ServoFidelity>,
-    /// Ticks left out because the fidelity worker's queue was full.
+    /// Reads left out because the fidelity worker's queue was full (for the read, or for its
+    /// sample).
     pub records_dropped: u64,
 }
 
@@ -269,50 +271,121 @@ impl Fidelity {
     }
 }
 
-/// One tick's figures for a [`FidelityWorker`].
+/// Values in one [`Message::Values`]: a 28-servo rig's angles and a CMU skeleton's 62 channels
+/// go in three, each no larger than a [`Message::Read`].
+pub const VALUES_PER_PART: usize = 44;
+
+/// What a [`FidelitySink`] is handed: each source sample once (a [`Message::Sample`], then its
+/// values in parts), then every tick's read compared with it. The largest variant, a read, is
+/// under 400 B, so a tick hands a few cache lines over to the worker's core, and a sample
+/// only the values it has (a 28-servo rig over a 62-channel skeleton: 90 of them) — not the
+/// fixed-size tables sized for the largest rig and skeleton.
 #[derive(Clone, Copy, Debug)]
-pub struct FidelityRecord {
+pub enum Message {
+    /// A source sample begins: its number (numbers rise with each one sent; reads refer to
+    /// it) and the values that follow.
+    Sample {
+        /// Its number.
+        seq: u64,
+        /// How many values follow: its angles (one per servo, rig order), then, when
+        /// `channels`, the skeleton's channels.
+        values: u16,
+        /// Whether its channels follow: the effectors at the present angles are then found by
+        /// forward kinematics of the source pose with the servos' angles put back.
+        channels: bool,
+        /// Tips of the watched bones (root frame, file units).
+        tips: [DVec3; MAX_EFFECTORS],
+        /// Robot effectors at the source (retargeting), metres; NaN without.
+        effectors: [DVec3; MAX_EFFECTORS],
+    },
+    /// Some of the sample `seq`'s values, from index `first` on.
+    Values {
+        /// The sample's number.
+        seq: u64,
+        /// Index of the first value.
+        first: u16,
+        /// Values used.
+        len: u16,
+        /// The values.
+        values: [f64; VALUES_PER_PART],
+    },
+    /// One tick's read.
+    Read(TickRead),
+}
+
+/// One tick's valid read, against the sample `sample`.
+#[derive(Clone, Copy, Debug)]
+pub struct TickRead {
     /// The tick's index.
     pub tick: u64,
-    /// Servos in `source` and `present`.
-    pub servos: usize,
-    /// Source angles, radians (rig order).
-    pub source: [f64; MAX_SERVOS],
-    /// Present angles read back, radians.
-    pub present: [f64; MAX_SERVOS],
-    /// Effector positions at the source and at the present angles, metres (NaN: none).
-    pub effectors: [(DVec3, DVec3); MAX_EFFECTORS],
-    /// The number of the source pose whose effectors are still to be found
-    /// ([`EffectorPose::fill`]): the worker has had the pose itself as a [`SourcePose`].
-    pub pose: Option<u64>,
+    /// The number of the sample it is compared with.
+    pub sample: u64,
+    /// Present positions, ticks (rig order).
+    pub present: [i32; MAX_SERVOS],
+    /// Robot effectors at the present angles, metres, when the loop found them (retargeting);
+    /// NaN otherwise.
+    pub effectors: [DVec3; MAX_EFFECTORS],
 }
 
-/// A source sample's pose for the effectors at the present angles: sent to a
-/// [`FidelityWorker`] once per sample (4.3 KB), not with every tick's record.
-#[derive(Clone, Copy, Debug)]
-pub struct SourcePose {
-    /// Its number: poses are numbered in the order they are sent, and records refer to them
-    /// by it.
-    pub seq: u64,
-    /// The source's channels (the skeleton's first ones).
-    pub channels: [f64; MAX_CHANNELS],
-    /// The source's watched tips, file units.
-    pub tips: [DVec3; MAX_EFFECTORS],
-}
-
-impl FidelityRecord {
-    /// A record of `servos` servos with nothing in it yet.
+impl TickRead {
+    /// A read of tick `tick` against sample `sample`, positions `present`.
     #[must_use]
-    pub fn new(tick: u64, servos: usize) -> FidelityRecord {
-        FidelityRecord {
+    pub fn new(tick: u64, sample: u64, present: &[i32]) -> TickRead {
+        let mut r = TickRead {
             tick,
-            servos: servos.min(MAX_SERVOS),
-            source: [f64::NAN; MAX_SERVOS],
-            present: [f64::NAN; MAX_SERVOS],
-            effectors: [(DVec3::NAN, DVec3::NAN); MAX_EFFECTORS],
-            pose: None,
-        }
+            sample,
+            present: [0; MAX_SERVOS],
+            effectors: [DVec3::NAN; MAX_EFFECTORS],
+        };
+        let n = present.len().min(MAX_SERVOS);
+        r.present[..n].copy_from_slice(&present[..n]);
+        r
     }
+}
+
+/// Hands a sample to `send` as [`Message`]s: its start, then `angles` followed by `channels`
+/// in parts. False as soon as one is refused (reads must not refer to it then).
+pub fn send_sample(
+    seq: u64,
+    angles: &[f64],
+    channels: Option<&[f64]>,
+    tips: [DVec3; MAX_EFFECTORS],
+    effectors: [DVec3; MAX_EFFECTORS],
+    mut send: impl FnMut(Message) -> bool,
+) -> bool {
+    let count = angles.len() + channels.map_or(0, <[f64]>::len);
+    if count > MAX_SERVOS + MAX_CHANNELS {
+        return false;
+    }
+    if !send(Message::Sample {
+        seq,
+        values: count as u16,
+        channels: channels.is_some(),
+        tips,
+        effectors,
+    }) {
+        return false;
+    }
+    let mut all = angles.iter().chain(channels.unwrap_or(&[])).copied();
+    let mut first = 0;
+    while first < count {
+        let mut values = [0.0; VALUES_PER_PART];
+        let mut len = 0;
+        for (v, x) in values.iter_mut().zip(all.by_ref()) {
+            *v = x;
+            len += 1;
+        }
+        if !send(Message::Values {
+            seq,
+            first: first as u16,
+            len: len as u16,
+            values,
+        }) {
+            return false;
+        }
+        first += len;
+    }
+    true
 }
 
 /// Effector positions at the present angles by forward kinematics of the skeleton: what the
@@ -321,7 +394,6 @@ impl FidelityRecord {
 #[derive(Clone, Debug)]
 pub struct EffectorPose {
     skeleton: Arc<Skeleton>,
-    rig: Rig,
     watch: [Option<usize>; MAX_EFFECTORS],
     metres_per_unit: f64,
     channels: Box<[f64; MAX_CHANNELS]>,
@@ -329,18 +401,11 @@ pub struct EffectorPose {
 }
 
 impl EffectorPose {
-    /// For the `watch`ed bones of `skeleton` driven through `rig`, `metres_per_unit` metres per
-    /// file unit.
+    /// For the `watch`ed bones of `skeleton`, `metres_per_unit` metres per file unit.
     #[must_use]
-    pub fn new(
-        skeleton: Arc<Skeleton>,
-        rig: Rig,
-        watch: [Option<usize>; MAX_EFFECTORS],
-        metres_per_unit: f64,
-    ) -> Self {
+    pub fn new(skeleton: Arc<Skeleton>, watch: [Option<usize>; MAX_EFFECTORS], metres_per_unit: f64) -> Self {
         EffectorPose {
             skeleton,
-            rig,
             watch,
             metres_per_unit,
             channels: Box::new([0.0; MAX_CHANNELS]),
@@ -348,132 +413,202 @@ impl EffectorPose {
         }
     }
 
-    /// Fills a record's effectors (source and present, metres) from `source`, the pose it
-    /// refers to (left NaN when it refers to another). Allocates nothing.
-    pub fn fill(&mut self, r: &mut FidelityRecord, source: &SourcePose) {
-        if r.pose.take() != Some(source.seq) {
-            return;
-        }
-        let n = self.skeleton.channel_count();
-        self.rig.channels_from_angles(
-            &self.skeleton,
-            &r.present[..r.servos],
-            &source.channels[..n],
-            &mut self.channels[..n],
-        );
+    /// The watched effectors (metres) at the source (`tips`, file units) and at the `present`
+    /// angles put back into the source pose `channels` through `rig`; NaN where nothing is
+    /// watched. Allocates nothing.
+    pub fn pair(
+        &mut self,
+        rig: &Rig,
+        present: &[f64],
+        channels: &[f64],
+        tips: &[DVec3; MAX_EFFECTORS],
+    ) -> [(DVec3, DVec3); MAX_EFFECTORS] {
+        let n = self.skeleton.channel_count().min(channels.len());
+        rig.channels_from_angles(&self.skeleton, present, &channels[..n], &mut self.channels[..n]);
         fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
         let scale = self.metres_per_unit;
-        for ((e, w), s) in r.effectors.iter_mut().zip(self.watch).zip(source.tips) {
+        let mut out = [(DVec3::NAN, DVec3::NAN); MAX_EFFECTORS];
+        for ((e, w), s) in out.iter_mut().zip(self.watch).zip(tips) {
             if let Some(b) = w {
-                *e = (s * scale, self.pose.tip[b] * scale);
+                *e = (*s * scale, self.pose.tip[b] * scale);
+            }
+        }
+        out
+    }
+}
+
+/// Turns [`Message`]s into figures: keeps the sample being compared with, converts each read's
+/// ticks to angles through the rig and accumulates them in a [`Fidelity`] — on the
+/// [`FidelityWorker`]'s thread, or in the tick without one.
+#[derive(Clone, Debug)]
+pub struct FidelitySink {
+    /// The accumulator.
+    pub fidelity: Fidelity,
+    rig: Rig,
+    effector_pose: Option<EffectorPose>,
+    /// The sample's number, once its start has come.
+    seq: Option<u64>,
+    /// Values it has, and has come.
+    expected: usize,
+    received: usize,
+    with_channels: bool,
+    /// Its angles (one per servo), then its channels.
+    values: Box<[f64; MAX_SERVOS + MAX_CHANNELS]>,
+    tips: [DVec3; MAX_EFFECTORS],
+    effectors: [DVec3; MAX_EFFECTORS],
+    present: [f64; MAX_SERVOS],
+    /// Reads whose sample had not come whole.
+    pub unpaired: u64,
+}
+
+impl FidelitySink {
+    /// A sink for `rig`'s servos at a period of `period_s` seconds (with `effector_pose` for
+    /// samples that come with their channels).
+    #[must_use]
+    pub fn new(rig: Rig, period_s: f64, effector_pose: Option<EffectorPose>) -> FidelitySink {
+        FidelitySink {
+            fidelity: Fidelity::new(rig.len(), period_s),
+            rig,
+            effector_pose,
+            seq: None,
+            expected: 0,
+            received: 0,
+            with_channels: false,
+            values: Box::new([0.0; MAX_SERVOS + MAX_CHANNELS]),
+            tips: [DVec3::NAN; MAX_EFFECTORS],
+            effectors: [DVec3::NAN; MAX_EFFECTORS],
+            present: [f64::NAN; MAX_SERVOS],
+            unpaired: 0,
+        }
+    }
+
+    /// Takes one message. Allocates nothing.
+    pub fn take(&mut self, m: &Message) {
+        match m {
+            Message::Sample {
+                seq,
+                values,
+                channels,
+                tips,
+                effectors,
+            } => {
+                self.seq = Some(*seq);
+                self.expected = usize::from(*values).min(self.values.len());
+                self.received = 0;
+                self.with_channels = *channels;
+                self.tips = *tips;
+                self.effectors = *effectors;
+            }
+            Message::Values {
+                seq,
+                first,
+                len,
+                values,
+            } => {
+                let (first, len) = (usize::from(*first), usize::from(*len).min(VALUES_PER_PART));
+                // In order, or not at all (a part refused leaves the sample incomplete).
+                if self.seq == Some(*seq) && first == self.received && first + len <= self.expected {
+                    self.values[first..first + len].copy_from_slice(&values[..len]);
+                    self.received += len;
+                }
+            }
+            Message::Read(r) => self.read(r),
+        }
+    }
+
+    /// One read against the sample it names: joints, and effectors.
+    fn read(&mut self, r: &TickRead) {
+        let n = self.rig.len();
+        if self.seq != Some(r.sample) || self.received < self.expected || self.expected < n {
+            self.unpaired += 1;
+            return;
+        }
+        for ((p, s), t) in self.present.iter_mut().zip(&self.rig.servos).zip(&r.present) {
+            *p = s.ticks_to_angle(f64::from(*t));
+        }
+        self.fidelity
+            .record_tick(r.tick, &self.values[..n], &self.present[..n]);
+        match &mut self.effector_pose {
+            Some(pose) if self.with_channels => {
+                let channels = &self.values[n..self.expected];
+                for (s, p) in pose.pair(&self.rig, &self.present[..n], channels, &self.tips) {
+                    self.fidelity.record_effector(s, p);
+                }
+            }
+            _ => {
+                for (s, p) in self.effectors.iter().zip(&r.effectors) {
+                    self.fidelity.record_effector(*s, *p);
+                }
             }
         }
     }
-}
 
-impl Fidelity {
-    /// Takes one record (joints and effectors).
-    pub fn take(&mut self, r: &FidelityRecord) {
-        self.record_tick(r.tick, &r.source[..r.servos], &r.present[..r.servos]);
-        for (s, p) in &r.effectors {
-            self.record_effector(*s, *p);
-        }
+    /// The figures, servos named by `names` (rig order); reads that found no sample count as
+    /// dropped.
+    #[must_use]
+    pub fn report(&self, names: &[String]) -> FidelityReport {
+        let mut r = self.fidelity.report(names);
+        r.records_dropped = self.unpaired;
+        r
     }
 }
 
-/// A thread that accumulates [`FidelityRecord`]s sent to it through a bounded channel: the
-/// tick only copies one record in (no allocation, never waits; a record that finds the
-/// channel full is counted and dropped, its tick left as a gap).
+/// A thread that takes [`Message`]s through a bounded channel into a [`FidelitySink`]: the
+/// tick only copies a message in (no allocation, never waits; a message that finds the
+/// channel full is refused).
 #[derive(Debug)]
 pub struct FidelityWorker {
-    tx: Option<Sender<FidelityRecord>>,
-    poses: Option<Sender<SourcePose>>,
-    handle: Option<JoinHandle<Fidelity>>,
-    /// Records dropped because the channel was full.
-    pub dropped: u64,
+    tx: Option<Sender<Message>>,
+    handle: Option<JoinHandle<Box<FidelitySink>>>,
 }
 
-/// Records the channel holds (1.3 KB each): a quarter second at 1 kHz (the worker takes one in
-/// a few µs).
-const WORKER_QUEUE: usize = 256;
+/// Messages the channel holds (under 400 B each): half a second of reads at 1 kHz (the worker
+/// takes one in a few µs).
+const WORKER_QUEUE: usize = 512;
 
-/// Source poses the channel holds (4.3 KB each; one a sample).
-const POSE_QUEUE: usize = 64;
-
-/// How long the worker sleeps when it has taken every record.
+/// How long the worker sleeps when it has taken every message.
 const WORKER_POLL: std::time::Duration = std::time::Duration::from_millis(4);
 
 impl FidelityWorker {
-    /// Starts the worker with `fidelity` as its accumulator (and `pose` for records whose
-    /// effectors come from the skeleton's pose).
+    /// Starts the worker with `sink`.
     ///
     /// # Errors
     /// When the thread cannot be started.
-    pub fn spawn(mut fidelity: Fidelity, mut pose: Option<EffectorPose>) -> std::io::Result<FidelityWorker> {
-        let (tx, rx) = crossbeam_channel::bounded::<FidelityRecord>(WORKER_QUEUE);
-        let (pose_tx, pose_rx) = crossbeam_channel::bounded::<SourcePose>(POSE_QUEUE);
+    pub fn spawn(mut sink: Box<FidelitySink>) -> std::io::Result<FidelityWorker> {
+        let (tx, rx) = crossbeam_channel::bounded::<Message>(WORKER_QUEUE);
         let handle = std::thread::Builder::new()
             .name("fidelity".into())
-            .spawn(move || {
-                let mut source: Option<Box<SourcePose>> = None;
-                loop {
-                    // Polled, never waited on: a receiver blocked in the channel would have each
-                    // tick's send wake it (a futex call, ~2 µs of the tick).
-                    match rx.try_recv() {
-                        Ok(mut r) => {
-                            if let (Some(p), Some(seq)) = (&mut pose, r.pose) {
-                                // A record's pose was sent before it, the poses in order.
-                                while source.as_ref().is_none_or(|s| s.seq < seq) {
-                                    match pose_rx.try_recv() {
-                                        Ok(s) => **source.get_or_insert_with(|| Box::new(s)) = s,
-                                        Err(_) => break,
-                                    }
-                                }
-                                if let Some(s) = &source {
-                                    p.fill(&mut r, s);
-                                }
-                            }
-                            fidelity.take(&r);
-                        }
-                        Err(TryRecvError::Empty) => std::thread::sleep(WORKER_POLL),
-                        Err(TryRecvError::Disconnected) => break fidelity,
-                    }
+            .spawn(move || loop {
+                // Polled, never waited on: a receiver blocked in the channel would have each
+                // tick's send wake it (a futex call, ~2 µs of the tick).
+                match rx.try_recv() {
+                    Ok(m) => sink.take(&m),
+                    Err(TryRecvError::Empty) => std::thread::sleep(WORKER_POLL),
+                    Err(TryRecvError::Disconnected) => break sink,
                 }
             })?;
         Ok(FidelityWorker {
             tx: Some(tx),
-            poses: Some(pose_tx),
             handle: Some(handle),
-            dropped: 0,
         })
     }
 
-    /// Hands a source pose over without waiting (false when the channel is full: records
-    /// must not refer to it).
-    pub fn send_pose(&mut self, pose: &SourcePose) -> bool {
-        self.poses.as_ref().is_some_and(|tx| tx.try_send(*pose).is_ok())
+    /// Hands one message over without waiting (false: refused, the channel full or the
+    /// worker gone).
+    pub fn send(&mut self, m: Message) -> bool {
+        self.tx.as_ref().is_some_and(|tx| tx.try_send(m).is_ok())
     }
 
-    /// Hands one record over without waiting.
-    pub fn send(&mut self, record: FidelityRecord) {
-        if let Some(tx) = &self.tx {
-            if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) = tx.try_send(record) {
-                self.dropped += 1;
-            }
-        }
-    }
-
-    /// Records sent and not yet taken.
+    /// Messages sent and not yet taken.
     #[must_use]
     pub fn queued(&self) -> usize {
         self.tx.as_ref().map_or(0, Sender::len)
     }
 
-    /// Closes the channel and returns the accumulator once every record sent is taken (`None`
-    /// when the worker died).
-    pub fn finish(&mut self) -> Option<Fidelity> {
+    /// Closes the channel and returns the sink once every message sent is taken (`None` when
+    /// the worker died).
+    pub fn finish(&mut self) -> Option<Box<FidelitySink>> {
         self.tx = None;
-        self.poses = None;
         self.handle.take().and_then(|h| h.join().ok())
     }
 }
@@ -507,44 +642,107 @@ mod tests {
         assert!((r.effector_rms_mm.unwrap() - 5.0).abs() < 1e-9);
     }
 
-    /// Ticks without a record (failed reads, holds) keep their place: the lag is still found
-    /// exactly, and the worker gives what the tick would have.
+    /// A one-servo rig geared to 65,190 ticks a radian, zero at tick 0.
+    fn fine_rig() -> Rig {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let profile = crate::profile::Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
+        let skel = crate::formats::asf::load(&root.join("data/cmu/16.asf"))
+            .unwrap()
+            .skeleton;
+        let mut servo = profile.rig(Some(&skel)).unwrap().servos[0];
+        servo.zero_tick = 0.0;
+        servo.gear = 100.0;
+        servo.direction = 1.0;
+        let mut rig = Rig::default();
+        rig.servos.push(servo).unwrap();
+        rig
+    }
+
+    /// Ticks without a read (failed reads, holds) keep their place: the lag is still found
+    /// exactly (to the ticks' resolution), and the worker gives what the sink in the tick does.
     #[test]
     fn gaps_keep_the_lag_and_the_worker_agrees() {
-        let src = |t: f64| (t * 3.0).sin();
-        let mut inline = Fidelity::new(1, 0.01);
-        let mut worker = FidelityWorker::spawn(Fidelity::new(1, 0.01), None).unwrap();
+        let rig = fine_rig();
+        let ticks_of = |a: f64| rig.servos[0].angle_to_ticks(a);
+        let src = |t: f64| rig.servos[0].ticks_to_angle(f64::from(ticks_of((t * 3.0).sin())));
+        let mut inline = FidelitySink::new(rig.clone(), 0.01, None);
+        let mut worker = FidelityWorker::spawn(Box::new(FidelitySink::new(rig.clone(), 0.01, None))).unwrap();
         let mut sent = 0;
         for i in 0..600u64 {
+            let t = i as f64 * 0.01;
+            // One sample a tick, a read of the present four ticks behind it.
+            let mut both = |m: Message| {
+                inline.take(&m);
+                // (The test does not depend on how soon the worker's thread runs.)
+                while worker.queued() > WORKER_QUEUE / 2 {
+                    std::thread::yield_now();
+                }
+                assert!(worker.send(m));
+                true
+            };
+            assert!(send_sample(
+                i,
+                &[src(t)],
+                None,
+                [DVec3::NAN; MAX_EFFECTORS],
+                [DVec3::NAN; MAX_EFFECTORS],
+                &mut both
+            ));
             // Every seventh tick and a run of ten are missing; a run of 80 starts the ring over.
             if i % 7 == 3 || (200..210).contains(&i) || (400..480).contains(&i) {
                 continue;
             }
-            let t = i as f64 * 0.01;
-            let mut r = FidelityRecord::new(i, 1);
-            r.source[0] = src(t);
-            r.present[0] = src(t - 0.04);
-            inline.take(&r);
-            // (The test does not depend on how soon the worker's thread runs.)
-            while worker.queued() > WORKER_QUEUE / 2 {
-                std::thread::yield_now();
-            }
-            worker.send(r);
+            both(Message::Read(TickRead::new(
+                i,
+                i,
+                &[ticks_of(((t - 0.04) * 3.0).sin())],
+            )));
             sent += 1;
         }
         let a = inline.report(&["a".into()]);
         assert!((a.lag_ms - 40.0).abs() < 1e-9, "{a:?}");
         assert!(a.rms_after_lag_deg < 1e-9, "{a:?}");
         assert_eq!(a.samples, sent);
+        assert_eq!(a.records_dropped, 0);
         let b = worker.finish().unwrap().report(&["a".into()]);
-        assert_eq!(worker.dropped, 0);
         assert_eq!(a, b);
     }
 
-    /// The effectors at the present angles: the worker, given each pose once, finds what the
-    /// tick finds with the pose at hand; a record whose pose never came has no effectors.
+    /// A sample is taken in parts and in order: a read against a sample whose values stopped
+    /// part way, or against one never begun, compares nothing and is counted.
     #[test]
-    fn the_worker_finds_the_effectors_from_poses_sent_once() {
+    fn a_read_against_an_incomplete_sample_compares_nothing() {
+        let rig = fine_rig();
+        let mut sink = FidelitySink::new(rig.clone(), 0.01, None);
+        let nan = [DVec3::NAN; MAX_EFFECTORS];
+        assert!(send_sample(1, &[0.5], None, nan, nan, |m| {
+            sink.take(&m);
+            true
+        }));
+        let half = rig.servos[0].angle_to_ticks(0.5);
+        sink.take(&Message::Read(TickRead::new(0, 1, &[half])));
+        // Sample 2: begun, its values refused.
+        let mut parts = 0;
+        assert!(!send_sample(2, &[0.7], None, nan, nan, |m| {
+            parts += 1;
+            if parts == 1 {
+                sink.take(&m);
+            }
+            parts == 1
+        }));
+        sink.take(&Message::Read(TickRead::new(1, 2, &[half])));
+        sink.take(&Message::Read(TickRead::new(2, 3, &[half])));
+        let r = sink.report(&[]);
+        assert_eq!(r.samples, 1);
+        assert_eq!(r.records_dropped, 2);
+        assert!(r.joint_rms_deg < 1e-3, "{r:?}");
+    }
+
+    /// A sample larger than a part (a 28-servo rig with a 62-channel skeleton's channels) goes
+    /// in parts, and the worker finds the effectors at the present angles that the forward
+    /// kinematics of the source pose with those angles put back gives.
+    #[test]
+    fn the_worker_finds_the_effectors_from_samples_sent_once() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         let skel = Arc::new(
             crate::formats::asf::load(&root.join("data/cmu/16.asf"))
@@ -555,57 +753,68 @@ mod tests {
         let rig = profile.rig(Some(&skel)).unwrap();
         let watch = ["lradius", "rradius", "ltibia", "rtibia"].map(|n| skel.find(n));
         let n = rig.len();
-        let pose = EffectorPose::new(Arc::clone(&skel), rig.clone(), watch, 0.0254);
-        let mut inline_pose = pose.clone();
-        let mut inline = Fidelity::new(n, 0.001);
-        let mut worker = FidelityWorker::spawn(Fidelity::new(n, 0.001), Some(pose)).unwrap();
+        let c = skel.channel_count();
+        assert!(n + c > 2 * VALUES_PER_PART, "{n} + {c}");
+        let pose = EffectorPose::new(Arc::clone(&skel), watch, 0.0254);
+        let mut worker =
+            FidelityWorker::spawn(Box::new(FidelitySink::new(rig.clone(), 0.001, Some(pose)))).unwrap();
+        // What the sink must find, computed here without it.
+        let mut expected = Fidelity::new(n, 0.001);
         let mut fk = Pose64::default();
-        let mut source = SourcePose {
-            seq: 0,
-            channels: [0.0; MAX_CHANNELS],
-            tips: [DVec3::NAN; MAX_EFFECTORS],
-        };
+        let mut channels = vec![0.0; c];
+        let mut back = vec![0.0; c];
+        let mut tips = [DVec3::NAN; MAX_EFFECTORS];
         let mut angles = vec![0.0; n];
+        let mut present = vec![0.0; n];
+        let mut ticks = vec![0i32; n];
         for tick in 0..400u64 {
             // A new sample every eight ticks; the present lags the source by a little.
             let sample = tick / 8;
-            let c = skel.channel_count();
-            for (i, ch) in source.channels[..c].iter_mut().enumerate() {
-                *ch = 0.3 * ((sample as f64) * 0.05 + i as f64).sin();
-            }
-            source.seq = sample;
-            fk64(&skel, &source.channels[..c], &mut fk);
-            for (t, w) in source.tips.iter_mut().zip(watch) {
-                *t = fk.tip[w.unwrap()];
-            }
-            rig.joint_angles(&skel, &source.channels[..c], &[], &mut angles);
-            let mut r = FidelityRecord::new(tick, n);
-            r.source[..n].copy_from_slice(&angles);
-            for (p, a) in r.present[..n].iter_mut().zip(&angles) {
-                *p = a - 0.01;
-            }
-            // Sample 20's pose could not be sent: its records have no effectors.
-            if sample != 20 {
-                r.pose = Some(source.seq);
-            }
-            if tick % 8 == 0 && sample != 20 {
+            if tick % 8 == 0 {
+                for (i, ch) in channels.iter_mut().enumerate() {
+                    *ch = 0.3 * ((sample as f64) * 0.05 + i as f64).sin();
+                }
+                fk64(&skel, &channels, &mut fk);
+                for (t, w) in tips.iter_mut().zip(watch) {
+                    *t = fk.tip[w.unwrap()];
+                }
+                rig.joint_angles(&skel, &channels, &[], &mut angles);
                 while worker.queued() > WORKER_QUEUE / 2 {
                     std::thread::yield_now();
                 }
-                assert!(worker.send_pose(&source));
+                let mut parts = 0;
+                assert!(send_sample(
+                    sample,
+                    &angles,
+                    Some(&channels),
+                    tips,
+                    [DVec3::NAN; MAX_EFFECTORS],
+                    |m| {
+                        parts += 1;
+                        worker.send(m)
+                    }
+                ));
+                assert_eq!(parts, 1 + (n + c).div_ceil(VALUES_PER_PART));
             }
-            let mut mine = r;
-            inline_pose.fill(&mut mine, &source);
-            inline.take(&mine);
-            worker.send(r);
+            for ((t, s), a) in ticks.iter_mut().zip(&rig.servos).zip(&angles) {
+                *t = s.angle_to_ticks(a - 0.01);
+            }
+            for ((p, s), t) in present.iter_mut().zip(&rig.servos).zip(&ticks) {
+                *p = s.ticks_to_angle(f64::from(*t));
+            }
+            expected.record_tick(tick, &angles, &present);
+            rig.channels_from_angles(&skel, &present, &channels, &mut back);
+            fk64(&skel, &back, &mut fk);
+            for (t, w) in tips.iter().zip(watch) {
+                expected.record_effector(*t * 0.0254, fk.tip[w.unwrap()] * 0.0254);
+            }
+            assert!(worker.send(Message::Read(TickRead::new(tick, sample, &ticks))));
         }
-        let a = inline.report(&[]);
+        let a = expected.report(&[]);
         let b = worker.finish().unwrap().report(&[]);
-        assert_eq!(worker.dropped, 0);
         assert_eq!(a, b);
         assert!(a.effector_rms_mm.unwrap() > 0.1, "{a:?}");
-        // Eight records without effectors, four effectors each.
-        assert_eq!(inline.effector_count, (400 - 8) * 4);
+        assert_eq!(expected.effector_count, 400 * 4);
     }
 
     /// A present that runs two ticks ahead of the source: a negative lag.

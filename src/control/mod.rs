@@ -386,13 +386,19 @@ impl Controller {
             .collect();
         let ease_ticks = (config.ease_in_s * config.rate_hz).round().max(0.0) as u64;
         let effector_pose = (config.effector_metres_per_unit > 0.0).then(|| {
-            fidelity::EffectorPose::new(
-                Arc::clone(&skeleton),
-                rig.clone(),
-                watch,
-                config.effector_metres_per_unit,
-            )
+            fidelity::EffectorPose::new(Arc::clone(&skeleton), watch, config.effector_metres_per_unit)
         });
+        let effector_channels = effector_pose.is_some();
+        let sink = Box::new(fidelity::FidelitySink::new(
+            rig.clone(),
+            period_ns as f64 * 1e-9,
+            effector_pose,
+        ));
+        // Without a thread (none could be started) the tick accumulates it.
+        let worker = config
+            .fidelity_worker
+            .then(|| fidelity::FidelityWorker::spawn(sink.clone()).ok())
+            .flatten();
         let mut stats = LoopStats::new(config.rate_hz);
         stats.allocations_in_tick = config.allocations.map(|_| 0);
         Controller {
@@ -440,17 +446,11 @@ impl Controller {
                 last_valid_ns: 0,
             },
             measure: read::Measure {
-                fidelity: Box::new(fidelity::Fidelity::new(n, period_ns as f64 * 1e-9)),
-                // Without a thread (none could be started) the tick accumulates it.
-                worker: config
-                    .fidelity_worker
-                    .then(|| {
-                        let f = fidelity::Fidelity::new(n, period_ns as f64 * 1e-9);
-                        fidelity::FidelityWorker::spawn(f, effector_pose.clone()).ok()
-                    })
-                    .flatten(),
-                effector_pose,
-                pose_sent: (None, 0),
+                sink,
+                worker,
+                effector_channels,
+                sample_sent: (None, 0),
+                dropped: 0,
                 source_angles: vec![f64::NAN; n],
                 present_angles: vec![f64::NAN; n],
                 source_log: Vec::new(),
@@ -467,15 +467,11 @@ impl Controller {
     /// The fidelity so far (a worker's once it has taken every record: it is stopped, and
     /// the tick accumulates from here on). [`Controller::run`] puts it in the statistics.
     pub fn fidelity_report(&mut self) -> fidelity::FidelityReport {
-        let mut dropped = 0;
-        if let Some(mut w) = self.measure.worker.take() {
-            if let Some(f) = w.finish() {
-                *self.measure.fidelity = f;
-            }
-            dropped = w.dropped;
+        if let Some(f) = self.measure.worker.take().and_then(|mut w| w.finish()) {
+            self.measure.sink = f;
         }
-        let mut report = self.measure.fidelity.report(&self.servo_names);
-        report.records_dropped = dropped;
+        let mut report = self.measure.sink.report(&self.servo_names);
+        report.records_dropped += self.measure.dropped;
         report
     }
 

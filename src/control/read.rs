@@ -5,7 +5,6 @@
 use super::{fidelity, torque_off, Controller, RunEnd};
 use crate::bus::{BusError, ServoBus};
 use crate::servo::{MAX_SERVOS, TICKS_PER_TURN};
-use crate::skeleton::MAX_CHANNELS;
 
 /// What a read taken after a tick's Sync Write belongs to (kept until a pipelined read's
 /// replies are taken).
@@ -49,20 +48,38 @@ pub(super) struct Reads {
     pub(super) last_valid_ns: u64,
 }
 
-/// Source against present, end to end: accumulated here, or by the worker when there is one.
+/// Source against present, end to end: accumulated by the worker when there is one, or here.
 pub(super) struct Measure {
-    pub(super) fidelity: Box<fidelity::Fidelity>,
+    /// The accumulation in the tick (without a worker; a worker's, once it has finished).
+    pub(super) sink: Box<fidelity::FidelitySink>,
     pub(super) worker: Option<fidelity::FidelityWorker>,
-    /// This tick's source angles (the input mapped through the rig) and the present angles.
+    /// This tick's source angles (the input mapped through the rig).
     pub(super) source_angles: Vec<f64>,
+    /// The present angles (for the retargeting's effectors).
     pub(super) present_angles: Vec<f64>,
-    /// Effectors at the present angles (skeleton rigs with a scale, without a worker).
-    pub(super) effector_pose: Option<fidelity::EffectorPose>,
-    /// The due time and number of the last source pose the worker was given.
-    pub(super) pose_sent: (Option<u64>, u64),
+    /// Whether samples go with their channels (the effectors found from the skeleton's pose).
+    pub(super) effector_channels: bool,
+    /// The due time of the last sample handed over whole, and the number of the last one
+    /// begun.
+    pub(super) sample_sent: (Option<u64>, u64),
+    /// Reads not compared: refused by a full channel, or their sample was.
+    pub(super) dropped: u64,
     /// Each tick's source angles with its deadline (ns), up to the capacity reserved by
     /// [`Controller::log_source`]; never grown in a tick.
     pub(super) source_log: Vec<(u64, [f64; MAX_SERVOS])>,
+}
+
+impl Measure {
+    /// Hands `m` to the worker, or takes it here without one (false: refused).
+    fn send(&mut self, m: fidelity::Message) -> bool {
+        match &mut self.worker {
+            Some(w) => w.send(m),
+            None => {
+                self.sink.take(&m);
+                true
+            }
+        }
+    }
 }
 
 impl Controller {
@@ -122,65 +139,49 @@ impl Controller {
         }
     }
 
-    /// Source against present for this tick (after a valid read): joints, and effectors by
-    /// forward kinematics of both. Allocates nothing.
+    /// Source against present for this tick (after a valid read): the tick's sample, once,
+    /// then the read against it; the angles, effectors and lags are found by the sink.
+    /// Allocates nothing.
     fn record_fidelity(&mut self, tick: u64, sample_due: u64) {
-        for ((p, s), t) in self
-            .measure
-            .present_angles
-            .iter_mut()
-            .zip(&self.rig.servos)
-            .zip(&self.reads.present)
-        {
-            *p = s.ticks_to_angle(f64::from(*t));
-        }
         // The tick's sample is still in the preview (current, or just behind it); not after a
         // restart, which nothing is compared across.
         let Some(sample) = self.preview.find(sample_due) else {
             return;
         };
-        let n = self.measure.present_angles.len();
-        let mut record = fidelity::FidelityRecord::new(tick, n);
-        record.source[..n].copy_from_slice(&sample.angles[..n]);
-        record.present[..n].copy_from_slice(&self.measure.present_angles);
-        if let Some(r) = &mut self.retarget {
-            let present = r.present_effectors(&self.rig, &self.measure.present_angles, sample.base);
-            for ((e, s), p) in record.effectors.iter_mut().zip(sample.effectors).zip(present) {
-                *e = (s, p);
-            }
-        } else if let Some(pose) = &mut self.measure.effector_pose {
-            // The forward kinematics of the present pose: by the worker when there is one,
-            // which is given each sample's pose once.
-            let (sent_due, seq) = self.measure.pose_sent;
-            let source = |seq| {
-                let mut s = fidelity::SourcePose {
-                    seq,
-                    channels: [0.0; MAX_CHANNELS],
-                    tips: sample.tips,
-                };
-                let c = self.skeleton.channel_count();
-                s.channels[..c].copy_from_slice(&sample.channels[..c]);
-                s
-            };
-            match &mut self.measure.worker {
-                Some(w) => {
-                    if sent_due != Some(sample.due_ns) && w.send_pose(&source(seq + 1)) {
-                        self.measure.pose_sent = (Some(sample.due_ns), seq + 1);
-                    }
-                    // (Not sent: no effectors this tick.)
-                    if self.measure.pose_sent.0 == Some(sample.due_ns) {
-                        record.pose = Some(self.measure.pose_sent.1);
-                    }
-                }
-                None => {
-                    record.pose = Some(0);
-                    pose.fill(&mut record, &source(0));
-                }
-            }
+        let n = self.ids.len();
+        let measure = &mut self.measure;
+        if measure.sample_sent.0 != Some(sample.due_ns) {
+            let seq = measure.sample_sent.1 + 1;
+            let channels = (measure.effector_channels && self.retarget.is_none())
+                .then(|| &sample.channels[..self.skeleton.channel_count()]);
+            let whole = fidelity::send_sample(
+                seq,
+                &sample.angles[..n],
+                channels,
+                sample.tips,
+                sample.effectors,
+                |m| measure.send(m),
+            );
+            measure.sample_sent = (whole.then_some(sample.due_ns), seq);
         }
-        match &mut self.measure.worker {
-            Some(w) => w.send(record),
-            None => self.measure.fidelity.take(&record),
+        if measure.sample_sent.0 != Some(sample.due_ns) {
+            measure.dropped += 1;
+            return;
+        }
+        let mut read = fidelity::TickRead::new(tick, measure.sample_sent.1, &self.reads.present);
+        if let Some(r) = &mut self.retarget {
+            for ((p, s), t) in measure
+                .present_angles
+                .iter_mut()
+                .zip(&self.rig.servos)
+                .zip(&self.reads.present)
+            {
+                *p = s.ticks_to_angle(f64::from(*t));
+            }
+            read.effectors = r.present_effectors(&self.rig, &measure.present_angles, sample.base);
+        }
+        if !measure.send(fidelity::Message::Read(read)) {
+            measure.dropped += 1;
         }
     }
 }
