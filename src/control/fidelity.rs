@@ -415,7 +415,7 @@ impl EffectorPose {
 
     /// The watched effectors (metres) at the source (`tips`, file units) and at the `present`
     /// angles put back into the source pose `channels` through `rig`; NaN where nothing is
-    /// watched. Allocates nothing.
+    /// watched, and everywhere when `channels` is not the skeleton's. Allocates nothing.
     pub fn pair(
         &mut self,
         rig: &Rig,
@@ -423,11 +423,14 @@ impl EffectorPose {
         channels: &[f64],
         tips: &[DVec3; MAX_EFFECTORS],
     ) -> [(DVec3, DVec3); MAX_EFFECTORS] {
-        let n = self.skeleton.channel_count().min(channels.len());
-        rig.channels_from_angles(&self.skeleton, present, &channels[..n], &mut self.channels[..n]);
+        let mut out = [(DVec3::NAN, DVec3::NAN); MAX_EFFECTORS];
+        let n = self.skeleton.channel_count();
+        if channels.len() != n || present.len() != rig.len() {
+            return out;
+        }
+        rig.channels_from_angles(&self.skeleton, present, channels, &mut self.channels[..n]);
         fk64(&self.skeleton, &self.channels[..n], &mut self.pose);
         let scale = self.metres_per_unit;
-        let mut out = [(DVec3::NAN, DVec3::NAN); MAX_EFFECTORS];
         for ((e, w), s) in out.iter_mut().zip(self.watch).zip(tips) {
             if let Some(b) = w {
                 *e = (*s * scale, self.pose.tip[b] * scale);
@@ -815,6 +818,84 @@ mod tests {
         assert_eq!(a, b);
         assert!(a.effector_rms_mm.unwrap() > 0.1, "{a:?}");
         assert_eq!(expected.effector_count, 400 * 4);
+    }
+
+    /// Messages the loop would never send — values past the sample's count, out of order,
+    /// for another sample, a sample claiming more values than exist, too few channels, reads
+    /// of unknown samples and wild positions — in any order: the sink panics on none, and a
+    /// read it compares is one whose sample came whole.
+    #[test]
+    fn any_messages_leave_the_sink_whole() {
+        static COMPARED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        use proptest::prelude::*;
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let skel = Arc::new(
+            crate::formats::asf::load(&root.join("data/cmu/16.asf"))
+                .unwrap()
+                .skeleton,
+        );
+        let profile = crate::profile::Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
+        let rig = profile.rig(Some(&skel)).unwrap();
+        let watch = ["lradius", "rradius", "ltibia", "rtibia"].map(|n| skel.find(n));
+        let pose = EffectorPose::new(Arc::clone(&skel), watch, 0.0254);
+        let value = prop_oneof![Just(f64::NAN), Just(f64::INFINITY), -10.0..10.0f64];
+        let message = prop_oneof![
+            // The counts the loop sends (28 angles, and 62 channels), and others.
+            (
+                0..4u64,
+                prop_oneof![Just(28u16), Just(90), 0..200u16],
+                any::<bool>(),
+                value.clone()
+            )
+                .prop_map(|(seq, values, channels, v)| Message::Sample {
+                    seq,
+                    values,
+                    channels,
+                    tips: [DVec3::splat(v); MAX_EFFECTORS],
+                    effectors: [DVec3::splat(v); MAX_EFFECTORS],
+                }),
+            (
+                0..4u64,
+                prop_oneof![Just(0u16), Just(44), Just(88), 0..200u16],
+                prop_oneof![Just(28u16), Just(44), Just(2), any::<u16>()],
+                value
+            )
+                .prop_map(|(seq, first, len, v)| Message::Values {
+                    seq,
+                    first,
+                    len,
+                    values: [v; VALUES_PER_PART],
+                }),
+            (0..100u64, 0..4u64, any::<i32>()).prop_map(|(tick, sample, p)| {
+                Message::Read(TickRead::new(tick, sample, &[p; MAX_SERVOS]))
+            }),
+        ];
+        // Whole samples as the loop sends them, among the rest.
+        let whole = (0..4u64, any::<bool>(), -3.0..3.0f64).prop_map(|(seq, channels, v)| {
+            let (angles, values) = ([v; 28], [v; 62]);
+            let mut out = Vec::new();
+            let nan = [DVec3::NAN; MAX_EFFECTORS];
+            send_sample(seq, &angles, channels.then_some(&values[..]), nan, nan, |m| {
+                out.push(m);
+                true
+            });
+            out
+        });
+        let part = prop_oneof![1 => whole, 3 => message.prop_map(|m| vec![m])];
+        proptest!(ProptestConfig::with_cases(200), |(parts in proptest::collection::vec(part, 0..40))| {
+            let messages: Vec<Message> = parts.into_iter().flatten().collect();
+            let mut sink = FidelitySink::new(rig.clone(), 0.001, Some(pose.clone()));
+            let reads = messages.iter().filter(|m| matches!(m, Message::Read(_))).count() as u64;
+            for m in &messages {
+                sink.take(m);
+            }
+            let r = sink.report(&[]);
+            COMPARED.fetch_add(r.samples, std::sync::atomic::Ordering::Relaxed);
+            prop_assert!(r.samples + r.records_dropped <= reads);
+            prop_assert!(r.joint_rms_deg.is_finite() && r.effector_rms_mm.is_none_or(f64::is_finite));
+        });
+        // The streams had reads to compare, not only ones refused.
+        assert!(COMPARED.load(std::sync::atomic::Ordering::Relaxed) > 0);
     }
 
     /// A present that runs two ticks ahead of the source: a negative lag.
