@@ -42,6 +42,18 @@ fn accumulate(a: &[f64], b: &[f64], sse: &mut [f64; MAX_SERVOS], count: &mut [f6
     }
 }
 
+/// Adds `(a − b)²` to `sse`, servo by servo, all of `a` and `b` being finite (the common case:
+/// no test per value, and the count kept once for the row).
+fn accumulate_finite(a: &[f64], b: &[f64], sse: &mut [f64; MAX_SERVOS]) {
+    // Slices of one length, so that the loop runs in vector lanes.
+    let n = a.len().min(b.len()).min(MAX_SERVOS);
+    let (a, b, sse) = (&a[..n], &b[..n], &mut sse[..n]);
+    for i in 0..n {
+        let e = a[i] - b[i];
+        sse[i] += e * e;
+    }
+}
+
 /// The accumulator.
 #[derive(Clone, Debug)]
 pub struct Fidelity {
@@ -50,14 +62,20 @@ pub struct Fidelity {
     /// The last source and present angles, newest at `head`.
     ring: Box<[[f64; MAX_SERVOS]; MAX_LAG_TICKS + 1]>,
     present_ring: Box<[[f64; MAX_SERVOS]; MAX_LAG_TICKS + 1]>,
+    /// Whether each ring row is finite (and not near overflowing) in every servo.
+    ring_finite: [bool; MAX_LAG_TICKS + 1],
+    present_finite: [bool; MAX_LAG_TICKS + 1],
     head: usize,
     filled: usize,
     /// The tick of the newest ring row (gaps are filled with rows that compare nothing).
     last_tick: Option<u64>,
     /// Per lag (index `MAX_LAG_TICKS + lag`) and servo: sum of squared differences and their
     /// count (lag-major: a tick's update runs along contiguous servo rows, without branches).
+    /// A pair of rows finite in every servo is counted once for the lag, in `rows`; the
+    /// servo's count is `count + rows`.
     sse: Box<[[f64; MAX_SERVOS]; LAGS]>,
     count: Box<[[f64; MAX_SERVOS]; LAGS]>,
+    rows: [f64; LAGS],
     max_abs: [f64; MAX_SERVOS],
     effector_sse: f64,
     effector_count: u64,
@@ -114,11 +132,14 @@ impl Fidelity {
             period_s,
             ring: Box::new([[0.0; MAX_SERVOS]; MAX_LAG_TICKS + 1]),
             present_ring: Box::new([[f64::NAN; MAX_SERVOS]; MAX_LAG_TICKS + 1]),
+            ring_finite: [false; MAX_LAG_TICKS + 1],
+            present_finite: [false; MAX_LAG_TICKS + 1],
             head: 0,
             filled: 0,
             last_tick: None,
             sse: Box::new([[0.0; MAX_SERVOS]; LAGS]),
             count: Box::new([[0.0; MAX_SERVOS]; LAGS]),
+            rows: [0.0; LAGS],
             max_abs: [0.0; MAX_SERVOS],
             effector_sse: 0.0,
             effector_count: 0,
@@ -143,6 +164,8 @@ impl Fidelity {
                     self.head = (self.head + 1) % (MAX_LAG_TICKS + 1);
                     self.ring[self.head] = [f64::NAN; MAX_SERVOS];
                     self.present_ring[self.head] = [f64::NAN; MAX_SERVOS];
+                    self.ring_finite[self.head] = false;
+                    self.present_finite[self.head] = false;
                     self.filled = (self.filled + 1).min(MAX_LAG_TICKS + 1);
                 }
             }
@@ -152,8 +175,15 @@ impl Fidelity {
         }
         self.last_tick = Some(tick);
         self.head = (self.head + 1) % (MAX_LAG_TICKS + 1);
-        self.ring[self.head][..n].copy_from_slice(&source[..n]);
-        self.present_ring[self.head][..n].copy_from_slice(&present[..n]);
+        let (source, present) = (&source[..n], &present[..n]);
+        self.ring[self.head][..n].copy_from_slice(source);
+        self.present_ring[self.head][..n].copy_from_slice(present);
+        // (Bounded well inside f64, so that no difference of two of them overflows.)
+        let tame = |v: &f64| v.abs() < 1e150;
+        let source_finite = source.iter().all(tame);
+        let present_finite = present.iter().all(tame);
+        self.ring_finite[self.head] = source_finite;
+        self.present_finite[self.head] = present_finite;
         self.filled = (self.filled + 1).min(MAX_LAG_TICKS + 1);
         for k in 0..n {
             let e = present[k] - source[k];
@@ -165,19 +195,26 @@ impl Fidelity {
             let at = (self.head + MAX_LAG_TICKS + 1 - back) % (MAX_LAG_TICKS + 1);
             // Behind: this present against the source `back` ticks ago; ahead: the present
             // `back` ticks ago against this source.
-            accumulate(
-                &present[..n],
-                &self.ring[at][..n],
-                &mut self.sse[MAX_LAG_TICKS + back],
-                &mut self.count[MAX_LAG_TICKS + back],
-            );
+            let d = MAX_LAG_TICKS + back;
+            if present_finite && self.ring_finite[at] {
+                accumulate_finite(present, &self.ring[at][..n], &mut self.sse[d]);
+                self.rows[d] += 1.0;
+            } else {
+                accumulate(present, &self.ring[at][..n], &mut self.sse[d], &mut self.count[d]);
+            }
             if back > 0 {
-                accumulate(
-                    &self.present_ring[at][..n],
-                    &source[..n],
-                    &mut self.sse[MAX_LAG_TICKS - back],
-                    &mut self.count[MAX_LAG_TICKS - back],
-                );
+                let d = MAX_LAG_TICKS - back;
+                if source_finite && self.present_finite[at] {
+                    accumulate_finite(&self.present_ring[at][..n], source, &mut self.sse[d]);
+                    self.rows[d] += 1.0;
+                } else {
+                    accumulate(
+                        &self.present_ring[at][..n],
+                        source,
+                        &mut self.sse[d],
+                        &mut self.count[d],
+                    );
+                }
             }
         }
     }
@@ -215,28 +252,25 @@ impl Fidelity {
                 (ss / c as f64).sqrt().to_degrees()
             }
         };
+        let count = |d: usize, k: usize| self.count[d][k] + self.rows[d];
         let mut servos = Vec::with_capacity(self.servos);
         let lag_ms = |d: usize| (d as f64 - MAX_LAG_TICKS as f64) * self.period_s * 1e3;
         let zero = MAX_LAG_TICKS;
         for k in 0..self.servos {
             let best = (0..LAGS)
-                .filter(|&d| self.count[d][k] > 0.0)
-                .min_by(|&a, &b| {
-                    (self.sse[a][k] / self.count[a][k]).total_cmp(&(self.sse[b][k] / self.count[b][k]))
-                })
+                .filter(|&d| count(d, k) > 0.0)
+                .min_by(|&a, &b| (self.sse[a][k] / count(a, k)).total_cmp(&(self.sse[b][k] / count(b, k))))
                 .unwrap_or(zero);
             servos.push(ServoFidelity {
                 name: names.get(k).cloned().unwrap_or_default(),
-                rms_deg: rms(self.sse[zero][k], self.count[zero][k] as u64),
+                rms_deg: rms(self.sse[zero][k], count(zero, k) as u64),
                 max_deg: self.max_abs[k].to_degrees(),
                 lag_ms: lag_ms(best),
-                rms_after_lag_deg: rms(self.sse[best][k], self.count[best][k] as u64),
+                rms_after_lag_deg: rms(self.sse[best][k], count(best, k) as u64),
             });
         }
         let total = |d: usize| -> (f64, u64) {
-            (0..self.servos).fold((0.0, 0), |(s, c), k| {
-                (s + self.sse[d][k], c + self.count[d][k] as u64)
-            })
+            (0..self.servos).fold((0.0, 0), |(s, c), k| (s + self.sse[d][k], c + count(d, k) as u64))
         };
         let best = (0..LAGS)
             .filter(|&d| total(d).1 > 0)
@@ -251,11 +285,7 @@ impl Fidelity {
         let effector =
             (self.effector_count > 0).then(|| (self.effector_sse / self.effector_count as f64).sqrt() * 1e3);
         FidelityReport {
-            samples: self.count[zero][..self.servos]
-                .iter()
-                .map(|&c| c as u64)
-                .max()
-                .unwrap_or(0),
+            samples: (0..self.servos).map(|k| count(zero, k) as u64).max().unwrap_or(0),
             joint_rms_deg: rms(s0, c0),
             joint_max_deg: self.max_abs[..self.servos]
                 .iter()
@@ -896,6 +926,79 @@ mod tests {
         });
         // The streams had reads to compare, not only ones refused.
         assert!(COMPARED.load(std::sync::atomic::Ordering::Relaxed) > 0);
+    }
+
+    /// The sums kept per lag and servo are the direct ones: every pair of recorded ticks `lag`
+    /// apart within a run (a gap longer than the ring starts a new one), non-finite
+    /// differences left out — with some values NaN, rows whole and rows not.
+    #[test]
+    fn the_lag_sums_are_the_direct_sums() {
+        let servos = 3;
+        let mut f = Fidelity::new(servos, 0.01);
+        let mut history: Vec<(u64, usize, Vec<f64>, Vec<f64>)> = Vec::new();
+        let (mut run, mut last) = (0, None::<u64>);
+        let mut tick = 0u64;
+        for i in 0..400u64 {
+            // Gaps of 3 and, once, of 100 ticks (a new run).
+            tick += if i == 200 {
+                100
+            } else if i % 37 == 5 {
+                3
+            } else {
+                1
+            };
+            let t = tick as f64 * 0.01;
+            let mut source: Vec<f64> = (0..servos).map(|k| (t * (1.0 + k as f64)).sin()).collect();
+            let mut present: Vec<f64> = (0..servos)
+                .map(|k| ((t - 0.03) * (1.0 + k as f64)).sin() + 0.01)
+                .collect();
+            if i % 11 == 0 {
+                source[(i as usize) % servos] = f64::NAN;
+            }
+            if i % 13 == 0 {
+                present[(i as usize + 1) % servos] = f64::INFINITY;
+            }
+            if last.is_some_and(|l| tick - l - 1 > MAX_LAG_TICKS as u64) {
+                run += 1;
+            }
+            last = Some(tick);
+            f.record_tick(tick, &source, &present);
+            history.push((tick, run, source, present));
+        }
+        for back in 0..=MAX_LAG_TICKS as u64 {
+            for k in 0..servos {
+                let (mut behind, mut ahead) = ((0.0, 0.0), (0.0, 0.0));
+                for (t, r, s_now, p_now) in &history {
+                    let Some((_, _, s_then, p_then)) = history.iter().find(|h| h.0 + back == *t && h.1 == *r)
+                    else {
+                        continue;
+                    };
+                    let e = p_now[k] - s_then[k];
+                    if e.is_finite() {
+                        behind = (behind.0 + e * e, behind.1 + 1.0);
+                    }
+                    let e = p_then[k] - s_now[k];
+                    if back > 0 && e.is_finite() {
+                        ahead = (ahead.0 + e * e, ahead.1 + 1.0);
+                    }
+                }
+                let at = |d: usize| (f.sse[d][k], f.count[d][k] + f.rows[d]);
+                let d = MAX_LAG_TICKS + back as usize;
+                assert_eq!(at(d).1, behind.1, "lag +{back}, servo {k}");
+                assert!(
+                    (at(d).0 - behind.0).abs() <= 1e-12 * behind.0.max(1.0),
+                    "lag +{back}, servo {k}"
+                );
+                if back > 0 {
+                    let d = MAX_LAG_TICKS - back as usize;
+                    assert_eq!(at(d).1, ahead.1, "lag -{back}, servo {k}");
+                    assert!(
+                        (at(d).0 - ahead.0).abs() <= 1e-12 * ahead.0.max(1.0),
+                        "lag -{back}, servo {k}"
+                    );
+                }
+            }
+        }
     }
 
     /// A present that runs two ticks ahead of the source: a negative lag.
