@@ -675,14 +675,23 @@ mod tests {
         assert!((r.effector_rms_mm.unwrap() - 5.0).abs() < 1e-9);
     }
 
+    /// The CMU puppet: subject 16's skeleton, the rig over it, and its wrists and ankles.
+    fn puppet() -> (Arc<Skeleton>, Rig, [Option<usize>; MAX_EFFECTORS]) {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let skel = Arc::new(
+            crate::formats::asf::load(&root.join("data/cmu/16.asf"))
+                .unwrap()
+                .skeleton,
+        );
+        let profile = crate::profile::Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
+        let rig = profile.rig(Some(&skel)).unwrap();
+        let watch = ["lradius", "rradius", "ltibia", "rtibia"].map(|n| skel.find(n));
+        (skel, rig, watch)
+    }
+
     /// A one-servo rig geared to 65,190 ticks a radian, zero at tick 0.
     fn fine_rig() -> Rig {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let profile = crate::profile::Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
-        let skel = crate::formats::asf::load(&root.join("data/cmu/16.asf"))
-            .unwrap()
-            .skeleton;
-        let mut servo = profile.rig(Some(&skel)).unwrap().servos[0];
+        let mut servo = puppet().1.servos[0];
         servo.zero_tick = 0.0;
         servo.gear = 100.0;
         servo.direction = 1.0;
@@ -776,15 +785,7 @@ mod tests {
     /// kinematics of the source pose with those angles put back gives.
     #[test]
     fn the_worker_finds_the_effectors_from_samples_sent_once() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let skel = Arc::new(
-            crate::formats::asf::load(&root.join("data/cmu/16.asf"))
-                .unwrap()
-                .skeleton,
-        );
-        let profile = crate::profile::Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
-        let rig = profile.rig(Some(&skel)).unwrap();
-        let watch = ["lradius", "rradius", "ltibia", "rtibia"].map(|n| skel.find(n));
+        let (skel, rig, watch) = puppet();
         let n = rig.len();
         let c = skel.channel_count();
         assert!(n + c > 2 * VALUES_PER_PART, "{n} + {c}");
@@ -858,15 +859,7 @@ mod tests {
     fn any_messages_leave_the_sink_whole() {
         static COMPARED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         use proptest::prelude::*;
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let skel = Arc::new(
-            crate::formats::asf::load(&root.join("data/cmu/16.asf"))
-                .unwrap()
-                .skeleton,
-        );
-        let profile = crate::profile::Profile::load(&root.join("firmware-profile/cmu-puppet.toml")).unwrap();
-        let rig = profile.rig(Some(&skel)).unwrap();
-        let watch = ["lradius", "rradius", "ltibia", "rtibia"].map(|n| skel.find(n));
+        let (skel, rig, watch) = puppet();
         let pose = EffectorPose::new(Arc::clone(&skel), watch, 0.0254);
         let value = prop_oneof![Just(f64::NAN), Just(f64::INFINITY), -10.0..10.0f64];
         let message = prop_oneof![
