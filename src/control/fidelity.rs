@@ -418,6 +418,13 @@ pub fn send_sample(
     true
 }
 
+/// The joint angles (radians) of servo positions `ticks` through `rig`, as far as `out` goes.
+pub(super) fn angles_of_ticks(rig: &Rig, ticks: &[i32], out: &mut [f64]) {
+    for ((a, s), t) in out.iter_mut().zip(&rig.servos).zip(ticks) {
+        *a = s.ticks_to_angle(f64::from(*t));
+    }
+}
+
 /// Effector positions at the present angles by forward kinematics of the skeleton: what the
 /// servos do put back into the source's pose (the joints no servo drives as the source had
 /// them), the watched bones' tips at the rig's scale.
@@ -556,9 +563,7 @@ impl FidelitySink {
             self.unpaired += 1;
             return;
         }
-        for ((p, s), t) in self.present.iter_mut().zip(&self.rig.servos).zip(&r.present) {
-            *p = s.ticks_to_angle(f64::from(*t));
-        }
+        angles_of_ticks(&self.rig, &r.present, &mut self.present);
         self.fidelity
             .record_tick(r.tick, &self.values[..n], &self.present[..n]);
         match &mut self.effector_pose {

@@ -388,7 +388,6 @@ impl Controller {
         let effector_pose = (config.effector_metres_per_unit > 0.0).then(|| {
             fidelity::EffectorPose::new(Arc::clone(&skeleton), watch, config.effector_metres_per_unit)
         });
-        let effector_channels = effector_pose.is_some();
         let sink = Box::new(fidelity::FidelitySink::new(
             rig.clone(),
             period_ns as f64 * 1e-9,
@@ -448,7 +447,6 @@ impl Controller {
             measure: read::Measure {
                 sink,
                 worker,
-                effector_channels,
                 sample_sent: (None, 0),
                 dropped: 0,
                 source_angles: vec![f64::NAN; n],

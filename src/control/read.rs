@@ -57,8 +57,6 @@ pub(super) struct Measure {
     pub(super) source_angles: Vec<f64>,
     /// The present angles (for the retargeting's effectors).
     pub(super) present_angles: Vec<f64>,
-    /// Whether samples go with their channels (the effectors found from the skeleton's pose).
-    pub(super) effector_channels: bool,
     /// The due time of the last sample handed over whole, and the number of the last one
     /// begun.
     pub(super) sample_sent: (Option<u64>, u64),
@@ -152,7 +150,8 @@ impl Controller {
         let measure = &mut self.measure;
         if measure.sample_sent.0 != Some(sample.due_ns) {
             let seq = measure.sample_sent.1 + 1;
-            let channels = (measure.effector_channels && self.retarget.is_none())
+            // The effectors from the skeleton's pose (with a scale, without a retargeting).
+            let channels = (self.config.effector_metres_per_unit > 0.0 && self.retarget.is_none())
                 .then(|| &sample.channels[..self.skeleton.channel_count()]);
             let whole = fidelity::send_sample(
                 seq,
@@ -170,14 +169,7 @@ impl Controller {
         }
         let mut read = fidelity::TickRead::new(tick, measure.sample_sent.1, &self.reads.present);
         if let Some(r) = &mut self.retarget {
-            for ((p, s), t) in measure
-                .present_angles
-                .iter_mut()
-                .zip(&self.rig.servos)
-                .zip(&self.reads.present)
-            {
-                *p = s.ticks_to_angle(f64::from(*t));
-            }
+            fidelity::angles_of_ticks(&self.rig, &self.reads.present, &mut measure.present_angles);
             read.effectors = r.present_effectors(&self.rig, &measure.present_angles, sample.base);
         }
         if !measure.send(fidelity::Message::Read(read)) {
