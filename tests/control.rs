@@ -1224,7 +1224,7 @@ fn pointing_tracks_carry_the_captured_directions_and_turn_the_feet() {
 
 #[test]
 fn the_move_to_a_clips_first_pose_is_sized_by_the_farthest_servo() {
-    use marionette::session::{start_move_s, START_MOVE_SPEED_SHARE};
+    use marionette::control::{start_move_s, START_MOVE_SPEED_SHARE};
     let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml");
     let profile = Profile::load(&path).unwrap();
     let skeleton = asf::load(&common::data("16.asf")).unwrap().skeleton;
@@ -1276,4 +1276,79 @@ fn the_move_to_a_clips_first_pose_is_sized_by_the_farthest_servo() {
     pose[3] = f64::NAN;
     assert!((start_move_s(&rig, &present, &pose).unwrap().0 - expected(7, 100.0)).abs() < 1e-9);
     assert!(start_move_s(&rig, &present, &vec![f64::NAN; n]).is_none());
+}
+
+/// Following the walk's targets from rest, where the humerus twists are 80–90° from their first
+/// pose: with the move sized at the first input the loop eases there at a quarter of the
+/// servos' speed (as long as `start_move_s` says for the pose the follower's first solve gives)
+/// and leaves the move out of the fidelity; without it, the trip from rest at full speed counts.
+#[test]
+fn the_move_to_the_first_targets_is_eased_and_left_out_of_the_fidelity() {
+    use marionette::control::start_move_s;
+    let names = effectors();
+    let follow = |size_start_move: bool| {
+        let s = setup();
+        let mut motion = (*s.motion).clone();
+        marionette::motion::dropouts::repair(&s.skel, &mut motion);
+        let track = clip_track(&s.skel, &motion, &names, TrackFrame::Limb).unwrap();
+        let follower = Follower::new(&s.skel, &names).unwrap();
+        let first = follower.first_pose(&s.skel, &track.samples[0].1).unwrap();
+        let mut angles = vec![0.0; s.rig.len()];
+        s.rig.joint_angles(&s.skel, &first, &[], &mut angles);
+        let expected = start_move_s(&s.rig, &s.present, &angles).unwrap().0;
+        let config = LoopConfig {
+            size_start_move,
+            ..config(120.0)
+        };
+        let (mut c, tx) = controller(&s, Solve::Follow(Box::new(follower)), config, 4);
+        let samples = track.samples;
+        let mut first_solved = None;
+        let end = run(
+            &mut c,
+            &mut s.vr.clone(),
+            tx,
+            |k, due, vr| {
+                let (_, targets) = samples.get(k as usize)?;
+                Some(Input {
+                    seq: k,
+                    due_ns: due,
+                    made_ns: vr.now_ns(),
+                    payload: Payload::Targets(targets.clone()),
+                })
+            },
+            100_000,
+            |_, c, _| {
+                first_solved.get_or_insert_with(|| c.channels().to_vec());
+            },
+        );
+        assert_eq!(end, RunEnd::InputEnded);
+        // The pose solved before the run is the loop's first.
+        let first_solved = first_solved.unwrap();
+        let gap = first
+            .iter()
+            .zip(&first_solved)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(gap < 1e-12, "first pose {gap} rad from the loop's first solve");
+        (c.stats.start_move_s, expected, c.fidelity_report())
+    };
+    let (sized, expected, eased) = follow(true);
+    let (none, _, abrupt) = follow(false);
+    println!(
+        "start move {sized:?} s (expected {expected:.3}); fidelity eased: rms {:.2}° max {:.2}° over {} ticks; from rest at full speed: rms {:.2}° max {:.2}° over {}",
+        eased.joint_rms_deg, eased.joint_max_deg, eased.samples, abrupt.joint_rms_deg, abrupt.joint_max_deg, abrupt.samples
+    );
+    let sized = sized.expect("the ease lengthened");
+    assert!(
+        expected > 1.0,
+        "the humerus twists are far from rest: {expected} s"
+    );
+    assert!((sized - expected).abs() < 1e-6, "{sized} s against {expected} s");
+    assert!(none.is_none());
+    assert!(eased.joint_max_deg < 15.0, "{eased:?}");
+    assert!(abrupt.joint_max_deg > 45.0, "{abrupt:?}");
+    assert!(
+        eased.samples + (sized * 120.0) as u64 >= abrupt.samples,
+        "the move is left out"
+    );
 }

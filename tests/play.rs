@@ -145,7 +145,7 @@ fn play_streams_the_whole_clip_over_the_virtual_chain() {
         assert!(out.contains("ended: end of input; torque off"));
         // The chain's servos stand at their zero angle, far from the clip's first pose: the
         // pre-roll is made longer than its 1 s, and the first pass with it.
-        assert!(out.contains("moving to the clip's first pose over"), "{out}");
+        assert!(out.contains("moving to the first pose over"), "{out}");
         let v = json(&stats);
         check_stats(&v, rate.parse().unwrap());
         let hz: f64 = rate.parse().unwrap();
@@ -172,7 +172,12 @@ fn follow_drives_the_puppet_from_a_clips_wrist_and_ankle_paths() {
     let dir = tempdir("follow");
     let csv = dir.join("walk.csv");
     let jsonl = dir.join("walk.jsonl");
-    ok(&run(&["targets", ASF, AMC, "-o", csv.to_str().unwrap()]));
+    let made = ok(&run(&["targets", ASF, AMC, "-o", csv.to_str().unwrap()]));
+    // The capture's left-arm dropout (frames 1–2) is filled, as `play` fills it.
+    assert!(
+        made.contains("capture dropout: lhumerus frames 1–2 read zero"),
+        "{made}"
+    );
     ok(&run(&[
         "targets",
         ASF,
@@ -201,8 +206,13 @@ fn follow_drives_the_puppet_from_a_clips_wrist_and_ankle_paths() {
             stats.to_str().unwrap(),
         ]));
         println!("{out}");
+        // The first targets are solved before the run and held while the servos move there
+        // (the humerus twists are 80–90° from rest), out of the fidelity.
+        assert!(out.contains("moving to the first pose over"), "{out}");
         let v = json(&stats);
         check_stats(&v, rate.parse().unwrap());
+        let max = v["fidelity"]["joint_max_deg"].as_f64().unwrap();
+        assert!(max < 30.0, "fidelity max {max}°: the move from rest counted");
         if kept_time(&v) {
             assert_eq!(v["inputs_used"].as_u64(), Some(471), "every target sample used");
         }
@@ -222,7 +232,7 @@ fn follow_reads_targets_from_stdin_and_udp() {
         .unwrap()
         .lines()
         .skip(1)
-        .take(4 * 100)
+        .take(4 * 400)
         .map(str::to_string)
         .collect();
     // Stdin: the run ends when the input does; one garbage line is counted, not fatal.
@@ -244,6 +254,8 @@ fn follow_reads_targets_from_stdin_and_udp() {
     let text = ok(&out);
     assert!(text.contains("1 unreadable lines"), "{text}");
     assert!(text.contains("ended: end of input"), "{text}");
+    // Live: the loop sizes the move to the first pose when it arrives (about 2 s here).
+    assert!(text.contains("start move "), "{text}");
     let v = json(&stats);
     check_stats(&v, 120.0);
     assert!(v["inputs_used"].as_u64().unwrap() > 10);
@@ -255,7 +267,7 @@ fn follow_reads_targets_from_stdin_and_udp() {
         .unwrap()
         .port();
     let stats = dir.join("udp.json");
-    let child = spawn_follow(&format!("udp://127.0.0.1:{port}"), "2", &stats, Stdio::null());
+    let child = spawn_follow(&format!("udp://127.0.0.1:{port}"), "3.5", &stats, Stdio::null());
     let sender = UdpSocket::bind("127.0.0.1:0").unwrap();
     let t0 = Instant::now();
     // Among them, datagrams over the size limit (refused whole, counted) and a target a
@@ -264,7 +276,7 @@ fn follow_reads_targets_from_stdin_and_udp() {
     let mut sent_oversized = 0;
     let mut sent_far = false;
     for (k, chunk) in lines.chunks(4).cycle().enumerate() {
-        if t0.elapsed() > Duration::from_millis(1800) {
+        if t0.elapsed() > Duration::from_millis(3300) {
             break;
         }
         let datagram = match k {

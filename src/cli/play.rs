@@ -703,7 +703,9 @@ fn follow_cmd(a: &FollowArgs, allocations: Option<fn() -> u64>, out: &mut dyn Wr
                 .into(),
         ));
     }
-    let spec = args.spec(from_ros2, None, allocations, out)?;
+    let mut spec = args.spec(from_ros2, None, allocations, out)?;
+    // The first targets' pose is known once they are solved: the loop sizes the move to it.
+    spec.size_start_move = true;
     let source = match (&spec.sinks.ros2, from_ros2) {
         (Some((node, _)), true) => {
             let root = skeleton
@@ -774,7 +776,24 @@ fn targets_cmd(a: &TargetsArgs, out: &mut dyn Write) -> Result<(), CliError> {
         FrameArg::Root => TrackFrame::Root,
     };
     let skeleton = asf::load(asf_path)?.skeleton;
-    let motion = amc::load(&skeleton, amc_path)?;
+    let mut motion = amc::load(&skeleton, amc_path)?;
+    let dropouts = if a.keep_dropouts {
+        crate::motion::dropouts::find(&skeleton, &motion)
+    } else {
+        crate::motion::dropouts::repair(&skeleton, &mut motion)
+    };
+    for d in &dropouts {
+        writeln!(
+            out,
+            "{}: capture dropout: {d}{}",
+            amc_path.display(),
+            if a.keep_dropouts {
+                "; written as recorded"
+            } else {
+                "; filled from its neighbours (--keep-dropouts writes it as recorded)"
+            }
+        )?;
+    }
     let track = if directions {
         clip_track_pointing(&skeleton, &motion, effectors, frame)
     } else {
@@ -919,6 +938,10 @@ pub(super) struct TargetsArgs {
     /// effector (the hand, the foot), which `follow` turns that bone to.
     #[arg(long)]
     pub(super) directions: bool,
+    /// Write capture dropouts (a bone reading exactly zero between far-away frames) as
+    /// recorded instead of filling them from their neighbours.
+    #[arg(long)]
+    pub(super) keep_dropouts: bool,
     /// Output file.
     #[arg(short, long)]
     pub(super) output: PathBuf,

@@ -217,6 +217,32 @@ impl Follower {
         self.effectors.iter().map(|e| e.name.as_str())
     }
 
+    /// The channels the loop's first solve gives for `targets`: a fresh follower of the same
+    /// effectors solving them from the rest pose (every channel 0), as the loop starts. `None`
+    /// when the loop would refuse them.
+    #[must_use]
+    pub fn first_pose(&self, skeleton: &Skeleton, targets: &[Target]) -> Option<Vec<f64>> {
+        if !targets.iter().all(|t| self.accepts(t)) {
+            return None;
+        }
+        let names: Vec<String> = self.names().map(String::from).collect();
+        let mut fresh = Follower::new(skeleton, &names).ok()?;
+        for t in targets {
+            fresh.targets[t.effector] = Some(*t);
+        }
+        let mut channels = vec![0.0; skeleton.channel_count()];
+        let mut pose = Pose64::default();
+        let count = fresh.effectors.len();
+        fresh.solve_some(
+            skeleton,
+            &mut channels,
+            &mut pose,
+            &mut LoopStats::default(),
+            0..count,
+        );
+        Some(channels)
+    }
+
     /// Solves effector `k` for `target` (its present one when `None`) on `scratch` (a copy of
     /// the pose, changed) and keeps nothing: the solve the next tick makes, made ahead while
     /// the loop waits, so that its code and data are in the caches when the tick comes. A limb

@@ -35,6 +35,7 @@ pub mod stats;
 mod stop;
 pub use stop::REHEARSAL_LEAD_NS;
 mod tick;
+pub use tick::{start_move_s, START_MOVE_SPEED_SHARE};
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -111,6 +112,10 @@ pub struct LoopConfig {
     /// Make the next tick's limb solve ahead, just before its deadline ([`Controller::rehearse`]):
     /// real-time runs, whose sleep leaves the caches cold.
     pub rehearse: bool,
+    /// At the first input, lengthen the ease-in to the servos' eased move to its pose at
+    /// [`START_MOVE_SPEED_SHARE`] of their speed ([`start_move_s`]) when that takes longer:
+    /// for inputs whose first pose is not known before the run (targets to follow).
+    pub size_start_move: bool,
 }
 
 impl Default for LoopConfig {
@@ -127,6 +132,7 @@ impl Default for LoopConfig {
             pipelined: false,
             fidelity_worker: false,
             rehearse: false,
+            size_start_move: false,
         }
     }
 }

@@ -15,7 +15,7 @@ use std::time::Duration;
 
 use crossbeam_channel::Receiver;
 
-use super::input::{Input, InputSender, Payload, SendError};
+use super::input::{Input, InputSender, Payload, SendError, Target};
 use super::sources::{
     parse_target_line, ClipPlayer, PlayerCommand, ProducerReport, TargetTrack, MAX_DATAGRAM_BYTES,
 };
@@ -115,6 +115,12 @@ pub trait Source: Send {
     /// at least `seconds`: the servos' move to the first pose takes that long. Others ignore
     /// it.
     fn hold_first(&mut self, _seconds: f64) {}
+
+    /// The targets of the first input, when they are known before the run (a target file):
+    /// the pose the run starts towards.
+    fn first_targets(&self) -> Option<&[Target]> {
+        None
+    }
 }
 
 impl<S: Source + ?Sized> Source for Box<S> {
@@ -129,6 +135,9 @@ impl<S: Source + ?Sized> Source for Box<S> {
     }
     fn hold_first(&mut self, seconds: f64) {
         (**self).hold_first(seconds);
+    }
+    fn first_targets(&self) -> Option<&[Target]> {
+        (**self).first_targets()
     }
     fn next_due(&self, grid: Grid) -> Option<u64> {
         (**self).next_due(grid)
@@ -279,6 +288,8 @@ impl Source for ClipSource {
 pub struct TrackSource {
     track: Arc<TargetTrack>,
     looping: bool,
+    /// How long the first sample is held before the rest follow, ns ([`Source::hold_first`]).
+    hold_ns: u64,
     next: usize,
     pass: u64,
     seq: u64,
@@ -292,6 +303,7 @@ impl TrackSource {
         TrackSource {
             track: Arc::new(track),
             looping,
+            hold_ns: 0,
             next: 0,
             pass: 0,
             seq: 0,
@@ -303,7 +315,12 @@ impl TrackSource {
         let t0 = self.track.samples.first()?.0;
         let (t, _) = self.track.samples.get(self.next)?;
         let pass_ns = ((self.track.duration() + 1.0 / 120.0) * 1e9) as u64;
-        Some(grid.start_ns + self.pass * pass_ns + ((t - t0) * 1e9) as u64)
+        let held = if self.next == 0 && self.pass == 0 {
+            0
+        } else {
+            self.hold_ns
+        };
+        Some(grid.start_ns + held + self.pass * pass_ns + ((t - t0) * 1e9) as u64)
     }
 }
 
@@ -316,6 +333,15 @@ impl Source for TrackSource {
     }
     fn next_due(&self, grid: Grid) -> Option<u64> {
         self.due(grid)
+    }
+    fn hold_first(&mut self, seconds: f64) {
+        // Only before the first sample is sent.
+        if self.next == 0 && self.pass == 0 && seconds.is_finite() && seconds > 0.0 {
+            self.hold_ns = (seconds * 1e9) as u64;
+        }
+    }
+    fn first_targets(&self) -> Option<&[Target]> {
+        self.track.samples.first().map(|(_, t)| &t[..])
     }
     fn feed(&mut self, grid: Grid, until_ns: u64, now_ns: u64, sink: &Sink<'_>) -> bool {
         while let Some(due) = self.due(grid) {
@@ -561,5 +587,70 @@ impl Source for UdpSource {
     }
     fn report(&self) -> ProducerReport {
         self.report
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::input::input_channel;
+    use glam::DVec3;
+
+    /// A track of `n` samples 10 ms apart, one effector moving along x.
+    fn track(n: usize) -> TargetTrack {
+        TargetTrack {
+            samples: (0..n)
+                .map(|k| {
+                    let mut targets = heapless::Vec::new();
+                    let position = DVec3::new(k as f64, 0.0, 0.0);
+                    let _ = targets.push(Target {
+                        effector: 0,
+                        position,
+                        direction: None,
+                    });
+                    (0.01 * k as f64, targets)
+                })
+                .collect(),
+        }
+    }
+
+    /// The dues a track source sends, fed to the end.
+    fn dues(mut source: TrackSource) -> Vec<u64> {
+        let (tx, mut port) = input_channel(64);
+        let grid = Grid {
+            start_ns: 1_000,
+            period_ns: 1_000_000,
+        };
+        let more = source.feed(grid, u64::MAX, 0, &Sink { tx: &tx, wait: false });
+        assert!(!more, "a track that does not loop ends");
+        std::iter::from_fn(|| port.next_due(u64::MAX).map(|m| m.due_ns)).collect()
+    }
+
+    #[test]
+    fn a_held_track_sends_its_first_sample_at_once_and_the_rest_after_the_hold() {
+        let plain = dues(TrackSource::new(track(4), false));
+        assert_eq!(plain, [1_000, 10_001_000, 20_001_000, 30_001_000]);
+        let mut held = TrackSource::new(track(4), false);
+        assert_eq!(held.first_targets().map(<[Target]>::len), Some(1));
+        held.hold_first(1.5);
+        let held = dues(held);
+        assert_eq!(held[0], plain[0], "the first sample is due at the start");
+        for (h, p) in held.iter().zip(&plain).skip(1) {
+            assert_eq!(
+                h - p,
+                1_500_000_000,
+                "the rest follow 1.5 s later, spaced as before"
+            );
+        }
+        // A hold asked once the track has begun changes nothing.
+        let mut late = TrackSource::new(track(4), false);
+        let (tx, _port) = input_channel(64);
+        let grid = Grid {
+            start_ns: 0,
+            period_ns: 1_000_000,
+        };
+        late.feed(grid, 0, 0, &Sink { tx: &tx, wait: false });
+        late.hold_first(1.5);
+        assert_eq!(late.next_due(grid), Some(10_000_000));
     }
 }

@@ -97,6 +97,9 @@ pub struct LoopStats {
     pub unreachable: u64,
     /// Ticks that held the last command after consecutive read failures.
     pub held_ticks: u64,
+    /// Seconds of the eased move from where the servos stood to the first input's pose, when
+    /// the loop lengthened the ease-in for it ([`super::LoopConfig::size_start_move`]).
+    pub start_move_s: Option<f64>,
     /// Telemetry records dropped because the consumer was behind.
     pub telemetry_dropped: u64,
     /// The last valid read's positions when the run ended (set after the loop, never in a
@@ -236,6 +239,7 @@ impl LoopStats {
             rate_limited: self.rate_limited,
             unreachable: self.unreachable,
             held_ticks: self.held_ticks,
+            start_move_s: self.start_move_s,
             telemetry_dropped: self.telemetry_dropped,
             final_present: self.final_present.clone(),
             ik_error_rms: if self.ik_error_n == 0 {
@@ -324,6 +328,8 @@ pub struct Report {
     pub unreachable: u64,
     /// Ticks holding after read failures.
     pub held_ticks: u64,
+    /// Seconds of the eased move to the first input's pose, when the loop sized it.
+    pub start_move_s: Option<f64>,
     /// Telemetry records dropped.
     pub telemetry_dropped: u64,
     /// Each servo's present position at the end of the run (the last valid read), radians.
@@ -470,6 +476,12 @@ impl fmt::Display for LoopStats {
             self.tracking_max_deg,
             self.reads_ok
         )?;
+        if let Some(s) = self.start_move_s {
+            writeln!(
+                f,
+                "start move      {s:.2} s, eased from where the servos stood to the first input's pose (not in the fidelity)"
+            )?;
+        }
         if let Some(r) = &self.fidelity {
             write!(
                 f,

@@ -8,6 +8,7 @@ use super::lookahead::EaseIn;
 use super::stats::Stage;
 use super::{torque_off, Absorbed, Controller, ReadContext, RunEnd, Telemetry};
 use crate::bus::{BusError, ServoBus};
+use crate::rig::Rig;
 use crate::schedule::{Clock, Tick};
 use crate::servo::MAX_SERVOS;
 
@@ -48,6 +49,39 @@ pub(super) struct Ease {
     pub(super) ticks: u64,
     pub(super) done: u64,
     pub(super) start_ns: Option<u64>,
+}
+
+/// The share of each servo's velocity limit the move to a run's first pose reaches at its
+/// fastest: a gentle start, a quarter of the servos' speed.
+pub const START_MOVE_SPEED_SHARE: f64 = 0.25;
+
+/// How long an eased move (smoothstep, the help note's eq. 13: its peak speed 1.5 times its
+/// mean) from `present` (ticks) to `pose` (radians per servo, clamped to each servo's range)
+/// takes when no servo goes faster than [`START_MOVE_SPEED_SHARE`] of its velocity limit, s;
+/// with the servo that takes longest and how far it goes, degrees of joint. `None` when no
+/// servo has a finite target and a velocity limit.
+#[must_use]
+pub fn start_move_s(rig: &Rig, present: &[i32], pose: &[f64]) -> Option<(f64, usize, f64)> {
+    eased_move_s(rig, present.iter().map(|&p| f64::from(p)), pose)
+}
+
+/// [`start_move_s`] from fractional ticks. Allocates nothing.
+fn eased_move_s(rig: &Rig, present: impl Iterator<Item = f64>, pose: &[f64]) -> Option<(f64, usize, f64)> {
+    rig.servos
+        .iter()
+        .zip(present)
+        .zip(pose)
+        .enumerate()
+        .filter_map(|(k, ((s, p), &a))| {
+            let to = s.angle_to_ticks_exact(a);
+            if !(to.is_finite() && p.is_finite() && s.max_velocity > 0.0) {
+                return None;
+            }
+            let ticks = (to.clamp(f64::from(s.min_tick), f64::from(s.max_tick)) - p).abs();
+            let seconds = 1.5 * ticks / (START_MOVE_SPEED_SHARE * s.max_velocity);
+            Some((seconds, k, (ticks / s.ticks_per_radian().abs()).to_degrees()))
+        })
+        .max_by(|a, b| a.0.total_cmp(&b.0))
 }
 
 impl Controller {
@@ -125,7 +159,10 @@ impl Controller {
         let fresh = self.preview.advance(due_now);
         if fresh {
             self.have_input = true;
-            self.ease.start_ns.get_or_insert(tick.deadline_ns);
+            if self.ease.start_ns.is_none() {
+                self.ease.start_ns = Some(tick.deadline_ns);
+                self.size_start_move();
+            }
         } else if self.have_input {
             self.stats.inputs_stale += 1;
         }
@@ -146,6 +183,34 @@ impl Controller {
             tips,
             clip_time,
             fresh,
+        }
+    }
+
+    /// At the first input, when the configuration asks for it
+    /// ([`super::LoopConfig::size_start_move`]): lengthens the ease-in to the eased move from
+    /// where the servos stood to the input's pose ([`start_move_s`]) when that takes longer, so
+    /// that no servo starts faster than [`START_MOVE_SPEED_SHARE`] of its speed. The ease is
+    /// not counted in the fidelity. Allocates nothing.
+    fn size_start_move(&mut self) {
+        if !self.config.size_start_move {
+            return;
+        }
+        let Some(c) = self.preview.current() else {
+            return;
+        };
+        let from = self
+            .rig
+            .servos
+            .iter()
+            .zip(&self.ease.from)
+            .map(|(s, &a)| s.angle_to_ticks_exact(a));
+        let Some((seconds, _, _)) = eased_move_s(&self.rig, from, c.angles) else {
+            return;
+        };
+        let ticks = (seconds * 1e9 / self.period_ns as f64).ceil() as u64;
+        if ticks > self.ease.ticks {
+            self.ease.ticks = ticks;
+            self.stats.start_move_s = Some(seconds);
         }
     }
 

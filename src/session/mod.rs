@@ -37,6 +37,7 @@ use crate::rt::RealTime;
 use crate::schedule::{Clock, Schedule};
 use crate::skeleton::Skeleton;
 
+pub use crate::control::{start_move_s, START_MOVE_SPEED_SHARE};
 pub use ros2::{Ros2Handle, Ros2Targets};
 
 /// Messages an input channel holds beyond the look-ahead's preview: paced sources run up to
@@ -217,7 +218,9 @@ pub struct SessionSpec {
     pub clip_start_s: f64,
     /// A clip's pre-roll and the ease-in are lengthened when the servos stand further from
     /// the clip's first pose than they can travel in `ease_in_s` at
-    /// [`START_MOVE_SPEED_SHARE`] of their velocity limits ([`start_move_s`]).
+    /// [`START_MOVE_SPEED_SHARE`] of their velocity limits ([`start_move_s`]). When that pose
+    /// is not known before the run (targets to follow), the loop sizes the ease-in at its
+    /// first input ([`LoopConfig::size_start_move`]).
     pub size_start_move: bool,
     /// The look-ahead.
     pub lead: Lead,
@@ -356,6 +359,7 @@ impl SessionSpec {
             pipelined: profile.bus.pipeline,
             fidelity_worker: real_time,
             rehearse: real_time && self.rehearse,
+            size_start_move: self.size_start_move,
             allocations: if real_time { self.allocations } else { None },
         }
     }
@@ -408,34 +412,6 @@ pub struct RigDrive {
     /// The clip's pose where the run starts (radians per servo), when it is known before the
     /// run: a bone rig's frame, a robot's planned frame.
     pub start_pose: Option<Vec<f64>>,
-}
-
-/// The share of each servo's velocity limit the move to a clip's first pose reaches at its
-/// fastest: a gentle start, a quarter of the servos' speed.
-pub const START_MOVE_SPEED_SHARE: f64 = 0.25;
-
-/// How long an eased move (smoothstep, the help note's eq. 13: its peak speed 1.5 times its
-/// mean) from `present` (ticks) to `pose` (radians per servo, clamped to each servo's range)
-/// takes when no servo goes faster than [`START_MOVE_SPEED_SHARE`] of its velocity limit, s;
-/// with the servo that takes longest and how far it goes, degrees of joint. `None` when no
-/// servo has a finite target and a velocity limit.
-#[must_use]
-pub fn start_move_s(rig: &Rig, present: &[i32], pose: &[f64]) -> Option<(f64, usize, f64)> {
-    rig.servos
-        .iter()
-        .zip(present)
-        .zip(pose)
-        .enumerate()
-        .filter_map(|(k, ((s, &p), &a))| {
-            let to = s.angle_to_ticks_exact(a);
-            if !(to.is_finite() && s.max_velocity > 0.0) {
-                return None;
-            }
-            let ticks = (to.clamp(f64::from(s.min_tick), f64::from(s.max_tick)) - f64::from(p)).abs();
-            let seconds = 1.5 * ticks / (START_MOVE_SPEED_SHARE * s.max_velocity);
-            Some((seconds, k, (ticks / s.ticks_per_radian().abs()).to_degrees()))
-        })
-        .max_by(|a, b| a.0.total_cmp(&b.0))
 }
 
 impl RigDrive {
@@ -597,7 +573,9 @@ pub fn controller(
     solve: Solve,
     real_time: bool,
 ) -> Controller {
-    let config = spec.loop_config(profile, &drive.skeleton, real_time);
+    let mut config = spec.loop_config(profile, &drive.skeleton, real_time);
+    // The session sizes the move to a pose it knows; the loop, to the first input's.
+    config.size_start_move &= drive.start_pose.is_none();
     let planner = spec.lookahead(profile, &drive.rig);
     let mut c = Controller::new(
         drive.skeleton,
@@ -699,7 +677,24 @@ impl Session {
         let Session { spec, tx, port } = self;
         // From here on a signal stops the run safely (during start-up too).
         let stop = crate::signals::stop_requests()?;
-        let drive = RigDrive::new(&spec, profile, skeleton, clip, log)?;
+        let mut drive = RigDrive::new(&spec, profile, skeleton, clip, log)?;
+        if let (true, None, None, Solve::Follow(f), Some(targets)) = (
+            spec.size_start_move,
+            &drive.start_pose,
+            &drive.retarget,
+            &solve,
+            source.first_targets(),
+        ) {
+            // A bone rig following a target file: its first targets, solved as the loop will,
+            // are the pose the run starts towards.
+            drive.start_pose = f.first_pose(&drive.skeleton, targets).map(|channels| {
+                let mut angles = vec![0.0; drive.rig.servos.len()];
+                drive
+                    .rig
+                    .joint_angles(&drive.skeleton, &channels, &[], &mut angles);
+                angles
+            });
+        }
         let run = Run {
             spec: &spec,
             profile,
@@ -875,7 +870,7 @@ fn sized_start_move(
     }
     writeln!(
         log,
-        "moving to the clip's first pose over {seconds:.2} s, not {} s: {} is {degrees:.0}° from it (at most {:.0} % of each servo's speed)",
+        "moving to the first pose over {seconds:.2} s, not {} s: {} is {degrees:.0}° from it (at most {:.0} % of each servo's speed)",
         spec.ease_in_s,
         profile.servos.get(servo).map_or("a servo", |s| s.name.as_str()),
         100.0 * START_MOVE_SPEED_SHARE
