@@ -11,7 +11,7 @@ use glam::DVec3;
 use marionette::bus::faults::{Fault, FaultInjector};
 use marionette::bus::virtual_chain::{chain_for, VirtualRig};
 use marionette::bus::{start_up, ServoBus};
-use marionette::control::input::{input_channel, Input, InputSender, Payload};
+use marionette::control::input::{input_channel, Input, InputSender, Payload, Target, MAX_EFFECTORS};
 use marionette::control::sources::{clip_track, ClipPlayer, TrackFrame};
 use marionette::control::{Controller, Follower, LoopConfig, RunEnd, Solve, StopMode, StopRequests};
 use marionette::formats::{amc, asf};
@@ -199,6 +199,32 @@ fn play_resamples_by_slerp_and_seeks() {
     assert!(last < s.motion.duration(), "looping wraps around");
 }
 
+/// [`run`] of target sample `k` at tick `k` ([`each_tick`]) until the input ends, on a copy of
+/// the setup's chain.
+fn run_track(
+    (c, tx): (&mut Controller, InputSender),
+    s: &Setup,
+    samples: &[(f64, heapless::Vec<Target, MAX_EFFECTORS>)],
+    each: impl FnMut(u64, &mut Controller, &mut VirtualRig),
+) -> RunEnd {
+    run(c, &mut s.vr.clone(), tx, each_tick(samples), 100_000, each)
+}
+
+/// A feed for [`run`]: target sample `k` at tick `k`, due at its deadline; ends after the last.
+fn each_tick(
+    samples: &[(f64, heapless::Vec<Target, MAX_EFFECTORS>)],
+) -> impl FnMut(u64, u64, &mut VirtualRig) -> Option<Input> + '_ {
+    |k, due, vr| {
+        let (_, targets) = samples.get(k as usize)?;
+        Some(Input {
+            seq: k,
+            due_ns: due,
+            made_ns: vr.now_ns(),
+            payload: Payload::Targets(targets.clone()),
+        })
+    }
+}
+
 fn effectors() -> Vec<String> {
     ["lradius", "rradius", "ltibia", "rtibia"]
         .iter()
@@ -216,32 +242,17 @@ fn follow_tracks_real_wrist_and_ankle_paths() {
         let samples = track.samples.clone();
         let mut ankle_gap = 0.0f64;
         let mut pose = marionette::fk::Pose64::default();
-        let end = run(
-            &mut c,
-            &mut s.vr.clone(),
-            tx,
-            |k, due, vr| {
-                let (_, targets) = samples.get(k as usize)?;
-                Some(Input {
-                    seq: k,
-                    due_ns: due,
-                    made_ns: vr.now_ns(),
-                    payload: Payload::Targets(targets.clone()),
-                })
-            },
-            100_000,
-            |k, c, _| {
-                // The legs hang from the root as in the capture: their targets are met.
-                let Some((_, targets)) = samples.get(k as usize) else {
-                    return;
-                };
-                marionette::fk::fk64(&s.skel, c.channels(), &mut pose);
-                for (e, name) in names.iter().enumerate().skip(2) {
-                    let b = s.skel.find(name).unwrap();
-                    ankle_gap = ankle_gap.max((pose.tip[b] - targets[e].position).length());
-                }
-            },
-        );
+        let end = run_track((&mut c, tx), &s, &samples, |k, c, _| {
+            // The legs hang from the root as in the capture: their targets are met.
+            let Some((_, targets)) = samples.get(k as usize) else {
+                return;
+            };
+            marionette::fk::fk64(&s.skel, c.channels(), &mut pose);
+            for (e, name) in names.iter().enumerate().skip(2) {
+                let b = s.skel.find(name).unwrap();
+                ankle_gap = ankle_gap.max((pose.tip[b] - targets[e].position).length());
+            }
+        });
         let st = &c.stats;
         let r = st.report();
         println!("follow, {frame:?} frame:\n{st}");
@@ -1303,24 +1314,9 @@ fn the_move_to_the_first_targets_is_eased_and_left_out_of_the_fidelity() {
         let (mut c, tx) = controller(&s, Solve::Follow(Box::new(follower)), config, 4);
         let samples = track.samples;
         let mut first_solved = None;
-        let end = run(
-            &mut c,
-            &mut s.vr.clone(),
-            tx,
-            |k, due, vr| {
-                let (_, targets) = samples.get(k as usize)?;
-                Some(Input {
-                    seq: k,
-                    due_ns: due,
-                    made_ns: vr.now_ns(),
-                    payload: Payload::Targets(targets.clone()),
-                })
-            },
-            100_000,
-            |_, c, _| {
-                first_solved.get_or_insert_with(|| c.channels().to_vec());
-            },
-        );
+        let end = run_track((&mut c, tx), &s, &samples, |_, c, _| {
+            first_solved.get_or_insert_with(|| c.channels().to_vec());
+        });
         assert_eq!(end, RunEnd::InputEnded);
         // The pose solved before the run is the loop's first.
         let first_solved = first_solved.unwrap();

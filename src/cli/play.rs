@@ -24,11 +24,13 @@ use crate::control::sources::{
 use crate::control::stats::{ClipFigures, RunReport};
 use crate::control::{Follower, RunEnd, Solve, StopMode};
 use crate::formats::{amc, asf};
+use crate::motion::Motion;
 use crate::plot::{draw, Format};
 use crate::profile::Profile;
 use crate::retarget::Options as RetargetOptions;
 use crate::rt::RealTime;
 use crate::session::{self, BusChoice, ImuUse, Lead, Outcome, Session, SessionSpec, SimSpec, Sinks};
+use crate::skeleton::Skeleton;
 
 /// What to do when a run ends (end of input, `--duration`, Ctrl-C).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -508,23 +510,14 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
         (skeleton, motion)
     };
     let skeleton = Arc::new(skeleton);
-    let dropouts = if keep_dropouts {
-        crate::motion::dropouts::find(&skeleton, &motion)
-    } else {
-        crate::motion::dropouts::repair(&skeleton, &mut motion)
-    };
-    for d in &dropouts {
-        writeln!(
-            out,
-            "{}: capture dropout: {d}{}",
-            amc_path.display(),
-            if keep_dropouts {
-                "; played as recorded"
-            } else {
-                "; filled from its neighbours (--keep-dropouts plays it as recorded)"
-            }
-        )?;
-    }
+    fill_dropouts(
+        &skeleton,
+        &mut motion,
+        keep_dropouts,
+        &amc_path.display(),
+        ("played", "plays"),
+        out,
+    )?;
     if args.walk && !args.upper_body {
         motion = crate::retarget::walk::settled(&motion);
         writeln!(
@@ -679,6 +672,35 @@ fn target_source(
     Ok((Box::new(TrackSource::new(track, looping)), line))
 }
 
+/// Fills `motion`'s capture dropouts (a bone, or the root, reading exactly zero between
+/// far-away frames) from their neighbours, or with `keep` only finds them; says each on `out`
+/// as `clip`'s, with what the command does with it (`done`: "played", `does`: "plays").
+pub(super) fn fill_dropouts(
+    skeleton: &Skeleton,
+    motion: &mut Motion,
+    keep: bool,
+    clip: &dyn std::fmt::Display,
+    (done, does): (&str, &str),
+    out: &mut dyn Write,
+) -> std::io::Result<()> {
+    let dropouts = if keep {
+        crate::motion::dropouts::find(skeleton, motion)
+    } else {
+        crate::motion::dropouts::repair(skeleton, motion)
+    };
+    for d in &dropouts {
+        if keep {
+            writeln!(out, "{clip}: capture dropout: {d}; {done} as recorded")?;
+        } else {
+            writeln!(
+                out,
+                "{clip}: capture dropout: {d}; filled from its neighbours (--keep-dropouts {does} it as recorded)"
+            )?;
+        }
+    }
+    Ok(())
+}
+
 /// `marionette follow`.
 ///
 /// # Errors
@@ -777,23 +799,14 @@ fn targets_cmd(a: &TargetsArgs, out: &mut dyn Write) -> Result<(), CliError> {
     };
     let skeleton = asf::load(asf_path)?.skeleton;
     let mut motion = amc::load(&skeleton, amc_path)?;
-    let dropouts = if a.keep_dropouts {
-        crate::motion::dropouts::find(&skeleton, &motion)
-    } else {
-        crate::motion::dropouts::repair(&skeleton, &mut motion)
-    };
-    for d in &dropouts {
-        writeln!(
-            out,
-            "{}: capture dropout: {d}{}",
-            amc_path.display(),
-            if a.keep_dropouts {
-                "; written as recorded"
-            } else {
-                "; filled from its neighbours (--keep-dropouts writes it as recorded)"
-            }
-        )?;
-    }
+    fill_dropouts(
+        &skeleton,
+        &mut motion,
+        a.keep_dropouts,
+        &amc_path.display(),
+        ("written", "writes"),
+        out,
+    )?;
     let track = if directions {
         clip_track_pointing(&skeleton, &motion, effectors, frame)
     } else {

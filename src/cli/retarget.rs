@@ -78,23 +78,14 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
     let (skeleton, mut motion) = load_clip(args.skeleton, args.amc, args.fps, args.bvh_unit)?;
     // As `play` plays it: a capture dropout (a bone, or the root, reading exactly zero between
     // far-away frames) filled from its neighbours.
-    let dropouts = if args.keep_dropouts {
-        crate::motion::dropouts::find(&skeleton, &motion)
-    } else {
-        crate::motion::dropouts::repair(&skeleton, &mut motion)
-    };
-    let clip_name = args.amc.unwrap_or(args.skeleton).display();
-    for d in &dropouts {
-        writeln!(
-            out,
-            "{clip_name}: capture dropout: {d}{}",
-            if args.keep_dropouts {
-                "; retargeted as recorded"
-            } else {
-                "; filled from its neighbours (--keep-dropouts retargets it as recorded)"
-            }
-        )?;
-    }
+    super::play::fill_dropouts(
+        &skeleton,
+        &mut motion,
+        args.keep_dropouts,
+        &args.amc.unwrap_or(args.skeleton).display(),
+        ("retargeted", "retargets"),
+        out,
+    )?;
     let setup = Setup::new(&profile, &skeleton)?;
     let options = Options {
         upper_body: args.upper_body,
