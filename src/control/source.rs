@@ -335,9 +335,9 @@ impl Source for TrackSource {
         self.due(grid)
     }
     fn hold_first(&mut self, seconds: f64) {
-        // Only before the first sample is sent.
+        // Only before the first sample is sent; a longer hold asked before stands.
         if self.next == 0 && self.pass == 0 && seconds.is_finite() && seconds > 0.0 {
-            self.hold_ns = (seconds * 1e9) as u64;
+            self.hold_ns = self.hold_ns.max((seconds * 1e9) as u64);
         }
     }
     fn first_targets(&self) -> Option<&[Target]> {
@@ -633,6 +633,7 @@ mod tests {
         let mut held = TrackSource::new(track(4), false);
         assert_eq!(held.first_targets().map(<[Target]>::len), Some(1));
         held.hold_first(1.5);
+        held.hold_first(0.5);
         let held = dues(held);
         assert_eq!(held[0], plain[0], "the first sample is due at the start");
         for (h, p) in held.iter().zip(&plain).skip(1) {
