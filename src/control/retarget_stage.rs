@@ -13,7 +13,7 @@ const GRAVITY: f64 = 9.81;
 
 /// Retargeting inside the tick, for profiles whose servos follow a robot's joints: each new
 /// human pose becomes the robot's joint vector, which the rig's servos read.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub struct RetargetStage {
     robot: Robot,
     retargeter: Retargeter,
@@ -181,6 +181,17 @@ impl RetargetStage {
         r.walk.clone_from(&self.walk);
         r.load_offset_max_deg = (!self.stiffness.is_empty()).then_some(self.largest_offset.to_degrees());
         r
+    }
+
+    /// The robot's joints for the human pose `channels` as this stage's next step makes them
+    /// (`dt` seconds after the one before), the stage used up: on a copy of a stage before its
+    /// run, the joints of the run's first sample.
+    #[must_use]
+    pub fn joints_of(mut self, skeleton: &Skeleton, channels: &[f64], dt: f64) -> [f64; MAX_ROBOT_JOINTS] {
+        let mut pose = Pose64::default();
+        crate::fk::fk64(skeleton, channels, &mut pose);
+        self.step(&pose, f64::NAN, dt, 0);
+        self.frame.q
     }
 
     /// One human pose, `dt` seconds after the previous one (clip time when the input has

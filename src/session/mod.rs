@@ -415,6 +415,22 @@ pub struct RigDrive {
 }
 
 impl RigDrive {
+    /// The rig's angles for the human pose `channels` as the run's first sample makes them:
+    /// the bones' own, or the joints a copy of the retargeting (not yet run) gives them, `dt`
+    /// seconds being the loop's period.
+    #[must_use]
+    pub fn first_angles(&self, channels: &[f64], dt: f64) -> Vec<f64> {
+        let mut angles = vec![0.0; self.rig.servos.len()];
+        match &self.retarget {
+            None => self.rig.joint_angles(&self.skeleton, channels, &[], &mut angles),
+            Some(stage) => {
+                let q = stage.clone().joints_of(&self.skeleton, channels, dt);
+                self.rig.joint_angles(&self.skeleton, channels, &q, &mut angles);
+            }
+        }
+        angles
+    }
+
     /// The drive of `profile` over `skeleton`: its bones' rig, or the robot's joints retargeted
     /// with the floor from `clip` (else from the rest pose). Says what it retargets onto.
     ///
@@ -678,22 +694,17 @@ impl Session {
         // From here on a signal stops the run safely (during start-up too).
         let stop = crate::signals::stop_requests()?;
         let mut drive = RigDrive::new(&spec, profile, skeleton, clip, log)?;
-        if let (true, None, None, Solve::Follow(f), Some(targets)) = (
+        if let (true, None, Solve::Follow(f), Some(targets)) = (
             spec.size_start_move,
             &drive.start_pose,
-            &drive.retarget,
             &solve,
             source.first_targets(),
         ) {
-            // A bone rig following a target file: its first targets, solved as the loop will,
-            // are the pose the run starts towards.
-            drive.start_pose = f.first_pose(&drive.skeleton, targets).map(|channels| {
-                let mut angles = vec![0.0; drive.rig.servos.len()];
-                drive
-                    .rig
-                    .joint_angles(&drive.skeleton, &channels, &[], &mut angles);
-                angles
-            });
+            // Following a target file: its first targets, solved (and retargeted) as the loop
+            // will, are the pose the run starts towards.
+            drive.start_pose = f
+                .first_pose(&drive.skeleton, targets)
+                .map(|channels| drive.first_angles(&channels, 1.0 / spec.rate_hz));
         }
         let run = Run {
             spec: &spec,
