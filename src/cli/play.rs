@@ -747,11 +747,8 @@ fn follow_cmd(a: &FollowArgs, allocations: Option<fn() -> u64>, out: &mut dyn Wr
             session::ros2::targets(node, effectors, &root, kind, metres_per_unit)?
         }
         _ => {
-            let (mut source, line) = target_source(targets, effectors, targets_from_network, looping)?;
+            let (source, line) = target_source(targets, effectors, targets_from_network, looping)?;
             writeln!(out, "{line}")?;
-            // A file's first targets are held through the ease-in asked for (the move to them
-            // may lengthen it); live targets cannot be held.
-            source.hold_first(spec.ease_in_s);
             source
         }
     };

@@ -420,14 +420,14 @@ impl RigDrive {
     /// seconds being the loop's period.
     #[must_use]
     pub fn first_angles(&self, channels: &[f64], dt: f64) -> Vec<f64> {
+        let joints = self
+            .retarget
+            .as_ref()
+            .map(|stage| stage.clone().joints_of(&self.skeleton, channels, dt));
         let mut angles = vec![0.0; self.rig.servos.len()];
-        match &self.retarget {
-            None => self.rig.joint_angles(&self.skeleton, channels, &[], &mut angles),
-            Some(stage) => {
-                let q = stage.clone().joints_of(&self.skeleton, channels, dt);
-                self.rig.joint_angles(&self.skeleton, channels, &q, &mut angles);
-            }
-        }
+        let joints = joints.as_ref().map_or(&[][..], |q| &q[..]);
+        self.rig
+            .joint_angles(&self.skeleton, channels, joints, &mut angles);
         angles
     }
 
@@ -889,6 +889,23 @@ fn sized_start_move(
     Ok(Some(seconds))
 }
 
+/// The move to the first pose: the ease-in lengthened to `start_move` seconds when the session
+/// sized it, and (when `spec` sizes the move) the source's first input held through the whole
+/// ease-in, so that the input starts where the servos arrive.
+fn ease_into_first_pose(
+    spec: &SessionSpec,
+    start_move: Option<f64>,
+    controller: &mut Controller,
+    source: &mut dyn Source,
+) {
+    if let Some(seconds) = start_move {
+        controller.set_ease_in(seconds);
+    }
+    if spec.size_start_move {
+        source.hold_first(start_move.unwrap_or(spec.ease_in_s));
+    }
+}
+
 impl Run<'_> {
     /// The loop in its own thread on the machine clock (sleep, then spin to the deadline), the
     /// source in another, the telemetry sinks in others; waits for the end.
@@ -917,10 +934,7 @@ impl Run<'_> {
         let start_move = sized_start_move(spec, profile, &drive, &present, log)?;
         let mut controller = controller(spec, profile, drive, &present, port, solve, true);
         let mut source = source;
-        if let Some(seconds) = start_move {
-            controller.set_ease_in(seconds);
-            source.hold_first(seconds);
-        }
+        ease_into_first_pose(spec, start_move, &mut controller, source.as_mut());
         let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
         let _ = controller.add_telemetry(ttx);
         let period = controller.period_ns();
@@ -1081,10 +1095,7 @@ impl Run<'_> {
         let start_move = sized_start_move(spec, profile, &drive, &present, log)?;
         let mut controller = controller(spec, profile, drive, &present, port, solve, false);
         let mut source = source;
-        if let Some(seconds) = start_move {
-            controller.set_ease_in(seconds);
-            source.hold_first(seconds);
-        }
+        ease_into_first_pose(spec, start_move, &mut controller, source.as_mut());
         let period = controller.period_ns();
         let start = bus.now_ns() + period;
         let grid = Grid {
