@@ -13,16 +13,20 @@
 //! `--solves` the project's limb solve of one fixed target repeated (the tick's own mix of
 //! instructions), and with `--tick-kb K` a read of each cache line of a K KB buffer. With
 //! `--rehearse` the same work also runs 40 µs before each deadline, unmeasured, as the loop
-//! rehearses its next solve. It prints the work's p50 / p99 / p99.9 and p99 ÷ p50: how steady
-//! a tick whose instructions never change is on this machine. The loop's own tick can be no
-//! steadier than this.
+//! rehearses its next solve. With `--wake-other` each tick first writes a byte to a socket that
+//! a thread on CPU 0 waits on (as the loop's write wakes the virtual chain's thread), so
+//! that CPU is woken just before the work (the ticks run on the last CPU). It prints the work's p50 / p99 / p99.9 and
+//! p99 ÷ p50: how steady a tick whose instructions never change is on this machine. The loop's
+//! own tick can be no steadier than this.
 //!
 //! ```text
 //! cargo run --release --example guest_stalls -- [--seconds S] [--touch-mb N]
-//! cargo run --release --example guest_stalls -- --tick-us W [--solves] [--tick-kb K] [--rehearse] [--spin-us U] [--rate HZ] [--seconds S]
+//! cargo run --release --example guest_stalls -- --tick-us W [--solves] [--tick-kb K] [--rehearse] [--wake-other] [--spin-us U] [--rate HZ] [--seconds S]
 //! ```
 
 use std::hint::black_box;
+use std::io::{Read, Write};
+use std::os::unix::net::UnixStream;
 use std::time::{Duration, Instant};
 
 use glam::DVec3;
@@ -48,6 +52,7 @@ fn main() {
         seconds: 0.0,
         spin_ns: LOOP_SPIN_NS,
         rehearse: false,
+        wake_other: false,
     };
     let (mut tick_us, mut solves) = (None, false);
     let mut args = std::env::args().skip(1);
@@ -59,6 +64,10 @@ fn main() {
             }
             "--rehearse" => {
                 ticks.rehearse = true;
+                continue;
+            }
+            "--wake-other" => {
+                ticks.wake_other = true;
                 continue;
             }
             _ => {}
@@ -73,7 +82,7 @@ fn main() {
             ("--spin-us", Some(v)) if (0.0..=1e6).contains(&v) => ticks.spin_ns = (v * 1e3) as u64,
             _ => {
                 eprintln!(
-                    "usage: guest_stalls [--seconds S (> 0)] [--touch-mb N] | --tick-us W (0 < W < 500) [--solves] [--tick-kb K (≤ 4096)] [--rehearse] [--spin-us U (≤ 10⁶)] [--rate HZ (1 … 2000)] [--seconds S]"
+                    "usage: guest_stalls [--seconds S (> 0)] [--touch-mb N] | --tick-us W (0 < W < 500) [--solves] [--tick-kb K (≤ 4096)] [--rehearse] [--wake-other] [--spin-us U (≤ 10⁶)] [--rate HZ (1 … 2000)] [--seconds S]"
                 );
                 std::process::exit(2);
             }
@@ -247,6 +256,36 @@ struct TickSettings {
     spin_ns: u64,
     /// The work also made 40 µs before each deadline, unmeasured.
     rehearse: bool,
+    /// A byte written before each tick's work to a socket read by a thread on another CPU.
+    wake_other: bool,
+}
+
+/// A socket whose reader waits on CPU 0, for its writer (pinned to the last CPU) to wake.
+fn wake_other_cpu() -> UnixStream {
+    let cpus = std::thread::available_parallelism().map_or(1, usize::from);
+    if cpus < 2 {
+        eprintln!("--wake-other needs two CPUs; this machine has one");
+        std::process::exit(2);
+    }
+    let pin = |cpu| {
+        RealTime {
+            cpu: Some(cpu),
+            ..RealTime::default()
+        }
+        .apply()
+    };
+    for warning in pin(cpus - 1) {
+        eprintln!("{warning}");
+    }
+    let (writer, mut reader) = UnixStream::pair().expect("a socket pair");
+    std::thread::spawn(move || {
+        for warning in pin(0) {
+            eprintln!("{warning}");
+        }
+        let mut buf = [0u8; 64];
+        while reader.read(&mut buf).is_ok_and(|n| n > 0) {}
+    });
+    writer
 }
 
 /// Runs ticks of constant work (`unit` repeated to take about `work_us`, and one read of each
@@ -279,12 +318,16 @@ fn constant_ticks(mut unit: Unit, settings: &TickSettings) {
     let ticks = ((settings.seconds * settings.rate) as usize).max(1);
     let mut work = Vec::with_capacity(ticks);
     let mut sink = 0.0;
+    let mut waker = settings.wake_other.then(wake_other_cpu);
     for _ in 0..ticks {
         if settings.rehearse {
             clock.wait_until(schedule.next_deadline().saturating_sub(REHEARSAL_LEAD_NS));
             sink += work_once(&mut unit);
         }
         schedule.wait(&mut clock);
+        if let Some(w) = &mut waker {
+            w.write_all(&[1]).expect("the waiting thread reads");
+        }
         let t0 = clock.now_ns();
         sink += work_once(&mut unit);
         work.push(clock.now_ns() - t0);
@@ -293,10 +336,11 @@ fn constant_ticks(mut unit: Unit, settings: &TickSettings) {
     work.sort_unstable();
     let us = |p: f64| quantile(&work, p) as f64 / 1e3;
     println!(
-        "constant ticks ({n} × {}, {} KB read{}, spinning the last {} µs) at {} Hz, {ticks} ticks: p50 {:.2} µs, p99 {:.2} µs, p99.9 {:.2} µs, max {:.1} µs; p99 ÷ p50 {:.2}",
+        "constant ticks ({n} × {}, {} KB read{}{}, spinning the last {} µs) at {} Hz, {ticks} ticks: p50 {:.2} µs, p99 {:.2} µs, p99.9 {:.2} µs, max {:.1} µs; p99 ÷ p50 {:.2}",
         unit.name(),
         settings.kb,
         if settings.rehearse { ", rehearsed" } else { "" },
+        if settings.wake_other { ", another CPU woken first" } else { "" },
         settings.spin_ns / 1000,
         settings.rate,
         us(0.5),
