@@ -13,11 +13,11 @@
 //! `--solves` the project's limb solve of one fixed target repeated (the tick's own mix of
 //! instructions), and with `--tick-kb K` a read of each cache line of a K KB buffer. With
 //! `--rehearse` the same work also runs 40 µs before each deadline, unmeasured, as the loop
-//! rehearses its next solve. With `--wake-other` each tick first writes a byte to a socket that
-//! a thread on CPU 0 waits on (as the loop's write wakes the virtual chain's thread), so
-//! that CPU is woken just before the work (the ticks run on the last CPU). It prints the work's p50 / p99 / p99.9 and
-//! p99 ÷ p50: how steady a tick whose instructions never change is on this machine. The loop's
-//! own tick can be no steadier than this.
+//! rehearses its next solve. With `--wake-other` each tick first writes a byte to a socket
+//! that a thread on CPU 0 waits on (as the loop's write wakes the virtual chain's thread), so
+//! that CPU is woken just before the work (the ticks run on the last CPU). It prints the
+//! work's p50 / p99 / p99.9 and p99 ÷ p50: how steady a tick whose instructions never change
+//! is on this machine. The loop's own tick can be no steadier than this.
 //!
 //! ```text
 //! cargo run --release --example guest_stalls -- [--seconds S] [--touch-mb N]
