@@ -31,6 +31,22 @@ fn info_describes_skeleton_and_motion() {
     let o = run(&["info", "data/cmu/01_01.bvh", "--bvh-unit", "cmu"]);
     assert!(o.status.success());
     assert!(stdout(&o).contains("2752 frames"), "{}", stdout(&o));
+    // A BVH frame time of 0.0083333 s prints as the rate it stands for.
+    assert!(stdout(&o).contains("at 120 Hz"), "{}", stdout(&o));
+}
+
+#[test]
+fn info_of_an_amc_alone_finds_its_skeleton_beside_it() {
+    let o = run(&["info", "data/cmu/16_15.amc"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = stdout(&o);
+    assert!(s.starts_with("skeleton  data/cmu/16.asf"), "{s}");
+    assert!(s.contains("471 frames (1..471) at 120 Hz"), "{s}");
+    // No ASF beside it: say what to give, not that the AMC is a broken ASF.
+    let lone = common::tempdir("info-amc-alone").join("99_01.amc");
+    std::fs::copy("data/cmu/16_15.amc", &lone).unwrap();
+    let o = run(&["info", lone.to_str().unwrap()]);
+    one_line_error(&o, "an AMC file is a motion; give its skeleton first");
 }
 
 #[test]

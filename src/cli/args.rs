@@ -1,6 +1,6 @@
 //! Argument types and parsers shared by several commands.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use clap::ValueEnum;
 
@@ -45,4 +45,45 @@ pub fn extension(p: &Path) -> String {
     p.extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default()
+}
+
+/// The ASF beside an AMC: `<stem>.asf`, then `<subject>.asf` for CMU names like `16_15.amc`.
+pub fn asf_beside(amc_path: &Path) -> Option<PathBuf> {
+    let stem = amc_path.file_stem()?.to_string_lossy().to_string();
+    let dir = amc_path.parent().unwrap_or(Path::new(""));
+    let mut candidates = vec![dir.join(format!("{stem}.asf"))];
+    if let Some((subject, _)) = stem.split_once('_') {
+        candidates.push(dir.join(format!("{subject}.asf")));
+    }
+    candidates.into_iter().find(|p| p.is_file())
+}
+
+/// A rate in Hz as a person writes it: at most three decimals, without trailing zeros (a BVH
+/// frame time of 0.0083333 s is 120 Hz, not 120.00048000192001).
+pub struct Hz(pub f64);
+
+impl std::fmt::Display for Hz {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = format!("{:.3}", self.0);
+        let s = if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.')
+        } else {
+            &s
+        };
+        f.write_str(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Hz;
+
+    #[test]
+    fn rates_print_with_at_most_three_decimals() {
+        assert_eq!(Hz(1.0 / 0.008_333_3).to_string(), "120");
+        assert_eq!(Hz(120.0).to_string(), "120");
+        assert_eq!(Hz(29.97).to_string(), "29.97");
+        assert_eq!(Hz(1000.0 / 3.0).to_string(), "333.333");
+        assert_eq!(Hz(f64::NAN).to_string(), "NaN");
+    }
 }

@@ -3,22 +3,11 @@
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use super::args::{extension, BvhUnit};
+use super::args::{asf_beside, extension, BvhUnit};
 use super::error::CliError;
 use crate::formats::asf::AsfFile;
 use crate::formats::{amc, asf, bvh, FileError};
 use clap::Args;
-
-/// The ASF beside an AMC: `<stem>.asf`, then `<subject>.asf` for CMU names like `16_15.amc`.
-fn find_asf(amc_path: &Path) -> Option<PathBuf> {
-    let stem = amc_path.file_stem()?.to_string_lossy().to_string();
-    let dir = amc_path.parent().unwrap_or(Path::new(""));
-    let mut candidates = vec![dir.join(format!("{stem}.asf"))];
-    if let Some((subject, _)) = stem.split_once('_') {
-        candidates.push(dir.join(format!("{subject}.asf")));
-    }
-    candidates.into_iter().find(|p| p.is_file())
-}
 
 pub(super) fn convert(
     input: &Path,
@@ -35,7 +24,7 @@ pub(super) fn convert(
         "amc" => {
             let asf_path = match asf_in {
                 Some(p) => p.to_path_buf(),
-                None => find_asf(input).ok_or_else(|| {
+                None => asf_beside(input).ok_or_else(|| {
                     CliError::Usage(format!(
                         "{}: an AMC file needs its skeleton: pass --asf <FILE>",
                         input.display()

@@ -3,7 +3,7 @@
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
-use super::args::{extension, BvhUnit, TableFormat};
+use super::args::{asf_beside, extension, BvhUnit, Hz, TableFormat};
 use super::error::CliError;
 use crate::fk::{forward_kinematics, Pose};
 use crate::formats::asf::AsfFile;
@@ -20,6 +20,21 @@ pub(super) fn info(path: &Path, amc_path: Option<&Path>, fps: f64, unit: BvhUnit
             "--fps must be a positive number, got {fps}"
         )));
     }
+    // An AMC alone: its skeleton is the ASF beside it.
+    let beside;
+    let (path, amc_path) = match (extension(path).as_str(), amc_path) {
+        ("amc", None) => {
+            beside = asf_beside(path).ok_or_else(|| {
+                CliError::Usage(format!(
+                    "{}: an AMC file is a motion; give its skeleton first: marionette info SKELETON.asf {}",
+                    path.display(),
+                    path.display()
+                ))
+            })?;
+            (beside.as_path(), Some(path))
+        }
+        _ => (path, amc_path),
+    };
     let (file, motion) = if extension(path) == "bvh" {
         if amc_path.is_some() {
             return Err(CliError::Usage(
@@ -162,7 +177,7 @@ fn write_info(
             m.len(),
             m.first_frame,
             last,
-            m.frame_rate,
+            Hz(m.frame_rate),
             m.duration()
         )?;
     }
