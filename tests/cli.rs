@@ -143,9 +143,12 @@ fn fk_of_angles_at_the_loaders_bound_is_finite() {
 #[test]
 fn bad_input_gives_one_line_errors_and_nonzero_exit() {
     one_line_error(&run(&["info", "data/cmu/nope.asf"]), "data/cmu/nope.asf");
+    // A motion where the skeleton should be.
+    let misnamed = common::tempdir("info-misnamed").join("walk.asf");
+    std::fs::copy("data/cmu/16_15.amc", &misnamed).unwrap();
     one_line_error(
-        &run(&["info", "data/cmu/16_15.amc"]),
-        "data/cmu/16_15.amc:2:1: expected an ASF section",
+        &run(&["info", misnamed.to_str().unwrap()]),
+        "walk.asf:2:1: expected an ASF section",
     );
     one_line_error(
         &run(&[

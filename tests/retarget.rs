@@ -458,17 +458,47 @@ fn retarget_command_writes_the_trajectory_report_and_picture() {
     assert!(v["limb_direction_error_deg"]["left_arm"]["rms"].as_f64().unwrap() > 0.0);
     assert!(v["foot_slide_mm"]["max"].as_f64().is_some());
     assert!(std::fs::metadata(&png).unwrap().len() > 10_000);
-    // A BVH clip alone.
-    let out = common::bin()
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .args(["retarget", "firmware-profile/robotis-op3.toml"])
-        .arg(common::data("01_01.bvh"))
-        .args(["--bvh-unit", "cmu", "--upper-body", "-o"])
-        .arg(&csv)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 2753);
+    // A BVH clip alone. CMU's conversion writes its T-pose as the first frame (the upper arms
+    // at ±17°, the rest at zero): left out, not retargeted and not taken for dropouts.
+    let bvh_run = |extra: &[&str]| {
+        let out = common::bin()
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .args(["retarget", "firmware-profile/robotis-op3.toml"])
+            .arg(common::data("01_01.bvh"))
+            .args(["--bvh-unit", "cmu", "--upper-body", "--report"])
+            .arg(&json)
+            .args(extra)
+            .arg("-o")
+            .arg(&csv)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        let hand_max = ["left", "right"].map(|h| report["hand_error_mm"][h]["max"].as_f64().unwrap());
+        let lines = std::fs::read_to_string(&csv).unwrap().lines().count();
+        (String::from_utf8_lossy(&out.stdout).into_owned(), lines, hand_max)
+    };
+    let (said, lines, hand_max) = bvh_run(&[]);
+    assert!(
+        said.contains("frame 1 is a calibration pose, not capture")
+            && said.contains("left out (--keep-first-frame"),
+        "{said}"
+    );
+    assert!(!said.contains("capture dropout"), "{said}");
+    assert_eq!(lines, 2752, "the 2,751 captured frames and the header");
+    assert!(hand_max.iter().all(|&m| m < 60.0), "{hand_max:?}");
+    // Kept: the robot reaches for the T-pose's hands (and the zeros count as dropouts).
+    let (said, lines, kept_max) = bvh_run(&["--keep-first-frame"]);
+    assert!(
+        said.contains("retargeted as recorded") && said.contains("capture dropout"),
+        "{said}"
+    );
+    assert_eq!(lines, 2753);
+    assert!(
+        kept_max[1] > 3.0 * hand_max[1],
+        "{kept_max:?} against {hand_max:?}"
+    );
     // A skeleton without a mapped bone.
     let asf_text = common::read("16.asf").replace("rradius", "rforearm");
     let bad = dir.join("renamed.asf");

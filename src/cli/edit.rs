@@ -21,13 +21,17 @@ use crate::skeleton::Skeleton;
 use clap::Args;
 use std::path::PathBuf;
 
-/// Loads the skeleton and the clips, each clip's capture dropouts filled (and said so): an
-/// edit should not carry a capture's glitch into its seams.
+/// Loads the skeleton and the clips, each clip's calibration pose before the capture left out
+/// and its capture dropouts filled (and said so): an edit should not carry a capture's glitch
+/// into its seams.
 fn load_clip(asf_path: &Path, amc_paths: &[&Path]) -> Result<(AsfFile, Vec<Motion>), CliError> {
     let file = asf::load(asf_path)?;
     let mut motions = Vec::with_capacity(amc_paths.len());
     for p in amc_paths {
         let mut m = amc::load(&file.skeleton, p)?;
+        if let Some(pose) = crate::motion::calibration::leave_out(&file.skeleton, &mut m) {
+            writeln!(io::stdout().lock(), "{}: {pose}; left out", p.display())?;
+        }
         for d in crate::motion::dropouts::repair(&file.skeleton, &mut m) {
             writeln!(
                 io::stdout().lock(),

@@ -24,7 +24,7 @@ use crate::control::sources::{
 use crate::control::stats::{ClipFigures, RunReport};
 use crate::control::{Follower, RunEnd, Solve, StopMode};
 use crate::formats::{amc, asf};
-use crate::motion::Motion;
+use crate::motion::{calibration, Motion};
 use crate::plot::{draw, Format};
 use crate::profile::Profile;
 use crate::retarget::Options as RetargetOptions;
@@ -489,8 +489,7 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
     let (profile_path, asf_path, args) = (&a.profile, &a.asf, &a.loop_args);
     // The clip's file: the AMC, or the BVH that holds skeleton and motion.
     let amc_path = a.amc.as_ref().unwrap_or(asf_path);
-    let (looping, speed, start_at, pre_roll, keep_dropouts) =
-        (a.looping, a.speed, a.start, a.pre_roll, a.keep_dropouts);
+    let (looping, speed, start_at, pre_roll) = (a.looping, a.speed, a.start, a.pre_roll);
     if !(speed.is_finite() && speed > 0.0) {
         return Err(CliError::Usage("--speed must be a positive number".into()));
     }
@@ -510,10 +509,13 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
         (skeleton, motion)
     };
     let skeleton = Arc::new(skeleton);
-    fill_dropouts(
+    clean_clip(
         &skeleton,
         &mut motion,
-        keep_dropouts,
+        KeepAsRecorded {
+            first_frame: a.keep_first_frame,
+            dropouts: a.keep_dropouts,
+        },
         &amc_path.display(),
         ("played", "plays"),
         out,
@@ -672,24 +674,41 @@ fn target_source(
     Ok((Box::new(TrackSource::new(track, looping)), line))
 }
 
-/// Fills `motion`'s capture dropouts (a bone, or the root, reading exactly zero between
-/// far-away frames) from their neighbours, or with `keep` only finds them; says each on `out`
+/// What a command takes from a clip as recorded instead of cleaning it.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct KeepAsRecorded {
+    /// A converter's calibration pose written as the first frame ([`calibration`]).
+    pub first_frame: bool,
+    /// Capture dropouts ([`crate::motion::dropouts`]).
+    pub dropouts: bool,
+}
+
+/// Cleans a clip for driving a rig: leaves out a first frame that is a converter's calibration
+/// pose, then fills capture dropouts (a bone, or the root, reading exactly zero between
+/// far-away frames) from their neighbours; what `keep` names is only found. Says each on `out`
 /// as `clip`'s, with what the command does with it (`done`: "played", `does`: "plays").
-pub(super) fn fill_dropouts(
+pub(super) fn clean_clip(
     skeleton: &Skeleton,
     motion: &mut Motion,
-    keep: bool,
+    keep: KeepAsRecorded,
     clip: &dyn std::fmt::Display,
     (done, does): (&str, &str),
     out: &mut dyn Write,
 ) -> std::io::Result<()> {
-    let dropouts = if keep {
+    if keep.first_frame {
+        if let Some(pose) = calibration::first_frame(skeleton, motion) {
+            writeln!(out, "{clip}: {pose}; {done} as recorded")?;
+        }
+    } else if let Some(pose) = calibration::leave_out(skeleton, motion) {
+        writeln!(out, "{clip}: {pose}; left out (--keep-first-frame {does} it)")?;
+    }
+    let dropouts = if keep.dropouts {
         crate::motion::dropouts::find(skeleton, motion)
     } else {
         crate::motion::dropouts::repair(skeleton, motion)
     };
     for d in &dropouts {
-        if keep {
+        if keep.dropouts {
             writeln!(out, "{clip}: capture dropout: {d}; {done} as recorded")?;
         } else {
             writeln!(
@@ -799,10 +818,13 @@ fn targets_cmd(a: &TargetsArgs, out: &mut dyn Write) -> Result<(), CliError> {
     };
     let skeleton = asf::load(asf_path)?.skeleton;
     let mut motion = amc::load(&skeleton, amc_path)?;
-    fill_dropouts(
+    clean_clip(
         &skeleton,
         &mut motion,
-        a.keep_dropouts,
+        KeepAsRecorded {
+            first_frame: a.keep_first_frame,
+            dropouts: a.keep_dropouts,
+        },
         &amc_path.display(),
         ("written", "writes"),
         out,
@@ -880,6 +902,10 @@ pub(super) struct PlayArgs {
     /// recorded instead of filling them from their neighbours.
     #[arg(long)]
     pub(super) keep_dropouts: bool,
+    /// Play a first frame that is a converter's calibration pose (the T-pose that CMU's BVH
+    /// conversions write before the capture) instead of leaving it out.
+    #[arg(long)]
+    pub(super) keep_first_frame: bool,
     #[command(flatten)]
     pub(super) loop_args: LoopArgs,
 }
@@ -955,6 +981,10 @@ pub(super) struct TargetsArgs {
     /// recorded instead of filling them from their neighbours.
     #[arg(long)]
     pub(super) keep_dropouts: bool,
+    /// Write a first frame that is a converter's calibration pose (a T-pose written before
+    /// the capture) instead of leaving it out.
+    #[arg(long)]
+    pub(super) keep_first_frame: bool,
     /// Output file.
     #[arg(short, long)]
     pub(super) output: PathBuf,

@@ -30,6 +30,7 @@ pub struct RetargetArgs<'a> {
     pub fps: f64,
     pub bvh_unit: BvhUnit,
     pub keep_dropouts: bool,
+    pub keep_first_frame: bool,
     pub per_frame: bool,
 }
 
@@ -76,12 +77,16 @@ pub fn retarget_cmd(args: &RetargetArgs<'_>, out: &mut dyn Write) -> Result<(), 
     }
     let profile = Profile::load(args.profile)?;
     let (skeleton, mut motion) = load_clip(args.skeleton, args.amc, args.fps, args.bvh_unit)?;
-    // As `play` plays it: a capture dropout (a bone, or the root, reading exactly zero between
-    // far-away frames) filled from its neighbours.
-    super::play::fill_dropouts(
+    // As `play` plays it: a calibration pose before the capture left out, a capture dropout (a
+    // bone, or the root, reading exactly zero between far-away frames) filled from its
+    // neighbours.
+    super::play::clean_clip(
         &skeleton,
         &mut motion,
-        args.keep_dropouts,
+        super::play::KeepAsRecorded {
+            first_frame: args.keep_first_frame,
+            dropouts: args.keep_dropouts,
+        },
         &args.amc.unwrap_or(args.skeleton).display(),
         ("retargeted", "retargets"),
         out,
@@ -393,6 +398,10 @@ pub(super) struct RetargetCmd {
     /// frames) as recorded instead of filling them from their neighbours.
     #[arg(long)]
     pub(super) keep_dropouts: bool,
+    /// Retarget a first frame that is a converter's calibration pose (the T-pose that CMU's BVH
+    /// conversions write before the capture) instead of leaving it out.
+    #[arg(long)]
+    pub(super) keep_first_frame: bool,
     /// Retarget each frame on its own, as a live stream is (the arms' branches kept by
     /// hysteresis, joint speeds unlimited), instead of planning the branches over the clip
     /// and keeping every joint within its servo's speed and acceleration.
@@ -420,6 +429,7 @@ impl RetargetCmd {
             fps,
             bvh_unit,
             keep_dropouts,
+            keep_first_frame,
             per_frame,
         } = self;
         retarget_cmd(
@@ -437,6 +447,7 @@ impl RetargetCmd {
                 fps,
                 bvh_unit,
                 keep_dropouts,
+                keep_first_frame,
                 per_frame,
             },
             &mut std::io::stdout().lock(),

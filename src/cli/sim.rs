@@ -162,6 +162,9 @@ fn size(
     let profile = Profile::load(profile_path)?;
     let skeleton = asf::load(asf_path)?.skeleton;
     let mut motion = crate::formats::amc::load(&skeleton, amc_path)?;
+    if let Some(pose) = crate::motion::calibration::leave_out(&skeleton, &mut motion) {
+        writeln!(out, "{}: {pose}; left out", amc_path.display())?;
+    }
     for d in crate::motion::dropouts::repair(&skeleton, &mut motion) {
         writeln!(out, "{}: capture dropout filled: {d}", amc_path.display())?;
     }

@@ -58,9 +58,9 @@ fn jump(motion: &Motion, a: usize, b: usize, channels: &[usize]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Every dropout of the clip's bones and of its root's rotation (a BVH conversion's T-pose
-/// first frame reads the root turned to zero while the captured body faces elsewhere; its
-/// position is left as recorded).
+/// Every dropout of the clip's bones and of its root's rotation (a root reading zero while
+/// the captured body faces elsewhere; its position is left as recorded). A converter's T-pose
+/// written as the first frame is no dropout but no capture either: [`super::calibration`].
 #[must_use]
 pub fn find(skeleton: &Skeleton, motion: &Motion) -> Vec<Dropout> {
     let mut out = Vec::new();

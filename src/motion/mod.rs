@@ -12,7 +12,10 @@
 //! * [`plot`] — the picture of a connection.
 //! * [`dropouts`] — capture dropouts (a bone's rotation reading exactly zero between far-away
 //!   frames): found and filled from their neighbours.
+//! * [`calibration`] — a converter's calibration pose (the CMU BVH conversions' T-pose) written
+//!   as the first frame.
 
+pub mod calibration;
 pub mod clip;
 pub mod connect;
 pub mod dropouts;
