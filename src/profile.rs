@@ -837,10 +837,17 @@ impl Profile {
     /// without a skeleton, a `[[bone]]` entry naming an unknown bone.
     pub fn rig(&self, skeleton: Option<&Skeleton>) -> Result<Rig, FileError> {
         let err = |line: u32, msg: String| FileError::parse(&self.path, TextError::new(line, 0, msg));
+        let known = |sk: &Skeleton| sk.bones().iter().map(|b| b.name()).collect::<Vec<_>>().join(" ");
         for (name, _, line) in &self.bone_orders {
             if let Some(sk) = skeleton {
                 if sk.find(name).is_none() {
-                    return Err(err(*line, format!("unknown bone `{name}` in [[bone]]")));
+                    return Err(err(
+                        *line,
+                        format!(
+                            "unknown bone `{name}` in [[bone]]; the skeleton has: {}",
+                            known(sk)
+                        ),
+                    ));
                 }
             }
         }
@@ -860,10 +867,9 @@ impl Profile {
                         ));
                     };
                     let Some(b) = sk.find(bone) else {
-                        let known: Vec<&str> = sk.bones().iter().map(|b| b.name()).collect();
                         return Err(err(
                             s.line,
-                            format!("unknown bone `{bone}`; the skeleton has: {}", known.join(" ")),
+                            format!("unknown bone `{bone}`; the skeleton has: {}", known(sk)),
                         ));
                     };
                     let bone_ref = &sk.bones()[b];

@@ -143,6 +143,17 @@ fn fk_of_angles_at_the_loaders_bound_is_finite() {
 #[test]
 fn bad_input_gives_one_line_errors_and_nonzero_exit() {
     one_line_error(&run(&["info", "data/cmu/nope.asf"]), "data/cmu/nope.asf");
+    // A profile of the ASF's bones against a BVH skeleton: the line, and the names it has.
+    one_line_error(
+        &run(&[
+            "play",
+            "firmware-profile/cmu-puppet.toml",
+            "data/cmu/01_01.bvh",
+            "--bvh-unit",
+            "cmu",
+        ]),
+        "cmu-puppet.toml:36: unknown bone `lhumerus` in [[bone]]; the skeleton has: root LHipJoint LeftUpLeg",
+    );
     // A motion where the skeleton should be.
     let misnamed = common::tempdir("info-misnamed").join("walk.asf");
     std::fs::copy("data/cmu/16_15.amc", &misnamed).unwrap();
