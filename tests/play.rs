@@ -407,6 +407,19 @@ fn bad_loop_arguments_give_one_line_errors() {
             USAGE,
         ),
         (
+            vec![
+                "targets",
+                ASF,
+                "data/cmu/16_15.amc",
+                "-o",
+                "/dev/null",
+                "--effectors",
+                "lradius,nose",
+            ],
+            "--effectors: no bone named 'nose' in the skeleton; it has: root lhipjoint lfemur",
+            USAGE,
+        ),
+        (
             vec!["follow", PROFILE, ASF, "--targets", "udp://10.1.2.3:5000"],
             "only a loopback address",
             USAGE,

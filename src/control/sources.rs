@@ -428,9 +428,13 @@ fn track_of_clip(
     let bones = effectors
         .iter()
         .map(|n| {
-            skeleton
-                .find(n)
-                .ok_or_else(|| format!("no bone named '{n}' in the skeleton"))
+            skeleton.find(n).ok_or_else(|| {
+                let known: Vec<&str> = skeleton.bones().iter().map(|b| b.name()).collect();
+                format!(
+                    "--effectors: no bone named '{n}' in the skeleton; it has: {}",
+                    known.join(" ")
+                )
+            })
         })
         .collect::<Result<Vec<_>, _>>()?;
     if bones.len() > MAX_EFFECTORS {
