@@ -60,9 +60,9 @@ pub fn asf_beside(amc_path: &Path) -> Option<PathBuf> {
 
 /// A rate in Hz as a person writes it: at most three decimals, without trailing zeros (a BVH
 /// frame time of 0.0083333 s is 120 Hz, not 120.00048000192001).
-pub struct Hz(pub f64);
+pub struct RoundedHz(pub f64);
 
-impl std::fmt::Display for Hz {
+impl std::fmt::Display for RoundedHz {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let s = format!("{:.3}", self.0);
         let s = if s.contains('.') {
@@ -76,14 +76,14 @@ impl std::fmt::Display for Hz {
 
 #[cfg(test)]
 mod tests {
-    use super::Hz;
+    use super::RoundedHz;
 
     #[test]
     fn rates_print_with_at_most_three_decimals() {
-        assert_eq!(Hz(1.0 / 0.008_333_3).to_string(), "120");
-        assert_eq!(Hz(120.0).to_string(), "120");
-        assert_eq!(Hz(29.97).to_string(), "29.97");
-        assert_eq!(Hz(1000.0 / 3.0).to_string(), "333.333");
-        assert_eq!(Hz(f64::NAN).to_string(), "NaN");
+        assert_eq!(RoundedHz(1.0 / 0.008_333_3).to_string(), "120");
+        assert_eq!(RoundedHz(120.0).to_string(), "120");
+        assert_eq!(RoundedHz(29.97).to_string(), "29.97");
+        assert_eq!(RoundedHz(1000.0 / 3.0).to_string(), "333.333");
+        assert_eq!(RoundedHz(f64::NAN).to_string(), "NaN");
     }
 }

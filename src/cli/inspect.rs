@@ -3,7 +3,7 @@
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
-use super::args::{asf_beside, extension, BvhUnit, Hz, TableFormat};
+use super::args::{asf_beside, extension, BvhUnit, RoundedHz, TableFormat};
 use super::error::CliError;
 use crate::fk::{forward_kinematics, Pose};
 use crate::formats::asf::AsfFile;
@@ -177,7 +177,7 @@ fn write_info(
             m.len(),
             m.first_frame,
             last,
-            Hz(m.frame_rate),
+            RoundedHz(m.frame_rate),
             m.duration()
         )?;
     }

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use clap::{Args, ValueEnum};
 
-use super::args::{BvhUnit, Hz};
+use super::args::{BvhUnit, RoundedHz};
 use super::error::CliError;
 use super::FrameArg;
 use crate::control::live::LiveView;
@@ -555,7 +555,7 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
         "{}: {} frames at {} Hz ({:.2} s) → {} samples a pass at {} Hz{}{}",
         amc_path.display(),
         motion.len(),
-        Hz(motion.frame_rate),
+        RoundedHz(motion.frame_rate),
         motion.duration(),
         player.samples_per_pass(),
         args.rate,
