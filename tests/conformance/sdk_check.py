@@ -83,7 +83,9 @@ if board is not None:
         v = lo | hi << 8
         return v - 65536 if v >= 32768 else v
 
-    imu = [signed(data[2 * k], data[2 * k + 1]) for k in range(9)] if r == COMM_SUCCESS else []
+    # (A short reply is a failed check, not a crash: the SDK can return COMM_SUCCESS with
+    # fewer bytes than asked.)
+    imu = [signed(data[2 * k], data[2 * k + 1]) for k in range(9)] if r == COMM_SUCCESS and len(data) >= 18 else []
     if "--sim" in sys.argv:
         # MuJoCo's torso (free, without a floor: falling): whatever it reads, one read of 18
         # bytes gives all nine items, within the sensors' ranges.
