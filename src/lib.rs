@@ -9,7 +9,8 @@
 //! * [`alloc_count`] — the counting global allocator (`allocations_in_tick`, allocation tests).
 //! * [`clock`] — the machine's clock for the core's schedule.
 //! * [`rt`] — real-time settings of a thread (`SCHED_FIFO`, CPU affinity, `mlockall`), for the
-//!   loop and for the virtual chain's thread.
+//!   loop and for the virtual chain's thread; its stack made resident, its page faults counted.
+//! * [`resident`] — storage that a loop writes, every page written before the loop starts.
 //! * [`motion`] — a clip of frames (values as files hold them), its frame vectors, editing
 //!   (matching, connecting, blending, seams).
 //! * [`formats`] — file loading with `file:line:column` errors, AMC read/write, ASF write,
@@ -45,6 +46,8 @@ pub mod alloc_count;
 pub mod clock;
 
 pub mod rt;
+
+pub mod resident;
 
 pub mod motion;
 

@@ -59,6 +59,10 @@ fn check_stats(v: &serde_json::Value, rate: f64) {
         Some(0),
         "the counting allocator saw none"
     );
+    if cfg!(target_os = "linux") {
+        // The loop's storage, stack and code are mapped before it starts.
+        assert_eq!(v["page_faults_in_loop"].as_u64(), Some(0), "{v}");
+    }
     let t = v["tracking_rms_deg"].as_f64().unwrap();
     assert!(t.is_finite() && t < 5.0, "tracking {t}");
     // End to end: the source mapped through the rig against the present positions read back.

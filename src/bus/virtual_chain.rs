@@ -269,7 +269,7 @@ impl<P: Plant> InProcess<P> {
             line_free: Duration::ZERO,
             stepped: Duration::ZERO,
             rx: Receiver::default(),
-            pending: VecDeque::with_capacity(16 * MAX_PACKET),
+            pending: crate::resident::deque(16 * MAX_PACKET, (Duration::ZERO, 0)),
             wall: None,
             out: Box::new([0; 8 * MAX_PACKET]),
             replies: Replies::new(),

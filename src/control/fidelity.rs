@@ -613,7 +613,13 @@ impl FidelityWorker {
     /// # Errors
     /// When the thread cannot be started.
     pub fn spawn(mut sink: Box<FidelitySink>) -> std::io::Result<FidelityWorker> {
-        let (tx, rx) = crossbeam_channel::bounded::<Message>(WORKER_QUEUE);
+        let filler = Message::Values {
+            seq: 0,
+            first: 0,
+            len: 0,
+            values: [0.0; VALUES_PER_PART],
+        };
+        let (tx, rx) = crate::resident::channel(WORKER_QUEUE, filler);
         let handle = std::thread::Builder::new()
             .name("fidelity".into())
             .spawn(move || loop {

@@ -124,9 +124,10 @@ impl Preview {
         let capacity = capacity.max(HISTORY + 2);
         let (servos, channels) = (servos.min(MAX_SERVOS), channels.min(MAX_CHANNELS));
         Preview {
-            entries: VecDeque::with_capacity(capacity),
-            servo_rows: vec![0.0; capacity * 2 * servos],
-            channel_rows: vec![0.0; capacity * channels],
+            entries: crate::resident::deque(capacity, SampleHead::default()),
+            // Written now (NaN: no sample), so that the rows' first lap takes no page fault.
+            servo_rows: vec![f64::NAN; capacity * 2 * servos],
+            channel_rows: vec![f64::NAN; capacity * channels],
             servos,
             channels,
             next_row: 0,

@@ -482,7 +482,7 @@ impl Controller {
     /// Keeps the source angles of up to `ticks` ticks (reserved now; the tick stops logging
     /// when it is full rather than grow it), for pictures.
     pub fn log_source(&mut self, ticks: usize) {
-        self.measure.source_log = Vec::with_capacity(ticks);
+        self.measure.source_log = crate::resident::vec(ticks, (0, [0.0; MAX_SERVOS]));
     }
 
     /// The logged source angles: tick deadline (ns on the loop's clock) and radians per servo.

@@ -141,7 +141,7 @@ impl RetargetStage {
 
     /// Room for `frames` frames retargeted ahead (before the first tick).
     pub(super) fn reserve(&mut self, frames: usize) {
-        self.pending = std::collections::VecDeque::with_capacity(frames.max(4));
+        self.pending = crate::resident::deque(frames.max(4), (0, RetargetFrame::default()));
     }
 
     /// Reports the frames due by `due_ns` (played now).

@@ -107,6 +107,9 @@ pub struct LoopStats {
     pub final_present: Vec<ServoAngle>,
     /// Heap allocations inside ticks (`None` without a counting allocator).
     pub allocations_in_tick: Option<u64>,
+    /// Page faults the loop thread took while it ran ticks (their waits and rehearsals
+    /// included; `None` where the system does not count them per thread).
+    pub page_faults_in_loop: Option<u64>,
     /// Servos that acknowledged the torque-off at the end (`None` before the end).
     pub torque_off_acknowledged: Option<usize>,
     /// What retargeting onto a robot measured (profiles whose servos follow robot joints).
@@ -219,6 +222,7 @@ impl LoopStats {
                 io,
             },
             allocations_in_tick: self.allocations_in_tick,
+            page_faults_in_loop: self.page_faults_in_loop,
             torque_off_acknowledged: self.torque_off_acknowledged,
             retarget: self.retarget.clone(),
             imu: self.imu.clone(),
@@ -279,6 +283,9 @@ pub struct Report {
     pub bus_errors_by_kind: BusErrorCounts,
     /// Heap allocations inside ticks (null without a counting allocator).
     pub allocations_in_tick: Option<u64>,
+    /// Page faults the loop thread took while it ran ticks, waits and rehearsals included
+    /// (null where the system does not count them per thread).
+    pub page_faults_in_loop: Option<u64>,
     /// Servos that acknowledged the torque-off at the end.
     pub torque_off_acknowledged: Option<usize>,
     /// What retargeting onto a robot measured (profiles whose servos follow robot joints).
@@ -513,8 +520,12 @@ impl fmt::Display for LoopStats {
         }
         writeln!(f, "telemetry drops {}", self.telemetry_dropped)?;
         match self.allocations_in_tick {
-            Some(n) => write!(f, "allocations in ticks: {n}"),
-            None => write!(f, "allocations in ticks: not counted"),
+            Some(n) => write!(f, "allocations in ticks: {n}")?,
+            None => write!(f, "allocations in ticks: not counted")?,
+        }
+        match self.page_faults_in_loop {
+            Some(n) => write!(f, ", page faults in the loop: {n}"),
+            None => Ok(()),
         }
     }
 }

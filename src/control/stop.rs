@@ -24,6 +24,7 @@ impl Controller {
         clock: &mut dyn Clock,
         stop: &StopRequests,
     ) -> RunEnd {
+        let faults_before = crate::rt::thread_minor_faults();
         let why = loop {
             if stop.made() > 0 {
                 break RunEnd::Interrupted;
@@ -44,6 +45,9 @@ impl Controller {
                 break end;
             }
         };
+        self.stats.page_faults_in_loop = faults_before
+            .zip(crate::rt::thread_minor_faults())
+            .map(|(before, after)| after.saturating_sub(before));
         let why = match why {
             RunEnd::Interrupted | RunEnd::Duration | RunEnd::Health => {
                 match self.finish_step(schedule, bus, clock, stop) {

@@ -31,6 +31,7 @@ use crate::control::{
 use crate::formats::FileError;
 use crate::motion::Motion;
 use crate::profile::{BusConfig, Drive, Profile};
+use crate::resident;
 use crate::retarget::{floor_of_clip, floor_of_rest, Options as RetargetOptions, Setup};
 use crate::rig::Rig;
 use crate::rt::RealTime;
@@ -935,7 +936,7 @@ impl Run<'_> {
         let mut controller = controller(spec, profile, drive, &present, port, solve, true);
         let mut source = source;
         ease_into_first_pose(spec, start_move, &mut controller, source.as_mut());
-        let (ttx, trx) = crossbeam_channel::bounded::<Telemetry>(4096);
+        let (ttx, trx) = resident::channel(4096, Telemetry::default());
         let _ = controller.add_telemetry(ttx);
         let period = controller.period_ns();
         let mut clock = SystemClock::new(LOOP_SPIN_NS);
@@ -966,6 +967,7 @@ impl Run<'_> {
             .name("control-loop".into())
             .spawn(move || {
                 let warnings = rt.apply();
+                crate::rt::prefault();
                 let mut schedule = Schedule::new(start, period);
                 let end = controller.run(&mut schedule, bus.as_mut(), &mut clock, &stop);
                 (controller.stats, end, controller.port_error, warnings)

@@ -90,7 +90,7 @@ pub(super) fn publish(
     #[cfg(feature = "ros2")]
     {
         // A second of records at 1 kHz: the publisher polls at its own rate and takes the newest.
-        let (tx, rx) = crossbeam_channel::bounded(1024);
+        let (tx, rx) = crate::resident::channel(1024, crate::control::Telemetry::default());
         if controller.add_telemetry(tx).is_err() {
             return Err(SessionError::Invalid(
                 "--ros2: no telemetry slot left on the loop".into(),
