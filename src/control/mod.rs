@@ -96,6 +96,9 @@ pub struct LoopConfig {
     /// Heap allocations made so far on this thread (a counting global allocator's counter), to
     /// count allocations inside ticks.
     pub allocations: Option<fn() -> u64>,
+    /// Count the loop thread's page faults from its first tick to its last (real-time runs:
+    /// in lockstep the thread also runs the simulated rig, whose faults are not the loop's).
+    pub count_page_faults: bool,
     /// Seconds over which the first commands blend from where the servos stood to the input
     /// (0: the first input is commanded at once, within the velocity limits).
     pub ease_in_s: f64,
@@ -127,6 +130,7 @@ impl Default for LoopConfig {
             stop: StopMode::Rest { ramp_s: 1.0 },
             max_ticks: None,
             allocations: None,
+            count_page_faults: false,
             ease_in_s: 0.0,
             effector_metres_per_unit: 0.0,
             pipelined: false,

@@ -24,7 +24,11 @@ impl Controller {
         clock: &mut dyn Clock,
         stop: &StopRequests,
     ) -> RunEnd {
-        let faults_before = crate::rt::thread_minor_faults();
+        let faults_before = self
+            .config
+            .count_page_faults
+            .then(crate::rt::thread_minor_faults)
+            .flatten();
         let why = loop {
             if stop.made() > 0 {
                 break RunEnd::Interrupted;

@@ -362,6 +362,7 @@ impl SessionSpec {
             rehearse: real_time && self.rehearse,
             size_start_move: self.size_start_move,
             allocations: if real_time { self.allocations } else { None },
+            count_page_faults: real_time,
         }
     }
 
