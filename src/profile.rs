@@ -837,7 +837,6 @@ impl Profile {
     /// without a skeleton, a `[[bone]]` entry naming an unknown bone.
     pub fn rig(&self, skeleton: Option<&Skeleton>) -> Result<Rig, FileError> {
         let err = |line: u32, msg: String| FileError::parse(&self.path, TextError::new(line, 0, msg));
-        let known = |sk: &Skeleton| sk.bones().iter().map(|b| b.name()).collect::<Vec<_>>().join(" ");
         for (name, _, line) in &self.bone_orders {
             if let Some(sk) = skeleton {
                 if sk.find(name).is_none() {
@@ -845,7 +844,7 @@ impl Profile {
                         *line,
                         format!(
                             "unknown bone `{name}` in [[bone]]; the skeleton has: {}",
-                            known(sk)
+                            sk.bone_names()
                         ),
                     ));
                 }
@@ -869,7 +868,7 @@ impl Profile {
                     let Some(b) = sk.find(bone) else {
                         return Err(err(
                             s.line,
-                            format!("unknown bone `{bone}`; the skeleton has: {}", known(sk)),
+                            format!("unknown bone `{bone}`; the skeleton has: {}", sk.bone_names()),
                         ));
                     };
                     let bone_ref = &sk.bones()[b];

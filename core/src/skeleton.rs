@@ -550,6 +550,22 @@ impl SkeletonError {
     }
 }
 
+/// A skeleton's bone names, displayed separated by spaces ([`Skeleton::bone_names`]).
+#[derive(Clone, Copy, Debug)]
+pub struct BoneNames<'a>(&'a [Bone]);
+
+impl core::fmt::Display for BoneNames<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        for (k, b) in self.0.iter().enumerate() {
+            if k > 0 {
+                f.write_str(" ")?;
+            }
+            f.write_str(b.name())?;
+        }
+        Ok(())
+    }
+}
+
 impl core::fmt::Display for SkeletonError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
@@ -752,6 +768,13 @@ impl Skeleton {
     #[must_use]
     pub fn bones(&self) -> &[Bone] {
         &self.bones
+    }
+
+    /// The bones' names in that order, separated by spaces when displayed (for messages that
+    /// list what a skeleton has).
+    #[must_use]
+    pub fn bone_names(&self) -> BoneNames<'_> {
+        BoneNames(&self.bones)
     }
 
     /// Number of bones, the root included.

@@ -89,11 +89,10 @@ pub fn ik_cmd(args: &IkArgs<'_>, out: &mut dyn Write) -> Result<(), CliError> {
         return Err(CliError::Usage("--frame needs --amc".into()));
     }
     let eff = skel.find(args.effector).ok_or_else(|| {
-        let names: Vec<&str> = skel.bones().iter().map(|b| b.name()).collect();
         CliError::Usage(format!(
             "unknown bone '{}'; the skeleton has: {}",
             args.effector,
-            names.join(" ")
+            skel.bone_names()
         ))
     })?;
     let parent = skel.bones()[eff].parent();
@@ -385,10 +384,9 @@ pub fn ik_edit_cmd(args: &IkEditArgs<'_>, out: &mut dyn Write) -> Result<(), Cli
             .and_then(|(n, f)| f.trim().parse::<i64>().ok().map(|f| (n, f)))
             .ok_or_else(|| CliError::Usage(format!("--pin must be BONE@FRAME, got '{text}'")))?;
         let bone = skel.find(name).ok_or_else(|| {
-            let names: Vec<&str> = skel.bones().iter().map(|b| b.name()).collect();
             CliError::Usage(format!(
                 "unknown bone '{name}' in --pin; the skeleton has: {}",
-                names.join(" ")
+                skel.bone_names()
             ))
         })?;
         if frame < first || frame > last {

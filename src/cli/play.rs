@@ -675,7 +675,7 @@ fn target_source(
 }
 
 /// What a command takes from a clip as recorded instead of cleaning it.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 pub(super) struct KeepAsRecorded {
     /// A converter's calibration pose written as the first frame ([`calibration`]).
     pub first_frame: bool,
@@ -834,7 +834,7 @@ fn targets_cmd(a: &TargetsArgs, out: &mut dyn Write) -> Result<(), CliError> {
     } else {
         clip_track(&skeleton, &motion, effectors, frame)
     }
-    .map_err(CliError::Usage)?;
+    .map_err(|e| CliError::Usage(format!("--effectors: {e}")))?;
     let mut text = Vec::new();
     match format {
         TargetFormat::Csv => write_csv(&track, effectors, &mut text)?,

@@ -429,10 +429,9 @@ fn track_of_clip(
         .iter()
         .map(|n| {
             skeleton.find(n).ok_or_else(|| {
-                let known: Vec<&str> = skeleton.bones().iter().map(|b| b.name()).collect();
                 format!(
-                    "--effectors: no bone named '{n}' in the skeleton; it has: {}",
-                    known.join(" ")
+                    "no bone named '{n}' in the skeleton; it has: {}",
+                    skeleton.bone_names()
                 )
             })
         })
