@@ -11,7 +11,7 @@ use marionette::math::wrap_near;
 use marionette::motion::clip::{bend, transform};
 use marionette::motion::connect::{connect, loop_clip, ConnectParams, Direction, Method};
 use marionette::motion::matching::{backward_match, forward_match, MatchParams, Metric};
-use marionette::motion::seam::seam_report;
+use marionette::motion::seam::{seam_report, wrap_jump};
 use marionette::motion::Motion;
 use marionette::skeleton::{Skeleton, MAX_CHANNELS};
 use std::sync::OnceLock;
@@ -366,6 +366,14 @@ fn loop_wraps_seamlessly_and_carries_the_root_on() {
         eprintln!("loop wrap at {wrap}: {r}");
         assert!(r.within(1.5), "{r:?}");
     }
+    // Played over and over, the cycle's wrap is a step like its others; the captured walk's
+    // is not.
+    let cycle = l.motion.slice(0..l.period);
+    let seamless = wrap_jump(s, &cycle).unwrap();
+    assert!(seamless.is_seamless(), "{seamless:?}");
+    let walk = wrap_jump(s, &c.walk).unwrap();
+    assert!(!walk.is_seamless(), "{walk:?}");
+    assert!(walk.rotation > 10f64.to_radians(), "{walk:?}");
     // The walk goes on: the third cycle ends farther from the start than the first.
     let p0 = root_position(s, l.motion.frame(0));
     let d1 = (root_position(s, l.motion.frame(l.period - 1)) - p0).length();

@@ -170,6 +170,48 @@ fn play_streams_the_whole_clip_over_the_virtual_chain() {
     }
 }
 
+/// A clip looped as captured jumps from its last pose to its first at each pass, and `play`
+/// says so; the cycle that `marionette loop` makes of it plays without the warning.
+#[test]
+fn play_warns_when_a_looped_clip_is_not_a_cycle() {
+    let _serial = serial();
+    let dir = tempdir("play-loop");
+    let cycle = dir.join("cycle.amc");
+    ok(&run(&[
+        "loop",
+        ASF,
+        AMC,
+        "-o",
+        cycle.to_str().unwrap(),
+        "--cycles",
+        "1",
+    ]));
+    let looped = |clip: &str| {
+        ok(&run(&[
+            "play",
+            PROFILE,
+            ASF,
+            clip,
+            "--loop",
+            "--duration",
+            "0.3",
+            "--ramp",
+            "0.1",
+            "-q",
+        ]))
+    };
+    let out = looped(AMC);
+    assert!(
+        out.contains(
+            "warning: --loop: the clip is not a cycle: from its last frame to its first, `rfemur` turns 46°"
+        ),
+        "{out}"
+    );
+    assert!(out.contains("`marionette loop` makes a seamless cycle"), "{out}");
+    let out = looped(cycle.to_str().unwrap());
+    assert!(!out.contains("not a cycle"), "{out}");
+}
+
 #[test]
 fn follow_drives_the_puppet_from_a_clips_wrist_and_ankle_paths() {
     let _serial = serial();

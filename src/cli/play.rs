@@ -24,6 +24,7 @@ use crate::control::sources::{
 use crate::control::stats::{ClipFigures, RunReport};
 use crate::control::{Follower, RunEnd, Solve, StopMode};
 use crate::formats::{amc, asf};
+use crate::motion::seam::wrap_jump;
 use crate::motion::{calibration, Motion};
 use crate::plot::{draw, Format};
 use crate::profile::Profile;
@@ -520,6 +521,9 @@ fn play_cmd(a: &PlayArgs, allocations: Option<fn() -> u64>, out: &mut dyn Write)
         ("played", "plays"),
         out,
     )?;
+    if looping {
+        warn_if_not_a_cycle(&skeleton, &motion, out)?;
+    }
     if args.walk && !args.upper_body {
         motion = crate::retarget::walk::settled(&motion);
         writeln!(
@@ -672,6 +676,22 @@ fn target_source(
         if looping { ", looping" } else { "" }
     );
     Ok((Box::new(TrackSource::new(track, looping)), line))
+}
+
+/// Says so when a clip played over and over jumps at each start: its last frame is not close
+/// to its first ([`wrap_jump`]).
+fn warn_if_not_a_cycle(skeleton: &Skeleton, motion: &Motion, out: &mut dyn Write) -> Result<(), CliError> {
+    let Some(jump) = wrap_jump(skeleton, motion).filter(|j| !j.is_seamless()) else {
+        return Ok(());
+    };
+    writeln!(
+        out,
+        "warning: --loop: the clip is not a cycle: from its last frame to its first, `{}` turns {:.0}° (from one frame to the next, {:.1}° at the 99th percentile); each pass starts with that jump, as fast as the servos' limits allow (`marionette loop` makes a seamless cycle)",
+        skeleton.bones().get(jump.bone).map_or("root", |b| b.name()),
+        jump.rotation.to_degrees(),
+        jump.bone_p99.to_degrees()
+    )?;
+    Ok(())
 }
 
 /// What a command takes from a clip as recorded instead of cleaning it.

@@ -44,6 +44,61 @@ pub fn steps(skeleton: &Skeleton, motion: &Motion) -> Steps {
     s
 }
 
+/// What a clip played over and over does at each start: from its last frame back to its
+/// first.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WrapJump {
+    /// The bone that jumps most beyond its own steps (0: the root's global rotation).
+    pub bone: usize,
+    /// Its change at the wrap, radians (geodesic angle).
+    pub rotation: f64,
+    /// Its own change from one frame to the next in the clip, 99th percentile, radians.
+    pub bone_p99: f64,
+}
+
+impl WrapJump {
+    /// Whether the clip is a cycle: at the wrap no joint turns more than three times its own
+    /// 99th-percentile step, or 2° if that is more.
+    #[must_use]
+    pub fn is_seamless(&self) -> bool {
+        self.rotation <= seamless_bound(self.bone_p99)
+    }
+}
+
+/// The largest change at a wrap that still reads as a step of the clip.
+fn seamless_bound(bone_p99: f64) -> f64 {
+    (3.0 * bone_p99).max(2f64.to_radians())
+}
+
+/// The jump of a clip played over and over ([`WrapJump`]): the joint whose change at the wrap
+/// is largest against [`WrapJump::is_seamless`]'s bound for it. `None` for a clip of one frame.
+#[must_use]
+pub fn wrap_jump(skeleton: &Skeleton, motion: &Motion) -> Option<WrapJump> {
+    let last = motion.len().checked_sub(1).filter(|&l| l > 0)?;
+    let change = |bone: usize, a: &[f64], b: &[f64]| match bone {
+        0 => rotation_angle(&root_rotation(skeleton, a), &root_rotation(skeleton, b)),
+        i => rotation_angle(
+            &channel_rotation(&skeleton.bones()[i], a),
+            &channel_rotation(&skeleton.bones()[i], b),
+        ),
+    };
+    (0..skeleton.len())
+        .map(|bone| {
+            let steps: Vec<f64> = (1..motion.len())
+                .map(|i| change(bone, motion.frame(i - 1), motion.frame(i)))
+                .collect();
+            WrapJump {
+                bone,
+                rotation: change(bone, motion.frame(last), motion.frame(0)),
+                bone_p99: quantile(&steps, 0.99),
+            }
+        })
+        .max_by(|x, y| {
+            let over = |j: &WrapJump| j.rotation / seamless_bound(j.bone_p99);
+            over(x).total_cmp(&over(y))
+        })
+}
+
 /// The `p`-th quantile (0..1) by nearest rank; 0 for an empty list.
 #[must_use]
 pub fn quantile(values: &[f64], p: f64) -> f64 {
