@@ -171,36 +171,27 @@ fn play_streams_the_whole_clip_over_the_virtual_chain() {
 }
 
 /// A clip looped as captured jumps from its last pose to its first at each pass, and `play`
-/// says so; the cycle that `marionette loop` makes of it plays without the warning.
+/// says so, as `follow` does for its targets; the cycle that `marionette loop` makes of it,
+/// and the targets of that cycle, play without the warning.
 #[test]
-fn play_warns_when_a_looped_clip_is_not_a_cycle() {
+fn play_and_follow_warn_when_a_looped_input_is_not_a_cycle() {
     let _serial = serial();
     let dir = tempdir("play-loop");
-    let cycle = dir.join("cycle.amc");
-    ok(&run(&[
-        "loop",
-        ASF,
-        AMC,
-        "-o",
-        cycle.to_str().unwrap(),
-        "--cycles",
-        "1",
-    ]));
-    let looped = |clip: &str| {
+    let path = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let (cycle, walk_targets, cycle_targets) = (path("cycle.amc"), path("walk.csv"), path("cycle.csv"));
+    ok(&run(&["loop", ASF, AMC, "-o", &cycle, "--cycles", "1"]));
+    ok(&run(&["targets", ASF, AMC, "-o", &walk_targets]));
+    ok(&run(&["targets", ASF, &cycle, "-o", &cycle_targets]));
+    let brief = ["--loop", "--duration", "0.3", "--ramp", "0.1", "-q"];
+    let play = |clip: &str| ok(&run(&[&["play", PROFILE, ASF, clip][..], &brief[..]].concat()));
+    let follow = |targets: &str| {
         ok(&run(&[
-            "play",
-            PROFILE,
-            ASF,
-            clip,
-            "--loop",
-            "--duration",
-            "0.3",
-            "--ramp",
-            "0.1",
-            "-q",
-        ]))
+            &["follow", PROFILE, ASF, "--targets", targets][..],
+            &brief[..],
+        ]
+        .concat()))
     };
-    let out = looped(AMC);
+    let out = play(AMC);
     assert!(
         out.contains(
             "warning: --loop: the clip is not a cycle: from its last frame to its first, `rfemur` turns 46°"
@@ -208,8 +199,14 @@ fn play_warns_when_a_looped_clip_is_not_a_cycle() {
         "{out}"
     );
     assert!(out.contains("`marionette loop` makes a seamless cycle"), "{out}");
-    let out = looped(cycle.to_str().unwrap());
-    assert!(!out.contains("not a cycle"), "{out}");
+    let out = follow(&walk_targets);
+    assert!(
+        out.contains("warning: --loop: the targets are not a cycle: from the last sample to the first, rtibia's target moves"),
+        "{out}"
+    );
+    for out in [play(&cycle), follow(&cycle_targets)] {
+        assert!(!out.contains("not a cycle"), "{out}");
+    }
 }
 
 #[test]

@@ -669,12 +669,20 @@ fn target_source(
         return Ok((Box::new(source), line));
     }
     let track = TargetTrack::load(Path::new(spec), effectors)?;
-    let line = format!(
+    let mut line = format!(
         "{spec}: {} samples over {:.2} s for {list}{}",
         track.samples.len(),
         track.duration(),
         if looping { ", looping" } else { "" }
     );
+    if let Some(jump) = track.wrap_jump().filter(|j| looping && !j.is_seamless()) {
+        line += &format!(
+            "\nwarning: --loop: the targets are not a cycle: from the last sample to the first, {}'s target moves {:.3} units (from one sample to the next, {:.4} at the 99th percentile); each pass starts with that jump, as fast as the servos' limits allow",
+            effectors.get(jump.effector).map_or("an effector", String::as_str),
+            jump.distance,
+            jump.effector_p99
+        );
+    }
     Ok((Box::new(TrackSource::new(track, looping)), line))
 }
 

@@ -254,6 +254,38 @@ impl TargetTrack {
         Ok(track)
     }
 
+    /// What the track played over and over does at each start ([`TrackJump`]): the effector
+    /// whose target moves most from the last sample back to the first against
+    /// [`TrackJump::is_seamless`]'s bound for it. `None` when no effector appears twice.
+    #[must_use]
+    pub fn wrap_jump(&self) -> Option<TrackJump> {
+        let mut worst: Option<TrackJump> = None;
+        for effector in 0..MAX_EFFECTORS {
+            let path: Vec<DVec3> = self
+                .samples
+                .iter()
+                .filter_map(|(_, ts)| ts.iter().find(|t| t.effector == effector).map(|t| t.position))
+                .collect();
+            let (Some(first), Some(last)) = (path.first(), path.last()) else {
+                continue;
+            };
+            let mut steps: Vec<f64> = path.windows(2).map(|w| (w[1] - w[0]).length()).collect();
+            if steps.is_empty() {
+                continue;
+            }
+            steps.sort_by(f64::total_cmp);
+            let this = TrackJump {
+                effector,
+                distance: (*first - *last).length(),
+                effector_p99: steps[((steps.len() - 1) as f64 * 0.99).round() as usize],
+            };
+            if worst.is_none_or(|w| this.over() > w.over()) {
+                worst = Some(this);
+            }
+        }
+        worst
+    }
+
     /// Duration from the first to the last sample, seconds.
     #[must_use]
     pub fn duration(&self) -> f64 {
@@ -261,6 +293,31 @@ impl TargetTrack {
             (Some(a), Some(b)) => b.0 - a.0,
             _ => 0.0,
         }
+    }
+}
+
+/// What a target track played over and over does at each start: from its last sample back to
+/// its first.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrackJump {
+    /// The effector (index in the track's list) whose target jumps most beyond its own steps.
+    pub effector: usize,
+    /// How far its target moves at the wrap, file units.
+    pub distance: f64,
+    /// Its own move from one sample to the next in the track, 99th percentile, file units.
+    pub effector_p99: f64,
+}
+
+impl TrackJump {
+    /// Whether the track is a cycle: at the wrap no target moves more than three times its own
+    /// 99th-percentile step, or 0.002 units if that is more.
+    #[must_use]
+    pub fn is_seamless(&self) -> bool {
+        self.over() <= 1.0
+    }
+
+    fn over(&self) -> f64 {
+        self.distance / (3.0 * self.effector_p99).max(0.002)
     }
 }
 
