@@ -17,6 +17,7 @@ use glam::DVec3;
 use super::input::{Target, MAX_EFFECTORS};
 use crate::formats::{read_text, FileError, TextError};
 use crate::interp::interpolate_frames;
+use crate::motion::seam::{beyond_its_steps, quantile};
 use crate::motion::Motion;
 use crate::skeleton::Skeleton;
 
@@ -255,8 +256,8 @@ impl TargetTrack {
     }
 
     /// What the track played over and over does at each start ([`TrackJump`]): the effector
-    /// whose target moves most from the last sample back to the first against
-    /// [`TrackJump::is_seamless`]'s bound for it. `None` when no effector appears twice.
+    /// whose target's move from the last sample back to the first lies furthest
+    /// [`beyond_its_steps`]. `None` when no effector appears twice.
     #[must_use]
     pub fn wrap_jump(&self) -> Option<TrackJump> {
         let mut worst: Option<TrackJump> = None;
@@ -269,17 +270,16 @@ impl TargetTrack {
             let (Some(first), Some(last)) = (path.first(), path.last()) else {
                 continue;
             };
-            let mut steps: Vec<f64> = path.windows(2).map(|w| (w[1] - w[0]).length()).collect();
+            let steps: Vec<f64> = path.windows(2).map(|w| (w[1] - w[0]).length()).collect();
             if steps.is_empty() {
                 continue;
             }
-            steps.sort_by(f64::total_cmp);
             let this = TrackJump {
                 effector,
                 distance: (*first - *last).length(),
-                effector_p99: steps[((steps.len() - 1) as f64 * 0.99).round() as usize],
+                effector_p99: quantile(&steps, 0.99),
             };
-            if worst.is_none_or(|w| this.over() > w.over()) {
+            if worst.is_none_or(|w| this.beyond_its_steps() > w.beyond_its_steps()) {
                 worst = Some(this);
             }
         }
@@ -313,11 +313,11 @@ impl TrackJump {
     /// 99th-percentile step, or 0.002 units if that is more.
     #[must_use]
     pub fn is_seamless(&self) -> bool {
-        self.over() <= 1.0
+        self.beyond_its_steps() <= 1.0
     }
 
-    fn over(&self) -> f64 {
-        self.distance / (3.0 * self.effector_p99).max(0.002)
+    fn beyond_its_steps(&self) -> f64 {
+        beyond_its_steps(self.distance, self.effector_p99, 0.002)
     }
 }
 

@@ -61,17 +61,24 @@ impl WrapJump {
     /// 99th-percentile step, or 2° if that is more.
     #[must_use]
     pub fn is_seamless(&self) -> bool {
-        self.rotation <= seamless_bound(self.bone_p99)
+        self.beyond_its_steps() <= 1.0
+    }
+
+    fn beyond_its_steps(&self) -> f64 {
+        beyond_its_steps(self.rotation, self.bone_p99, 2f64.to_radians())
     }
 }
 
-/// The largest change at a wrap that still reads as a step of the clip.
-fn seamless_bound(bone_p99: f64) -> f64 {
-    (3.0 * bone_p99).max(2f64.to_radians())
+/// How far a change at a wrap (a clip's or a target track's, played over and over) lies
+/// beyond the steps of its own: `change` against three times its 99th-percentile step `p99`,
+/// or against `floor` if that is more. Over 1: a jump.
+#[must_use]
+pub fn beyond_its_steps(change: f64, p99: f64, floor: f64) -> f64 {
+    change / (3.0 * p99).max(floor)
 }
 
 /// The jump of a clip played over and over ([`WrapJump`]): the joint whose change at the wrap
-/// is largest against [`WrapJump::is_seamless`]'s bound for it. `None` for a clip of one frame.
+/// lies furthest [`beyond_its_steps`]. `None` for a clip of one frame.
 #[must_use]
 pub fn wrap_jump(skeleton: &Skeleton, motion: &Motion) -> Option<WrapJump> {
     let last = motion.len().checked_sub(1).filter(|&l| l > 0)?;
@@ -93,10 +100,7 @@ pub fn wrap_jump(skeleton: &Skeleton, motion: &Motion) -> Option<WrapJump> {
                 bone_p99: quantile(&steps, 0.99),
             }
         })
-        .max_by(|x, y| {
-            let over = |j: &WrapJump| j.rotation / seamless_bound(j.bone_p99);
-            over(x).total_cmp(&over(y))
-        })
+        .max_by(|x, y| x.beyond_its_steps().total_cmp(&y.beyond_its_steps()))
 }
 
 /// The `p`-th quantile (0..1) by nearest rank; 0 for an empty list.
