@@ -237,6 +237,8 @@ fn control_loop_ticks_allocate_nothing() {
             // The real-time runs' worker (a record handed over each tick) and the lockstep
             // runs' accumulation in the tick.
             fidelity_worker: follow,
+            // The host stalls once past it (below): the recovery runs in a tick too.
+            bus_watchdog_ms: profile.bus.watchdog_ms,
             ..LoopConfig::default()
         };
         let mut c = Controller::new(
@@ -299,6 +301,11 @@ fn control_loop_ticks_allocate_nothing() {
                 c.tick(&tick, &mut vr, &mut clock);
             }
             ticks += 1;
+            if k == 500 {
+                // The host stalls for 250 ms: every servo's 100 ms watchdog expires.
+                let now = clock.now_ns();
+                clock.wait_until(now + 250_000_000);
+            }
             cursor = live.read().carried_since(cursor, |_| carried += 1);
             // The consumer keeps up with some of the records only: drops are counted, not waited for.
             if k % 20 == 0 {
@@ -322,6 +329,7 @@ fn control_loop_ticks_allocate_nothing() {
         assert_eq!(st.commands_sent, ticks);
         assert!(st.inputs_used > ticks / 3, "{} inputs used", st.inputs_used);
         assert_eq!(st.allocations_in_tick, Some(0));
+        assert_eq!(st.watchdog_expiries, 1, "the stall's expiry found and recovered");
         assert!(st.telemetry_dropped > 0, "the full-channel path was taken");
         let view = live.read();
         assert!(

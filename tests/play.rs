@@ -111,14 +111,15 @@ fn spawn_follow(targets: &str, seconds: &str, stats: &std::path::Path, stdin: St
 }
 
 /// Whether the run kept its schedule. A loaded machine can overrun ticks (the deadlines passed
-/// over are counted as skipped); a sample due in a skipped tick is superseded by the next, so
-/// "every sample sent" is asserted only when no tick was skipped or overran — the virtual-time
-/// tests in `tests/control.rs` assert it unconditionally.
+/// over are counted as skipped); a sample due in a skipped tick is superseded by the next, and
+/// the servos catch up at their speed, so "every sample sent" and the largest error are asserted
+/// only when no tick was skipped or overran — the virtual-time tests in `tests/control.rs`
+/// assert them unconditionally, stalls included.
 fn kept_time(v: &serde_json::Value) -> bool {
     let kept = v["skipped_ticks"].as_u64() == Some(0) && v["deadline_misses"].as_u64() == Some(0);
     if !kept {
         println!(
-            "this machine did not keep time ({} skipped, {} misses): sample coverage not asserted",
+            "this machine did not keep time ({} skipped, {} misses): sample coverage and the largest error not asserted",
             v["skipped_ticks"], v["deadline_misses"]
         );
     }
@@ -267,9 +268,10 @@ fn follow_drives_the_puppet_from_a_clips_wrist_and_ankle_paths() {
             assert!(seconds > 6.0, "{seconds} s: 2.5 s held, then 3.92 s of targets");
         }
         check_stats(&v, rate.parse().unwrap());
-        let max = v["fidelity"]["joint_max_deg"].as_f64().unwrap();
-        assert!(max < 30.0, "fidelity max {max}°: the move from rest counted");
         if kept_time(&v) {
+            // A stall ends in a catch-up at the servos' speed, which the fidelity counts.
+            let max = v["fidelity"]["joint_max_deg"].as_f64().unwrap();
+            assert!(max < 30.0, "fidelity max {max}°: the move from rest counted");
             assert_eq!(v["inputs_used"].as_u64(), Some(471), "every target sample used");
         }
         assert_eq!(v["inputs_rejected"].as_u64(), Some(0));

@@ -521,6 +521,12 @@ pub fn start_up(bus: &mut dyn ServoBus, profile: BusSection<'_>) -> Result<Vec<i
     Ok(present)
 }
 
+/// The Bus Watchdog register's value for `ms` (20 ms units, at most 127; 0: off).
+#[must_use]
+pub fn watchdog_units(ms: u32) -> u8 {
+    (ms / 20).min(127) as u8
+}
+
 /// Torque on every servo, then the Bus Watchdog armed on all of them at once and read back.
 fn torque_on_and_arm(
     bus: &mut dyn ServoBus,
@@ -534,7 +540,7 @@ fn torque_on_and_arm(
     // would run out while the others are still being set up (28 acknowledged writes take
     // longer than 100 ms on a bus with a 1 ms adapter latency). Read back, as a Sync Write is
     // not acknowledged.
-    let wd = (profile.config.watchdog_ms / 20).min(127) as u8;
+    let wd = watchdog_units(profile.config.watchdog_ms);
     if wd > 0 {
         let n = ids.len();
         bus.sync_write(addr::BUS_WATCHDOG, 1, ids, &vec![wd; n])?;

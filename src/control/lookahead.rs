@@ -513,6 +513,12 @@ impl Lookahead {
         &self.targets
     }
 
+    /// Drops every servo's plan: after the command stage restarts (from where the servos
+    /// stand, at rest), each is planned afresh at its next tick.
+    pub fn forget_plans(&mut self) {
+        self.planned.fill(false);
+    }
+
     /// Makes ahead, on a copy of its planner, and keeps nothing, the plan of the first servo
     /// whose turn the next tick (at `now_ns`, `dt` after the one before) is: called while the
     /// loop waits for that tick, it leaves the planner's code and the preview's rows the tick

@@ -9,7 +9,8 @@
 //! Fault policy: a failed or corrupt read is never used; after `hold_after` consecutive failed
 //! reads the last command sent is held (new inputs are not acted on; no step back); after `torque_off_after`
 //! without a valid read every servo's torque is turned off and the loop stops with a fault.
-//! A host that stops altogether is covered by the servos' Bus Watchdog, armed at start-up.
+//! A host that stops altogether is covered by the servos' Bus Watchdog, armed at start-up; a
+//! host that stalled past it and comes back finds them stopped, and recovers them ([`watchdog`]).
 //! The port itself failing (a USB adapter unplugged: reads and writes fail with EIO) ends the
 //! run at once: nothing more is commanded, one torque-off Sync Write is tried.
 //!
@@ -36,6 +37,7 @@ mod stop;
 pub use stop::REHEARSAL_LEAD_NS;
 mod tick;
 pub use tick::{start_move_s, START_MOVE_SPEED_SHARE};
+pub mod watchdog;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -119,6 +121,10 @@ pub struct LoopConfig {
     /// [`START_MOVE_SPEED_SHARE`] of their speed ([`start_move_s`]) when that takes longer:
     /// for inputs whose first pose is not known before the run (targets to follow).
     pub size_start_move: bool,
+    /// The Bus Watchdog the servos were armed with at start-up, ms (0: none). Once the bus has
+    /// been quiet for half of it, a tick checks it and recovers servos whose watchdog expired
+    /// ([`watchdog`]).
+    pub bus_watchdog_ms: u32,
 }
 
 impl Default for LoopConfig {
@@ -137,6 +143,7 @@ impl Default for LoopConfig {
             fidelity_worker: false,
             rehearse: false,
             size_start_move: false,
+            bus_watchdog_ms: 0,
         }
     }
 }
@@ -320,6 +327,8 @@ pub struct Controller {
     /// The command side.
     stage: CommandStage,
     ease: tick::Ease,
+    /// When the servos last heard the loop (their Bus Watchdog's clock).
+    quiet: watchdog::QuietWatch,
     /// The bus side: what the servos reported.
     reads: read::Reads,
     /// Source against present, end to end.
@@ -445,6 +454,7 @@ impl Controller {
                 done: 0,
                 start_ns: None,
             },
+            quiet: watchdog::QuietWatch::default(),
             reads: read::Reads {
                 present: present.to_vec(),
                 read_buf: vec![0; n],
@@ -719,15 +729,24 @@ impl Controller {
         let t_encode = clock.now_ns();
         self.stats.stage_mut(Stage::Solve).record(t_encode - t_solve);
         let holding = self.reads.failures >= self.config.hold_after;
-        let goals = self.encode(tick, dt, holding);
-        let t_write = clock.now_ns();
+        let mut goals = self.encode(tick, dt, holding);
+        let mut t_write = clock.now_ns();
         self.stats.stage_mut(Stage::Encode).record(t_write - t_encode);
+        if let Some(checked) = self.check_watchdog(tick, bus, clock, t_write) {
+            // Its transactions are the bus's time, not the tick's compute.
+            replies.1 += checked.bus_ns;
+            if let Some(hold) = checked.hold {
+                goals = hold;
+            }
+            t_write = clock.now_ns();
+        }
         let command = tick::Command {
             goals,
             holding,
             t_write,
         };
         let done_bus = self.exchange(tick, bus, clock, &command, &current, replies);
+        self.quiet.last_sent_ns = Some(clock.now_ns());
         self.report(tick, start, clock.now_ns(), &command, &current, &done_bus);
         self.count_allocations_since(allocs);
         let mut end = done_bus.end;

@@ -102,6 +102,16 @@ pub struct LoopStats {
     pub start_move_s: Option<f64>,
     /// Telemetry records dropped because the consumer was behind.
     pub telemetry_dropped: u64,
+    /// The longest the servos heard nothing from the loop, ms (measured only with a Bus
+    /// Watchdog; [`super::watchdog`]).
+    pub longest_quiet_ms: f64,
+    /// Ticks that read the servos' Bus Watchdog after the bus had been quiet for half of it.
+    pub watchdog_checks: u64,
+    /// Checks that found servos whose watchdog had expired (stopped, refusing goals): each
+    /// time they were recovered and eased back to the input.
+    pub watchdog_expiries: u64,
+    /// Seconds of the eased moves back to the input after expiries (not in the fidelity).
+    pub resumed_s: f64,
     /// The last valid read's positions when the run ended (set after the loop, never in a
     /// tick).
     pub final_present: Vec<ServoAngle>,
@@ -245,6 +255,10 @@ impl LoopStats {
             held_ticks: self.held_ticks,
             start_move_s: self.start_move_s,
             telemetry_dropped: self.telemetry_dropped,
+            longest_quiet_ms: self.longest_quiet_ms,
+            watchdog_checks: self.watchdog_checks,
+            watchdog_expiries: self.watchdog_expiries,
+            resumed_s: self.resumed_s,
             final_present: self.final_present.clone(),
             ik_error_rms: if self.ik_error_n == 0 {
                 0.0
@@ -339,6 +353,14 @@ pub struct Report {
     pub start_move_s: Option<f64>,
     /// Telemetry records dropped.
     pub telemetry_dropped: u64,
+    /// The longest the servos heard nothing from the loop, ms (0 without a Bus Watchdog).
+    pub longest_quiet_ms: f64,
+    /// Ticks that read the servos' Bus Watchdog after the bus had been quiet for half of it.
+    pub watchdog_checks: u64,
+    /// Checks that found expired watchdogs (the servos stopped; recovered, eased back).
+    pub watchdog_expiries: u64,
+    /// Seconds of the eased moves back to the input after expiries (not in the fidelity).
+    pub resumed_s: f64,
     /// Each servo's present position at the end of the run (the last valid read), radians.
     pub final_present: Vec<ServoAngle>,
     /// RMS IK residual, file units.
@@ -483,6 +505,15 @@ impl fmt::Display for LoopStats {
             self.tracking_max_deg,
             self.reads_ok
         )?;
+        if self.watchdog_checks > 0 {
+            // Checked after the bus was quiet for half the watchdog; expired: the servos had
+            // stopped, and were recovered where they stood.
+            writeln!(
+                f,
+                "bus watchdog    checks {}  expired {}  longest quiet {:.0} ms  eased back {:.2} s (not in the fidelity)",
+                self.watchdog_checks, self.watchdog_expiries, self.longest_quiet_ms, self.resumed_s
+            )?;
+        }
         if let Some(s) = self.start_move_s {
             writeln!(
                 f,

@@ -363,6 +363,7 @@ impl SessionSpec {
             size_start_move: self.size_start_move,
             allocations: if real_time { self.allocations } else { None },
             count_page_faults: real_time,
+            bus_watchdog_ms: profile.bus.watchdog_ms,
         }
     }
 
@@ -828,7 +829,8 @@ pub fn open_bus(
 }
 
 /// Warns when a bus cycle (with the IMU board's read when a walk reads it) does not fit the
-/// loop's period.
+/// loop's period, or the period is half the Bus Watchdog or more (the loop then checks the
+/// watchdog every tick, and one late tick lets it stop the servos).
 fn warn_if_over_budget(
     spec: &SessionSpec,
     bus: &BusConfig,
@@ -854,6 +856,15 @@ fn warn_if_over_budget(
             b.worst_cycle_us,
             1e6 / rate_hz,
             (rate_hz / crate::control::health::READS_PER_S).round().max(1.0)
+        )?;
+    }
+    let period_ms = 1e3 / rate_hz;
+    if bus.watchdog_ms > 0 && 2.0 * period_ms >= f64::from(bus.watchdog_ms) {
+        writeln!(
+            log,
+            "warning: at {rate_hz} Hz the servos hear the loop every {period_ms:.0} ms, half their Bus Watchdog ({} ms, the profile's watchdog_ms) or more: each tick reads the watchdog, and a late tick lets it stop them (a rate above {:.0} Hz, or a longer watchdog_ms)",
+            bus.watchdog_ms,
+            2e3 / f64::from(bus.watchdog_ms)
         )?;
     }
     Ok(())
