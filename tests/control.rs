@@ -1453,3 +1453,106 @@ fn the_loop_recovers_servos_its_stall_let_the_watchdog_stop() {
         assert!(*rms < fidelity_rms[0] * 2.5, "run {k}: {fidelity_rms:?}");
     }
 }
+
+/// The virtual rig as a bus whose host stalls inside one goal write, before it goes out.
+struct StallingBus {
+    inner: VirtualRig,
+    writes: u64,
+    stall_at_write: u64,
+    stall_ns: u64,
+}
+
+impl ServoBus for StallingBus {
+    fn ping(&mut self, id: u8) -> Result<marionette::bus::PingInfo, marionette::bus::BusError> {
+        self.inner.ping(id)
+    }
+    fn scan(&mut self) -> Result<Vec<marionette::bus::PingInfo>, marionette::bus::BusError> {
+        self.inner.scan()
+    }
+    fn read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), marionette::bus::BusError> {
+        self.inner.read(id, address, out)
+    }
+    fn write(&mut self, id: u8, address: u16, data: &[u8]) -> Result<(), marionette::bus::BusError> {
+        self.inner.write(id, address, data)
+    }
+    fn sync_write(
+        &mut self,
+        address: u16,
+        len: u16,
+        ids: &[u8],
+        data: &[u8],
+    ) -> Result<(), marionette::bus::BusError> {
+        self.inner.sync_write(address, len, ids, data)
+    }
+    fn sync_read(
+        &mut self,
+        address: u16,
+        len: u16,
+        ids: &[u8],
+        out: &mut [u8],
+    ) -> Result<(), marionette::bus::BusError> {
+        self.inner.sync_read(address, len, ids, out)
+    }
+    fn reboot(&mut self, id: u8) -> Result<(), marionette::bus::BusError> {
+        self.inner.reboot(id)
+    }
+    fn write_goals(&mut self, ids: &[u8], ticks: &[i32]) -> Result<(), marionette::bus::BusError> {
+        self.writes += 1;
+        if self.writes == self.stall_at_write {
+            let now = self.inner.now_ns();
+            self.inner.wait_until(now + self.stall_ns);
+        }
+        self.inner.write_goals(ids, ticks)
+    }
+}
+
+/// A stall inside a tick — after its watchdog check, before its write — in the ramp to rest:
+/// the servos refuse that write and the next; the span between the ticks' transactions owes a
+/// check, which recovers them, and the ramp ends at rest rather than limp where they stopped.
+#[test]
+fn the_ramp_to_rest_goes_on_after_a_stall_inside_a_tick() {
+    let s = setup();
+    let mut cfg = config(120.0);
+    cfg.stop = StopMode::Rest { ramp_s: 0.5 };
+    cfg.max_ticks = Some(200);
+    cfg.bus_watchdog_ms = s.profile.bus.watchdog_ms;
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let mut clock = s.vr.clone();
+    let period = 1_000_000_000 / 120;
+    let mut schedule = Schedule::new(clock.now_ns() + period, period);
+    let (mut c, tx) = controller(&s, Solve::Frames, cfg, 300);
+    for k in 0..250 {
+        let t = player.next_sample(&mut buf[..n]).unwrap();
+        tx.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
+            .unwrap();
+    }
+    // The 200 ticks write once each; the ramp's third tick stalls.
+    let mut bus = StallingBus {
+        inner: s.vr.clone(),
+        writes: 0,
+        stall_at_write: 203,
+        stall_ns: 250_000_000,
+    };
+    let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
+    assert_eq!(end, RunEnd::Duration);
+    assert!(bus.writes > 203, "{} writes", bus.writes);
+    assert_eq!((c.stats.watchdog_checks, c.stats.watchdog_expiries), (1, 1));
+    assert!(c.stats.longest_quiet_ms >= 250.0, "{}", c.stats.longest_quiet_ms);
+    assert_eq!(
+        c.stats.resumed_s, 0.0,
+        "the ramp goes on; nothing eases back to the input"
+    );
+    let rest: Vec<i32> = s.rig.servos.iter().map(ServoMap::rest_tick).collect();
+    let servos = s.vr.with(|t| t.chain().servos().to_vec());
+    for (v, r) in servos.iter().zip(&rest) {
+        assert!(!v.torque_on(), "servo {}: torque off at the end", v.id());
+        assert!(
+            (v.goal_tick() - r).abs() <= 1,
+            "servo {}: goal {}, rest {r}",
+            v.id(),
+            v.goal_tick()
+        );
+    }
+}

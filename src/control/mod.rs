@@ -732,7 +732,7 @@ impl Controller {
         let mut goals = self.encode(tick, dt, holding);
         let mut t_write = clock.now_ns();
         self.stats.stage_mut(Stage::Encode).record(t_write - t_encode);
-        if let Some(checked) = self.check_watchdog(tick, bus, clock, t_write) {
+        if let Some(checked) = self.check_watchdog(tick, bus, clock, t_write, true) {
             // Its transactions are the bus's time, not the tick's compute.
             replies.1 += checked.bus_ns;
             if let Some(hold) = checked.hold {
@@ -746,7 +746,7 @@ impl Controller {
             t_write,
         };
         let done_bus = self.exchange(tick, bus, clock, &command, &current, replies);
-        self.quiet.last_sent_ns = Some(clock.now_ns());
+        self.note_sent(clock.now_ns());
         self.report(tick, start, clock.now_ns(), &command, &current, &done_bus);
         self.count_allocations_since(allocs);
         let mut end = done_bus.end;

@@ -1,7 +1,7 @@
 //! Running ticks to the end of a run, and stopping safely: the ramp to rest (or the hold), then
 //! torque off on every servo.
 
-use super::{stats, Controller, RunEnd, StopMode, StopRequests, Telemetry};
+use super::{stats, watchdog, Controller, RunEnd, StopMode, StopRequests, Telemetry};
 use crate::bus::{BusError, ServoBus};
 use crate::schedule::{Clock, Schedule};
 use crate::servo::{addr, MAX_SERVOS};
@@ -176,12 +176,20 @@ impl Controller {
             } else {
                 self.stage.last().to_vec()
             };
+            // Stalled past the watchdog, the servos refuse the ramp: recovered, they go on
+            // from where they stopped (the stage restarted there, within its limits).
+            let now = clock.now_ns();
+            let goals = match self.check_watchdog(&tick, bus, clock, now, false) {
+                Some(watchdog::Checked { hold: Some(h), .. }) => h[..self.ids.len()].to_vec(),
+                _ => goals,
+            };
             let written = bus.write_goals(&self.ids, &goals);
             if let Some(why) = written.as_ref().err().and_then(BusError::port_failure) {
                 self.port_error = Some(why);
                 break;
             }
             let read_ok = bus.read_positions(&self.ids, &mut self.reads.read_buf).is_ok();
+            self.note_sent(clock.now_ns());
             if read_ok {
                 self.reads.present.copy_from_slice(&self.reads.read_buf);
                 self.reads.last_valid_ns = clock.now_ns();

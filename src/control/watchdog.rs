@@ -1,8 +1,9 @@
 //! The servos' Bus Watchdog after the loop went quiet. A host that stalls (a virtual machine
 //! paused, a swap storm, a debugger) longer than the watchdog leaves every servo stopped where it
 //! was, refusing goals — and a Sync Write gets no status, so nothing else would tell the loop.
-//! Once the bus has been quiet for half the watchdog or more, the tick reads the Bus Watchdog
-//! register of every servo before its write (−1 after an expiry, e-manual); when any expired it
+//! Once the bus has been quiet for half the watchdog or more (seen before a tick's write, or, for
+//! a stall inside a tick, as the span between two ticks' transactions), the tick reads the Bus
+//! Watchdog register of every servo before its write (−1 after an expiry, e-manual); when any expired it
 //! takes their present positions, clears the expiry (writing 0), holds them there, arms the
 //! watchdog again and reads it back. The command stage then starts from those positions at rest
 //! and eases back to the input, as at the start of a run: no servo jumps to where the input
@@ -21,7 +22,8 @@ pub const EXPIRED: u8 = 0xFF;
 pub(super) struct QuietWatch {
     /// When the last tick's transactions ended, ns on the loop clock (`None` before the first).
     pub(super) last_sent_ns: Option<u64>,
-    /// A check found the bus quiet but could not finish (a read failed): the next tick checks.
+    /// A check is due at the next tick: a span between ticks' transactions was long enough for
+    /// the watchdog to matter, or a check could not finish (a read failed).
     pub(super) owed: bool,
 }
 
@@ -33,15 +35,33 @@ pub(super) struct Checked {
 }
 
 impl Controller {
+    /// After a tick's transactions (at `now_ns`): a stall anywhere since the last tick's — in
+    /// this tick too, after its check — shows as a span of half the watchdog or more, and owes
+    /// the next tick a check.
+    pub(super) fn note_sent(&mut self, now_ns: u64) {
+        let watchdog_ms = self.config.bus_watchdog_ms;
+        if let (true, Some(t)) = (watchdog_ms > 0, self.quiet.last_sent_ns) {
+            let span_ms = now_ns.saturating_sub(t) as f64 * 1e-6;
+            self.stats.longest_quiet_ms = self.stats.longest_quiet_ms.max(span_ms);
+            if 2.0 * span_ms >= f64::from(watchdog_ms) {
+                self.quiet.owed = true;
+            }
+        }
+        self.quiet.last_sent_ns = Some(now_ns);
+    }
+
     /// Before the tick's write (at `now_ns`): when the servos have heard nothing for half their
     /// watchdog or more (or a check is owed), reads every servo's Bus Watchdog and recovers the
-    /// ones that expired (module docs). `None` when no check was due. Allocates nothing.
+    /// ones that expired (module docs), easing back to the input when `ease_back` (not in the
+    /// ramp at the end, which goes on from where they stopped). `None` when no check was due.
+    /// Allocates nothing.
     pub(super) fn check_watchdog(
         &mut self,
         tick: &Tick,
         bus: &mut dyn ServoBus,
         clock: &mut dyn Clock,
         now_ns: u64,
+        ease_back: bool,
     ) -> Option<Checked> {
         let watchdog_ms = self.config.bus_watchdog_ms;
         if watchdog_ms == 0 {
@@ -55,9 +75,12 @@ impl Controller {
         }
         self.stats.watchdog_checks += 1;
         let t0 = clock.now_ns();
-        let hold = self.recover_watchdog(tick, bus, watchdog_units(watchdog_ms));
+        let hold = self.recover_watchdog(tick, bus, watchdog_units(watchdog_ms), ease_back);
+        // Its transactions are the servos' latest: the tick's span counts from them.
+        let t1 = clock.now_ns();
+        self.quiet.last_sent_ns = Some(t1);
         Some(Checked {
-            bus_ns: clock.now_ns().saturating_sub(t0),
+            bus_ns: t1.saturating_sub(t0),
             hold,
         })
     }
@@ -70,6 +93,7 @@ impl Controller {
         tick: &Tick,
         bus: &mut dyn ServoBus,
         units: u8,
+        ease_back: bool,
     ) -> Option<[i32; MAX_SERVOS]> {
         let n = self.ids.len();
         self.quiet.owed = true;
@@ -109,7 +133,7 @@ impl Controller {
             if let Err(e) = cleared {
                 self.stats.bus_error(e.kind());
             }
-            self.restart_from_present(tick);
+            self.restart_from_present(tick, ease_back);
             hold = Some(goals);
         }
         let mut rearm = expired;
@@ -125,16 +149,17 @@ impl Controller {
         hold
     }
 
-    /// The command stage from the present positions at rest, and — once input flows — an ease
-    /// from them back to it, as long as the eased move to the input's pose at a quarter of the
-    /// servos' speed takes ([`super::start_move_s`]); not in the fidelity.
-    fn restart_from_present(&mut self, tick: &Tick) {
+    /// The command stage from the present positions at rest, and — while input flows (not in
+    /// the ramp at the end) — an ease from them back to it, as long as the eased move to the
+    /// input's pose at a quarter of the servos' speed takes ([`super::start_move_s`]); not in
+    /// the fidelity.
+    fn restart_from_present(&mut self, tick: &Tick, ease_back: bool) {
         self.stage.start_from(&self.rig, &self.reads.present);
         self.reads.have_previous = false;
         if let Some(la) = &mut self.lookahead {
             la.forget_plans();
         }
-        if !self.have_input {
+        if !(self.have_input && ease_back) {
             return;
         }
         for ((from, s), p) in self
