@@ -1454,12 +1454,14 @@ fn the_loop_recovers_servos_its_stall_let_the_watchdog_stop() {
     }
 }
 
-/// The virtual rig as a bus whose host stalls inside one goal write, before it goes out.
+/// The virtual rig as a bus whose host stalls inside one goal write, before it goes out; and
+/// on which one servo's Bus Watchdog may read 0 whatever it holds.
 struct StallingBus {
     inner: VirtualRig,
     writes: u64,
     stall_at_write: u64,
     stall_ns: u64,
+    unarmed: Option<usize>,
 }
 
 impl ServoBus for StallingBus {
@@ -1491,7 +1493,11 @@ impl ServoBus for StallingBus {
         ids: &[u8],
         out: &mut [u8],
     ) -> Result<(), marionette::bus::BusError> {
-        self.inner.sync_read(address, len, ids, out)
+        self.inner.sync_read(address, len, ids, out)?;
+        if let (marionette::servo::addr::BUS_WATCHDOG, Some(k)) = (address, self.unarmed) {
+            out[k] = 0;
+        }
+        Ok(())
     }
     fn reboot(&mut self, id: u8) -> Result<(), marionette::bus::BusError> {
         self.inner.reboot(id)
@@ -1534,6 +1540,7 @@ fn the_ramp_to_rest_goes_on_after_a_stall_inside_a_tick() {
         writes: 0,
         stall_at_write: 203,
         stall_ns: 250_000_000,
+        unarmed: None,
     };
     let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
     assert_eq!(end, RunEnd::Duration);
@@ -1555,4 +1562,41 @@ fn the_ramp_to_rest_goes_on_after_a_stall_inside_a_tick() {
             v.goal_tick()
         );
     }
+}
+
+/// A servo whose Bus Watchdog reads back otherwise after it is armed again costs the loop a few
+/// checks after a quiet spell, not one every tick; the run goes on.
+#[test]
+fn a_watchdog_that_will_not_arm_costs_a_few_checks() {
+    let s = setup();
+    let mut cfg = config(120.0);
+    cfg.max_ticks = Some(200);
+    cfg.bus_watchdog_ms = s.profile.bus.watchdog_ms;
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let mut clock = s.vr.clone();
+    let period = 1_000_000_000 / 120;
+    let mut schedule = Schedule::new(clock.now_ns() + period, period);
+    let (mut c, tx) = controller(&s, Solve::Frames, cfg, 300);
+    for k in 0..250 {
+        let t = player.next_sample(&mut buf[..n]).unwrap();
+        tx.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
+            .unwrap();
+    }
+    // 70 ms inside the 100th tick: short of the watchdog, past half of it.
+    let mut bus = StallingBus {
+        inner: s.vr.clone(),
+        writes: 0,
+        stall_at_write: 100,
+        stall_ns: 70_000_000,
+        unarmed: Some(3),
+    };
+    let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
+    assert_eq!(end, RunEnd::Duration);
+    assert_eq!(c.stats.ticks, 200);
+    assert_eq!((c.stats.watchdog_checks, c.stats.watchdog_expiries), (3, 0));
+    assert!(s
+        .vr
+        .with(|t| t.chain().servos().iter().all(|v| !v.watchdog_expired())));
 }

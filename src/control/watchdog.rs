@@ -25,7 +25,13 @@ pub(super) struct QuietWatch {
     /// A check is due at the next tick: a span between ticks' transactions was long enough for
     /// the watchdog to matter, or a check could not finish (a read failed).
     pub(super) owed: bool,
+    /// Consecutive checks whose watchdog, armed again, read back otherwise.
+    pub(super) rearm_misses: u8,
 }
+
+/// Checks in a row that arm a watchdog which reads back otherwise before the loop stops trying
+/// until the next quiet spell.
+const MAX_REARM_MISSES: u8 = 3;
 
 /// A check made in a tick: its bus time, and the goals that hold the servos where they stopped
 /// when any had expired.
@@ -143,7 +149,16 @@ impl Controller {
             .sync_write(addr::BUS_WATCHDOG, 1, &rearm, &units_each[..rearm.len()])
             .and_then(|()| bus.sync_read(addr::BUS_WATCHDOG, 1, &self.ids, &mut armed[..n]));
         match rearmed {
-            Ok(()) => self.quiet.owed = armed[..n].iter().any(|&a| a != units),
+            Ok(()) if armed[..n].iter().all(|&a| a == units) => {
+                self.quiet.owed = false;
+                self.quiet.rearm_misses = 0;
+            }
+            // Read back otherwise: armed again at the next ticks, a few times at most (a servo
+            // that never takes it would cost every tick a check).
+            Ok(()) => {
+                self.quiet.rearm_misses = self.quiet.rearm_misses.saturating_add(1);
+                self.quiet.owed = self.quiet.rearm_misses < MAX_REARM_MISSES;
+            }
             Err(e) => self.stats.bus_error(e.kind()),
         }
         hold
