@@ -1357,7 +1357,16 @@ fn the_move_to_the_first_targets_is_eased_and_left_out_of_the_fidelity() {
 #[test]
 fn the_loop_recovers_servos_its_stall_let_the_watchdog_stop() {
     let mut fidelity_rms = Vec::new();
-    for (stall_ms, checks, expiries) in [(0, 0, 0), (40, 0, 0), (70, 1, 0), (250, 1, 1)] {
+    // The stall's length, the tick after which it comes (`None`: between start-up, which armed
+    // the watchdog, and the first tick), the checks (the first tick's included) and expiries.
+    let cases = [
+        (0, Some(160), 1, 0),
+        (40, Some(160), 1, 0),
+        (70, Some(160), 2, 0),
+        (250, Some(160), 2, 1),
+        (250, None, 1, 1),
+    ];
+    for (stall_ms, stall_after, checks, expiries) in cases {
         let s = setup();
         let watchdog_ms = s.profile.bus.watchdog_ms;
         assert_eq!(watchdog_ms, 100);
@@ -1373,6 +1382,10 @@ fn the_loop_recovers_servos_its_stall_let_the_watchdog_stop() {
         let mut clock = vr.clone();
         let period = c.period_ns();
         let mut schedule = Schedule::new(clock.now_ns() + period, period);
+        if stall_after.is_none() {
+            let now = clock.now_ns();
+            clock.wait_until(now + stall_ms * 1_000_000);
+        }
         let servos = || s.vr.with(|t| t.chain().servos().to_vec());
         let mut seq = 0;
         let mut resumed = None;
@@ -1417,7 +1430,7 @@ fn the_loop_recovers_servos_its_stall_let_the_watchdog_stop() {
                 }
                 resumed = Some(tick.index);
             }
-            if tick.index == 160 && stall_ms > 0 {
+            if stall_after == Some(tick.index) && stall_ms > 0 {
                 // Mid-stride: the host goes quiet.
                 let now = clock.now_ns();
                 clock.wait_until(now + stall_ms * 1_000_000);
@@ -1442,7 +1455,7 @@ fn the_loop_recovers_servos_its_stall_let_the_watchdog_stop() {
         let (checks, expiries, resumed_s) = (st.watchdog_checks, st.watchdog_expiries, st.resumed_s);
         let f = c.fidelity_report();
         println!(
-            "{stall_ms} ms stall: {} checks, {} expiries, resumed over {:.2} s, fidelity rms {:.3}° max {:.3}° over {} ticks",
+            "{stall_ms} ms stall after tick {stall_after:?}: {} checks, {} expiries, resumed over {:.2} s, fidelity rms {:.3}° max {:.3}° over {} ticks",
             checks, expiries, resumed_s, f.joint_rms_deg, f.joint_max_deg, f.samples
         );
         fidelity_rms.push(f.joint_rms_deg);
@@ -1545,7 +1558,8 @@ fn the_ramp_to_rest_goes_on_after_a_stall_inside_a_tick() {
     let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
     assert_eq!(end, RunEnd::Duration);
     assert!(bus.writes > 203, "{} writes", bus.writes);
-    assert_eq!((c.stats.watchdog_checks, c.stats.watchdog_expiries), (1, 1));
+    // The first tick's check, and the stall's.
+    assert_eq!((c.stats.watchdog_checks, c.stats.watchdog_expiries), (2, 1));
     assert!(c.stats.longest_quiet_ms >= 250.0, "{}", c.stats.longest_quiet_ms);
     assert_eq!(
         c.stats.resumed_s, 0.0,
@@ -1565,7 +1579,7 @@ fn the_ramp_to_rest_goes_on_after_a_stall_inside_a_tick() {
 }
 
 /// A servo whose Bus Watchdog reads back otherwise after it is armed again costs the loop a few
-/// checks after a quiet spell, not one every tick; the run goes on.
+/// checks at the start and after each quiet spell, not one every tick; the run goes on.
 #[test]
 fn a_watchdog_that_will_not_arm_costs_a_few_checks() {
     let s = setup();
@@ -1595,7 +1609,8 @@ fn a_watchdog_that_will_not_arm_costs_a_few_checks() {
     let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
     assert_eq!(end, RunEnd::Duration);
     assert_eq!(c.stats.ticks, 200);
-    assert_eq!((c.stats.watchdog_checks, c.stats.watchdog_expiries), (3, 0));
+    // Three at the first tick, three after the stall.
+    assert_eq!((c.stats.watchdog_checks, c.stats.watchdog_expiries), (6, 0));
     assert!(s
         .vr
         .with(|t| t.chain().servos().iter().all(|v| !v.watchdog_expired())));

@@ -454,7 +454,11 @@ impl Controller {
                 done: 0,
                 start_ns: None,
             },
-            quiet: watchdog::QuietWatch::default(),
+            // The first tick checks: start-up armed the watchdog some time before it.
+            quiet: watchdog::QuietWatch {
+                owed: config.bus_watchdog_ms > 0,
+                ..watchdog::QuietWatch::default()
+            },
             reads: read::Reads {
                 present: present.to_vec(),
                 read_buf: vec![0; n],

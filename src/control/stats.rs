@@ -105,7 +105,9 @@ pub struct LoopStats {
     /// The longest the servos heard nothing from the loop, ms (measured only with a Bus
     /// Watchdog; [`super::watchdog`]).
     pub longest_quiet_ms: f64,
-    /// Ticks that read the servos' Bus Watchdog after the bus had been quiet for half of it.
+    /// Times the servos heard nothing from the loop for half their Bus Watchdog or more.
+    pub quiet_spells: u64,
+    /// Ticks that read the servos' Bus Watchdog: the first, and after quiet spells.
     pub watchdog_checks: u64,
     /// Checks that found servos whose watchdog had expired (stopped, refusing goals): each
     /// time they were recovered and eased back to the input.
@@ -256,6 +258,7 @@ impl LoopStats {
             start_move_s: self.start_move_s,
             telemetry_dropped: self.telemetry_dropped,
             longest_quiet_ms: self.longest_quiet_ms,
+            quiet_spells: self.quiet_spells,
             watchdog_checks: self.watchdog_checks,
             watchdog_expiries: self.watchdog_expiries,
             resumed_s: self.resumed_s,
@@ -355,7 +358,9 @@ pub struct Report {
     pub telemetry_dropped: u64,
     /// The longest the servos heard nothing from the loop, ms (0 without a Bus Watchdog).
     pub longest_quiet_ms: f64,
-    /// Ticks that read the servos' Bus Watchdog after the bus had been quiet for half of it.
+    /// Times the servos heard nothing from the loop for half their Bus Watchdog or more.
+    pub quiet_spells: u64,
+    /// Ticks that read the servos' Bus Watchdog: the first, and after quiet spells.
     pub watchdog_checks: u64,
     /// Checks that found expired watchdogs (the servos stopped; recovered, eased back).
     pub watchdog_expiries: u64,
@@ -505,13 +510,13 @@ impl fmt::Display for LoopStats {
             self.tracking_max_deg,
             self.reads_ok
         )?;
-        if self.watchdog_checks > 0 {
-            // Checked after the bus was quiet for half the watchdog; expired: the servos had
-            // stopped, and were recovered where they stood.
+        if self.quiet_spells > 0 || self.watchdog_expiries > 0 {
+            // Spells of half the watchdog or more without a word to the servos; expired: they
+            // had stopped, and were recovered where they stood.
             writeln!(
                 f,
-                "bus watchdog    checks {}  expired {}  longest quiet {:.0} ms  eased back {:.2} s (not in the fidelity)",
-                self.watchdog_checks, self.watchdog_expiries, self.longest_quiet_ms, self.resumed_s
+                "bus watchdog    quiet spells {} (longest {:.0} ms)  checks {}  expired {}  eased back {:.2} s (not in the fidelity)",
+                self.quiet_spells, self.longest_quiet_ms, self.watchdog_checks, self.watchdog_expiries, self.resumed_s
             )?;
         }
         if let Some(s) = self.start_move_s {

@@ -3,7 +3,8 @@
 //! was, refusing goals — and a Sync Write gets no status, so nothing else would tell the loop.
 //! Once the bus has been quiet for half the watchdog or more (seen before a tick's write, or, for
 //! a stall inside a tick, as the span between two ticks' transactions), the tick reads the Bus
-//! Watchdog register of every servo before its write (−1 after an expiry, e-manual); when any expired it
+//! Watchdog register of every servo before its write (−1 after an expiry, e-manual) — the first
+//! tick does too, start-up having armed the watchdog some time before; when any expired it
 //! takes their present positions, clears the expiry (writing 0), holds them there, arms the
 //! watchdog again and reads it back. The command stage then starts from those positions at rest
 //! and eases back to the input, as at the start of a run: no servo jumps to where the input
@@ -51,6 +52,8 @@ impl Controller {
             self.stats.longest_quiet_ms = self.stats.longest_quiet_ms.max(span_ms);
             if 2.0 * span_ms >= f64::from(watchdog_ms) {
                 self.quiet.owed = true;
+                self.quiet.rearm_misses = 0;
+                self.stats.quiet_spells += 1;
             }
         }
         self.quiet.last_sent_ns = Some(now_ns);
@@ -76,8 +79,14 @@ impl Controller {
         let quiet_ns = self.quiet.last_sent_ns.map_or(0, |t| now_ns.saturating_sub(t));
         let quiet_ms = quiet_ns as f64 * 1e-6;
         self.stats.longest_quiet_ms = self.stats.longest_quiet_ms.max(quiet_ms);
-        if 2.0 * quiet_ms < f64::from(watchdog_ms) && !self.quiet.owed {
+        let quiet = 2.0 * quiet_ms >= f64::from(watchdog_ms);
+        if !(quiet || self.quiet.owed) {
             return None;
+        }
+        if quiet {
+            // A new quiet spell: a watchdog that would not arm is tried again.
+            self.quiet.rearm_misses = 0;
+            self.stats.quiet_spells += 1;
         }
         self.stats.watchdog_checks += 1;
         let t0 = clock.now_ns();
