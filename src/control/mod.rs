@@ -750,8 +750,9 @@ impl Controller {
             t_write,
         };
         let done_bus = self.exchange(tick, bus, clock, &command, &current, replies);
-        self.note_sent(clock.now_ns());
-        self.report(tick, start, clock.now_ns(), &command, &current, &done_bus);
+        let done = clock.now_ns();
+        self.note_sent(done);
+        self.report(tick, start, done, &command, &current, &done_bus);
         self.count_allocations_since(allocs);
         let mut end = done_bus.end;
         if end.is_none() && unhealthy {
