@@ -497,25 +497,31 @@ fn nan_and_out_of_range_inputs_never_reach_the_bus() {
     assert_eq!(c.stats.inputs_used, 0);
 }
 
+/// A 120 Hz loop of `cfg` over the setup's rig with the walk's first 250 frames queued, each due
+/// at its tick (a channel that holds them all); its input's sender and its schedule.
+fn queued_walk(s: &Setup, cfg: LoopConfig) -> (Controller, InputSender, Schedule) {
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let period = 1_000_000_000 / 120;
+    let schedule = Schedule::new(s.vr.clone().now_ns() + period, period);
+    let (c, tx) = controller(s, Solve::Frames, cfg, 300);
+    for k in 0..250 {
+        let t = player.next_sample(&mut buf[..n]).unwrap();
+        tx.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
+            .unwrap();
+    }
+    (c, tx, schedule)
+}
+
 #[test]
 fn run_ramps_to_rest_then_turns_torque_off() {
     let s = setup();
     let mut cfg = config(120.0);
     cfg.stop = StopMode::Rest { ramp_s: 0.5 };
     cfg.max_ticks = Some(200);
-    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
-    let mut buf = [0.0; MAX_CHANNELS];
-    let n = s.skel.channel_count();
     let mut clock = s.vr.clone();
-    let period = 1_000_000_000 / 120;
-    let mut schedule = Schedule::new(clock.now_ns() + period, period);
-    // Frames due at each tick, queued ahead of time (a channel that holds them all).
-    let (mut c, tx2) = controller(&s, Solve::Frames, cfg, 300);
-    for k in 0..250 {
-        let t = player.next_sample(&mut buf[..n]).unwrap();
-        tx2.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
-            .unwrap();
-    }
+    let (mut c, _tx, mut schedule) = queued_walk(&s, cfg);
     let stop = StopRequests::new();
     let end = c.run(&mut schedule, &mut s.vr.clone(), &mut clock, &stop);
     assert_eq!(end, RunEnd::Duration);
@@ -1477,6 +1483,19 @@ struct StallingBus {
     unarmed: Option<usize>,
 }
 
+impl StallingBus {
+    /// Stalling `stall_ms` inside the `stall_at_write`th goal write.
+    fn new(inner: VirtualRig, stall_at_write: u64, stall_ms: u64) -> StallingBus {
+        StallingBus {
+            inner,
+            writes: 0,
+            stall_at_write,
+            stall_ns: stall_ms * 1_000_000,
+            unarmed: None,
+        }
+    }
+}
+
 impl ServoBus for StallingBus {
     fn ping(&mut self, id: u8) -> Result<marionette::bus::PingInfo, marionette::bus::BusError> {
         self.inner.ping(id)
@@ -1531,30 +1550,16 @@ impl ServoBus for StallingBus {
 #[test]
 fn the_ramp_to_rest_goes_on_after_a_stall_inside_a_tick() {
     let s = setup();
-    let mut cfg = config(120.0);
-    cfg.stop = StopMode::Rest { ramp_s: 0.5 };
-    cfg.max_ticks = Some(200);
-    cfg.bus_watchdog_ms = s.profile.bus.watchdog_ms;
-    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
-    let mut buf = [0.0; MAX_CHANNELS];
-    let n = s.skel.channel_count();
-    let mut clock = s.vr.clone();
-    let period = 1_000_000_000 / 120;
-    let mut schedule = Schedule::new(clock.now_ns() + period, period);
-    let (mut c, tx) = controller(&s, Solve::Frames, cfg, 300);
-    for k in 0..250 {
-        let t = player.next_sample(&mut buf[..n]).unwrap();
-        tx.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
-            .unwrap();
-    }
-    // The 200 ticks write once each; the ramp's third tick stalls.
-    let mut bus = StallingBus {
-        inner: s.vr.clone(),
-        writes: 0,
-        stall_at_write: 203,
-        stall_ns: 250_000_000,
-        unarmed: None,
+    let cfg = LoopConfig {
+        stop: StopMode::Rest { ramp_s: 0.5 },
+        max_ticks: Some(200),
+        bus_watchdog_ms: s.profile.bus.watchdog_ms,
+        ..config(120.0)
     };
+    let mut clock = s.vr.clone();
+    let (mut c, _tx, mut schedule) = queued_walk(&s, cfg);
+    // The 200 ticks write once each; the ramp's third tick stalls.
+    let mut bus = StallingBus::new(s.vr.clone(), 203, 250);
     let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
     assert_eq!(end, RunEnd::Duration);
     assert!(bus.writes > 203, "{} writes", bus.writes);
@@ -1583,28 +1588,17 @@ fn the_ramp_to_rest_goes_on_after_a_stall_inside_a_tick() {
 #[test]
 fn a_watchdog_that_will_not_arm_costs_a_few_checks() {
     let s = setup();
-    let mut cfg = config(120.0);
-    cfg.max_ticks = Some(200);
-    cfg.bus_watchdog_ms = s.profile.bus.watchdog_ms;
-    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
-    let mut buf = [0.0; MAX_CHANNELS];
-    let n = s.skel.channel_count();
+    let cfg = LoopConfig {
+        max_ticks: Some(200),
+        bus_watchdog_ms: s.profile.bus.watchdog_ms,
+        ..config(120.0)
+    };
     let mut clock = s.vr.clone();
-    let period = 1_000_000_000 / 120;
-    let mut schedule = Schedule::new(clock.now_ns() + period, period);
-    let (mut c, tx) = controller(&s, Solve::Frames, cfg, 300);
-    for k in 0..250 {
-        let t = player.next_sample(&mut buf[..n]).unwrap();
-        tx.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
-            .unwrap();
-    }
+    let (mut c, _tx, mut schedule) = queued_walk(&s, cfg);
     // 70 ms inside the 100th tick: short of the watchdog, past half of it.
     let mut bus = StallingBus {
-        inner: s.vr.clone(),
-        writes: 0,
-        stall_at_write: 100,
-        stall_ns: 70_000_000,
         unarmed: Some(3),
+        ..StallingBus::new(s.vr.clone(), 100, 70)
     };
     let end = c.run(&mut schedule, &mut bus, &mut clock, &StopRequests::new());
     assert_eq!(end, RunEnd::Duration);
