@@ -1609,3 +1609,67 @@ fn a_watchdog_that_will_not_arm_costs_a_few_checks() {
         .vr
         .with(|t| t.chain().servos().iter().all(|v| !v.watchdog_expired())));
 }
+
+/// A clock on the virtual rig whose `jump_at`th wait returns `jump_ns` late (the host stalled).
+struct StallingClock {
+    inner: VirtualRig,
+    waits: u64,
+    jump_at: u64,
+    jump_ns: u64,
+}
+
+impl Clock for StallingClock {
+    fn now_ns(&mut self) -> u64 {
+        self.inner.now_ns()
+    }
+    fn wait_until(&mut self, deadline_ns: u64) {
+        self.waits += 1;
+        let late = if self.waits == self.jump_at {
+            self.jump_ns
+        } else {
+            0
+        };
+        self.inner.wait_until(deadline_ns + late);
+    }
+}
+
+/// `identify` pairs each goal with the read a tick later: a stall while a servo moves would
+/// pair them a stall apart (and past the watchdog, stop the servos). It ends with an error
+/// naming the servo and torque off, rather than a wrong lag.
+#[test]
+fn identify_stops_when_the_host_falls_behind() {
+    use marionette::control::identify::{identify, Excitation, IdentifyError};
+    let s = setup();
+    let ids = s.profile.ids();
+    let names: Vec<String> = s.profile.servos.iter().map(|v| v.name.clone()).collect();
+    let mut bus = s.vr.clone();
+    let run = |clock: &mut dyn Clock, bus: &mut VirtualRig| {
+        identify(
+            bus,
+            clock,
+            &s.rig,
+            &ids,
+            &names,
+            &s.present,
+            &[0],
+            &Excitation::default(),
+            120.0,
+        )
+    };
+    let mut clock = StallingClock {
+        inner: s.vr.clone(),
+        waits: 0,
+        jump_at: 300,
+        jump_ns: 150_000_000,
+    };
+    let e = run(&mut clock, &mut bus).unwrap_err();
+    let IdentifyError::FellBehind { servo, skipped, .. } = &e else {
+        panic!("{e}");
+    };
+    // Its 300th tick falls in its excitation (after a 60-tick move to the centre).
+    assert_eq!(servo, &names[0], "{e}");
+    assert!(*skipped >= 17, "{e}");
+    println!("{e}");
+    assert!(e.to_string().contains("ms) behind the 120 Hz schedule"), "{e}");
+    assert!(s.vr.with(|t| t.chain().servos().iter().all(|v| !v.torque_on())));
+}

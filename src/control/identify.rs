@@ -302,6 +302,22 @@ pub enum IdentifyError {
         /// What failed.
         error: BusError,
     },
+    /// The host fell behind the schedule while a servo was put through its motion: the
+    /// record would pair goals and reads a stall apart (and a stall past the Bus Watchdog
+    /// stops the servos).
+    #[error(
+        "servo `{servo}`: the host fell {skipped} ticks ({late_ms:.0} ms) behind the {rate_hz} Hz schedule during its motion, so its record would be wrong; torque is off — run again on a quieter machine, or at a lower --rate"
+    )]
+    FellBehind {
+        /// The servo being identified.
+        servo: String,
+        /// Deadlines passed over.
+        skipped: u64,
+        /// How late the tick was, ms.
+        late_ms: f64,
+        /// The loop's rate, Hz.
+        rate_hz: f64,
+    },
 }
 
 /// Reads that may fail in a row before identification gives up (torque is turned off).
@@ -309,8 +325,8 @@ const MAX_FAILED_READS: u32 = 10;
 
 /// Puts each servo in `which` through the excitation on `bus` at `rate_hz` (ticks on
 /// `clock`), the others holding the positions in `present`: moved to a centre inside the
-/// limits, excited, moved back. Goals never leave the servo's limits. On a failure torque goes
-/// off and the error is returned.
+/// limits, excited, moved back. Goals never leave the servo's limits. On a failure (the bus's,
+/// or a tick passed over while a servo moves) torque goes off and the error is returned.
 ///
 /// # Errors
 /// [`IdentifyError`].
@@ -369,7 +385,16 @@ pub fn identify(
                 centre + w * (start - centre)
             };
             goals[k] = (target.round() as i32).clamp(servo.min_tick, servo.max_tick);
-            let _ = schedule.wait(clock);
+            let tick = schedule.wait(clock);
+            if tick.skipped > 0 {
+                let _ = super::torque_off(bus, ids);
+                return Err(IdentifyError::FellBehind {
+                    servo: name,
+                    skipped: tick.skipped,
+                    late_ms: (tick.skipped * period_ns + tick.lateness_ns()) as f64 * 1e-6,
+                    rate_hz,
+                });
+            }
             if let Err(error) = bus.write_goals(&ids[..n], &goals) {
                 return Err(fail(error, bus));
             }
