@@ -195,23 +195,28 @@ impl Controller {
         if !self.config.size_start_move {
             return;
         }
-        let Some(c) = self.preview.current() else {
+        let Some((ticks, seconds)) = self.eased_move_ticks() else {
             return;
         };
+        if ticks > self.ease.ticks {
+            self.ease.ticks = ticks;
+            self.stats.start_move_s = Some(seconds);
+        }
+    }
+
+    /// Ticks (and seconds) of the eased move from the ease's start angles to the current
+    /// sample's pose ([`start_move_s`]); `None` without a current sample or a servo to move.
+    /// Allocates nothing.
+    pub(super) fn eased_move_ticks(&self) -> Option<(u64, f64)> {
+        let c = self.preview.current()?;
         let from = self
             .rig
             .servos
             .iter()
             .zip(&self.ease.from)
             .map(|(s, &a)| s.angle_to_ticks_exact(a));
-        let Some((seconds, _, _)) = eased_move_s(&self.rig, from, c.angles) else {
-            return;
-        };
-        let ticks = (seconds * 1e9 / self.period_ns as f64).ceil() as u64;
-        if ticks > self.ease.ticks {
-            self.ease.ticks = ticks;
-            self.stats.start_move_s = Some(seconds);
-        }
+        let (seconds, _, _) = eased_move_s(&self.rig, from, c.angles)?;
+        Some(((seconds * 1e9 / self.period_ns as f64).ceil() as u64, seconds))
     }
 
     /// The goals: the current sample through the look-ahead's planned path (or the greedy

@@ -175,7 +175,7 @@ impl Controller {
 
     /// The command stage from the present positions at rest, and — while input flows (not in
     /// the ramp at the end) — an ease from them back to it, as long as the eased move to the
-    /// input's pose at a quarter of the servos' speed takes ([`super::start_move_s`]); not in
+    /// input's pose at a quarter of the servos' speed takes (as the start move is sized); not in
     /// the fidelity.
     fn restart_from_present(&mut self, tick: &Tick, ease_back: bool) {
         self.stage.start_from(&self.rig, &self.reads.present);
@@ -195,12 +195,7 @@ impl Controller {
         {
             *from = s.ticks_to_angle(f64::from(*p));
         }
-        let seconds = self
-            .preview
-            .current()
-            .and_then(|c| super::start_move_s(&self.rig, &self.reads.present, c.angles))
-            .map_or(0.0, |(s, _, _)| s);
-        let ticks = (seconds * 1e9 / self.period_ns as f64).ceil().max(1.0) as u64;
+        let ticks = self.eased_move_ticks().map_or(0, |(t, _)| t).max(1);
         self.ease.ticks = ticks;
         self.ease.done = 0;
         self.ease.start_ns = Some(tick.deadline_ns + self.period_ns);
