@@ -30,20 +30,36 @@ pub enum Level {
     Fault,
 }
 
-/// A write that puts a finding right: bytes at an address of one servo (EEPROM ones with
-/// torque off).
+/// What puts a finding right, on one servo.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Fix {
     /// The servo.
     pub id: u8,
-    /// The address.
-    pub address: u16,
-    /// The bytes, little-endian.
-    pub data: Vec<u8>,
+    /// What is done to it.
+    pub action: FixAction,
     /// The baud the servo answers at, when not the profile's (a servo found by
     /// [`search_bauds`]): the write is made there ([`apply_baud_fixes`]).
     pub at_baud: Option<u32>,
 }
+
+/// A fix's transaction.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum FixAction {
+    /// Bytes written at an address, little-endian (EEPROM items with torque off).
+    Write {
+        /// The address.
+        address: u16,
+        /// The bytes.
+        data: Vec<u8>,
+    },
+    /// The Reboot instruction: the servo restarts with its RAM at its defaults (torque off)
+    /// and its Hardware Error Status cleared — what a hardware error needs once its cause is
+    /// gone.
+    Reboot,
+}
+
+/// How long a rebooted servo is given to answer again.
+const REBOOT_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// One thing found.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -320,8 +336,7 @@ fn check_servo(
     let fix = |address: u16, data: Vec<u8>| {
         Some(Fix {
             id,
-            address,
-            data,
+            action: FixAction::Write { address, data },
             at_baud: None,
         })
     };
@@ -332,8 +347,12 @@ fn check_servo(
             Level::Fault,
             Some(s),
             format!("hardware error {}", crate::bus::hardware_error_names(hw)),
-            "remove the cause (load, supply, heat), then reboot the servo or power-cycle the rig",
-            None,
+            "remove the cause (load, supply, heat); then --fix reboots it (its torque stays off), or power-cycle the rig",
+            Some(Fix {
+                id,
+                action: FixAction::Reboot,
+                at_baud: None,
+            }),
         );
     }
     let rdt_us = read(addr::RETURN_DELAY_TIME, 1) * 2;
@@ -599,10 +618,13 @@ fn measure_cycle(bus: &mut dyn ServoBus, profile: &Profile) -> Result<(Option<f6
     Ok((times.get(times.len() / 2).copied(), failed))
 }
 
-/// Makes every fixable finding's write, torque off first on the servos written (EEPROM items
-/// take writes only then); returns what was written, a line each. Each write is a Sync Write
-/// to the one servo, which no servo acknowledges: a servo at Status Return Level 0 or 1 takes
-/// it too. [`examine`] again tells whether they took.
+/// Makes every fixable finding's fix and returns what was done, a line each.
+///
+/// A write goes with torque off first on the servo (EEPROM items take writes only then), as a
+/// Sync Write to the one servo, which no servo acknowledges: a servo at Status Return Level 0
+/// or 1 takes it too. A reboot is waited out (up to 2 s) and its Hardware Error
+/// Status read again: the line says whether the error came back (its cause is still there).
+/// [`examine`] again tells whether the writes took.
 ///
 /// # Errors
 /// [`BusError`] of a write.
@@ -613,22 +635,54 @@ pub fn apply_fixes(bus: &mut dyn ServoBus, report: &Report) -> Result<Vec<String
         let Some(fix) = f.fix.as_ref().filter(|f| f.at_baud.is_none()) else {
             continue;
         };
-        if !torque_off.contains(&fix.id) {
-            bus.sync_write(addr::TORQUE_ENABLE, 1, &[fix.id], &[0])?;
-            torque_off.push(fix.id);
-        }
-        let len = u16::try_from(fix.data.len()).unwrap_or(u16::MAX);
-        bus.sync_write(fix.address, len, &[fix.id], &fix.data)?;
-        done.push(format!(
-            "id {}{}: wrote {} byte(s) at {} ({})",
+        let who = format!(
+            "id {}{}",
             fix.id,
-            f.servo.as_deref().map_or(String::new(), |n| format!(" {n}")),
-            fix.data.len(),
-            fix.address,
-            f.what
-        ));
+            f.servo.as_deref().map_or(String::new(), |n| format!(" {n}"))
+        );
+        match &fix.action {
+            FixAction::Write { address, data } => {
+                if !torque_off.contains(&fix.id) {
+                    bus.sync_write(addr::TORQUE_ENABLE, 1, &[fix.id], &[0])?;
+                    torque_off.push(fix.id);
+                }
+                let len = u16::try_from(data.len()).unwrap_or(u16::MAX);
+                bus.sync_write(*address, len, &[fix.id], data)?;
+                done.push(format!(
+                    "{who}: wrote {} byte(s) at {address} ({})",
+                    data.len(),
+                    f.what
+                ));
+            }
+            FixAction::Reboot => done.push(format!("{who}: {}", reboot(bus, fix.id, &f.what))),
+        }
     }
     Ok(done)
+}
+
+/// Reboots servo `id` (whose finding was `what`) and says how it came back.
+fn reboot(bus: &mut dyn ServoBus, id: u8, what: &str) -> String {
+    // A servo below Status Return Level 2 reboots without a reply: its error status says.
+    let _ = bus.reboot(id);
+    let since = Instant::now();
+    let after = loop {
+        match retried(|| bus.hardware_error(id)) {
+            Ok(bits) => break Some(bits),
+            Err(_) if since.elapsed() < REBOOT_WAIT => {}
+            Err(_) => break None,
+        }
+    };
+    match after {
+        Some(0) => format!("rebooted; the {what} is cleared"),
+        Some(bits) => format!(
+            "rebooted, but hardware error {} again: its cause is still there",
+            crate::bus::hardware_error_names(bits)
+        ),
+        None => format!(
+            "rebooted ({what}), and it has not answered in {} s",
+            REBOOT_WAIT.as_secs()
+        ),
+    }
 }
 
 /// The bauds an X-series servo can be set to (Baud Rate, 8), in the order they are tried for
@@ -693,8 +747,10 @@ pub fn search_bauds(port: &str, profile: &Profile, report: &mut Report) -> Resul
                 "--fix sets its Baud Rate (8) to the profile's, with torque off, at its own baud",
                 Some(Fix {
                     id: p.id,
-                    address: addr::BAUD_RATE,
-                    data: vec![code as u8],
+                    action: FixAction::Write {
+                        address: addr::BAUD_RATE,
+                        data: vec![code as u8],
+                    },
                     at_baud: Some(baud),
                 }),
             );
@@ -716,7 +772,7 @@ pub fn apply_baud_fixes(port: &str, profile: &Profile, report: &Report) -> Resul
         let Some(fix) = &f.fix else {
             continue;
         };
-        let Some(baud) = fix.at_baud else {
+        let (Some(baud), FixAction::Write { address, data }) = (fix.at_baud, &fix.action) else {
             continue;
         };
         let mut config = bus_as_found(&profile.bus);
@@ -724,7 +780,7 @@ pub fn apply_baud_fixes(port: &str, profile: &Profile, report: &Report) -> Resul
         let mut bus =
             crate::bus::open(crate::bus::Wire::Port(port.to_string()), &config, 1).map_err(BusError::Io)?;
         bus.set_torque(fix.id, false)?;
-        bus.write(fix.id, fix.address, &fix.data)?;
+        bus.write(fix.id, *address, data)?;
         done.push(format!(
             "id {}{}: Baud Rate set to {} bit/s (written at {baud})",
             fix.id,

@@ -543,6 +543,52 @@ fn hardware_error_blocks_start_up_until_reboot() {
     start_up(&mut bus, p.bus_section()).unwrap();
 }
 
+/// A servo's hardware error sets the alert flag of every reply it sends, whatever the read:
+/// the bus hands its id on once per read (`take_alert`), through the project's packet code in
+/// each read mode and through `dynamixel2` on a pty.
+#[test]
+fn every_read_carries_a_hardware_errors_alert() {
+    use marionette::profile::ReadMode;
+    let p = profile("robotis-op3.toml");
+    let ids = p.ids();
+    let mut out = vec![0i32; ids.len()];
+    for mode in [
+        ReadMode::Sync,
+        ReadMode::FastSync,
+        ReadMode::Bulk,
+        ReadMode::FastBulk,
+    ] {
+        let mut bus = in_process(&p, 5).with_read_mode(mode);
+        start_up(&mut bus, p.bus_section()).unwrap();
+        bus.read_positions(&ids, &mut out).unwrap();
+        assert_eq!(bus.take_alert(), None, "{mode:?}");
+        bus.link_mut()
+            .chain_mut()
+            .servo_mut(7)
+            .unwrap()
+            .raise_hardware_error(hardware_error::OVERLOAD);
+        // The read stands (the flag is not an error); its id comes once.
+        bus.read_positions(&ids, &mut out).unwrap();
+        assert_eq!(bus.take_alert(), Some(7), "{mode:?}");
+        assert_eq!(bus.take_alert(), None, "{mode:?}");
+        assert_eq!(bus.hardware_error(7).unwrap(), hardware_error::OVERLOAD);
+        assert_eq!(bus.take_alert(), Some(7), "{mode:?}: a single Read's reply");
+    }
+    let start = start_positions(&p, 1);
+    let mut chain = chain_for(p.bus_section(), |k| start[k]);
+    chain
+        .servo_mut(7)
+        .unwrap()
+        .raise_hardware_error(hardware_error::OVERHEATING);
+    let pty = PtyChain::serve(chain, None).unwrap();
+    let mut bus = Dynamixel2Bus::open(pty.path(), p.bus.baud).unwrap();
+    bus.read_positions(&ids, &mut out).unwrap();
+    assert_eq!(bus.take_alert(), Some(7), "dynamixel2's Sync Read");
+    assert_eq!(bus.take_alert(), None);
+    assert_eq!(bus.hardware_error(7).unwrap(), hardware_error::OVERHEATING);
+    assert_eq!(bus.take_alert(), Some(7), "dynamixel2's Read");
+}
+
 /// Start-up refuses missing servos, wrong models, and servos resting outside their limits.
 #[test]
 fn start_up_checks_the_rig() {

@@ -1633,43 +1633,189 @@ impl Clock for StallingClock {
     }
 }
 
+/// `identify` of the puppet's first servo on the virtual rig, ticks on `clock`, 120 Hz.
+fn identify_first(
+    s: &Setup,
+    clock: &mut dyn Clock,
+) -> Result<Vec<marionette::control::identify::ServoResponse>, marionette::control::identify::IdentifyError> {
+    use marionette::control::identify::{identify, Excitation};
+    let names: Vec<String> = s.profile.servos.iter().map(|v| v.name.clone()).collect();
+    identify(
+        &mut s.vr.clone(),
+        clock,
+        &s.rig,
+        &s.profile.ids(),
+        &names,
+        &s.present,
+        &[0],
+        &Excitation::default(),
+        120.0,
+    )
+}
+
 /// `identify` pairs each goal with the read a tick later: a stall while a servo moves would
 /// pair them a stall apart (and past the watchdog, stop the servos). It ends with an error
 /// naming the servo and torque off, rather than a wrong lag.
 #[test]
 fn identify_stops_when_the_host_falls_behind() {
-    use marionette::control::identify::{identify, Excitation, IdentifyError};
+    use marionette::control::identify::IdentifyError;
     let s = setup();
-    let ids = s.profile.ids();
-    let names: Vec<String> = s.profile.servos.iter().map(|v| v.name.clone()).collect();
-    let mut bus = s.vr.clone();
-    let run = |clock: &mut dyn Clock, bus: &mut VirtualRig| {
-        identify(
-            bus,
-            clock,
-            &s.rig,
-            &ids,
-            &names,
-            &s.present,
-            &[0],
-            &Excitation::default(),
-            120.0,
-        )
-    };
     let mut clock = StallingClock {
         inner: s.vr.clone(),
         waits: 0,
         jump_at: 300,
         jump_ns: 150_000_000,
     };
-    let e = run(&mut clock, &mut bus).unwrap_err();
+    let e = identify_first(&s, &mut clock).unwrap_err();
     let IdentifyError::FellBehind { servo, skipped, .. } = &e else {
         panic!("{e}");
     };
     // Its 300th tick falls in its excitation (after a 60-tick move to the centre).
-    assert_eq!(servo, &names[0], "{e}");
+    assert_eq!(servo, &s.profile.servos[0].name, "{e}");
     assert!(*skipped >= 17, "{e}");
     println!("{e}");
     assert!(e.to_string().contains("ms) behind the 120 Hz schedule"), "{e}");
     assert!(s.vr.with(|t| t.chain().servos().iter().all(|v| !v.torque_on())));
+}
+
+/// A servo that shuts itself down while `identify` runs stops it at the next read, torque off,
+/// naming the servo and its error: its record would show it limp.
+#[test]
+fn identify_stops_when_a_servo_shuts_itself_down() {
+    use marionette::control::identify::IdentifyError;
+    let s = setup();
+    let ids = s.profile.ids();
+    // Servo 3 (holding) overloads in servo 1's excitation.
+    let mut clock = ShutdownClock {
+        inner: s.vr.clone(),
+        waits: 0,
+        at: 200,
+        id: ids[2],
+        bits: 0x20,
+    };
+    let e = identify_first(&s, &mut clock).unwrap_err();
+    let IdentifyError::HardwareError {
+        servo,
+        id,
+        bits,
+        during,
+    } = &e
+    else {
+        panic!("{e}");
+    };
+    let names = &s.profile.servos;
+    assert_eq!(
+        (servo, *id, *bits, during),
+        (&names[2].name, ids[2], 0x20, &names[0].name),
+        "{e}"
+    );
+    assert!(e.to_string().contains("hardware error 0x20 (overload)"), "{e}");
+    assert!(s.vr.with(|t| t.chain().servos().iter().all(|v| !v.torque_on())));
+}
+
+/// A clock on the virtual rig that raises `bits` in servo `id`'s Hardware Error Status (which
+/// turns its torque off, as an overload shutdown does) before the tick after `at` waits.
+struct ShutdownClock {
+    inner: VirtualRig,
+    waits: u64,
+    at: u64,
+    id: u8,
+    bits: u8,
+}
+
+impl Clock for ShutdownClock {
+    fn now_ns(&mut self) -> u64 {
+        self.inner.now_ns()
+    }
+    fn wait_until(&mut self, deadline_ns: u64) {
+        self.waits += 1;
+        if self.waits == self.at + 1 {
+            let (id, bits) = (self.id, self.bits);
+            self.inner
+                .with(|t| t.chain_mut().servo_mut(id).unwrap().raise_hardware_error(bits));
+        }
+        self.inner.wait_until(deadline_ns);
+    }
+}
+
+/// The walk at 120 Hz for up to `max_ticks` on the puppet, with the health watch when `watched`,
+/// servo 4 shutting itself down (an overload) after tick 100: the run's end and its controller.
+fn run_with_a_shutdown(pipelined: bool, watched: bool, max_ticks: u64) -> (Setup, Controller, RunEnd) {
+    use marionette::control::health::HealthWatch;
+    let s = setup();
+    let cfg = LoopConfig {
+        pipelined,
+        max_ticks: Some(max_ticks),
+        ..config(120.0)
+    };
+    let (mut c, tx) = controller(&s, Solve::Frames, cfg, 300);
+    if watched {
+        c.set_health(HealthWatch::of_profile(&s.profile, 120.0));
+    }
+    let mut player = ClipPlayer::new(Arc::clone(&s.skel), Arc::clone(&s.motion), 120.0, true);
+    let mut buf = [0.0; MAX_CHANNELS];
+    let n = s.skel.channel_count();
+    let period = c.period_ns();
+    let mut schedule = Schedule::new(s.vr.clone().now_ns() + period, period);
+    for k in 0..250 {
+        let t = player.next_sample(&mut buf[..n]).unwrap();
+        tx.send_newest(Input::frame(k, schedule.deadline(k), 0, &buf[..n], t))
+            .unwrap();
+    }
+    let mut clock = ShutdownClock {
+        inner: s.vr.clone(),
+        waits: 0,
+        at: 100,
+        id: s.profile.servos[3].id,
+        bits: 0x20,
+    };
+    let end = c.run(&mut schedule, &mut s.vr.clone(), &mut clock, &StopRequests::new());
+    (s, c, end)
+}
+
+/// A servo that shuts itself down mid-run (an overload) ends the run within a few ticks, with
+/// either kind of read: its replies' alert flag brings its Hardware Error Status read forward.
+/// At its turn alone it would be found up to a round of reads later (28 servos: 5.6 s).
+#[test]
+fn a_servo_that_shuts_itself_down_ends_the_run_within_ticks() {
+    for pipelined in [false, true] {
+        let (s, c, end) = run_with_a_shutdown(pipelined, true, 1200);
+        assert_eq!(end, RunEnd::Health, "pipelined {pipelined}");
+        let ticks_after = c.stats.ticks - 100;
+        assert!(
+            (1..=3).contains(&ticks_after),
+            "pipelined {pipelined}: ended {ticks_after} ticks after the shutdown"
+        );
+        let (id, name) = (s.profile.servos[3].id, &s.profile.servos[3].name);
+        let health = c.stats.health.as_ref().unwrap();
+        assert_eq!(
+            health.stopped.as_deref(),
+            Some(format!("id {id} {name}: hardware error 0x20 (overload)").as_str())
+        );
+        assert_eq!(health.alert_reads, 1, "pipelined {pipelined}");
+        let off = s.vr.with(|t| t.chain().servos().iter().all(|v| !v.torque_on()));
+        assert!(off, "pipelined {pipelined}: torque off at the end");
+        assert!(c.stats.unwatched_alert.is_none());
+    }
+}
+
+/// With the health watch off the run goes on, and its summary says which servo shut itself
+/// down and when.
+#[test]
+fn a_shutdown_the_watch_does_not_see_is_in_the_summary() {
+    let (s, c, end) = run_with_a_shutdown(true, false, 300);
+    assert_eq!(end, RunEnd::Duration);
+    let id = s.profile.servos[3].id;
+    let alert = c.stats.unwatched_alert.unwrap();
+    let (got, at_s) = (alert.id, alert.at_s);
+    assert_eq!(got, id);
+    // Seen at the first read after tick 100 (the pipelined read's replies come a tick later).
+    assert!((0.84..0.86).contains(&at_s), "{at_s}");
+    let summary = c.stats.to_string();
+    assert!(
+        summary.contains(&format!(
+            "hardware alert  servo {id} reported a hardware error 0.8"
+        )),
+        "{summary}"
+    );
 }

@@ -36,6 +36,48 @@ fn doctor_on(profile: &Profile, chain: Chain, fix: bool) -> (Report, Option<Repo
     (first, Some(again), fixed)
 }
 
+/// `serve` of the OP3's chain made wrong by `misconfigure`, then `doctor` on its pseudo-terminal
+/// with `extra` arguments: its output and stdout (printed).
+fn doctor_on_served(misconfigure: &str, extra: &[&str]) -> (std::process::Output, String) {
+    let mut serve = common::bin()
+        .args(["serve", "firmware-profile/robotis-op3.toml", "--duration", "60"])
+        .args(["--misconfigure", misconfigure])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(serve.stdout.take().unwrap()));
+    let first = lines.next().unwrap().unwrap();
+    let path = first
+        .split_whitespace()
+        .find(|w| w.starts_with("/dev/pts/"))
+        .unwrap()
+        .trim_end_matches(',')
+        .to_string();
+    let mut args = vec!["doctor", "firmware-profile/robotis-op3.toml", "--port", &path];
+    args.extend_from_slice(extra);
+    let out = common::run(&args);
+    let _ = serve.kill();
+    let _ = serve.wait();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    println!("{text}");
+    (out, text)
+}
+
+/// `doctor` exited 1 and its output has each of `lines`.
+fn exits_1_naming((out, text): (std::process::Output, String), lines: &[&str]) {
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for words in lines {
+        assert!(text.contains(words), "{words}: {text}");
+    }
+}
+
 fn named(report: &Report, level: Level, id: Option<u8>, words: &str) -> bool {
     report
         .findings
@@ -142,7 +184,14 @@ fn every_fault_is_named_and_what_can_be_written_is_fixed() {
     assert!(!named(&again, Level::Warn, Some(7), "Velocity Limit"));
     assert!(!named(&again, Level::Warn, Some(10), "Return Delay Time"));
     assert!(named(&again, Level::Fault, Some(5), "does not answer"));
-    assert!(named(&again, Level::Fault, Some(1), "overheating"));
+    // The hardware error's servo rebooted, its error cleared (its cause was gone).
+    assert!(!named(&again, Level::Fault, Some(1), "overheating"));
+    assert!(
+        fixed
+            .iter()
+            .any(|l| l == "id 1 r_sho_pitch: rebooted; the hardware error 0x04 (overheating) is cleared"),
+        "{fixed:#?}"
+    );
     assert!(!again.can_run());
 }
 
@@ -197,49 +246,21 @@ fn the_command_exits_1_with_faults_and_0_when_the_rig_can_run() {
     );
     // A chain made wrong from the command line (`serve --misconfigure`), checked over its
     // pseudo-terminal: every fault named, exit 1.
-    let mut serve = common::bin()
-        .args([
-            "serve",
-            "firmware-profile/robotis-op3.toml",
-            "--duration",
-            "60",
-            "--misconfigure",
+    exits_1_naming(
+        doctor_on_served(
             "missing=5,model=6:XL330-M288,hwerror=1:4,max_limit=3:2100,extra=42",
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .stdin(std::process::Stdio::null())
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(serve.stdout.take().unwrap()));
-    let first = lines.next().unwrap().unwrap();
-    let path = first
-        .split_whitespace()
-        .find(|w| w.starts_with("/dev/pts/"))
-        .unwrap()
-        .trim_end_matches(',');
-    let out = common::run(&["doctor", "firmware-profile/robotis-op3.toml", "--port", path]);
-    let _ = serve.kill();
-    let _ = serve.wait();
-    let text = String::from_utf8_lossy(&out.stdout);
-    println!("{text}");
-    assert_eq!(
-        out.status.code(),
-        Some(1),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+            &[],
+        ),
+        &[
+            "id 5 r_el: id 5 does not answer at 2000000 bit/s",
+            "id 6 l_el: id 6 is model 1200 (XL330-M288)",
+            "id 42 (XM430-W350) answers but the profile does not name it",
+            "id 1 r_sho_pitch: hardware error 0x04 (overheating)",
+            "id 3 r_sho_roll: position limits",
+            "Return Delay Time 500 µs",
+            "the rig cannot run the profile",
+        ],
     );
-    for words in [
-        "id 5 r_el: id 5 does not answer at 2000000 bit/s",
-        "id 6 l_el: id 6 is model 1200 (XL330-M288)",
-        "id 42 (XM430-W350) answers but the profile does not name it",
-        "id 1 r_sho_pitch: hardware error 0x04 (overheating)",
-        "id 3 r_sho_roll: position limits",
-        "Return Delay Time 500 µs",
-        "the rig cannot run the profile",
-    ] {
-        assert!(text.contains(words), "{words}: {text}");
-    }
     // A list it cannot read: a usage error naming the item.
     let out = common::run(&[
         "serve",
@@ -357,4 +378,18 @@ fn reads_lost_while_the_cycle_is_timed_are_counted_not_fatal() {
     assert!(lost.is_some_and(|f| f.level == Level::Warn), "{report:#?}");
     assert!(report.measured_cycle_us.is_some());
     assert!(report.can_run(), "{report:#?}");
+}
+
+/// A hardware error whose cause is still there (a servo at 95 °C, past its 80 °C limit):
+/// `--fix` reboots it, says the error came back, and the rig still cannot run.
+#[test]
+fn a_reboot_says_when_the_hardware_errors_cause_remains() {
+    exits_1_naming(
+        doctor_on_served("temp=1:95", &["--fix"]),
+        &[
+            "id 1 r_sho_pitch: rebooted, but hardware error 0x04 (overheating) again: its cause is still there",
+            "id 1 r_sho_pitch: at 9",
+            "the rig cannot run the profile",
+        ],
+    );
 }

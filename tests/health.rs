@@ -9,6 +9,9 @@ use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::Stdio;
 
+use marionette::bus::virtual_chain::VirtualRig;
+use marionette::control::health::HealthWatch;
+
 fn puppet() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("firmware-profile/cmu-puppet.toml")
 }
@@ -138,21 +141,21 @@ fn a_supply_off_the_models_range_ends_the_run() {
     assert_eq!(stats["health"]["servos"][1]["lowest_v"], 9.2);
 }
 
-#[test]
-fn a_hardware_error_raised_mid_run_is_read_at_the_servos_turn() {
-    use marionette::bus::virtual_chain::{chain_for, VirtualRig};
-    use marionette::control::health::HealthWatch;
+/// The puppet's chain in process, at rest, and a health watch over it at 120 Hz.
+fn watched_puppet() -> (VirtualRig, HealthWatch) {
+    use marionette::bus::virtual_chain::chain_for;
     use marionette::profile::Profile;
     let profile = Profile::load(&puppet()).unwrap();
     let chain = chain_for(profile.bus_section(), |_| 2048);
-    let mut rig = VirtualRig::new(chain, profile.bus.baud, std::time::Duration::from_millis(5));
-    let servos: Vec<_> = profile
-        .servos
-        .iter()
-        .map(|s| (s.id, s.name.clone(), s.model, s.supply_v))
-        .collect();
+    let rig = VirtualRig::new(chain, profile.bus.baud, std::time::Duration::from_millis(5));
+    let watch = HealthWatch::of_profile(&profile, 120.0);
+    (rig, watch)
+}
+
+#[test]
+fn a_hardware_error_raised_mid_run_is_read_at_the_servos_turn() {
+    let (mut rig, mut watch) = watched_puppet();
     // At 120 Hz a read every 12 ticks.
-    let mut watch = HealthWatch::new(&servos, 120.0);
     assert_eq!(watch.every(), 12);
     let mut ticks = 0;
     while ticks < 12 * 2 * 28 {
@@ -179,6 +182,47 @@ fn a_hardware_error_raised_mid_run_is_read_at_the_servos_turn() {
     );
     // It stays stopped.
     assert!(watch.read(&mut rig));
+}
+
+/// A reply's alert flag brings that servo's Hardware Error Status read to the next slot, out
+/// of turn and without moving the rotation; one found clear is not read again for its flags
+/// until its turn, and ids the watch does not have are passed over.
+#[test]
+fn an_alert_brings_the_servos_error_read_forward() {
+    let (mut rig, mut watch) = watched_puppet();
+    let reads = |w: &HealthWatch| (w.report().reads, w.report().alert_reads);
+    // The IMU board's id, or any the watch does not have: nothing.
+    watch.alert(200);
+    assert!(!watch.read(&mut rig));
+    assert_eq!(reads(&watch), (0, 0));
+    // Servo 9 (no error: a flag the watch cannot confirm) is read at once, out of turn.
+    watch.alert(9);
+    assert!(!watch.read(&mut rig));
+    assert_eq!(reads(&watch), (1, 1));
+    // Found clear: its flags are passed over until its turn; the rotation's first read comes
+    // at its tick as if nothing had happened (the 12th tick that is not a read out of turn).
+    for tick in 2..12 {
+        watch.alert(9);
+        assert!(!watch.read(&mut rig));
+        assert_eq!(reads(&watch), (1, 1), "tick {tick}");
+    }
+    watch.alert(9);
+    assert!(!watch.read(&mut rig));
+    assert_eq!(reads(&watch), (2, 1));
+    assert_eq!(
+        watch.report().servos[0].temperature_c,
+        Some(25),
+        "servo 1's vitals, in turn"
+    );
+    // A servo that shut itself down is found at the next slot.
+    rig.with(|t| t.chain_mut().servo_mut(5).unwrap().raise_hardware_error(0x20));
+    watch.alert(5);
+    assert!(watch.read(&mut rig));
+    assert_eq!(reads(&watch), (3, 2));
+    assert_eq!(
+        watch.stopped().unwrap(),
+        "id 5 lowerneck_ry: hardware error 0x20 (overload)"
+    );
 }
 
 #[test]

@@ -21,6 +21,9 @@ const BUFFER: usize = 4096;
 pub struct Dynamixel2Bus {
     bus: dynamixel2::Bus<Vec<u8>, Vec<u8>>,
     quiet: Duration,
+    /// The first id whose reply had the hardware-alert flag since the last
+    /// [`ServoBus::take_alert`].
+    alert: Option<u8>,
 }
 
 impl std::fmt::Debug for Dynamixel2Bus {
@@ -39,6 +42,7 @@ impl Dynamixel2Bus {
         Ok(Dynamixel2Bus {
             bus,
             quiet: Duration::from_millis(10),
+            alert: None,
         })
     }
 
@@ -48,6 +52,14 @@ impl Dynamixel2Bus {
     pub fn with_drain(mut self, quiet: Duration) -> Dynamixel2Bus {
         self.quiet = quiet;
         self
+    }
+
+    /// Keeps `id` for [`ServoBus::take_alert`] when its reply had the alert flag and none
+    /// is kept yet.
+    fn note_alert(&mut self, id: u8, alert: bool) {
+        if alert && self.alert.is_none() {
+            self.alert = Some(id);
+        }
     }
 
     /// The underlying `dynamixel2` bus.
@@ -138,6 +150,10 @@ fn map_transfer_error(id: u8, e: TransferError) -> BusError {
 }
 
 impl ServoBus for Dynamixel2Bus {
+    fn take_alert(&mut self) -> Option<u8> {
+        self.alert.take()
+    }
+
     fn ping(&mut self, id: u8) -> Result<PingInfo, BusError> {
         match self.bus.ping(id) {
             Ok(r) => Ok(PingInfo {
@@ -166,7 +182,11 @@ impl ServoBus for Dynamixel2Bus {
     }
 
     fn read(&mut self, id: u8, address: u16, out: &mut [u8]) -> Result<(), BusError> {
-        match self.bus.read(id, address, out.len() as u16) {
+        let r = self.bus.read(id, address, out.len() as u16);
+        if let Ok(r) = &r {
+            self.note_alert(r.motor_id, r.alert);
+        }
+        match r {
             Ok(r) if r.data.len() == out.len() => {
                 out.copy_from_slice(&r.data);
                 Ok(())
@@ -213,8 +233,14 @@ impl ServoBus for Dynamixel2Bus {
         }
         let mut first: Option<BusError> = None;
         let mut k = 0usize;
+        let mut alert = None;
         let r = self.bus.sync_read_cb(ids, address, len, |reply| {
             let id = ids.get(k).copied().unwrap_or(0);
+            if let Ok(resp) = &reply {
+                if resp.alert && alert.is_none() {
+                    alert = Some(resp.motor_id);
+                }
+            }
             match reply {
                 Ok(resp) if resp.data.len() == l && first.is_none() => {
                     scratch[k * l..(k + 1) * l].copy_from_slice(resp.data)
@@ -228,6 +254,9 @@ impl ServoBus for Dynamixel2Bus {
             }
             k += 1;
         });
+        if let Some(id) = alert {
+            self.note_alert(id, true);
+        }
         if let Err(e) = r {
             return self.fail(map_write_error(e));
         }

@@ -351,6 +351,14 @@ pub trait ServoBus {
         false
     }
 
+    /// A servo whose reply since the last call carried the hardware-alert flag (bit 7 of a
+    /// status packet's error byte: its Hardware Error Status is not 0, so it has shut its
+    /// torque off): the first such id, and the flag cleared. Every reply carries the flag, so
+    /// the loop learns of an overload or overheating shutdown at the next position read.
+    fn take_alert(&mut self) -> Option<u8> {
+        None
+    }
+
     /// The merged block of the position read collected last: `None` when no read was
     /// collected since the last call, `Some(false)` when the device's reply failed (`out`
     /// untouched; the positions may still have been good), `Some(true)` with `out` filled.
@@ -404,7 +412,7 @@ pub enum StartupError {
     },
     /// A servo reports a hardware error.
     #[error(
-        "servo {id} (`{name}`) reports hardware error status {status:#04x}; reboot it after fixing the cause"
+        "servo {id} (`{name}`) reports hardware error status {status:#04x}; remove the cause, then `marionette doctor PROFILE --fix` reboots it (or power-cycle the rig)"
     )]
     HardwareError {
         /// Id.

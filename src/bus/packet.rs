@@ -15,7 +15,7 @@ use super::{invalid_request, BusError, PingInfo, ServoBus};
 use crate::device::{Received, Receiver, MAX_PACKET};
 use crate::profile::ReadMode;
 use crate::protocol::{self, instruction, CodecError, BROADCAST_ID};
-use crate::servo::{addr, MAX_SERVOS};
+use crate::servo::{addr, status_error, MAX_SERVOS};
 
 /// A byte link to a bus.
 pub trait Transport {
@@ -67,6 +67,9 @@ pub struct PacketBus<T> {
     pending_single: Option<(u8, u16, u16, Duration)>,
     /// A block of another device read with the positions ([`ServoBus::merge_into_reads`]).
     merged: Option<MergedBlock>,
+    /// The first id whose reply carried the hardware-alert flag since the last
+    /// [`ServoBus::take_alert`].
+    alert: Option<u8>,
 }
 
 /// The largest block [`ServoBus::merge_into_reads`] takes, bytes.
@@ -112,6 +115,15 @@ impl<T: Transport> PacketBus<T> {
             pending: None,
             pending_single: None,
             merged: None,
+            alert: None,
+        }
+    }
+
+    /// Notes a reply's error byte: the first id whose reply has the hardware-alert flag is
+    /// kept for [`ServoBus::take_alert`].
+    fn note_alert(&mut self, id: u8, error: u8) {
+        if error & status_error::ALERT != 0 && self.alert.is_none() {
+            self.alert = Some(id);
         }
     }
 
@@ -355,6 +367,7 @@ impl<T: Transport> PacketBus<T> {
                 break;
             }
             out[offsets[k]..offsets[k] + n].copy_from_slice(&raw[at + 2..end]);
+            self.note_alert(id, error);
             errors[k] = error & 0x7F;
             valid[k] = error & 0x7F == 0;
             at = end + 2;
@@ -607,6 +620,7 @@ impl<T: Transport> PacketBus<T> {
                             what: "status without error byte",
                         });
                     }
+                    self.note_alert(id, self.params[0]);
                     let error = self.params[0] & 0x7F;
                     if error != 0 {
                         return Err(BusError::Servo { id, error });
@@ -846,6 +860,10 @@ impl<T: Transport> ServoBus for PacketBus<T> {
             fresh: None,
         });
         true
+    }
+
+    fn take_alert(&mut self) -> Option<u8> {
+        self.alert.take()
     }
 
     fn take_merged(&mut self, out: &mut [u8]) -> Option<bool> {

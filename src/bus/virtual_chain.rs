@@ -885,6 +885,9 @@ impl<P: Plant> super::ServoBus for VirtualRig<P> {
     fn take_merged(&mut self, out: &mut [u8]) -> Option<bool> {
         self.0.borrow_mut().take_merged(out)
     }
+    fn take_alert(&mut self) -> Option<u8> {
+        self.0.borrow_mut().take_alert()
+    }
 }
 
 impl<P: Plant> crate::schedule::Clock for VirtualRig<P> {

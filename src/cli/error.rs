@@ -44,8 +44,17 @@ pub enum CliError {
         source: BusError,
     },
     /// A servo's health ended the run (eased to rest, torque off).
-    #[error("{0}: the run was eased to rest and torque turned off; let it cool (or fix the supply) before the next")]
-    ServoHealth(String),
+    #[error("{why}: the run was eased to rest and torque turned off; {}", if *.hardware_error {
+        "remove the cause, then `marionette doctor PROFILE --fix` reboots the servo (its torque stays off until then)"
+    } else {
+        "let it cool (or fix the supply) before the next"
+    })]
+    ServoHealth {
+        /// Which servo and why.
+        why: String,
+        /// Whether a servo reported a hardware error (it stays limp until rebooted).
+        hardware_error: bool,
+    },
     /// The servos could not be started as the profile says.
     #[error("start-up: {0}")]
     StartUp(#[from] StartupError),

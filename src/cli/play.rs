@@ -456,14 +456,15 @@ pub(super) fn finish(
         writeln!(out, "{line}")?;
     }
     match outcome.end {
-        RunEnd::Health => Err(CliError::ServoHealth(
-            outcome
-                .stats
-                .health
-                .as_ref()
-                .and_then(|h| h.stopped.clone())
-                .unwrap_or_else(|| "a servo's health".into()),
-        )),
+        RunEnd::Health => {
+            let health = outcome.stats.health.as_ref();
+            Err(CliError::ServoHealth {
+                why: health
+                    .and_then(|h| h.stopped.clone())
+                    .unwrap_or_else(|| "a servo's health".into()),
+                hardware_error: health.is_some_and(|h| h.servos.iter().any(|s| s.hardware_error != 0)),
+            })
+        }
         RunEnd::ReadsFailed => Err(CliError::ServosSilent {
             ms: args.torque_off_after,
         }),

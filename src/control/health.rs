@@ -4,7 +4,9 @@
 //! request is the health Read, its reply taken next tick, so it costs one tick's positions
 //! and no time; otherwise it is a Read of its own in the bus's idle slot. Thresholds
 //! per model: a warning first; then the run ends, eased to rest and torque off, naming the
-//! servo and why — before the servo's own shutdown drops a limb mid-motion.
+//! servo and why — before the servo's own shutdown drops a limb mid-motion. A servo that did
+//! shut itself down sets the alert flag in every reply; the loop hands it on
+//! ([`HealthWatch::alert`]) and its Hardware Error Status is read at the next slot.
 
 use serde::Serialize;
 
@@ -68,6 +70,9 @@ pub struct HealthReport {
     /// Reads that failed (the position reads' faults count there; a failed health read is
     /// tried again at the servo's next turn).
     pub reads_failed: u64,
+    /// Hardware Error Status reads made out of turn because a reply had the alert flag
+    /// (counted in `reads` too).
+    pub alert_reads: u64,
     /// Every servo's figures.
     pub servos: Vec<ServoHealth>,
     /// The warnings, a line each (the first per servo and cause).
@@ -133,6 +138,16 @@ pub struct HealthWatch {
     hottest: Option<(u8, u8)>,
     /// Per servo: warned of heat, of the supply.
     warned: Vec<(bool, bool)>,
+    /// The servo whose Hardware Error Status is read at the next slot, out of turn: a reply
+    /// of its had the alert flag ([`HealthWatch::alert`]).
+    alerted: Option<usize>,
+    /// That read, on the wire; and whether it is the second try.
+    alert_in_flight: Option<HealthItem>,
+    alert_retried: bool,
+    /// Per servo: a read out of turn found no error, so its alerts are not followed until its
+    /// next read in turn (a flag that stays on cannot take every other position read).
+    alert_cleared: Vec<bool>,
+    alert_reads: u64,
 }
 
 impl HealthWatch {
@@ -162,7 +177,40 @@ impl HealthWatch {
             events: Vec::with_capacity(2 * servos.len()),
             stopped: None,
             warned: vec![(false, false); servos.len()],
+            alerted: None,
+            alert_in_flight: None,
+            alert_retried: false,
+            alert_cleared: vec![false; servos.len()],
+            alert_reads: 0,
         }
+    }
+
+    /// A reply of servo `id` had the hardware-alert flag: its Hardware Error Status is read at
+    /// the next slot rather than at its turn (up to a round of reads away: 5.6 s for 28
+    /// servos), so that a servo that shut itself down ends the run within a few ticks. Ids the
+    /// watch does not have, and servos whose last read out of turn found no error, are passed
+    /// over.
+    pub fn alert(&mut self, id: u8) {
+        if self.stopped.is_some() || self.alerted.is_some() || self.alert_in_flight.is_some() {
+            return;
+        }
+        if let Some(k) = self.servos.iter().position(|s| s.id == id) {
+            if !self.alert_cleared[k] {
+                self.alerted = Some(k);
+            }
+        }
+    }
+
+    /// A watch over every servo of `profile` (with its model and supply) at a loop of
+    /// `rate_hz`.
+    #[must_use]
+    pub fn of_profile(profile: &crate::profile::Profile, rate_hz: f64) -> HealthWatch {
+        let servos: Vec<_> = profile
+            .servos
+            .iter()
+            .map(|s| (s.id, s.name.clone(), s.model, s.supply_v))
+            .collect();
+        HealthWatch::new(&servos, rate_hz)
     }
 
     /// Ticks between reads.
@@ -188,6 +236,16 @@ impl HealthWatch {
     pub fn due(&mut self) -> Option<HealthItem> {
         if self.servos.is_empty() || self.stopped.is_some() {
             return None;
+        }
+        if let Some(k) = self.alerted.take() {
+            let item = HealthItem {
+                servo: k,
+                id: self.servos[k].id,
+                address: addr::HARDWARE_ERROR_STATUS,
+                len: 1,
+            };
+            self.alert_in_flight = Some(item);
+            return Some(item);
         }
         self.countdown -= 1;
         if self.countdown > 0 {
@@ -218,8 +276,13 @@ impl HealthWatch {
     pub fn absorb(&mut self, item: HealthItem, data: Option<&[u8]>) -> bool {
         let k = item.servo;
         self.reads += 1;
+        if self.alert_in_flight == Some(item) {
+            self.absorb_alert_read(k, data);
+            return self.stopped.is_some();
+        }
         match data {
             Some(d) if item.address == addr::HARDWARE_ERROR_STATUS && !d.is_empty() => {
+                self.alert_cleared[k] = false;
                 self.judge_error(k, d[0]);
             }
             Some(d) if d.len() >= VITALS_BYTES => {
@@ -239,6 +302,29 @@ impl HealthWatch {
         }
         self.error_next = !self.error_next;
         self.stopped.is_some()
+    }
+
+    /// The reply to a read out of turn ([`HealthWatch::alert`]); the rotation goes on where it
+    /// was. A failed read is tried once more at the next slot.
+    fn absorb_alert_read(&mut self, k: usize, data: Option<&[u8]>) {
+        self.alert_in_flight = None;
+        self.alert_reads += 1;
+        match data.and_then(|d| d.first()) {
+            Some(&bits) => {
+                self.alert_retried = false;
+                self.alert_cleared[k] = bits == 0;
+                self.judge_error(k, bits);
+            }
+            None => {
+                self.reads_failed += 1;
+                if !self.alert_retried {
+                    self.alert_retried = true;
+                    self.alerted = Some(k);
+                } else {
+                    self.alert_retried = false;
+                }
+            }
+        }
     }
 
     fn judge_error(&mut self, k: usize, bits: u8) {
@@ -344,6 +430,7 @@ impl HealthWatch {
         HealthReport {
             reads: self.reads,
             reads_failed: self.reads_failed,
+            alert_reads: self.alert_reads,
             servos: self.servos.clone(),
             warnings: self.events.iter().map(|&e| self.describe(e)).collect(),
             stopped: self.stopped(),

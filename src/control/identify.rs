@@ -318,6 +318,22 @@ pub enum IdentifyError {
         /// The loop's rate, Hz.
         rate_hz: f64,
     },
+    /// A servo reported a hardware error (overload, overheating) and shut its torque off:
+    /// the record would show it limp.
+    #[error(
+        "servo `{servo}` (id {id}) reported hardware error {} while `{during}` was identified, and shut its torque off; torque is off on every servo — remove the cause, then `marionette doctor PROFILE --fix` reboots it",
+        crate::bus::hardware_error_names(*.bits)
+    )]
+    HardwareError {
+        /// The servo that reported it.
+        servo: String,
+        /// Its id.
+        id: u8,
+        /// Its Hardware Error Status (0 when it could not be read).
+        bits: u8,
+        /// The servo being identified.
+        during: String,
+    },
 }
 
 /// Reads that may fail in a row before identification gives up (torque is turned off).
@@ -406,6 +422,21 @@ pub fn identify(
                         return Err(fail(error, bus));
                     }
                 }
+            }
+            if let Some(id) = bus.take_alert() {
+                // A servo that shut itself down: what it says, then every torque off.
+                let bits = bus.hardware_error(id).unwrap_or(0);
+                let _ = super::torque_off(bus, ids);
+                return Err(IdentifyError::HardwareError {
+                    servo: ids
+                        .iter()
+                        .position(|&i| i == id)
+                        .and_then(|j| names.get(j).cloned())
+                        .unwrap_or_default(),
+                    id,
+                    bits,
+                    during: name,
+                });
             }
             if (move_ticks..move_ticks + excite_ticks).contains(&step) {
                 let to_angle = |ticks: f64| (ticks - centre) / per_rad * sign;

@@ -718,7 +718,17 @@ impl Controller {
             replies.1 += clock.now_ns() - t0;
         }
         let mut unhealthy = false;
+        let alert = bus.take_alert();
+        if let (None, Some(id), None) = (&self.health, alert, self.stats.unwatched_alert) {
+            // No watch to stop the run: the summary says so.
+            let at_s = self.stats.ticks as f64 * self.period_ns as f64 * 1e-9;
+            self.stats.unwatched_alert = Some(stats::UnwatchedAlert { id, at_s });
+        }
         if let Some(h) = &mut self.health {
+            if let Some(id) = alert {
+                // A servo that shut itself down: its error status is read at the next slot.
+                h.alert(id);
+            }
             if !self.config.pipelined {
                 // Without a pipelined read: the same idle slot, one item every few ticks.
                 let t0 = clock.now_ns();

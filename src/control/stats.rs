@@ -114,6 +114,9 @@ pub struct LoopStats {
     pub watchdog_expiries: u64,
     /// Seconds of the eased moves back to the input after expiries (not in the fidelity).
     pub resumed_s: f64,
+    /// With the health watch off: the first servo whose replies carried the hardware-alert
+    /// flag (it reported a hardware error and turned its torque off), and when.
+    pub unwatched_alert: Option<UnwatchedAlert>,
     /// The last valid read's positions when the run ended (set after the loop, never in a
     /// tick).
     pub final_present: Vec<ServoAngle>,
@@ -259,6 +262,7 @@ impl LoopStats {
             telemetry_dropped: self.telemetry_dropped,
             longest_quiet_ms: self.longest_quiet_ms,
             quiet_spells: self.quiet_spells,
+            unwatched_alert: self.unwatched_alert,
             watchdog_checks: self.watchdog_checks,
             watchdog_expiries: self.watchdog_expiries,
             resumed_s: self.resumed_s,
@@ -366,6 +370,10 @@ pub struct Report {
     pub watchdog_expiries: u64,
     /// Seconds of the eased moves back to the input after expiries (not in the fidelity).
     pub resumed_s: f64,
+    /// With the health watch off (`--no-health`): the first servo whose replies carried the
+    /// hardware-alert flag, its id, and when, seconds into the run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unwatched_alert: Option<UnwatchedAlert>,
     /// Each servo's present position at the end of the run (the last valid read), radians.
     pub final_present: Vec<ServoAngle>,
     /// RMS IK residual, file units.
@@ -435,6 +443,15 @@ pub struct RunReport<X: Serialize> {
     /// The command's own fields.
     #[serde(flatten)]
     pub extra: X,
+}
+
+/// A servo that reported a hardware error while the health watch was off.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct UnwatchedAlert {
+    /// Its id.
+    pub id: u8,
+    /// Seconds into the run.
+    pub at_s: f64,
 }
 
 /// `play`'s fields of a [`RunReport`].
@@ -510,6 +527,12 @@ impl fmt::Display for LoopStats {
             self.tracking_max_deg,
             self.reads_ok
         )?;
+        if let Some(UnwatchedAlert { id, at_s }) = self.unwatched_alert {
+            writeln!(
+                f,
+                "hardware alert  servo {id} reported a hardware error {at_s:.2} s into the run and turned its torque off; the health watch was off (--no-health), so the run went on around it"
+            )?;
+        }
         if self.quiet_spells > 0 || self.watchdog_expiries > 0 {
             // Spells of half the watchdog or more without a word to the servos; expired: they
             // had stopped, and were recovered where they stood.

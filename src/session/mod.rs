@@ -622,12 +622,10 @@ pub fn controller(
         c.set_live_view(Arc::clone(v));
     }
     if spec.health {
-        let servos: Vec<_> = profile
-            .servos
-            .iter()
-            .map(|s| (s.id, s.name.clone(), s.model, s.supply_v))
-            .collect();
-        c.set_health(crate::control::health::HealthWatch::new(&servos, spec.rate_hz));
+        c.set_health(crate::control::health::HealthWatch::of_profile(
+            profile,
+            spec.rate_hz,
+        ));
     }
     c
 }
