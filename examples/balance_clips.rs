@@ -82,7 +82,7 @@ fn plant(kin: &mut Kin<'_>, f: &mut [f64], ankles0: &[glam::DVec3; 2], feet0: &[
                 |a| {
                     g[c] = a;
                     let p = kin.at(&g);
-                    let d = p.world[foot] * feet0[idx].transpose();
+                    let d = p.frame[foot] * feet0[idx].transpose();
                     -(d.x_axis.x + d.y_axis.y + d.z_axis.z)
                 },
                 -80.0,
@@ -122,7 +122,7 @@ fn main() {
     stand[ty] = 2.0 - low;
     let (ankles0, feet0) = {
         let p = kin.at(&stand);
-        ([p.tip[ltib], p.tip[rtib]], [p.world[lfoot], p.world[rfoot]])
+        ([p.tip[ltib], p.tip[rtib]], [p.frame[lfoot], p.frame[rfoot]])
     };
     let units_per_m = 1.0 / f64::from(s.units().meters_per_unit());
 

@@ -9,7 +9,7 @@ use marionette::fk::{forward_kinematics, Pose};
 use marionette::formats::{amc, asf};
 use marionette::ik::{Limb, Swivel};
 use marionette::ik_numeric::{chain_mask, Constraint, JacobianKind, Method, Settings, Solver};
-use marionette::skeleton::{Skeleton, MAX_CHANNELS};
+use marionette::skeleton::{dof_rotation, Skeleton, MAX_CHANNELS};
 
 fn skeleton() -> Skeleton {
     asf::load(&common::data("16.asf")).unwrap().skeleton
@@ -65,6 +65,40 @@ fn fk64_matches_the_f32_fk() {
     assert!(worst < 1e-3, "{worst}");
 }
 
+/// Every bone's frame is eq. (1) composed directly, `Fᵢ = Wₚ·Cᵢ·Mᵢ` with `Wₚ = Fₚ·Cₚᵀ` (the
+/// root's `W = F`) and `M` from the bone's channels, and `Pose64::world` is `Fᵢ·Cᵢᵀ`: taking a
+/// bone's axes from its parent's frame through `K = Cₚᵀ·C` (the identity where an axis is its
+/// parent's to the file's rounding) changes the pose by rounding only.
+#[test]
+fn fk64_frames_are_eq1_composed_directly() {
+    let skel = skeleton();
+    let mut pose = Pose64::default();
+    let (mut worst_frame, mut worst_world) = (0.0f64, 0.0f64);
+    let diff = |a: glam::DMat3, b: glam::DMat3| {
+        let (a, b) = (a.to_cols_array(), b.to_cols_array());
+        a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    };
+    for f in walk_frames(&skel).iter().step_by(13) {
+        fk64(&skel, f, &mut pose);
+        let mut world = vec![glam::DMat3::IDENTITY; skel.len()];
+        for (b, bone) in skel.bones().iter().enumerate() {
+            let c = bone.axis_rotation_f64();
+            let m = dof_rotation(bone.dofs(), bone.channels().map(|k| f[k]));
+            let (frame, w) = match bone.parent() {
+                None => (c * m, c * m),
+                Some(p) => (world[p] * c * m, world[p] * c * m * c.transpose()),
+            };
+            world[b] = w;
+            worst_frame = worst_frame.max(diff(pose.frame[b], frame));
+            worst_world = worst_world.max(diff(pose.world(&skel, b), w));
+        }
+    }
+    assert!(
+        worst_frame < 1e-12 && worst_world < 1e-12,
+        "{worst_frame:e} {worst_world:e}"
+    );
+}
+
 /// A bone's tip found by turning its vector (`fk64_tip`) is the full step's, on every bone of
 /// the walk, the root's translation included.
 #[test]
@@ -75,7 +109,7 @@ fn fk64_tip_is_the_steps_tip() {
     for f in walk_frames(&skel).iter().step_by(7) {
         fk64(&skel, f, &mut pose);
         for (b, bone) in skel.bones().iter().enumerate() {
-            let parent = bone.parent().map(|p| (&pose.world[p], pose.tip[p]));
+            let parent = bone.parent().map(|p| (&pose.frame[p], pose.tip[p]));
             worst = worst.max((fk64_tip(&skel, f, b, parent) - pose.tip[b]).length());
         }
     }
@@ -100,8 +134,8 @@ fn fk64_is_its_steps_bit_for_bit_short_frames_too() {
         let mut full = Pose64::default();
         fk64(&skel, &padded, &mut full);
         for (b, bone) in skel.bones().iter().enumerate() {
-            let parent = bone.parent().map(|p| (&pose.world[p], pose.tip[p]));
-            let (frame, world, start, tip) = fk64_step(&skel, &padded, b, parent);
+            let parent = bone.parent().map(|p| (&pose.frame[p], pose.tip[p]));
+            let (frame, start, tip) = fk64_step(&skel, &padded, b, parent);
             for (got, want) in [(pose.tip[b], tip), (pose.start[b], start), (full.tip[b], tip)] {
                 assert_eq!(
                     got.to_array().map(f64::to_bits),
@@ -109,7 +143,7 @@ fn fk64_is_its_steps_bit_for_bit_short_frames_too() {
                     "bone {b}"
                 );
             }
-            for (got, want) in [(pose.frame[b], frame), (pose.world[b], world)] {
+            for (got, want) in [(pose.frame[b], frame), (full.frame[b], frame)] {
                 assert_eq!(
                     got.to_cols_array().map(f64::to_bits),
                     want.to_cols_array().map(f64::to_bits),

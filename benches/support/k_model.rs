@@ -92,7 +92,7 @@ pub fn limb_chain(skel: &Skeleton, upper: usize, lower: usize) -> (k::SerialChai
         .name("base")
         .joint_type(k::JointType::Fixed)
         .origin(na_iso(
-            rest.world[parent] * rest_frame(skel, upper),
+            rest.world(skel, parent) * rest_frame(skel, upper),
             rest.start[upper],
         ))
         .into_node();

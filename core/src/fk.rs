@@ -1,15 +1,20 @@
 //! Forward kinematics, help note eq. (1)–(5), into caller-provided buffers: no allocation.
 //!
-//! For bone `i` with parent `p`, rest frame `C` (ASF `axis`, eq. 3) and channel rotation `M`
-//! (the bone's rotation channels applied in `dof` order):
+//! For bone `i` with parent `p`, rest frame `C` (ASF `axis`, eq. 3), `K = Cₚᵀ·C` (eq. 4's
+//! `ⁱR_asf`, kept by the skeleton) and channel rotation `M` (the bone's rotation channels
+//! applied in `dof` order):
 //!
-//! * frame orientation `Fᵢ = Wₚ · C · M` — eq. (1) written with `ᵢR_asf = Cₚᵀ·C` (eq. 4)
-//!   folded into `Wₚ = Fₚ · Cₚᵀ`;
-//! * start `Tᵢ` = the parent's tip (plus `Wₚ·C·t` for translation channels), tip
+//! * frame orientation `Fᵢ = Fₚ · K · M` — eq. (1), one product per bone, none where the bone's
+//!   `axis` is its parent's (`K = I`);
+//! * start `Tᵢ` = the parent's tip (plus `Fₚ·K·t` for translation channels), tip
 //!   `Tᵢ + (L + l) · Fᵢ · Cᵀ·d` — eq. (2) with the local direction of eq. (5).
 //!
-//! The root: `W₀ = O · M₀` where `O` is the `:root orientation` (rotating the whole skeleton)
-//! and `M₀` its rotation channels; position = `:root position` + translation channels.
+//! The root: `F₀ = O · M₀` where `O` is the `:root orientation` (rotating the whole skeleton)
+//! and `M₀` its rotation channels; position = `:root position` + translation channels. Under
+//! the root `K = C`: the root's frame is its world rotation.
+//!
+//! A pose keeps one rotation per bone, its frame; the rotation a bone applies to global rest
+//! vectors, `Wᵢ = Fᵢ·Cᵢᵀ`, is [`Pose64::world`] (the root's: `F₀`).
 //!
 //! [`forward_kinematics`] works in f32 on file frames (the display and the f32 pose);
 //! [`fk64`] in f64 on channel vectors in radians (what IK and the control loop use).
@@ -28,8 +33,6 @@ pub struct Pose {
     pub tip: [Vec3A; MAX_BONES],
     /// The orientation of each bone's local frame in global coordinates, `Fᵢ = ⁱ₀R`.
     pub frame: [Mat3A; MAX_BONES],
-    /// The rotation each bone applies to global rest vectors, `Wᵢ = Fᵢ·Cᵢᵀ`.
-    pub world: [Mat3A; MAX_BONES],
 }
 
 impl Default for Pose {
@@ -46,7 +49,18 @@ impl Pose {
             start: [Vec3A::ZERO; MAX_BONES],
             tip: [Vec3A::ZERO; MAX_BONES],
             frame: [Mat3A::IDENTITY; MAX_BONES],
-            world: [Mat3A::IDENTITY; MAX_BONES],
+        }
+    }
+
+    /// The rotation bone `i` applies to global rest vectors, `Wᵢ = Fᵢ·Cᵢᵀ` (the root's:
+    /// `F₀`).
+    #[must_use]
+    pub fn world(&self, skeleton: &Skeleton, i: usize) -> Mat3A {
+        let bone = &skeleton.bones()[i];
+        if bone.parent().is_none() || bone.axis_is_identity() {
+            self.frame[i]
+        } else {
+            mul_by_transpose(&self.frame[i], &bone.axis_rotation())
         }
     }
 }
@@ -187,10 +201,9 @@ impl<T: Copy + From<u8>> TrigWindow<T> {
 /// Computes every bone's start, tip and orientation for one frame vector (radians, file
 /// units), eq. (1)–(5).
 ///
-/// The channel rotations are taken into the frame from the right, `F = (Wₚ·C)·R(last)·…·R(first)`,
+/// The channel rotations are taken into the frame from the right, `F = (Fₚ·K)·R(last)·…·R(first)`,
 /// two columns at a time, rather than built into `M` and multiplied: per bone one product for
-/// `Wₚ·C`, one for `W = F·Cᵀ` (neither where `C` is the identity) and a pair of column updates
-/// per rotation channel.
+/// `Fₚ·K` (none where `K` is the identity) and a pair of column updates per rotation channel.
 ///
 /// # Errors
 /// [`ShortFrame`] when `channels` is shorter than [`Skeleton::channel_count`].
@@ -203,24 +216,21 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
     }
     let mut trig = TrigWindow::new(sincos_f32_many);
     for (i, bone) in skeleton.bones().iter().enumerate() {
-        let parent = bone.parent().map(|p| (pose.world[p], pose.tip[p]));
-        // The parent's axes, `Wₚ·C` (the root: the `:root orientation` `O`).
+        let parent = bone.parent().map(|p| (pose.frame[p], pose.tip[p]));
+        // The bone's axes, `Fₚ·K` (the root: the `:root orientation` `O`).
         let axes = match parent {
-            Some((parent_world, _)) if bone.axis_is_identity() => parent_world,
-            Some((parent_world, _)) => mul_by(&parent_world, &bone.axis_rotation()),
+            Some((parent_frame, _)) if bone.axis_in_parent_is_identity() => parent_frame,
+            Some((parent_frame, _)) => mul_by(&parent_frame, &bone.axis_in_parent()),
             None => Mat3A::from(bone.axis_rotation()),
         };
         let mut f = axes;
-        let (mut turned, mut offsets) = (false, false);
+        let mut offsets = false;
         let (sin, cos) = trig.bone(channels, bone.channels());
         let values = &channels[bone.channels()];
         for ((d, &v), (&s, &c)) in bone.dofs().iter().zip(values).zip(sin.iter().zip(cos)).rev() {
             match d.rotation_axis() {
                 Some(_) if v == 0.0 => {}
-                Some(axis) => {
-                    turn_columns_f32_by(&mut f, axis, s, c);
-                    turned = true;
-                }
+                Some(axis) => turn_columns_f32_by(&mut f, axis, s, c),
                 None => offsets = true,
             }
         }
@@ -230,30 +240,23 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
         } else {
             (Vec3A::ZERO, 0.0)
         };
-        let (world, start, tip) = match parent {
+        let (start, tip) = match parent {
             None => {
                 // The root is a point: it starts and ends at its position.
                 let p = Vec3A::from(skeleton.root().position) + t;
-                (f, p, p)
+                (p, p)
             }
-            Some((parent_world, parent_tip)) => {
+            Some((_, parent_tip)) => {
                 let start = if t == Vec3A::ZERO {
                     parent_tip
                 } else {
                     parent_tip + axes * t
                 };
-                // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
-                let world = match (turned, bone.axis_is_identity()) {
-                    (false, _) => parent_world,
-                    (true, true) => f,
-                    (true, false) => mul_by_transpose(&f, &bone.axis_rotation()),
-                };
                 let direction = Vec3A::from(bone.local_direction()) * (bone.length() + l);
-                (world, start, start + f * direction)
+                (start, start + f * direction)
             }
         };
         pose.frame[i] = f;
-        pose.world[i] = world;
         pose.start[i] = start;
         pose.tip[i] = tip;
     }
@@ -267,10 +270,8 @@ pub struct Pose64 {
     pub start: [RealVec3; MAX_BONES],
     /// Tip positions.
     pub tip: [RealVec3; MAX_BONES],
-    /// Local frames in world coordinates, `Fᵢ = Wₚ·C·M`.
+    /// Local frames in world coordinates, `Fᵢ = Fₚ·K·M`.
     pub frame: [RealMat3; MAX_BONES],
-    /// World rotations of rest vectors, `Wᵢ = Fᵢ·Cᵀ`.
-    pub world: [RealMat3; MAX_BONES],
 }
 
 impl Default for Pose64 {
@@ -279,8 +280,54 @@ impl Default for Pose64 {
             start: [RealVec3::ZERO; MAX_BONES],
             tip: [RealVec3::ZERO; MAX_BONES],
             frame: [RealMat3::IDENTITY; MAX_BONES],
-            world: [RealMat3::IDENTITY; MAX_BONES],
         }
+    }
+}
+
+impl Pose64 {
+    /// The rotation bone `i` applies to global rest vectors, `Wᵢ = Fᵢ·Cᵢᵀ` (the root's:
+    /// `F₀`).
+    #[must_use]
+    pub fn world(&self, skeleton: &Skeleton, i: usize) -> RealMat3 {
+        world_of(skeleton, i, &self.frame[i])
+    }
+
+    /// Bone `i`'s parent's frame and tip, as the step functions take them (`None` for the
+    /// root).
+    #[must_use]
+    pub fn parent_of(&self, skeleton: &Skeleton, i: usize) -> Option<(&RealMat3, RealVec3)> {
+        skeleton.bones()[i]
+            .parent()
+            .map(|p| (&self.frame[p], self.tip[p]))
+    }
+
+    /// Bone `i`'s axes at rest in the world, `Fₚ·K = Wₚ·C` (the root: `C`): where its rotation
+    /// channels turn from.
+    #[must_use]
+    pub fn axes(&self, skeleton: &Skeleton, i: usize) -> RealMat3 {
+        axes_of(skeleton, i, self.parent_of(skeleton, i).map(|(f, _)| f))
+    }
+}
+
+/// `Wᵢ = Fᵢ·Cᵢᵀ` of bone `i` from its frame (the root's: its frame).
+#[must_use]
+pub fn world_of(skeleton: &Skeleton, i: usize, frame: &RealMat3) -> RealMat3 {
+    let bone = &skeleton.bones()[i];
+    if bone.parent().is_none() || bone.axis_is_identity() {
+        *frame
+    } else {
+        *frame * bone.axis_rotation_f64().transpose()
+    }
+}
+
+/// Bone `i`'s axes from its parent's frame, `Fₚ·K` (the root: `K = C`).
+#[inline(always)]
+fn axes_of(skeleton: &Skeleton, i: usize, parent_frame: Option<&RealMat3>) -> RealMat3 {
+    let bone = &skeleton.bones()[i];
+    match parent_frame {
+        None => bone.axis_in_parent_f64(),
+        Some(f) if bone.axis_in_parent_is_identity() => *f,
+        Some(f) => *f * bone.axis_in_parent_f64(),
     }
 }
 
@@ -292,6 +339,24 @@ pub fn fk64(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64) {
     }
 }
 
+/// One bone of [`fk64`], its parent already computed.
+fn fk64_bone(
+    skeleton: &Skeleton,
+    channels: &[Real],
+    pose: &mut Pose64,
+    i: usize,
+    trig: &mut TrigWindow<Real>,
+) {
+    let bone = &skeleton.bones()[i];
+    let parent = bone.parent().map(|p| (&pose.frame[p], pose.tip[p]));
+    let (sin, cos) = trig.bone(channels, bone.channels());
+    let first = bone.first_channel();
+    let stepped = step(skeleton, channels, i, parent, |k| {
+        (sin[k - first], cos[k - first])
+    });
+    store(pose, i, stepped);
+}
+
 /// [`fk64`] for the listed bones only (ascending, each after its parent — e.g. from
 /// [`ancestors`]); the other entries of `pose` are left as they were.
 ///
@@ -299,9 +364,7 @@ pub fn fk64(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64) {
 /// frame, and a window of them in lanes would compute many that no listed bone needs.
 pub fn fk64_bones(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64, bones: &[usize]) {
     for &i in bones {
-        let parent = skeleton.bones()[i]
-            .parent()
-            .map(|p| (&pose.world[p], pose.tip[p]));
+        let parent = pose.parent_of(skeleton, i);
         let stepped = step(skeleton, channels, i, parent, |k| real::sincos(channels[k]));
         store(pose, i, stepped);
     }
@@ -320,16 +383,36 @@ pub fn ancestors(skeleton: &Skeleton, bone: usize) -> heapless::Vec<usize, MAX_B
     v
 }
 
-/// One bone's pose in f64 from its parent's world rotation and tip (`None` for the root):
-/// `(frame, world, start, tip)` as in [`Pose64`], eq. (1)–(5). The channel rotations are taken
-/// into the frame from the right, as [`forward_kinematics`] does.
+/// One bone's pose in f64 from its parent's frame and tip (`None` for the root):
+/// `(frame, start, tip)` as in [`Pose64`], eq. (1)–(5). The channel rotations are taken into
+/// the frame from the right, as [`forward_kinematics`] does. A bone at rest (every channel 0)
+/// whose axis is its parent's costs a vector product: its frame is its parent's.
 #[must_use]
 pub fn fk64_step(
     skeleton: &Skeleton,
     channels: &[Real],
     i: usize,
     parent: Option<(&RealMat3, RealVec3)>,
-) -> (RealMat3, RealMat3, RealVec3, RealVec3) {
+) -> (RealMat3, RealVec3, RealVec3) {
+    let bone = &skeleton.bones()[i];
+    if let Some((parent_frame, parent_tip)) = parent {
+        let still = || bone.channels().all(|k| channels.get(k).is_none_or(|&v| v == 0.0));
+        if bone.axis_in_parent_is_identity() && still() {
+            let tip = parent_tip + *parent_frame * (bone.local_direction_f64() * (bone.length() as Real));
+            return (*parent_frame, parent_tip, tip);
+        }
+    }
+    moving_step(skeleton, channels, i, parent)
+}
+
+/// [`fk64_step`] of a bone that turns or moves, apart from its test for one that does not.
+#[inline(never)]
+fn moving_step(
+    skeleton: &Skeleton,
+    channels: &[Real],
+    i: usize,
+    parent: Option<(&RealMat3, RealVec3)>,
+) -> (RealMat3, RealVec3, RealVec3) {
     step(skeleton, channels, i, parent, |k| real::sincos(channels[k]))
 }
 
@@ -343,20 +426,15 @@ fn step(
     i: usize,
     parent: Option<(&RealMat3, RealVec3)>,
     mut trig: impl FnMut(usize) -> (Real, Real),
-) -> (RealMat3, RealMat3, RealVec3, RealVec3) {
+) -> (RealMat3, RealVec3, RealVec3) {
     let bone = &skeleton.bones()[i];
-    let c = bone.axis_rotation_f64();
-    let axes = match parent {
-        None => c,
-        Some((parent_world, _)) if bone.axis_is_identity() => *parent_world,
-        Some((parent_world, _)) => *parent_world * c,
-    };
+    let axes = axes_of(skeleton, i, parent.map(|(f, _)| f));
     // One pass over the DOFs, last first: `F = axes·R(last)·…·R(first)` (eq. 2), the
     // translations and the length change apart. `moved`: a translation channel is not 0 (NaN
     // included), noted as it is read rather than by comparing `t` after the loop.
     let mut f = axes;
     let mut l = 0.0;
-    let (mut turned, mut moved) = (false, false);
+    let mut moved = false;
     let mut t = RealVec3::ZERO;
     for (d, k) in bone.dofs().iter().zip(bone.channels()).rev() {
         let v = channels.get(k).copied().unwrap_or(0.0);
@@ -384,31 +462,24 @@ fn step(
         if v != 0.0 {
             let (s, c) = trig(k);
             turn_columns_by(&mut f, axis, s, c);
-            turned = true;
         }
     }
     match parent {
         None => {
             let p = skeleton.root().position.to_real() + t;
-            (f, f, p, p)
+            (f, p, p)
         }
-        Some((parent_world, parent_tip)) => {
+        Some((_, parent_tip)) => {
             let start = if moved { parent_tip + axes * t } else { parent_tip };
-            // No rotation (no rotation DOFs, or all at zero): `W = Wₚ·C·Cᵀ = Wₚ`.
-            let world = match (turned, bone.axis_is_identity()) {
-                (false, _) => *parent_world,
-                (true, true) => f,
-                (true, false) => f * c.transpose(),
-            };
-            let tip = start + world * (bone.direction_f64() * ((bone.length() as Real) + l));
-            (f, world, start, tip)
+            let tip = start + f * (bone.local_direction_f64() * ((bone.length() as Real) + l));
+            (f, start, tip)
         }
     }
 }
 
 /// Where bone `i` ends, as [`fk64_step`] has it, without its frame: its rotation channels
 /// turn the bone's vector, `Cᵀ·d·(L + l)` (eq. 5), first channel first, instead of turning a
-/// matrix, and the parent's axes `Wₚ·C` take it to the world (eq. 2).
+/// matrix, and the bone's axes `Fₚ·K` take it to the world (eq. 2).
 #[must_use]
 pub fn fk64_tip(
     skeleton: &Skeleton,
@@ -417,11 +488,8 @@ pub fn fk64_tip(
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> RealVec3 {
     let bone = &skeleton.bones()[i];
-    let c = bone.axis_rotation_f64();
     let (t, l) = translation_and_stretch(bone, channels);
-    let dir = bone.direction_f64();
-    let mut v = RealVec3::new(c.x_axis.dot(dir), c.y_axis.dot(dir), c.z_axis.dot(dir))
-        * ((bone.length() as Real) + l);
+    let mut v = bone.local_direction_f64() * ((bone.length() as Real) + l);
     let first = bone.first_channel();
     for (k, d) in bone.dofs().iter().enumerate() {
         let a = channels.get(first + k).copied().unwrap_or(0.0);
@@ -433,16 +501,10 @@ pub fn fk64_tip(
             turn_vector(&mut v, axis, s, c);
         }
     }
-    let (start, axes) = match parent {
-        None => (skeleton.root().position.to_real() + t, c),
-        Some((parent_world, parent_tip)) => {
-            let axes = if bone.axis_is_identity() {
-                *parent_world
-            } else {
-                *parent_world * c
-            };
-            (parent_tip + axes * t, axes)
-        }
+    let axes = axes_of(skeleton, i, parent.map(|(f, _)| f));
+    let start = match parent {
+        None => skeleton.root().position.to_real() + t,
+        Some((_, parent_tip)) => parent_tip + axes * t,
     };
     start + axes * v
 }
@@ -470,7 +532,7 @@ fn translation_and_stretch(bone: &Bone, channels: &[Real]) -> (RealVec3, Real) {
 }
 
 /// Where bone `i` starts, as [`fk64_step`] has it (its parent's tip, moved by its translation
-/// channels in the parent's frame; the root's position plus them), without its rotation.
+/// channels along its axes `Fₚ·K`; the root's position plus them), without its rotation.
 #[must_use]
 pub fn fk64_start(
     skeleton: &Skeleton,
@@ -478,66 +540,17 @@ pub fn fk64_start(
     i: usize,
     parent: Option<(&RealMat3, RealVec3)>,
 ) -> RealVec3 {
-    let bone = &skeleton.bones()[i];
-    let (t, _) = translation_and_stretch(bone, channels);
+    let (t, _) = translation_and_stretch(&skeleton.bones()[i], channels);
     match parent {
         None => skeleton.root().position.to_real() + t,
-        Some((parent_world, parent_tip)) => parent_tip + (*parent_world * bone.axis_rotation_f64()) * t,
+        Some((parent_frame, parent_tip)) => parent_tip + axes_of(skeleton, i, Some(parent_frame)) * t,
     }
 }
 
-/// [`fk64_step`] without the local frame: `(world, start, tip)`. A bone that does not rotate
-/// (no rotation DOFs, or all at zero) and does not translate costs a vector product.
-#[must_use]
-pub fn fk64_world_step(
-    skeleton: &Skeleton,
-    channels: &[Real],
-    i: usize,
-    parent: Option<(&RealMat3, RealVec3)>,
-) -> (RealMat3, RealVec3, RealVec3) {
-    let bone = &skeleton.bones()[i];
-    let value = |c: usize| channels.get(c).copied().unwrap_or(0.0);
-    let still = bone.channels().all(|c| value(c) == 0.0);
-    let Some((parent_world, parent_tip)) = parent else {
-        if still {
-            // The root at rest: `W = C`, at the root's position.
-            let p = skeleton.root().position.to_real();
-            return (bone.axis_rotation_f64(), p, p);
-        }
-        let (_, world, start, tip) = fk64_step(skeleton, channels, i, None);
-        return (world, start, tip);
-    };
-    if still {
-        let tip = parent_tip + *parent_world * (bone.direction_f64() * (bone.length() as Real));
-        return (*parent_world, parent_tip, tip);
-    }
-    let (_, world, start, tip) = fk64_step(skeleton, channels, i, Some((parent_world, parent_tip)));
-    (world, start, tip)
-}
-
-/// One bone of [`fk64`], its parent already computed.
-fn fk64_bone(
-    skeleton: &Skeleton,
-    channels: &[Real],
-    pose: &mut Pose64,
-    i: usize,
-    trig: &mut TrigWindow<Real>,
-) {
-    let bone = &skeleton.bones()[i];
-    let parent = bone.parent().map(|p| (&pose.world[p], pose.tip[p]));
-    let (sin, cos) = trig.bone(channels, bone.channels());
-    let first = bone.first_channel();
-    let stepped = step(skeleton, channels, i, parent, |k| {
-        (sin[k - first], cos[k - first])
-    });
-    store(pose, i, stepped);
-}
-
-/// Bone `i`'s `(frame, world, start, tip)` into the pose.
+/// Bone `i`'s `(frame, start, tip)` into the pose.
 #[inline(always)]
-fn store(pose: &mut Pose64, i: usize, (frame, world, start, tip): (RealMat3, RealMat3, RealVec3, RealVec3)) {
+fn store(pose: &mut Pose64, i: usize, (frame, start, tip): (RealMat3, RealVec3, RealVec3)) {
     pose.frame[i] = frame;
-    pose.world[i] = world;
     pose.start[i] = start;
     pose.tip[i] = tip;
 }

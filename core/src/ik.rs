@@ -8,7 +8,7 @@
 
 use crate::math::{precision, real, Real, RealMat3, RealQuat, RealVec3, ToReal};
 
-use crate::fk::{ancestors, fk64, fk64_bones, fk64_start, fk64_step, fk64_tip, fk64_world_step, Pose64};
+use crate::fk::{ancestors, fk64, fk64_bones, fk64_start, fk64_step, fk64_tip, world_of, Pose64};
 use crate::math::{
     euler_near, length, normalize, normalize_or_zero, quat_distance_fast, rotation_arc, sort_by_real,
     wrap_near, EulerOrder,
@@ -25,21 +25,17 @@ const NEAR_ZERO: Real = precision(1e-9, 1e-5);
 const SWIVEL_TOLERANCE: Real = precision(1e-10, 1e-6);
 
 /// The world axis of a bone's rotation DOF number `k` (index into its DOF list), eq. (43)'s `uᵢ`:
-/// `Wₚ·C·R(last)…R(k+1)·e_k`. For a translation DOF, the translation axis (eq. 46).
+/// `Wₚ·C·R(last)…R(k+1)·e_k`, with the bone's axes `Wₚ·C = Fₚ·K`. For a translation DOF, the
+/// translation axis (eq. 46).
 #[must_use]
 pub fn dof_axis(skeleton: &Skeleton, pose: &Pose64, bone: usize, k: usize, channels: &[Real]) -> RealVec3 {
     let b = &skeleton.bones()[bone];
-    let parent_world = b.parent().map_or(RealMat3::IDENTITY, |p| pose.world[p]);
-    let c = b.axis_rotation_f64();
+    let axes = pose.axes(skeleton, bone);
     let dofs = b.dofs();
     let first = b.first_channel();
     if !dofs[k].is_rotation() {
         let e = dofs[k].axis().map_or(RealVec3::ZERO, |a| a.unit().to_real());
-        return if b.parent().is_none() {
-            e
-        } else {
-            parent_world * c * e
-        };
+        return if b.parent().is_none() { e } else { axes * e };
     }
     let mut after = RealMat3::IDENTITY;
     for j in (k + 1..dofs.len()).rev() {
@@ -48,7 +44,7 @@ pub fn dof_axis(skeleton: &Skeleton, pose: &Pose64, bone: usize, k: usize, chann
         }
     }
     let e = dofs[k].axis().map_or(RealVec3::ZERO, |a| a.unit().to_real());
-    parent_world * c * after * e
+    axes * after * e
 }
 
 /// Rotation taking unit vector `a` to unit vector `b` by the shortest arc. Past 90° it is
@@ -246,7 +242,7 @@ impl Limb {
                     let upper_dir = pose.tip[upper] - pose.start[upper];
                     let lower_dir = pose.tip[lower] - pose.start[lower];
                     // Into the upper bone's rest coordinates.
-                    axis = pose.world[upper].transpose() * upper_dir.cross(lower_dir);
+                    axis = pose.world(skeleton, upper).transpose() * upper_dir.cross(lower_dir);
                     if axis.length() < 1e-6 {
                         return Err(LimbError::NoElbowAxis);
                     }
@@ -336,9 +332,9 @@ impl Limb {
         }
         let parent_world = skeleton.bones()[self.upper]
             .parent()
-            .map_or(RealMat3::IDENTITY, |p| pose.world[p]);
+            .map_or(RealMat3::IDENTITY, |p| pose.world(skeleton, p));
         let (u_hat, v_hat) = self.swivel_basis(parent_world, n);
-        let k = pose.world[self.upper] * self.elbow_axis;
+        let k = pose.world(skeleton, self.upper) * self.elbow_axis;
         real::atan2(v_hat.dot(k), u_hat.dot(k))
     }
 
@@ -457,18 +453,17 @@ impl Limb {
             },
         };
         // FK down the limb's chain (a path from the root) to the shoulder's parent, keeping
-        // only the last bone's world rotation and tip; then where the shoulder starts.
+        // only the last bone's frame and tip; then where the shoulder starts.
         let ub = &skeleton.bones()[self.upper];
         let mut above: Option<(RealMat3, RealVec3)> = None;
         for &b in self.chain.iter().take_while(|&&b| b != self.upper) {
-            let (world, _, tip) =
-                fk64_world_step(skeleton, channels, b, above.as_ref().map(|(w, t)| (w, *t)));
-            above = Some((world, tip));
+            let (frame, _, tip) = fk64_step(skeleton, channels, b, above.as_ref().map(|(f, t)| (f, *t)));
+            above = Some((frame, tip));
         }
-        let parent = above.as_ref().map(|(w, t)| (w, *t));
+        let parent = above.as_ref().map(|(f, t)| (f, *t));
         let s = fk64_start(skeleton, channels, self.upper, parent);
-        let parent_world = match (ub.parent(), above) {
-            (Some(_), Some((w, _))) => w,
+        let parent_world = match (ub.parent(), parent) {
+            (Some(p), Some((f, _))) => world_of(skeleton, p, f),
             _ => RealMat3::IDENTITY,
         };
         let mut to_target = target - s;
@@ -477,8 +472,8 @@ impl Limb {
         let dist = length(to_target);
         let degenerate = !(dist.is_finite() && dist >= precision(1e-6, 1e-4));
         let present_dir = if degenerate {
-            let (_, upper_world, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
-            let (_, _, _, tip) = fk64_step(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
+            let (upper_frame, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
+            let (_, _, tip) = fk64_step(skeleton, channels, self.lower, Some((&upper_frame, upper_tip)));
             let d = tip - s;
             if d.is_finite() {
                 d
@@ -568,8 +563,8 @@ impl Limb {
         }
         self.set_elbow(skeleton, channels, theta);
         // The ancestors' pose stands: only the limb's two bones moved.
-        let (_, upper_world, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
-        let tip = fk64_tip(skeleton, channels, self.lower, Some((&upper_world, upper_tip)));
+        let (upper_frame, _, upper_tip) = fk64_step(skeleton, channels, self.upper, parent);
+        let tip = fk64_tip(skeleton, channels, self.lower, Some((&upper_frame, upper_tip)));
         let error = length(tip - target);
         LimbSolution {
             reachable: reachable && error.is_finite(),
@@ -952,9 +947,8 @@ pub fn point_bone(
     }
     let mut pose = Pose64::default();
     fk64_bones(skeleton, channels, &mut pose, &ancestors(skeleton, bone));
-    let parent_world = b.parent().map_or(RealMat3::IDENTITY, |p| pose.world[p]);
     let c = b.axis_rotation_f64();
-    let a = parent_world * c;
+    let a = pose.axes(skeleton, bone);
     let v_h = c.transpose() * rest;
     let wanted = (a.transpose() * direction.normalize()).normalize();
     let delta = RealMat3::from_quat(rotation_between(v_h, wanted));

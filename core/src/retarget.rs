@@ -686,7 +686,9 @@ pub struct Retargeter {
     /// The base's orientation at the zero pose (model frame).
     base_rest: RealQuat,
     base_rest_pos: RealVec3,
-    human_rest_world: [RealMat3; 5],
+    /// The human's frames at rest (pelvis, head): `F·F₀ᵀ` is the rotation a bone made from
+    /// rest, its `W·W₀ᵀ` with `C` cancelled.
+    human_rest_frame: [RealMat3; 5],
     units: Real,
     leg_scale: Real,
     arm_scale: [Real; 2],
@@ -713,7 +715,7 @@ pub struct Retargeter {
     rest: RobotPose,
 }
 
-/// Rest-pose indices into `human_rest_world`.
+/// Rest-pose indices into `human_rest_frame`.
 const REST_PELVIS: usize = 0;
 const REST_HEAD: usize = 1;
 
@@ -928,10 +930,10 @@ impl Retargeter {
         }
         let robot_world_frame = RealMat3::from_quat(base_rest) * robot_frame;
         let world = robot_world_frame * human_frame.transpose();
-        let mut human_rest_world = [RealMat3::IDENTITY; 5];
-        human_rest_world[REST_PELVIS] = rest.world[h.pelvis];
+        let mut human_rest_frame = [RealMat3::IDENTITY; 5];
+        human_rest_frame[REST_PELVIS] = rest.frame[h.pelvis];
         if let Some(b) = h.head {
-            human_rest_world[REST_HEAD] = rest.world[b];
+            human_rest_frame[REST_HEAD] = rest.frame[b];
         }
 
         let mut r = Retargeter {
@@ -941,7 +943,7 @@ impl Retargeter {
             robot_frame,
             base_rest,
             base_rest_pos,
-            human_rest_world,
+            human_rest_frame,
             units,
             leg_scale,
             arm_scale,
@@ -1015,7 +1017,7 @@ impl Retargeter {
     #[must_use]
     pub fn human_arm(&self, pose: &Pose64, side: usize) -> Option<(RealVec3, RealVec3)> {
         let bones = self.map.human.arms[side & 1]?;
-        let rel = pose.world[self.map.human.pelvis] * self.human_rest_world[REST_PELVIS].transpose();
+        let rel = pose.frame[self.map.human.pelvis] * self.human_rest_frame[REST_PELVIS].transpose();
         let to_base = self.robot_frame * (rel * self.human_frame).transpose();
         let dir = |b: usize| (to_base * (pose.tip[b] - pose.start[b])).normalize_or_zero();
         Some((dir(bones[0]), dir(bones[1])))
@@ -1248,7 +1250,7 @@ impl Retargeter {
         let h = self.map.human;
         out.clamps = 0;
         out.out_of_reach = 0;
-        let rel = pose.world[h.pelvis] * self.human_rest_world[REST_PELVIS].transpose();
+        let rel = pose.frame[h.pelvis] * self.human_rest_frame[REST_PELVIS].transpose();
         let pelvis = rel * self.human_frame;
         // Human world vector → base coordinates (pelvis frame to pelvis frame).
         let to_base = self.robot_frame * pelvis.transpose();
@@ -1270,7 +1272,7 @@ impl Retargeter {
         }
         // Head.
         if let (Some(g), Some(b)) = (self.head, h.head) {
-            let rel_head = pose.world[b] * self.human_rest_world[REST_HEAD].transpose();
+            let rel_head = pose.frame[b] * self.human_rest_frame[REST_HEAD].transpose();
             let face = to_base * (rel_head * self.human_frame.col(0));
             let c = angles_about_two(g.joints[0].axis, g.joints[1].axis, g.forward, face);
             let pick = |(a, b): (Real, Real)| a.abs() + b.abs();
@@ -1871,7 +1873,7 @@ impl Retargeter {
 
     /// Human world vectors → the robot base's frame (pelvis frame to pelvis frame) at `pose`.
     fn to_base(&self, pose: &Pose64) -> RealMat3 {
-        let rel = pose.world[self.map.human.pelvis] * self.human_rest_world[REST_PELVIS].transpose();
+        let rel = pose.frame[self.map.human.pelvis] * self.human_rest_frame[REST_PELVIS].transpose();
         self.robot_frame * (rel * self.human_frame).transpose()
     }
 
@@ -2010,7 +2012,7 @@ impl Retargeter {
             out.sole[side] = sole;
         }
         if let (Some(g), Some(b)) = (self.head, h.head) {
-            let rel_head = pose.world[b] * self.human_rest_world[REST_HEAD].transpose();
+            let rel_head = pose.frame[b] * self.human_rest_frame[REST_HEAD].transpose();
             let face = to_base * (rel_head * self.human_frame.col(0));
             let tilt_body = robot.joints()[g.joints[1].index].body;
             let fwd = inv

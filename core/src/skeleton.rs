@@ -392,8 +392,22 @@ pub struct Bone {
     axis_rotation_f64: RealMat3,
     /// The rest direction in f64, unit length (zero for a zero direction).
     direction_f64: RealVec3,
+    /// The rest direction in the bone's local frame in f64, `Cᵀ·d` (eq. 5), unit length. In an
+    /// f32 core, `local_direction` itself.
+    #[cfg(not(feature = "f32"))]
+    local_direction_f64: RealVec3,
+    /// `K = Cₚᵀ·C`, the rest frame in the parent's local frame (eq. 4's `ⁱR_asf`), so that FK
+    /// takes a bone's axes from its parent's frame with one product, `Fₚ·K`. Under the root,
+    /// whose frame is its world rotation, `C`; the root's own: `C`.
+    axis_in_parent: Mat3,
+    /// `K` in f64, from the re-orthonormalised `C`s.
+    #[cfg(not(feature = "f32"))]
+    axis_in_parent_f64: RealMat3,
     /// Whether `C` is the identity (an ASF `axis 0 0 0`): FK skips its products.
     axis_is_identity: bool,
+    /// Whether `K` is the identity (the bone's `axis` is its parent's): the bone's axes are
+    /// its parent's frame.
+    axis_in_parent_is_identity: bool,
 }
 
 impl Bone {
@@ -410,14 +424,19 @@ impl Bone {
         local_direction: Vec3,
         axis_rotation_f64: RealMat3,
         direction_f64: RealVec3,
+        local_direction_f64: RealVec3,
+        axis_in_parent: Mat3,
+        axis_in_parent_f64: RealMat3,
     ) -> Bone {
         #[cfg(feature = "f32")]
-        let axis_rotation = {
-            let _ = axis_rotation;
-            axis_rotation_f64
+        let (axis_rotation, axis_in_parent, local_direction) = {
+            let _ = (axis_rotation, axis_in_parent, local_direction);
+            (axis_rotation_f64, axis_in_parent_f64, local_direction_f64)
         };
         let axis_is_identity =
             is_identity(axis_rotation.to_cols_array()) && is_identity_real(axis_rotation_f64.to_cols_array());
+        let axis_in_parent_is_identity = is_identity(axis_in_parent.to_cols_array())
+            && is_identity_real(axis_in_parent_f64.to_cols_array());
         Bone {
             spec,
             parent,
@@ -427,7 +446,54 @@ impl Bone {
             #[cfg(not(feature = "f32"))]
             axis_rotation_f64,
             direction_f64,
+            #[cfg(not(feature = "f32"))]
+            local_direction_f64,
+            axis_in_parent,
+            #[cfg(not(feature = "f32"))]
+            axis_in_parent_f64,
             axis_is_identity,
+            axis_in_parent_is_identity,
+        }
+    }
+
+    /// Whether the rest frame in the parent's, `K = Cₚᵀ·C`, is the identity (in both
+    /// precisions): the bone's `axis` is its parent's, and its axes are its parent's frame.
+    #[must_use]
+    pub fn axis_in_parent_is_identity(&self) -> bool {
+        self.axis_in_parent_is_identity
+    }
+
+    /// `K = Cₚᵀ·C`, the rest frame in the parent's local frame (eq. 4; under the root, and
+    /// for the root, `C`).
+    #[must_use]
+    pub fn axis_in_parent(&self) -> Mat3 {
+        self.axis_in_parent
+    }
+
+    /// `K` in f64.
+    #[must_use]
+    pub fn axis_in_parent_f64(&self) -> RealMat3 {
+        #[cfg(not(feature = "f32"))]
+        {
+            self.axis_in_parent_f64
+        }
+        #[cfg(feature = "f32")]
+        {
+            self.axis_in_parent
+        }
+    }
+
+    /// The rest direction in the local frame in f64, `Cᵀ·d` (eq. 5), unit length (zero for a
+    /// zero direction).
+    #[must_use]
+    pub fn local_direction_f64(&self) -> RealVec3 {
+        #[cfg(not(feature = "f32"))]
+        {
+            self.local_direction_f64
+        }
+        #[cfg(feature = "f32")]
+        {
+            self.local_direction
         }
     }
 
@@ -707,6 +773,7 @@ impl Skeleton {
             let _ = root_spec.limits.push(Limit::UNLIMITED);
         }
         let root_rot = root.axis_order.to_mat3(root.orientation);
+        let root_rot_f64 = orthonormal_f64(root_rot);
         let mut channel = root.order.len();
         let _ = out.push(Bone::from_parts(
             root_spec,
@@ -714,8 +781,11 @@ impl Skeleton {
             0,
             root_rot,
             Vec3::ZERO,
-            orthonormal_f64(root_rot),
+            root_rot_f64,
             RealVec3::ZERO,
+            RealVec3::ZERO,
+            root_rot,
+            root_rot_f64,
         ));
         for &input in &order {
             let spec = bones[input].clone();
@@ -724,17 +794,37 @@ impl Skeleton {
                 Some(p) => 1 + order.iter().position(|&o| o == p).unwrap_or(0),
             };
             let c = spec.axis_order.to_mat3(spec.axis);
+            let c_f64 = orthonormal_f64(c);
             let local_direction = c.transpose() * spec.direction;
             let n = spec.dofs.len();
             let direction_f64 = spec.direction.to_real().normalize_or_zero();
+            let local_direction_f64 = (c_f64.transpose() * direction_f64).normalize_or_zero();
+            // `K = Cₚᵀ·C`; `C` under the root, whose frame is its world rotation. Where the
+            // bone's axis is its parent's (to 1e-12 rad in f64, 1e-6 in f32: CMU's `lhand` and
+            // `lwrist` differ by the file's rounding, 2e-17 rad) exactly the identity, and FK
+            // skips its product.
+            let above = &out[parent];
+            let (k, k_f64) = if parent == 0 {
+                (c, c_f64)
+            } else {
+                let k_f64 = above.axis_rotation_f64().transpose() * c_f64;
+                if k_f64.abs_diff_eq(RealMat3::IDENTITY, crate::math::precision(1e-12, 1e-6)) {
+                    (Mat3::IDENTITY, RealMat3::IDENTITY)
+                } else {
+                    (above.axis_rotation.transpose() * c, k_f64)
+                }
+            };
             let _ = out.push(Bone::from_parts(
                 spec,
                 Some(parent),
                 channel,
                 c,
                 local_direction,
-                orthonormal_f64(c),
+                c_f64,
                 direction_f64,
+                local_direction_f64,
+                k,
+                k_f64,
             ));
             channel += n;
         }

@@ -107,7 +107,7 @@ fn skeleton_const(skel: &Skeleton) -> String {
             "Bone::from_parts(BoneSpec {{ name: name({:?}), id: {}, direction: {}, length: {}, axis: [{}], \
              axis_order: EulerOrder::{:?}, dofs: heapless::Vec::from_array([{}]), \
              limits: heapless::Vec::from_array([{}]) }}, {:?}, {}, Mat3::from_cols_array(&[{}]), {}, \
-             RealMat3::from_cols_array(&[{}]), {})",
+             RealMat3::from_cols_array(&[{}]), {}, {}, Mat3::from_cols_array(&[{}]), RealMat3::from_cols_array(&[{}]))",
             spec.name.as_str(),
             spec.id,
             v3(spec.direction),
@@ -126,6 +126,9 @@ fn skeleton_const(skel: &Skeleton) -> String {
             v3(b.local_direction()),
             list(md.iter().map(|x| f64c(*x))),
             d3(b.direction_f64()),
+            d3(b.local_direction_f64()),
+            list(b.axis_in_parent().to_cols_array().iter().map(|x| f32c(*x))),
+            list(b.axis_in_parent_f64().to_cols_array().iter().map(|x| f64c(*x))),
         )
     });
     let root = skel.root();

@@ -174,7 +174,7 @@ impl Scene {
         let base = frames.first().cloned().unwrap_or_else(|| vec![0.0; n]);
         let mut pose = Pose64::default();
         fk64(&skel, &vec![0.0; n], &mut pose);
-        let rest_root = (pose.start[0], pose.world[0]);
+        let rest_root = (pose.start[0], pose.frame[0]);
         let mut scene = Scene {
             frames,
             frame_rate,
@@ -286,7 +286,7 @@ impl Scene {
     fn root_transform(&self) -> (DMat3, DVec3) {
         let mut pose = Pose64::default();
         fk64(&self.skel, &self.base, &mut pose);
-        (pose.world[0] * self.rest_root.1.transpose(), pose.start[0])
+        (pose.frame[0] * self.rest_root.1.transpose(), pose.start[0])
     }
 
     /// A point of the root's frame (as `follow`'s targets: the FK frame with the root at rest)

@@ -23,7 +23,7 @@ use cortex_m::peripheral::{syst::SystClkSource, SYST};
 #[cfg(target_os = "none")]
 use cortex_m_semihosting::debug;
 use marionette_core::command::CommandStage;
-use marionette_core::fk::fk64_world_step;
+use marionette_core::fk::fk64_step;
 use marionette_core::ik::{Limb, Swivel};
 use marionette_core::math::{consts::PI, Real, RealMat3, RealVec3};
 use marionette_core::protocol::{encode, instruction, BROADCAST_ID};
@@ -281,9 +281,8 @@ fn worst_residual(limbs: &[(Limb, Option<Real>)], targets: &[RealVec3; 4], chann
         }
         let mut parent: Option<(RealMat3, RealVec3)> = None;
         for &i in chain.iter().rev() {
-            let (world, _, tip) =
-                fk64_world_step(skeleton, channels, i, parent.as_ref().map(|(w, t)| (w, *t)));
-            parent = Some((world, tip));
+            let (frame, _, tip) = fk64_step(skeleton, channels, i, parent.as_ref().map(|(f, t)| (f, *t)));
+            parent = Some((frame, tip));
         }
         if let Some((_, tip)) = parent {
             worst = worst.max((tip - *target).length());
