@@ -148,6 +148,44 @@ pub enum CalibrationError {
         /// Its name.
         name: String,
     },
+    /// A servo reported a hardware error (overload, overheating: the alert bit of its status
+    /// packets) and shut its torque off; nothing it measures then tells its direction.
+    #[error(
+        "id {id} {name}: reported hardware error {} {when}, and shut its torque off; torque is off on every servo — remove the cause (a blocked joint, a hot servo), then `marionette doctor PROFILE --fix` reboots it",
+        crate::bus::hardware_error_names(*.bits)
+    )]
+    HardwareError {
+        /// Bus id.
+        id: u8,
+        /// Its name.
+        name: String,
+        /// Its Hardware Error Status (0 when it could not be read).
+        bits: u8,
+        /// When it was seen: "before calibration", "while it moved".
+        when: &'static str,
+    },
+}
+
+/// The servo whose status packet carried the hardware-error alert since the bus was last
+/// asked, as an error naming it from `profile` (when it is there) with its Hardware Error
+/// Status.
+fn alerted(
+    bus: &mut dyn ServoBus,
+    profile: &[ServoSpec],
+    when: &'static str,
+) -> Result<(), CalibrationError> {
+    match bus.take_alert() {
+        None => Ok(()),
+        Some(id) => Err(CalibrationError::HardwareError {
+            id,
+            name: profile
+                .iter()
+                .find(|s| s.id == id)
+                .map_or_else(String::new, |s| s.name.clone()),
+            bits: bus.hardware_error(id).unwrap_or(0),
+            when,
+        }),
+    }
 }
 
 /// The reference pose in words: the profile's `[rig] reference_pose`, else the skeleton's rest
@@ -280,6 +318,8 @@ fn run(
     for s in &profile.servos {
         retried(|| bus.ping(s.id))?;
     }
+    // A servo already shut down by a hardware error would not move for its direction check.
+    alerted(bus, &profile.servos, "before calibration")?;
     all_torque_off(bus, profile)?;
     for s in &profile.servos {
         // In one read: a late reply to one 4-byte read would pass for the next one's.
@@ -371,12 +411,17 @@ fn step_direction(
         )?;
         retried(|| bus.set_torque(s.id, true))?;
         write(bus, s.id, addr::GOAL_POSITION, &(start + step).to_le_bytes())?;
-        let there = settle(bus, clock, s.id, start + step)?;
+        let there = settle(bus, clock, s, start + step)?;
         Ok(there - start)
     })();
-    // Back, whatever happened, then torque off and the speed as it was.
-    let back = write(bus, s.id, addr::GOAL_POSITION, &start.to_le_bytes())
-        .and_then(|()| settle(bus, clock, s.id, start).map(drop));
+    // Back, whatever happened (but after a hardware error: the servo has let go), then torque
+    // off and the speed as it was.
+    let back = match moved {
+        Err(CalibrationError::HardwareError { .. }) => Ok(()),
+        _ => write(bus, s.id, addr::GOAL_POSITION, &start.to_le_bytes())
+            .map_err(CalibrationError::from)
+            .and_then(|()| settle(bus, clock, s, start).map(drop)),
+    };
     retried(|| bus.set_torque(s.id, false))?;
     write(bus, s.id, addr::PROFILE_VELOCITY, &velocity_before.to_le_bytes())?;
     let moved = moved?;
@@ -392,14 +437,21 @@ fn step_direction(
     Ok(if positive { 1 } else { -1 })
 }
 
-/// Waits until servo `id` is within a few ticks of `goal` (or [`STEP_SETTLE`] has passed);
-/// returns where it is.
-fn settle(bus: &mut dyn ServoBus, clock: &mut dyn Wait, id: u8, goal: i32) -> Result<i32, BusError> {
+/// Waits until servo `s` is within a few ticks of `goal` (or [`STEP_SETTLE`] has passed);
+/// returns where it is. A hardware-error alert in its reply (an overload as it pushes against
+/// something) ends the wait with [`CalibrationError::HardwareError`].
+fn settle(
+    bus: &mut dyn ServoBus,
+    clock: &mut dyn Wait,
+    s: &ServoSpec,
+    goal: i32,
+) -> Result<i32, CalibrationError> {
     let mut waited = Duration::ZERO;
     loop {
         clock.wait(SETTLE_POLL);
         waited += SETTLE_POLL;
-        let at = read_i32(bus, id, addr::PRESENT_POSITION)?;
+        let at = read_i32(bus, s.id, addr::PRESENT_POSITION)?;
+        alerted(bus, core::slice::from_ref(s), "while it moved")?;
         if (at - goal).abs() <= 3 || waited >= STEP_SETTLE {
             return Ok(at);
         }

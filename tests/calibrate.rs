@@ -430,3 +430,108 @@ fn calibrate_recovers_a_hundred_seeded_rigs_of_both_profiles() {
         assert!(offsets > 0);
     }
 }
+
+/// The chain's own time passes, and servo `id` overloads at the first wait (as it starts its
+/// direction check's move, against a blocked joint): its Hardware Error Status gets `bits`,
+/// which turns its torque off.
+struct OverloadAtFirstWait {
+    rig: marionette::bus::virtual_chain::VirtualRig,
+    id: u8,
+    waits: u32,
+}
+
+impl marionette::calibrate::Wait for OverloadAtFirstWait {
+    fn wait(&mut self, d: std::time::Duration) {
+        self.waits += 1;
+        if self.waits == 1 {
+            let id = self.id;
+            self.rig
+                .with(|t| t.chain_mut().servo_mut(id).unwrap().raise_hardware_error(0x20));
+        }
+        self.rig.with(|t| t.advance(d));
+    }
+}
+
+/// A servo that shuts itself down with a hardware error while its direction is checked stops
+/// calibration with an error naming it and its error (not "it did not move"), every torque
+/// off and every servo's offsets and limits as they were; a servo already shut down is named
+/// before anything moves.
+#[test]
+fn calibrate_stops_on_a_servos_hardware_error_naming_it() {
+    use marionette::bus::virtual_chain::{chain_for, VirtualRig};
+    use marionette::calibrate::{calibrate, CalibrationError, Directions};
+    let profile = Profile::load(
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("firmware-profile")
+            .join("cmu-puppet.toml"),
+    )
+    .unwrap();
+    let ids = profile.ids();
+    let truth = miscalibration(SEED, ids.len());
+    for already in [false, true] {
+        let mut chain = chain_for(profile.bus_section(), |_| 2048);
+        marionette::bus::virtual_chain::miscalibrate(&mut chain, &ids, &truth);
+        let rig = VirtualRig::new(chain, profile.bus.baud, std::time::Duration::from_millis(5));
+        let mut bus = rig.clone();
+        let before: Vec<(i32, i32, i32)> = ids
+            .iter()
+            .map(|&id| {
+                let r = registers(&mut bus, id);
+                (
+                    r.signed(addr::HOMING_OFFSET),
+                    r.signed(addr::MAX_POSITION_LIMIT),
+                    r.signed(addr::MIN_POSITION_LIMIT),
+                )
+            })
+            .collect();
+        // The first servo whose direction is checked by a move; or, already shut down, the third.
+        let id = if already { ids[2] } else { ids[0] };
+        if already {
+            rig.with(|t| t.chain_mut().servo_mut(id).unwrap().raise_hardware_error(0x04));
+        }
+        let mut operator = KnowingOperator {
+            rig: rig.clone(),
+            ids: ids.clone(),
+            truth: truth.clone(),
+        };
+        let mut clock = OverloadAtFirstWait {
+            rig: rig.clone(),
+            id,
+            waits: if already { 1 } else { 0 },
+        };
+        let e = calibrate(&mut bus, &profile, Directions::Step, &mut operator, &mut clock).unwrap_err();
+        println!("{e}");
+        let CalibrationError::HardwareError {
+            id: named,
+            ref name,
+            bits,
+            when,
+        } = e
+        else {
+            panic!("{e}");
+        };
+        let spec = profile.servos.iter().find(|s| s.id == id).unwrap();
+        let (want_bits, want_when, want_text) = if already {
+            (0x04, "before calibration", "hardware error 0x04 (overheating)")
+        } else {
+            (0x20, "while it moved", "hardware error 0x20 (overload)")
+        };
+        assert_eq!(
+            (named, name, bits, when),
+            (id, &spec.name, want_bits, want_when),
+            "{e}"
+        );
+        assert!(e.to_string().contains(want_text), "{e}");
+        assert!(e.to_string().contains("doctor PROFILE --fix"), "{e}");
+        assert!(rig.with(|t| t.chain().servos().iter().all(|v| !v.torque_on())));
+        for (&id, saved) in ids.iter().zip(&before) {
+            let r = registers(&mut bus, id);
+            let now = (
+                r.signed(addr::HOMING_OFFSET),
+                r.signed(addr::MAX_POSITION_LIMIT),
+                r.signed(addr::MIN_POSITION_LIMIT),
+            );
+            assert_eq!(&now, saved, "id {id}");
+        }
+    }
+}

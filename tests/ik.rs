@@ -50,7 +50,7 @@ fn fk64_matches_the_f32_fk() {
     let frames = walk_frames(&skel);
     let mut p64 = Pose64::default();
     let mut p32 = Pose::new();
-    let mut worst = 0.0f64;
+    let (mut worst, mut worst_rotation) = (0.0f64, 0.0f64);
     for f in frames.iter().step_by(10) {
         fk64(&skel, f, &mut p64);
         let mut c = [0.0f32; MAX_CHANNELS];
@@ -60,9 +60,24 @@ fn fk64_matches_the_f32_fk() {
         forward_kinematics(&skel, &c, &mut p32).unwrap();
         for b in 0..skel.len() {
             worst = worst.max((p64.tip[b] - p32.tip[b].as_dvec3()).length());
+            // Both precisions' frames and world rotations, within f32's rounding.
+            let pairs = [
+                (p64.frame[b], glam::Mat3::from(p32.frame[b])),
+                (p64.world(&skel, b), glam::Mat3::from(p32.world(&skel, b))),
+            ];
+            for (m64, m32) in pairs {
+                let far = m64
+                    .to_cols_array()
+                    .iter()
+                    .zip(m32.to_cols_array())
+                    .map(|(x, y)| (x - f64::from(y)).abs())
+                    .fold(0.0, f64::max);
+                worst_rotation = worst_rotation.max(far);
+            }
         }
     }
     assert!(worst < 1e-3, "{worst}");
+    assert!(worst_rotation < 1e-5, "{worst_rotation:e}");
 }
 
 /// Every bone's frame is eq. (1) composed directly, `Fᵢ = Wₚ·Cᵢ·Mᵢ` with `Wₚ = Fₚ·Cₚᵀ` (the
