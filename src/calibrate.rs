@@ -161,7 +161,8 @@ pub enum CalibrationError {
         name: String,
         /// Its Hardware Error Status (0 when it could not be read).
         bits: u8,
-        /// When it was seen: "before calibration", "while it moved".
+        /// When it was seen: "before calibration", "while the reference pose was held",
+        /// "before it moved", "while it moved".
         when: &'static str,
     },
 }
@@ -338,6 +339,9 @@ fn run(
         let present = read_i32(bus, s.id, addr::PRESENT_POSITION)?;
         horns.push(present - homing);
     }
+    // A servo that shut down while the pose was held (one overheating as it was posed) says
+    // so in the reply just read, before anything moves.
+    alerted(bus, &profile.servos, "while the reference pose was held")?;
     let mut done = Vec::with_capacity(profile.servos.len());
     for (s, &horn) in profile.servos.iter().zip(&horns) {
         let was = s.direction as i8;
@@ -387,6 +391,9 @@ fn step_direction(
     let deg = STEP_DEG.min(0.8 * s.max_deg.min(-s.min_deg));
     let step = tick_at(s, 0.0, 1.0, deg).abs().round().max(2.0) as i32;
     let velocity_before = read_i32(bus, s.id, addr::PROFILE_VELOCITY)?;
+    // Raised since the last look (while another servo was checked): before it moves. From here
+    // on every reply is `s`'s, so an alert in `settle` is its own.
+    alerted(bus, core::slice::from_ref(s), "before it moved")?;
     write(bus, s.id, addr::HOMING_OFFSET, &(2048 - horn).to_le_bytes())?;
     write(
         bus,

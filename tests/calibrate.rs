@@ -452,10 +452,57 @@ impl marionette::calibrate::Wait for OverloadAtFirstWait {
     }
 }
 
-/// A servo that shuts itself down with a hardware error while its direction is checked stops
-/// calibration with an error naming it and its error (not "it did not move"), every torque
-/// off and every servo's offsets and limits as they were; a servo already shut down is named
-/// before anything moves.
+/// [`KnowingOperator`], with servo `overheats` (if any) shutting down with an overheating error
+/// while the reference pose is held (`posed`), or else while the operator watches another servo
+/// turn.
+struct Overheats {
+    operator: KnowingOperator,
+    overheats: Option<u8>,
+    posed: bool,
+}
+
+impl Overheats {
+    fn overheat(&mut self) {
+        if let Some(id) = self.overheats.take() {
+            self.operator
+                .rig
+                .with(|t| t.chain_mut().servo_mut(id).unwrap().raise_hardware_error(0x04));
+        }
+    }
+}
+
+impl marionette::calibrate::Operator for Overheats {
+    fn hold_reference_pose(&mut self, pose: &str) -> Result<(), marionette::calibrate::CalibrationError> {
+        if self.posed {
+            self.overheat();
+        }
+        self.operator.hold_reference_pose(pose)
+    }
+    fn turned_positive(
+        &mut self,
+        servo: &marionette::profile::ServoSpec,
+        positive: &str,
+    ) -> Result<bool, marionette::calibrate::CalibrationError> {
+        if !self.posed {
+            self.overheat();
+        }
+        self.operator.turned_positive(servo, positive)
+    }
+    fn turn_by_hand(
+        &mut self,
+        servo: &marionette::profile::ServoSpec,
+        positive: &str,
+    ) -> Result<(), marionette::calibrate::CalibrationError> {
+        self.operator.turn_by_hand(servo, positive)
+    }
+}
+
+/// A servo that shuts itself down with a hardware error stops calibration with an error
+/// naming it, its error and when it was seen (not "it did not move"), every torque off and
+/// every servo's offsets and limits as they were: one already shut down before anything moves,
+/// one that overheats while the pose is held (named before the first move, though it is not the
+/// servo about to move), one that overheats while another is checked (named before it moves),
+/// one that overloads while its direction is checked.
 #[test]
 fn calibrate_stops_on_a_servos_hardware_error_naming_it() {
     use marionette::bus::virtual_chain::{chain_for, VirtualRig};
@@ -468,7 +515,12 @@ fn calibrate_stops_on_a_servos_hardware_error_naming_it() {
     .unwrap();
     let ids = profile.ids();
     let truth = miscalibration(SEED, ids.len());
-    for already in [false, true] {
+    for when in [
+        "before calibration",
+        "while the reference pose was held",
+        "before it moved",
+        "while it moved",
+    ] {
         let mut chain = chain_for(profile.bus_section(), |_| 2048);
         marionette::bus::virtual_chain::miscalibrate(&mut chain, &ids, &truth);
         let rig = VirtualRig::new(chain, profile.bus.baud, std::time::Duration::from_millis(5));
@@ -484,20 +536,29 @@ fn calibrate_stops_on_a_servos_hardware_error_naming_it() {
                 )
             })
             .collect();
-        // The first servo whose direction is checked by a move; or, already shut down, the third.
-        let id = if already { ids[2] } else { ids[0] };
-        if already {
+        // The servo at fault: the first one moved for its direction check, or another.
+        let id = match when {
+            "before calibration" => ids[2],
+            "while the reference pose was held" => ids[5],
+            "before it moved" => ids[3],
+            _ => ids[0],
+        };
+        if when == "before calibration" {
             rig.with(|t| t.chain_mut().servo_mut(id).unwrap().raise_hardware_error(0x04));
         }
-        let mut operator = KnowingOperator {
-            rig: rig.clone(),
-            ids: ids.clone(),
-            truth: truth.clone(),
+        let mut operator = Overheats {
+            operator: KnowingOperator {
+                rig: rig.clone(),
+                ids: ids.clone(),
+                truth: truth.clone(),
+            },
+            overheats: matches!(when, "while the reference pose was held" | "before it moved").then_some(id),
+            posed: when == "while the reference pose was held",
         };
         let mut clock = OverloadAtFirstWait {
             rig: rig.clone(),
             id,
-            waits: if already { 1 } else { 0 },
+            waits: if when == "while it moved" { 0 } else { 1 },
         };
         let e = calibrate(&mut bus, &profile, Directions::Step, &mut operator, &mut clock).unwrap_err();
         println!("{e}");
@@ -505,23 +566,24 @@ fn calibrate_stops_on_a_servos_hardware_error_naming_it() {
             id: named,
             ref name,
             bits,
-            when,
+            when: seen,
         } = e
         else {
             panic!("{e}");
         };
         let spec = profile.servos.iter().find(|s| s.id == id).unwrap();
-        let (want_bits, want_when, want_text) = if already {
-            (0x04, "before calibration", "hardware error 0x04 (overheating)")
+        let (want_bits, want_text) = if when == "while it moved" {
+            (0x20, "hardware error 0x20 (overload)")
         } else {
-            (0x20, "while it moved", "hardware error 0x20 (overload)")
+            (0x04, "hardware error 0x04 (overheating)")
         };
         assert_eq!(
-            (named, name, bits, when),
-            (id, &spec.name, want_bits, want_when),
+            (named, name, bits, seen),
+            (id, &spec.name, want_bits, when),
             "{e}"
         );
         assert!(e.to_string().contains(want_text), "{e}");
+        assert!(e.to_string().contains(when), "{e}");
         assert!(e.to_string().contains("doctor PROFILE --fix"), "{e}");
         assert!(rig.with(|t| t.chain().servos().iter().all(|v| !v.torque_on())));
         for (&id, saved) in ids.iter().zip(&before) {
