@@ -153,8 +153,12 @@ fn mul_by_transpose(a: &Mat3A, b: &Mat3) -> Mat3A {
     )
 }
 
-/// How many channels' sines and cosines a [`TrigWindow`] holds.
-const TRIG_WINDOW: usize = 32;
+/// How many channels' sines and cosines a [`TrigWindow`] holds: a CMU skeleton's 62 in one
+/// batch.
+const TRIG_WINDOW: usize = 64;
+
+/// Indexes within a [`TrigWindow`] (a power of two less one): no bounds check.
+const WINDOW_MASK: usize = TRIG_WINDOW - 1;
 
 /// The sines and cosines of a frame's channels, computed a window at a time by a branch-free
 /// batch ([`sincos_f32_many`], [`real::sincos_many`]: four or two lanes at once) as the bones
@@ -179,22 +183,35 @@ impl<T: Copy + From<u8>> TrigWindow<T> {
         }
     }
 
-    /// The sines and cosines of a bone's channels `range` (at most [`TRIG_WINDOW`] of them);
-    /// the window moves to start at the bone when the bone's channels are not all in it.
-    #[inline]
-    fn bone(&mut self, channels: &[T], range: core::ops::Range<usize>) -> (&[T], &[T]) {
-        if range.start < self.start || range.end > self.end {
-            self.start = range.start;
-            self.end = self.start + TRIG_WINDOW;
-            let given = channels.get(self.start..).unwrap_or(&[]);
-            let n = given.len().min(TRIG_WINDOW);
-            (self.fill)(&given[..n], &mut self.sin[..n], &mut self.cos[..n]);
-            // Channels the frame does not have count as 0.
-            self.sin[n..].fill(T::from(0));
-            self.cos[n..].fill(T::from(1));
+    /// Where the `len` channels from `first` start in the window (`len` at most
+    /// [`MAX_BONE_DOFS`](crate::skeleton::MAX_BONE_DOFS); bones asked for in the order of
+    /// their channels): channel `first + j` is at `(at + j) & WINDOW_MASK`. The window moves
+    /// to start at `first` when they are not all in it.
+    #[inline(always)]
+    fn bone(&mut self, channels: &[T], first: usize, len: usize) -> usize {
+        if first + len > self.end || first < self.start {
+            self.move_to(channels, first);
         }
-        let (from, to) = (range.start - self.start, range.end - self.start);
-        (&self.sin[from..to], &self.cos[from..to])
+        first - self.start
+    }
+
+    /// The sine and cosine at `at` (from [`TrigWindow::bone`]), masked into the window.
+    #[inline(always)]
+    fn at(&self, at: usize) -> (T, T) {
+        (self.sin[at & WINDOW_MASK], self.cos[at & WINDOW_MASK])
+    }
+
+    /// Fills the window from channel `first` on.
+    #[inline(never)]
+    fn move_to(&mut self, channels: &[T], first: usize) {
+        self.start = first;
+        self.end = first + TRIG_WINDOW;
+        let given = channels.get(first..).unwrap_or(&[]);
+        let n = given.len().min(TRIG_WINDOW);
+        (self.fill)(&given[..n], &mut self.sin[..n], &mut self.cos[..n]);
+        // Channels the frame does not have count as 0.
+        self.sin[n..].fill(T::from(0));
+        self.cos[n..].fill(T::from(1));
     }
 }
 
@@ -223,20 +240,25 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
             Some((parent_frame, _)) => mul_by(&parent_frame, &bone.axis_in_parent()),
             None => Mat3A::from(bone.axis_rotation()),
         };
+        // Last channel first. A channel at 0 turns by (sin, cos) = (0, 1), which leaves the
+        // columns as they were (no test for it: the four-lane turn costs less than one).
+        let dofs = bone.dofs();
+        let first = bone.first_channel();
+        let at = trig.bone(channels, first, dofs.len());
         let mut f = axes;
         let mut offsets = false;
-        let (sin, cos) = trig.bone(channels, bone.channels());
-        let values = &channels[bone.channels()];
-        for ((d, &v), (&s, &c)) in bone.dofs().iter().zip(values).zip(sin.iter().zip(cos)).rev() {
-            match d.rotation_axis() {
-                Some(_) if v == 0.0 => {}
-                Some(axis) => turn_columns_f32_by(&mut f, axis, s, c),
-                None => offsets = true,
+        for (j, dof) in dofs.iter().enumerate().rev() {
+            let (s, c) = trig.at(at + j);
+            match dof {
+                Dof::Rx => turn_columns_f32_by(&mut f, Axis::X, s, c),
+                Dof::Ry => turn_columns_f32_by(&mut f, Axis::Y, s, c),
+                Dof::Rz => turn_columns_f32_by(&mut f, Axis::Z, s, c),
+                Dof::Tx | Dof::Ty | Dof::Tz | Dof::L => offsets = true,
             }
         }
         // Translation and length channels (the root's, as a rule) apart.
         let (t, l) = if offsets {
-            channel_offsets(bone.dofs(), values)
+            channel_offsets(dofs, &channels[first..][..dofs.len()])
         } else {
             (Vec3A::ZERO, 0.0)
         };
@@ -247,10 +269,10 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
                 (p, p)
             }
             Some((_, parent_tip)) => {
-                let start = if t == Vec3A::ZERO {
-                    parent_tip
-                } else {
+                let start = if offsets {
                     parent_tip + axes * t
+                } else {
+                    parent_tip
                 };
                 let direction = Vec3A::from(bone.local_direction()) * (bone.length() + l);
                 (start, start + f * direction)
@@ -332,29 +354,66 @@ fn axes_of(skeleton: &Skeleton, i: usize, parent_frame: Option<&RealMat3>) -> Re
 }
 
 /// Forward kinematics in f64, eq. (1)–(5). Missing channels count as 0.
+///
+/// The same bone by bone as [`fk64_step`], with the frame's sines and cosines taken in lanes.
 pub fn fk64(skeleton: &Skeleton, channels: &[Real], pose: &mut Pose64) {
     let mut trig = TrigWindow::new(real::sincos_many);
-    for i in 0..skeleton.bones().len() {
-        fk64_bone(skeleton, channels, pose, i, &mut trig);
+    for (i, bone) in skeleton.bones().iter().enumerate() {
+        let parent = bone.parent().map(|p| (pose.frame[p], pose.tip[p]));
+        let axes = match parent {
+            None => bone.axis_in_parent_f64(),
+            Some((f, _)) if bone.axis_in_parent_is_identity() => f,
+            Some((f, _)) => f * bone.axis_in_parent_f64(),
+        };
+        let dofs = bone.dofs();
+        let first = bone.first_channel();
+        let at = trig.bone(channels, first, dofs.len());
+        // Last channel first, as in `step`; a channel at 0 is left out as there.
+        let mut f = axes;
+        let mut offsets = false;
+        for (j, dof) in dofs.iter().enumerate().rev() {
+            let (s, c) = trig.at(at + j);
+            let axis = match dof {
+                Dof::Rx => Axis::X,
+                Dof::Ry => Axis::Y,
+                Dof::Rz => Axis::Z,
+                Dof::Tx | Dof::Ty | Dof::Tz | Dof::L => {
+                    offsets = true;
+                    continue;
+                }
+            };
+            // `sin a` is 0 only for `a = ±0` (no multiple of π is one in floating point).
+            if s != 0.0 {
+                turn_columns_by(&mut f, axis, s, c);
+            }
+        }
+        let (t, l) = if offsets {
+            translation_and_stretch(bone, channels)
+        } else {
+            (RealVec3::ZERO, 0.0)
+        };
+        let (start, tip) = match parent {
+            None => {
+                let p = skeleton.root().position.to_real() + t;
+                (p, p)
+            }
+            Some((_, parent_tip)) => {
+                let start = if t == RealVec3::ZERO {
+                    parent_tip
+                } else {
+                    parent_tip + axes * t
+                };
+                let v = if offsets {
+                    bone.vector_f64(l)
+                } else {
+                    bone.rest_vector_f64()
+                };
+                let tip = start + f * v;
+                (start, tip)
+            }
+        };
+        store(pose, i, (f, start, tip));
     }
-}
-
-/// One bone of [`fk64`], its parent already computed.
-fn fk64_bone(
-    skeleton: &Skeleton,
-    channels: &[Real],
-    pose: &mut Pose64,
-    i: usize,
-    trig: &mut TrigWindow<Real>,
-) {
-    let bone = &skeleton.bones()[i];
-    let parent = bone.parent().map(|p| (&pose.frame[p], pose.tip[p]));
-    let (sin, cos) = trig.bone(channels, bone.channels());
-    let first = bone.first_channel();
-    let stepped = step(skeleton, channels, i, parent, |k| {
-        (sin[k - first], cos[k - first])
-    });
-    store(pose, i, stepped);
 }
 
 /// [`fk64`] for the listed bones only (ascending, each after its parent — e.g. from
@@ -398,7 +457,7 @@ pub fn fk64_step(
     if let Some((parent_frame, parent_tip)) = parent {
         let still = || bone.channels().all(|k| channels.get(k).is_none_or(|&v| v == 0.0));
         if bone.axis_in_parent_is_identity() && still() {
-            let tip = parent_tip + *parent_frame * (bone.local_direction_f64() * (bone.length() as Real));
+            let tip = parent_tip + *parent_frame * bone.rest_vector_f64();
             return (*parent_frame, parent_tip, tip);
         }
     }
@@ -471,7 +530,7 @@ fn step(
         }
         Some((_, parent_tip)) => {
             let start = if moved { parent_tip + axes * t } else { parent_tip };
-            let tip = start + f * (bone.local_direction_f64() * ((bone.length() as Real) + l));
+            let tip = start + f * bone.vector_f64(l);
             (f, start, tip)
         }
     }
@@ -489,7 +548,7 @@ pub fn fk64_tip(
 ) -> RealVec3 {
     let bone = &skeleton.bones()[i];
     let (t, l) = translation_and_stretch(bone, channels);
-    let mut v = bone.local_direction_f64() * ((bone.length() as Real) + l);
+    let mut v = bone.vector_f64(l);
     let first = bone.first_channel();
     for (k, d) in bone.dofs().iter().enumerate() {
         let a = channels.get(first + k).copied().unwrap_or(0.0);

@@ -396,6 +396,10 @@ pub struct Bone {
     /// f32 core, `local_direction` itself.
     #[cfg(not(feature = "f32"))]
     local_direction_f64: RealVec3,
+    /// The bone in its local frame at rest in f64, `Cᵀ·d·L` (eq. 5): where FK's tip comes
+    /// from when no length channel stretches it.
+    #[cfg(not(feature = "f32"))]
+    rest_vector_f64: RealVec3,
     /// `K = Cₚᵀ·C`, the rest frame in the parent's local frame (eq. 4's `ⁱR_asf`), so that FK
     /// takes a bone's axes from its parent's frame with one product, `Fₚ·K`. Under the root,
     /// whose frame is its world rotation, `C`; the root's own: `C`.
@@ -437,6 +441,15 @@ impl Bone {
             is_identity(axis_rotation.to_cols_array()) && is_identity_real(axis_rotation_f64.to_cols_array());
         let axis_in_parent_is_identity = is_identity(axis_in_parent.to_cols_array())
             && is_identity_real(axis_in_parent_f64.to_cols_array());
+        #[cfg(not(feature = "f32"))]
+        let rest_vector_f64 = {
+            let length = spec.length as Real;
+            RealVec3::new(
+                local_direction_f64.x * length,
+                local_direction_f64.y * length,
+                local_direction_f64.z * length,
+            )
+        };
         Bone {
             spec,
             parent,
@@ -448,6 +461,8 @@ impl Bone {
             direction_f64,
             #[cfg(not(feature = "f32"))]
             local_direction_f64,
+            #[cfg(not(feature = "f32"))]
+            rest_vector_f64,
             axis_in_parent,
             #[cfg(not(feature = "f32"))]
             axis_in_parent_f64,
@@ -494,6 +509,32 @@ impl Bone {
         #[cfg(feature = "f32")]
         {
             self.local_direction
+        }
+    }
+
+    /// The bone in its local frame at rest in f64, `Cᵀ·d·L` (eq. 5), the same bits as
+    /// `local_direction_f64() * length`.
+    #[must_use]
+    pub fn rest_vector_f64(&self) -> RealVec3 {
+        #[cfg(not(feature = "f32"))]
+        {
+            self.rest_vector_f64
+        }
+        #[cfg(feature = "f32")]
+        {
+            self.local_direction * self.spec.length
+        }
+    }
+
+    /// The bone in its local frame in f64 with its length channel's `l` added, `Cᵀ·d·(L + l)`
+    /// (eq. 5).
+    #[must_use]
+    #[inline]
+    pub fn vector_f64(&self, l: Real) -> RealVec3 {
+        if l == 0.0 {
+            self.rest_vector_f64()
+        } else {
+            self.local_direction_f64() * ((self.spec.length as Real) + l)
         }
     }
 
