@@ -42,7 +42,7 @@ fn root() -> PathBuf {
 enum Precision {
     /// f32 (the image's default feature `single-precision`).
     Single,
-    /// f64 (`--no-default-features`).
+    /// f64 (`--no-default-features --features bones-32`).
     Double,
 }
 
@@ -73,7 +73,7 @@ fn image(cpu: Option<&str>, precision: Precision) -> PathBuf {
         .arg(image_target_dir())
         .current_dir(root().join("firmware-profile/image"));
     if precision == Precision::Double {
-        cargo.arg("--no-default-features");
+        cargo.args(["--no-default-features", "--features", "bones-32"]);
     }
     if let Some(c) = cpu {
         cargo.env(
@@ -480,6 +480,42 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
         "{want}\n{stderr}"
     );
     assert!(want.contains("bad-profile.toml:28:"), "file:line:column: {want}");
+    // A skeleton of more bones than the image has room for (32, the feature `bones-32`) stops
+    // its build, saying how to get room for 64: the walk's skeleton with two more fingers.
+    let big = dir.join("33-bones.asf");
+    let asf = std::fs::read_to_string(root().join("data/cmu/16.asf")).unwrap();
+    let extra: String = ["lfingers2", "rfingers2"]
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            format!("  begin\r\n     id {}\r\n     name {name}\r\n     direction 0 -1 0\r\n     length 0.5\r\n     axis 0 0 0 XYZ\r\n  end\r\n", 31 + k)
+        })
+        .collect();
+    let asf = asf
+        .replacen(":hierarchy", &format!("{extra}:hierarchy"), 1)
+        .replacen("lhand lfingers", "lhand lfingers\r\n    lfingers lfingers2", 1)
+        .replacen("rhand rfingers", "rhand rfingers\r\n    rfingers rfingers2", 1);
+    std::fs::write(&big, asf).unwrap();
+    assert_eq!(
+        asf::load(&big).unwrap().skeleton.bones().len(),
+        33,
+        "the host loads the 33-bone skeleton"
+    );
+    let out = Command::new(env!("CARGO"))
+        .args(["build", "--release", "--target-dir"])
+        .arg(image_target_dir())
+        .env("MARIONETTE_ASF", &big)
+        .current_dir(root().join("firmware-profile/image"))
+        .output()
+        .expect("cargo runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && stderr
+                .contains("33-bones.asf: 33 bones (the root included); the image is built for at most 32")
+            && stderr.contains("--no-default-features --features single-precision"),
+        "{stderr}"
+    );
 
     let r = reference();
     let host_f64 = Runs {
@@ -499,7 +535,7 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
 
     // The Cortex-M4 (MPS2 AN386), f32: bit for bit the same image code on the host.
     let m4_image = image(None, Precision::Single);
-    // The image's budget, with capacity for 64 bones and 32 servos compiled in: 64 KiB of
+    // The image's budget, with capacity for 32 bones and 32 servos compiled in: 64 KiB of
     // flash, 16 KiB of static RAM (the sizes are the linker's, the same on every machine).
     let (flash, ram, _) = footprint(&std::fs::read(&m4_image).unwrap());
     assert!(

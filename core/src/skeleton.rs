@@ -9,8 +9,9 @@ use crate::math::{real, Real, RealMat3, RealQuat, RealVec3, ToReal};
 use crate::math::{Axis, EulerOrder};
 use glam::{Mat3, Vec3};
 
-/// Most bones a skeleton holds, the root included.
-pub const MAX_BONES: usize = 64;
+/// Most bones a skeleton holds, the root included: 64, or 32 with the feature `max-bones-32`
+/// (a firmware image's skeleton is compiled in at full capacity: every bone of it is flash).
+pub const MAX_BONES: usize = if cfg!(feature = "max-bones-32") { 32 } else { 64 };
 /// Most channels one bone has: `rx ry rz tx ty tz l`.
 pub const MAX_BONE_DOFS: usize = 7;
 /// Most channels in a frame vector.

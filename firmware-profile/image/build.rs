@@ -36,6 +36,20 @@ fn main() {
     let skeleton = asf::load(&asf_path)
         .unwrap_or_else(|e| fail(&e.to_string()))
         .skeleton;
+    // The image's core holds 32 bones with the feature `bones-32` (the default), else 64.
+    let bones = if std::env::var_os("CARGO_FEATURE_BONES_32").is_some() {
+        32
+    } else {
+        64
+    };
+    if skeleton.bones().len() > bones {
+        fail(&format!(
+            "{}: {} bones (the root included); the image is built for at most {bones}: build it \
+             with `--no-default-features --features single-precision` for room for 64",
+            asf_path.display(),
+            skeleton.bones().len()
+        ));
+    }
     let profile = Profile::load(&profile_path).unwrap_or_else(|e| fail(&e.to_string()));
     let rig = profile
         .rig(Some(&skeleton))

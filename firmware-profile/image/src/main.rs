@@ -167,7 +167,8 @@ fn run() -> Result<(), ()> {
     #[cfg(target_os = "none")]
     start_clock()?;
 
-    // The tick's state, dimensioned for MAX_SERVOS servos and MAX_CHANNELS channels (64 bones).
+    // The tick's state, dimensioned for MAX_SERVOS servos and MAX_CHANNELS channels (32 bones
+    // with the feature `bones-32`).
     let state = take_state().ok_or(())?;
     if header.targets {
         for e in EFFECTORS {
