@@ -247,13 +247,26 @@ pub fn forward_kinematics(skeleton: &Skeleton, channels: &[f32], pose: &mut Pose
         let at = trig.bone(channels, first, dofs.len());
         let mut f = axes;
         let mut offsets = false;
-        for (j, dof) in dofs.iter().enumerate().rev() {
-            let (s, c) = trig.at(at + j);
-            match dof {
-                Dof::Rx => turn_columns_f32_by(&mut f, Axis::X, s, c),
-                Dof::Ry => turn_columns_f32_by(&mut f, Axis::Y, s, c),
-                Dof::Rz => turn_columns_f32_by(&mut f, Axis::Z, s, c),
-                Dof::Tx | Dof::Ty | Dof::Tz | Dof::L => offsets = true,
+        // The commonest ASF bones (`dof rx ry rz`, `dof rx rz`) in straight line, without a
+        // dispatch a channel; the rest channel by channel.
+        if dofs == [Dof::Rx, Dof::Ry, Dof::Rz] {
+            let ((sx, cx), (sy, cy), (sz, cz)) = (trig.at(at), trig.at(at + 1), trig.at(at + 2));
+            turn_columns_f32_by(&mut f, Axis::Z, sz, cz);
+            turn_columns_f32_by(&mut f, Axis::Y, sy, cy);
+            turn_columns_f32_by(&mut f, Axis::X, sx, cx);
+        } else if dofs == [Dof::Rx, Dof::Rz] {
+            let ((sx, cx), (sz, cz)) = (trig.at(at), trig.at(at + 1));
+            turn_columns_f32_by(&mut f, Axis::Z, sz, cz);
+            turn_columns_f32_by(&mut f, Axis::X, sx, cx);
+        } else {
+            for (j, dof) in dofs.iter().enumerate().rev() {
+                let (s, c) = trig.at(at + j);
+                match dof {
+                    Dof::Rx => turn_columns_f32_by(&mut f, Axis::X, s, c),
+                    Dof::Ry => turn_columns_f32_by(&mut f, Axis::Y, s, c),
+                    Dof::Rz => turn_columns_f32_by(&mut f, Axis::Z, s, c),
+                    Dof::Tx | Dof::Ty | Dof::Tz | Dof::L => offsets = true,
+                }
             }
         }
         // Translation and length channels (the root's, as a rule) apart.
