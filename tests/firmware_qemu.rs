@@ -458,6 +458,22 @@ fn tick_gap(got: &[Vec<(u8, i32)>], want: &[Vec<(u8, i32)>]) -> (i32, usize, usi
     (worst, differ, all)
 }
 
+/// Builds the default image with the environment variable `var` (`MARIONETTE_PROFILE`,
+/// `MARIONETTE_ASF`) naming `file`: whether it built, and cargo's stderr.
+fn build_image_with(var: &str, file: &Path) -> (bool, String) {
+    let out = Command::new(env!("CARGO"))
+        .args(["build", "--release", "--target-dir"])
+        .arg(image_target_dir())
+        .env(var, file)
+        .current_dir(root().join("firmware-profile/image"))
+        .output()
+        .expect("cargo runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
 #[test]
 fn the_image_in_qemu_writes_the_host_builds_goals() {
     // A profile the std loader refuses stops the image's build with the same message.
@@ -466,19 +482,9 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
     let bad = dir.join("bad-profile.toml");
     let good = std::fs::read_to_string(root().join("firmware-profile/cmu-puppet.toml")).unwrap();
     std::fs::write(&bad, good.replacen("baud = 4_000_000", "baud = \"fast\"", 1)).unwrap();
-    let out = Command::new(env!("CARGO"))
-        .args(["build", "--release", "--target-dir"])
-        .arg(image_target_dir())
-        .env("MARIONETTE_PROFILE", &bad)
-        .current_dir(root().join("firmware-profile/image"))
-        .output()
-        .expect("cargo runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (built, stderr) = build_image_with("MARIONETTE_PROFILE", &bad);
     let want = Profile::load(&bad).unwrap_err().to_string();
-    assert!(
-        !out.status.success() && stderr.contains(&want),
-        "{want}\n{stderr}"
-    );
+    assert!(!built && stderr.contains(&want), "{want}\n{stderr}");
     assert!(want.contains("bad-profile.toml:28:"), "file:line:column: {want}");
     // A skeleton of more bones than the image has room for (32, the feature `bones-32`) stops
     // its build, saying how to get room for 64: the walk's skeleton with two more fingers.
@@ -501,16 +507,9 @@ fn the_image_in_qemu_writes_the_host_builds_goals() {
         33,
         "the host loads the 33-bone skeleton"
     );
-    let out = Command::new(env!("CARGO"))
-        .args(["build", "--release", "--target-dir"])
-        .arg(image_target_dir())
-        .env("MARIONETTE_ASF", &big)
-        .current_dir(root().join("firmware-profile/image"))
-        .output()
-        .expect("cargo runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (built, stderr) = build_image_with("MARIONETTE_ASF", &big);
     assert!(
-        !out.status.success()
+        !built
             && stderr
                 .contains("33-bones.asf: 33 bones (the root included); the image is built for at most 32")
             && stderr.contains("--no-default-features --features single-precision"),
