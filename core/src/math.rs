@@ -5,6 +5,8 @@
 //! (first = innermost). `EulerOrder::XYZ` with angles `[a, b, c]` is `Rz(c)·Ry(b)·Rx(a)`, the
 //! ASF `axis … XYZ` convention (help note eq. 3). Angles are radians.
 
+mod sincos_table;
+
 use consts::{PI, TAU};
 use glam::{Mat3, Quat, Vec3, Vec4};
 
@@ -368,16 +370,17 @@ pub fn sincos_f32_many(x: &[f32], sin: &mut [f32], cos: &mut [f32]) {
     }
 }
 
-/// `(sin x, cos x)` in f64 in one small function: `x` reduced by the nearest multiple `q` of
-/// π/2 (π/2 split in three 33-bit parts, Cody–Waite, so `q·part` is exact for `|q| < 2²⁰`), then
-/// minimax polynomials of degree 13 (sine) and 14 (cosine) on `[−π/4, π/4]` (fdlibm's kernel
-/// coefficients). Within 2.3e-16 of libm's for `|x| ≤ 10⁵` (2.2e-16, an ulp of 1, measured:
-/// `tests::sincos_f64_is_libms_within_an_ulp`); beyond that libm's own reduction; NaN for a
+/// `(sin x, cos x)` in f64 in one small function: `x = a + r` with `a` the nearest of 128 steps
+/// of a turn (`j·π/64`, reduced Cody–Waite with π/64 in three 33-bit parts, so `q·part` is exact
+/// for `|q| < 2²⁰`), `|r| ≤ π/128`; then the angle-sum formula with `(sin a, cos a)` from a
+/// table of the nearest f64s and Taylor polynomials of `r` (degree 7 for `sin r`, 6 for
+/// `cos r − 1`, whose next terms are below 10⁻¹⁷). Within 2.3e-16 of libm's for `|x| ≤ 5·10⁴`
+/// (`tests::sincos_f64_is_libms_within_an_ulp`); beyond that libm's own reduction; NaN for a
 /// non-finite `x`.
 ///
-/// One code path for both values, a few cache lines, for every rotation channel of FK and the
-/// swivel search's corners: libm's `sincos` with its general reduction was 19 lines of the 593
-/// a cold arm solve touched.
+/// One code path for both values with no quadrant to apply, for every rotation channel of FK
+/// and the swivel search's corners: libm's `sincos` with its general reduction was 19 lines of
+/// the 593 a cold arm solve touched; the table is 2 KB.
 #[must_use]
 pub fn sincos_f64(x: f64) -> (f64, f64) {
     // One comparison, true for NaN too.
@@ -389,72 +392,47 @@ pub fn sincos_f64(x: f64) -> (f64, f64) {
             (f64::NAN, f64::NAN)
         };
     }
-    let (s, c, quadrant) = sincos_f64_quarter(x);
-    // The quadrant without branches (a jump table mispredicts when cold): odd quadrants swap
-    // sine and cosine; the sine is negated in quadrants 2 and 3, the cosine in 1 and 2.
-    let (s, c) = if quadrant & 1 == 0 { (s, c) } else { (c, s) };
-    let negate = |v: f64, quarter: u64| f64::from_bits(v.to_bits() ^ ((quarter & 2) << 62));
-    (negate(s, quadrant), negate(c, quadrant.wrapping_add(1)))
+    sincos_f64_reduced(x)
 }
 
-/// Where [`sincos_f64`]'s own reduction ends and libm's takes over.
-const SINCOS_F64_REDUCED: f64 = 1.0e5;
+/// Where [`sincos_f64`]'s own reduction ends and libm's takes over: `|x|·64/π < 2²⁰`.
+const SINCOS_F64_REDUCED: f64 = 5.0e4;
 
-/// [`sincos_f64`]'s reduction and polynomials for `|x| ≤ 10⁵`: `(sin r, cos r, k)` where
-/// `x = r + k·π/2` (`k` in the low bits).
+/// [`sincos_f64`] for `|x| ≤ 5·10⁴`, without a branch.
 #[inline(always)]
-#[allow(clippy::excessive_precision, clippy::unreadable_literal)]
-fn sincos_f64_quarter(x: f64) -> (f64, f64, u64) {
-    const FRAC_2_PI: f64 = core::f64::consts::FRAC_2_PI;
-    const PIO2_1: f64 = 1.570_796_326_734_125_614_17;
-    const PIO2_2: f64 = 6.077_100_506_303_965_976_6e-11;
-    const PIO2_3: f64 = 2.022_266_248_711_166_455_8e-21;
-    const S: [f64; 6] = [
-        -1.666_666_666_666_663_243_48e-1,
-        8.333_333_333_322_489_461_24e-3,
-        -1.984_126_982_985_794_931_34e-4,
-        2.755_731_370_707_006_767_89e-6,
-        -2.505_076_025_340_686_341_95e-8,
-        1.589_690_995_211_550_102_21e-10,
-    ];
-    const C: [f64; 6] = [
-        4.166_666_666_666_660_190_37e-2,
-        -1.388_888_888_887_410_957_49e-3,
-        2.480_158_728_947_672_941_78e-5,
-        -2.755_731_435_139_066_330_35e-7,
-        2.087_572_321_298_174_827_9e-9,
-        -1.135_964_755_778_819_482_65e-11,
-    ];
-    // The nearest quarter turn: adding 1.5·2⁵² leaves `t` rounded to an integer in the low
+#[allow(clippy::excessive_precision, clippy::unreadable_literal, clippy::cast_possible_truncation)]
+fn sincos_f64_reduced(x: f64) -> (f64, f64) {
+    use sincos_table::{SIN_COS, STEPS};
+    // 64/π, and π/64 in three parts: fdlibm's split of π/2 scaled by 2⁻⁵ (exactly).
+    const STEPS_PER_RADIAN: f64 = 64.0 * core::f64::consts::FRAC_1_PI;
+    const STEP_1: f64 = 1.570_796_326_734_125_614_17 / 32.0;
+    const STEP_2: f64 = 6.077_100_506_303_965_976_6e-11 / 32.0;
+    const STEP_3: f64 = 2.022_266_248_711_166_455_8e-21 / 32.0;
+    // The nearest step: adding 1.5·2⁵² leaves `x·64/π` rounded to an integer in the low
     // mantissa bits (the FPU's rounding to nearest), without a conversion to an integer.
     const ROUNDER: f64 = 6_755_399_441_055_744.0;
-    let n = x * FRAC_2_PI + ROUNDER;
+    let n = x * STEPS_PER_RADIAN + ROUNDER;
     let q = n - ROUNDER;
-    let quadrant = n.to_bits();
-    let r = ((x - q * PIO2_1) - q * PIO2_2) - q * PIO2_3;
+    let (sin_a, cos_a) = SIN_COS[(n.to_bits() as usize) & (STEPS - 1)];
+    let r = ((x - q * STEP_1) - q * STEP_2) - q * STEP_3;
     let z = r * r;
-    let s = r + r * z * (S[0] + z * (S[1] + z * (S[2] + z * (S[3] + z * (S[4] + z * S[5])))));
-    // `1 − z/2` summed last, so its rounding is the only one at full size.
-    let tail = z * z * (C[0] + z * (C[1] + z * (C[2] + z * (C[3] + z * (C[4] + z * C[5])))));
-    let half = 0.5 * z;
-    let w = 1.0 - half;
-    let c = w + (((1.0 - w) - half) + tail);
-    (s, c, quadrant)
+    let sin_r = r + r * z * (-1.0 / 6.0 + z * (1.0 / 120.0 + z * (-1.0 / 5040.0)));
+    let cos_r_less_1 = z * (-0.5 + z * (1.0 / 24.0 + z * (-1.0 / 720.0)));
+    // sin(a + r) and cos(a + r), the table's value added last: its rounding is the only one
+    // at full size.
+    (
+        sin_a + (sin_a * cos_r_less_1 + cos_a * sin_r),
+        cos_a + (cos_a * cos_r_less_1 - sin_a * sin_r),
+    )
 }
 
 /// `(sin, cos)` of every `x` (as many as the shortest of the three slices), each the same bits
-/// as [`sincos_f64`]'s: the loop has no branch, so the compiler runs it two lanes at a time
-/// (SSE2 on x86-64); the rare `|x| > 10⁵` or NaN are redone one by one afterwards.
+/// as [`sincos_f64`]'s: the loop has no branch; the rare `|x| > 5·10⁴` or NaN are redone one by
+/// one afterwards.
 pub fn sincos_f64_many(x: &[f64], sin: &mut [f64], cos: &mut [f64]) {
     let mut reduced = true;
     for ((&x, sin), cos) in x.iter().zip(sin.iter_mut()).zip(cos.iter_mut()) {
-        let (s, c, k) = sincos_f64_quarter(x);
-        // As `sincos_f64` applies the quadrant, with integer masks in place of its selection,
-        // which the compiler does not run in lanes.
-        let swap = (k & 1).wrapping_neg();
-        let (s, c) = (s.to_bits(), c.to_bits());
-        *sin = f64::from_bits(((s & !swap) | (c & swap)) ^ ((k & 2) << 62));
-        *cos = f64::from_bits(((c & !swap) | (s & swap)) ^ ((k.wrapping_add(1) & 2) << 62));
+        (*sin, *cos) = sincos_f64_reduced(x);
         reduced &= x.abs() <= SINCOS_F64_REDUCED;
     }
     if !reduced {
@@ -1474,7 +1452,8 @@ mod tests {
             v.extend([edge, edge + 1e-7, edge - 1e-7]);
         }
         v.extend([
-            0.0, -0.0, 1.0e5, -1.0e5, 1.000_1e5, 2.0e6, -3.0e9, 1.0e16, 1.0e300,
+            0.0, -0.0, 5.0e4, -5.0e4, 5.000_1e4, 1.0e5, -1.0e5, 1.000_1e5, 2.0e6, -3.0e9, 1.0e16,
+            1.0e300,
         ]);
         v.extend([f64::NAN, f64::INFINITY, f64::NEG_INFINITY]);
         v
@@ -1502,7 +1481,7 @@ mod tests {
             assert!(same, "f64 {x:e}: {want:?} against {got:?}");
         }
         // Without the rare values, the one pass alone.
-        let plain: std::vec::Vec<f64> = x64.iter().copied().filter(|x| x.abs() <= 1.0e5).collect();
+        let plain: std::vec::Vec<f64> = x64.iter().copied().filter(|x| x.abs() <= 5.0e4).collect();
         let n = plain.len();
         sincos_f64_many(&plain, &mut s64[..n], &mut c64[..n]);
         for (k, &x) in plain.iter().enumerate() {
@@ -1529,10 +1508,11 @@ mod tests {
             }
         }
         for x in [
+            5.0e4,
+            -5.0e4,
+            49_999.9,
+            5.0e4 + 1.0,
             1.0e5,
-            -1.0e5,
-            99_999.9,
-            1.0e5 + 1.0,
             1.0e12,
             0.0,
             -0.0,
