@@ -400,7 +400,11 @@ const SINCOS_F64_REDUCED: f64 = 5.0e4;
 
 /// [`sincos_f64`] for `|x| ≤ 5·10⁴`, without a branch.
 #[inline(always)]
-#[allow(clippy::excessive_precision, clippy::unreadable_literal, clippy::cast_possible_truncation)]
+#[allow(
+    clippy::excessive_precision,
+    clippy::unreadable_literal,
+    clippy::cast_possible_truncation
+)]
 fn sincos_f64_reduced(x: f64) -> (f64, f64) {
     use sincos_table::{SIN_COS, STEPS};
     // 64/π, and π/64 in three parts: fdlibm's split of π/2 scaled by 2⁻⁵ (exactly).
@@ -1452,8 +1456,7 @@ mod tests {
             v.extend([edge, edge + 1e-7, edge - 1e-7]);
         }
         v.extend([
-            0.0, -0.0, 5.0e4, -5.0e4, 5.000_1e4, 1.0e5, -1.0e5, 1.000_1e5, 2.0e6, -3.0e9, 1.0e16,
-            1.0e300,
+            0.0, -0.0, 5.0e4, -5.0e4, 5.000_1e4, 1.0e5, -1.0e5, 1.000_1e5, 2.0e6, -3.0e9, 1.0e16, 1.0e300,
         ]);
         v.extend([f64::NAN, f64::INFINITY, f64::NEG_INFINITY]);
         v

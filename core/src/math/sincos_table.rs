@@ -5,7 +5,11 @@
 pub const STEPS: usize = 128;
 
 /// `(sin, cos)` of `j·2π/STEPS`.
-#[allow(clippy::unreadable_literal, clippy::excessive_precision)]
+#[allow(
+    clippy::unreadable_literal,
+    clippy::excessive_precision,
+    clippy::approx_constant
+)]
 pub static SIN_COS: [(f64, f64); STEPS] = [
     (0.0, 1.0),
     (0.049067674327418015, 0.9987954562051724),
