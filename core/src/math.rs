@@ -395,8 +395,11 @@ pub fn sincos_f64(x: f64) -> (f64, f64) {
     sincos_f64_reduced(x)
 }
 
-/// Where [`sincos_f64`]'s own reduction ends and libm's takes over: `|x|·64/π < 2²⁰`.
+/// Where [`sincos_f64`]'s own reduction ends and libm's takes over: its step count stays below
+/// 2²⁰ (`|x|·64/π` for the table's 128 steps).
 const SINCOS_F64_REDUCED: f64 = 5.0e4;
+const _: () =
+    assert!(SINCOS_F64_REDUCED * (sincos_table::STEPS as f64) / core::f64::consts::TAU < 1_048_576.0);
 
 /// [`sincos_f64`] for `|x| ≤ 5·10⁴`, without a branch.
 #[inline(always)]
@@ -407,12 +410,15 @@ const SINCOS_F64_REDUCED: f64 = 5.0e4;
 )]
 fn sincos_f64_reduced(x: f64) -> (f64, f64) {
     use sincos_table::{SIN_COS, STEPS};
-    // 64/π, and π/64 in three parts: fdlibm's split of π/2 scaled by 2⁻⁵ (exactly).
-    const STEPS_PER_RADIAN: f64 = 64.0 * core::f64::consts::FRAC_1_PI;
-    const STEP_1: f64 = 1.570_796_326_734_125_614_17 / 32.0;
-    const STEP_2: f64 = 6.077_100_506_303_965_976_6e-11 / 32.0;
-    const STEP_3: f64 = 2.022_266_248_711_166_455_8e-21 / 32.0;
-    // The nearest step: adding 1.5·2⁵² leaves `x·64/π` rounded to an integer in the low
+    // The table's steps a quarter turn, a power of two: scaling by it is exact.
+    const QUARTER: f64 = (STEPS / 4) as f64;
+    const _: () = assert!(STEPS.is_power_of_two() && STEPS >= 4);
+    // Steps a radian (2/π scaled), and a step in three parts: fdlibm's split of π/2 scaled.
+    const STEPS_PER_RADIAN: f64 = core::f64::consts::FRAC_2_PI * QUARTER;
+    const STEP_1: f64 = 1.570_796_326_734_125_614_17 / QUARTER;
+    const STEP_2: f64 = 6.077_100_506_303_965_976_6e-11 / QUARTER;
+    const STEP_3: f64 = 2.022_266_248_711_166_455_8e-21 / QUARTER;
+    // The nearest step: adding 1.5·2⁵² leaves `x·STEPS/2π` rounded to an integer in the low
     // mantissa bits (the FPU's rounding to nearest), without a conversion to an integer.
     const ROUNDER: f64 = 6_755_399_441_055_744.0;
     let n = x * STEPS_PER_RADIAN + ROUNDER;
